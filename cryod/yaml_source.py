@@ -74,7 +74,7 @@ def _construct_mapping(loader: _LocatingLoader, node: yaml.MappingNode) -> _Loca
                 loader.name, key_node.start_mark.line + 1, str(key), "key given twice"
             )
         mapping[key] = loader.construct_object(value_node, deep=True)
-        mapping.key_lines[key] = value_node.start_mark.line + 1
+        mapping.key_lines[key] = key_node.start_mark.line + 1
     return mapping
 
 
@@ -114,10 +114,11 @@ class Section:
         Dotted key path of this mapping inside the file ('' at top level).
     """
 
-    def __init__(self, data: dict, source: str, path: str = ""):
+    def __init__(self, data: dict, source: str, path: str = "", line: int | None = None):
         self.data = data
         self.source = source
         self.path = path
+        self.line = line if line is not None else getattr(data, "line", None)
         self._taken: set[str] = set()
 
     # -- construction -----------------------------------------------------
@@ -150,7 +151,7 @@ class Section:
     def line_of(self, key: str | None = None) -> int | None:
         if key is not None and key in getattr(self.data, "key_lines", {}):
             return self.data.key_lines[key]
-        return getattr(self.data, "line", None)
+        return self.line
 
     def error(self, key: str | None, reason: str) -> FileFormatError:
         """An error located at ``key`` of this section (or at the section)."""
@@ -239,7 +240,7 @@ class Section:
             return None
         if not isinstance(value, dict):
             raise self.error(key, f"must be a mapping of keys to values, got {value!r}")
-        return Section(value, self.source, self.key_path(key))
+        return Section(value, self.source, self.key_path(key), self.line_of(key))
 
     def sections(self, key: str, default: Any = _MISSING) -> list["Section"]:
         """A list of mappings."""
@@ -252,7 +253,8 @@ class Section:
         for index, item in enumerate(value):
             if not isinstance(item, dict):
                 raise self.error(key, f"item {index} must be a mapping, got {item!r}")
-            result.append(Section(item, self.source, f"{self.key_path(key)}[{index}]"))
+            result.append(Section(item, self.source, f"{self.key_path(key)}[{index}]",
+                                  getattr(item, "line", None)))
         return result
 
     def finish(self) -> None:

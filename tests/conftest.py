@@ -1,0 +1,29 @@
+"""Shared fixtures: the shipped and printed models, and a sine fitter."""
+
+from pathlib import Path
+
+import pytest
+
+from cryod.model import load_model
+
+REPOSITORY = Path(__file__).resolve().parent.parent
+CONFIG = REPOSITORY / "config"
+DATA = Path(__file__).resolve().parent / "data"
+
+
+@pytest.fixture(scope="session")
+def reference_model():
+    """config/model.yaml, the shipped model."""
+    return load_model(CONFIG / "model.yaml")
+
+
+@pytest.fixture(scope="session")
+def printed_model():
+    """The paper's equations exactly as printed."""
+    return load_model(CONFIG / "model-paper-printed.yaml")
+
+
+@pytest.fixture(scope="session")
+def quiet_reference_model(reference_model):
+    """Shipped model without the PTC oscillation (for step responses)."""
+    return reference_model.with_ptc(ptc_stage_amplitude_K=0.0)

@@ -1,0 +1,318 @@
+"""The data record, ``cryod-log v1``: what the daemon writes and the analysis reads.
+
+Layout (UTF-8 text)::
+
+    # cryod-log v1
+    # key: value                  metadata: config snapshot, units, versions, ...
+    time_s,T2_K,T5_K,heater_W,setpoint_K[,more columns]
+    0.0800,4.2306589,3.256174,0.000000e+00,
+
+* ``time_s``: seconds since the record started, at the row's trigger instant.
+* ``T2_K``, ``T5_K``: flange and PTC-stage temperatures at that instant.
+* ``heater_W``: heater power applied from this row until the next.
+* ``setpoint_K``: control setpoint, empty when the loop is open.
+
+Readers ignore columns they do not know, and refuse a record without a
+required column, naming it. Comment lines (``# ...``) after the header are
+events (faults, reloads) and are kept with the row they precede. A last line
+cut short (a killed writer) is dropped with a warning; everything before it is
+kept.
+
+Examples
+--------
+>>> text = "# cryod-log v1\\n# site: lab 2\\ntime_s,T2_K,T5_K,heater_W,setpoint_K\\n0.08,4.23,3.34,0,\\n"
+>>> record = read_record_text(text)
+>>> record.metadata["site"], record.time_s.tolist(), bool(np.isnan(record.setpoint_K[0]))
+('lab 2', [0.08], True)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Mapping
+
+import numpy as np
+
+MAGIC = "# cryod-log v1"
+REQUIRED_COLUMNS = ("time_s", "T2_K", "T5_K", "heater_W", "setpoint_K")
+
+#: printf-style format of the known columns (others: repr of float, or text).
+COLUMN_FORMATS = {
+    "time_s": "{:.4f}",
+    "T2_K": "{:.7f}",
+    "T5_K": "{:.6f}",
+    "heater_W": "{:.6e}",
+    "setpoint_K": "{:.7f}",
+}
+
+
+class RecordFormatError(ValueError):
+    """A record that cannot be read, with the file and line."""
+
+    def __init__(self, source: str, line: int | None, reason: str):
+        self.source = source
+        self.line = line
+        self.reason = reason
+        super().__init__(f"{source}:{line}: {reason}" if line is not None else f"{source}: {reason}")
+
+
+@dataclass
+class Record:
+    """A cryod-log record in memory.
+
+    Attributes
+    ----------
+    metadata : dict of str to str
+        Header ``key: value`` lines, in order.
+    columns : dict of str to numpy.ndarray
+        Every column; numeric ones as float arrays (empty fields are NaN),
+        others as arrays of str.
+    events : list of (int, str)
+        Comment lines after the header, with the index of the row they precede.
+    warnings : list of str
+        What the reader passed over (a cut-short last line).
+    source : str
+        Where it was read from.
+    """
+
+    metadata: dict[str, str]
+    columns: dict[str, np.ndarray]
+    events: list[tuple[int, str]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    source: str = ""
+
+    @property
+    def time_s(self) -> np.ndarray:
+        return self.columns["time_s"]
+
+    @property
+    def flange_K(self) -> np.ndarray:
+        """T2, the flange (control) thermometer."""
+        return self.columns["T2_K"]
+
+    @property
+    def ptc_stage_K(self) -> np.ndarray:
+        """T5, the PTC second-stage thermometer."""
+        return self.columns["T5_K"]
+
+    @property
+    def heater_w(self) -> np.ndarray:
+        return self.columns["heater_W"]
+
+    @property
+    def setpoint_K(self) -> np.ndarray:
+        return self.columns["setpoint_K"]
+
+    def __len__(self) -> int:
+        return int(self.time_s.size)
+
+    def metadata_number(self, key: str, default: float | None = None) -> float | None:
+        """A metadata value as a number (leading number of the text, units after it allowed)."""
+        text = self.metadata.get(key)
+        if text is None:
+            return default
+        try:
+            return float(text.split()[0])
+        except (ValueError, IndexError):
+            raise RecordFormatError(self.source, None, f"metadata '{key}' is not a number: {text!r}") from None
+
+    def select(self, mask) -> "Record":
+        """A record with only the rows where ``mask`` is true (metadata kept)."""
+        mask = np.asarray(mask, dtype=bool)
+        return Record(dict(self.metadata), {k: v[mask] for k, v in self.columns.items()},
+                      [], list(self.warnings), self.source)
+
+
+def read_record(path: str | Path) -> Record:
+    """Read a cryod-log v1 file.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+
+    Returns
+    -------
+    Record
+
+    Raises
+    ------
+    RecordFormatError
+        Not a cryod-log v1 file, a required column missing, or a bad value in
+        a required column (file, line and column named).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RecordFormatError(str(path), None, "file not found") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise RecordFormatError(str(path), None, f"cannot read: {error}") from None
+    return read_record_text(text, str(path))
+
+
+def read_record_text(text: str, source: str = "<record>") -> Record:
+    """Like :func:`read_record`, from text."""
+    lines = text.split("\n")
+    ends_cleanly = text.endswith("\n")
+    if lines and lines[-1] == "":
+        lines.pop()
+    if not lines or lines[0].strip() != MAGIC:
+        first = lines[0][:60] if lines else ""
+        raise RecordFormatError(source, 1, f"not a cryod-log v1 record (first line should be '{MAGIC}', got {first!r})")
+    metadata: dict[str, str] = {}
+    index = 1
+    while index < len(lines) and lines[index].startswith("#"):
+        body = lines[index][1:].strip()
+        if ":" in body:
+            key, value = body.split(":", 1)
+            metadata[key.strip()] = value.strip()
+        index += 1
+    if index >= len(lines):
+        raise RecordFormatError(source, index + 1, "no column header line after the metadata")
+    header_line = index + 1
+    names = [name.strip() for name in lines[index].rstrip("\r").split(",")]
+    for required in REQUIRED_COLUMNS:
+        if required not in names:
+            raise RecordFormatError(source, header_line, f"required column '{required}' is missing "
+                                                         f"(columns: {', '.join(names)})")
+    if len(set(names)) != len(names):
+        raise RecordFormatError(source, header_line, "a column name appears twice")
+    rows: list[list[str]] = []
+    row_lines: list[int] = []
+    events: list[tuple[int, str]] = []
+    warnings: list[str] = []
+    for number, line in enumerate(lines[index + 1:], start=header_line + 1):
+        line = line.rstrip("\r")
+        if not line.strip():
+            continue
+        if line.startswith("#"):
+            events.append((len(rows), line[1:].strip()))
+            continue
+        fields = line.split(",")
+        is_last = number == len(lines)
+        if len(fields) != len(names):
+            if is_last and not ends_cleanly:
+                warnings.append(f"line {number}: last line cut short, dropped")
+                continue
+            raise RecordFormatError(source, number, f"expected {len(names)} fields, got {len(fields)}")
+        rows.append(fields)
+        row_lines.append(number)
+    if rows and not ends_cleanly and not _row_is_numeric(rows[-1], names):
+        warnings.append(f"line {row_lines[-1]}: last line cut short, dropped")
+        rows.pop()
+        row_lines.pop()
+    columns = {}
+    for position, name in enumerate(names):
+        raw = [row[position].strip() for row in rows]
+        values = _to_numbers(raw)
+        if values is None:
+            if name in REQUIRED_COLUMNS:
+                bad = next(i for i, item in enumerate(raw) if not _is_number(item))
+                raise RecordFormatError(source, row_lines[bad], f"column '{name}': not a number: {raw[bad]!r}")
+            values = np.array(raw, dtype=str)
+        columns[name] = values
+    time_column = columns["time_s"]
+    if np.any(np.isnan(time_column)):
+        bad = int(np.flatnonzero(np.isnan(time_column))[0])
+        raise RecordFormatError(source, row_lines[bad], "column 'time_s': empty")
+    steps = np.diff(time_column)
+    if np.any(steps <= 0.0):
+        bad = int(np.flatnonzero(steps <= 0.0)[0]) + 1
+        raise RecordFormatError(source, row_lines[bad], "column 'time_s': time does not increase")
+    return Record(metadata, columns, events, warnings, source)
+
+
+def _is_number(text: str) -> bool:
+    if text == "":
+        return True
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _row_is_numeric(fields: list[str], names: list[str]) -> bool:
+    return all(_is_number(fields[names.index(name)].strip()) for name in REQUIRED_COLUMNS)
+
+
+def _to_numbers(raw: list[str]) -> np.ndarray | None:
+    try:
+        return np.array([float(item) if item else math.nan for item in raw], dtype=float)
+    except ValueError:
+        return None
+
+
+# ---------------------------------------------------------------------------
+# writing
+# ---------------------------------------------------------------------------
+def format_header(metadata: Mapping[str, object], columns: Iterable[str]) -> str:
+    """Magic line, metadata lines and the column header, newline-terminated."""
+    columns = list(columns)
+    if list(columns[:len(REQUIRED_COLUMNS)]) != list(REQUIRED_COLUMNS):
+        raise ValueError(f"the first columns must be {', '.join(REQUIRED_COLUMNS)}")
+    lines = [MAGIC]
+    for key, value in metadata.items():
+        key = str(key)
+        if ":" in key or "\n" in key:
+            raise ValueError(f"metadata key {key!r} may not contain ':' or a newline")
+        for part in str(value).splitlines() or [""]:
+            lines.append(f"# {key}: {part}")
+    lines.append(",".join(columns))
+    return "\n".join(lines) + "\n"
+
+
+def format_value(column: str, value) -> str:
+    """One field: known columns in their fixed format; None and NaN as empty."""
+    if value is None:
+        return ""
+    if isinstance(value, str):
+        if "," in value or "\n" in value:
+            raise ValueError(f"column {column!r}: text may not contain ',' or a newline")
+        return value
+    value = float(value)
+    if math.isnan(value):
+        return ""
+    return COLUMN_FORMATS.get(column, "{!r}").format(value)
+
+
+def format_row(columns: Iterable[str], values: Mapping[str, object]) -> str:
+    """One data line, newline-terminated."""
+    return ",".join(format_value(name, values.get(name)) for name in columns) + "\n"
+
+
+def write_record(path: str | Path, columns: Mapping[str, Iterable], metadata: Mapping[str, object] | None = None) -> Path:
+    """Write a whole record at once (records made by tools and tests).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        New file; an existing file is never overwritten.
+    columns : mapping of str to array_like
+        At least the required columns, which come first in the file.
+    metadata : mapping, optional
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    path = Path(path)
+    names = list(REQUIRED_COLUMNS) + [name for name in columns if name not in REQUIRED_COLUMNS]
+    for required in REQUIRED_COLUMNS:
+        if required not in columns:
+            raise ValueError(f"required column '{required}' missing")
+    arrays = {name: np.asarray(columns[name]) for name in names}
+    length = {array.shape[0] for array in arrays.values()}
+    if len(length) != 1:
+        raise ValueError("all columns must have the same length")
+    with path.open("x", encoding="utf-8") as stream:
+        stream.write(format_header(metadata or {}, names))
+        for row in range(length.pop()):
+            stream.write(format_row(names, {name: _item(arrays[name][row]) for name in names}))
+    return path
+
+
+def _item(value):
+    return value.item() if hasattr(value, "item") else value

@@ -1,0 +1,1 @@
+"""Control: the PI loop on the flange temperature and the setpoint ramp."""

@@ -1,0 +1,198 @@
+"""PI control of the flange temperature, output in heater power (W).
+
+``power = Kp * e + integral``, ``integral += Ki * e * dt``, with e = setpoint - T2
+in K, Kp in W/K and Ki in W/(K s). The controller is one term of the heater
+power; the loop adds the terms, holds the total within the heater's limits and
+tells every term what was applied (:meth:`PiController.limit`), so the integral
+does not wind up against a limit.
+
+Bumpless by construction: changing gains, or going from manual (open-loop
+heater) to automatic, keeps the output where it was.
+
+Examples
+--------
+>>> pi = PiController(PiGains(proportional_w_per_K=0.5, integral_w_per_K_s=0.02), output_max_w=0.5)
+>>> round(pi.update(measured_K=4.9, setpoint_K=5.0, dt_s=0.08), 4)
+0.0502
+>>> pi.limit(requested_w=0.0502, applied_w=0.0502)
+>>> pi.set_gains(PiGains(1.0, 0.02))      # bumpless: output unchanged
+>>> round(pi.output_w, 4)
+0.0502
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class PiGains:
+    """PI gains in SI units.
+
+    Attributes
+    ----------
+    proportional_w_per_K : float
+        Kp: heater watts per kelvin of error.
+    integral_w_per_K_s : float
+        Ki: heater watts per kelvin-second of accumulated error
+        (integral time Ti = Kp / Ki).
+    """
+
+    proportional_w_per_K: float
+    integral_w_per_K_s: float
+
+    def __post_init__(self):
+        for name in ("proportional_w_per_K", "integral_w_per_K_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value}")
+
+
+class PiController:
+    """PI with anti-windup, bumpless transfer and a manual mode.
+
+    Parameters
+    ----------
+    gains : PiGains
+    output_min_w, output_max_w : float
+        Range of the heater power (W): 0 to R * I_max**2.
+    """
+
+    def __init__(self, gains: PiGains, output_min_w: float = 0.0, output_max_w: float = math.inf):
+        if not output_max_w > output_min_w >= 0.0:
+            raise ValueError(f"need 0 <= output_min_w < output_max_w, got {output_min_w}, {output_max_w}")
+        self.gains = gains
+        self.output_min_w = float(output_min_w)
+        self.output_max_w = float(output_max_w)
+        self.integral_w = 0.0
+        self.proportional_w = 0.0
+        self.error_K = 0.0
+        self.output_w = 0.0
+        self.manual_power_w: float | None = None
+        self._last_increment_w = 0.0
+
+    # -- modes -------------------------------------------------------------
+    @property
+    def is_manual(self) -> bool:
+        return self.manual_power_w is not None
+
+    def set_manual(self, power_w: float) -> None:
+        """Open loop: the output is ``power_w`` until :meth:`set_automatic`."""
+        if not self.output_min_w <= power_w <= self.output_max_w:
+            raise ValueError(f"manual power {power_w} W outside {self.output_min_w}..{self.output_max_w} W")
+        self.manual_power_w = float(power_w)
+        self.output_w = float(power_w)
+
+    def set_automatic(self, measured_K: float, setpoint_K: float, present_power_w: float | None = None) -> None:
+        """Close the loop without a bump: the next output continues from ``present_power_w``.
+
+        Parameters
+        ----------
+        measured_K, setpoint_K : float
+            Present flange temperature and setpoint.
+        present_power_w : float, optional
+            The heater power from this term now (default: the last output).
+        """
+        power = self.output_w if present_power_w is None else float(present_power_w)
+        self.manual_power_w = None
+        self.error_K = setpoint_K - measured_K
+        self.proportional_w = self.gains.proportional_w_per_K * self.error_K
+        self.integral_w = self._clamped_integral(power - self.proportional_w)
+        self.output_w = self.proportional_w + self.integral_w
+
+    def set_gains(self, gains: PiGains) -> None:
+        """New gains, keeping the present output (bumpless)."""
+        new_proportional = gains.proportional_w_per_K * self.error_K
+        self.integral_w = self._clamped_integral(self.integral_w + self.proportional_w - new_proportional)
+        self.gains = gains
+        self.proportional_w = new_proportional
+
+    def set_output_limits(self, output_min_w: float, output_max_w: float) -> None:
+        """Change the heater power range (W)."""
+        if not output_max_w > output_min_w >= 0.0:
+            raise ValueError(f"need 0 <= output_min_w < output_max_w, got {output_min_w}, {output_max_w}")
+        self.output_min_w, self.output_max_w = float(output_min_w), float(output_max_w)
+        self.integral_w = self._clamped_integral(self.integral_w)
+
+    def _clamped_integral(self, value: float) -> float:
+        return min(max(value, self.output_min_w), self.output_max_w)
+
+    # -- the cycle -----------------------------------------------------------
+    def update(self, measured_K: float, setpoint_K: float, dt_s: float) -> float:
+        """This term's heater power (W) for the coming period.
+
+        Parameters
+        ----------
+        measured_K : float
+            Flange temperature now.
+        setpoint_K : float
+            Setpoint now (after any ramp).
+        dt_s : float
+            Time since the previous update (s).
+        """
+        if self.manual_power_w is not None:
+            self.output_w = self.manual_power_w
+            return self.output_w
+        self.error_K = setpoint_K - measured_K
+        self.proportional_w = self.gains.proportional_w_per_K * self.error_K
+        previous = self.integral_w
+        self.integral_w = self._clamped_integral(previous + self.gains.integral_w_per_K_s * self.error_K * dt_s)
+        self._last_increment_w = self.integral_w - previous
+        self.output_w = self.proportional_w + self.integral_w
+        return self.output_w
+
+    def limit(self, requested_w: float, applied_w: float) -> None:
+        """Anti-windup: the loop applied ``applied_w`` of a requested total ``requested_w``.
+
+        When the total was held at a limit and this cycle's integration pushed
+        further into it, that integration is undone.
+        """
+        if self.manual_power_w is not None:
+            return
+        held_high = applied_w < requested_w and self._last_increment_w > 0.0
+        held_low = applied_w > requested_w and self._last_increment_w < 0.0
+        if held_high or held_low:
+            self.integral_w -= self._last_increment_w
+            self._last_increment_w = 0.0
+            self.output_w = self.proportional_w + self.integral_w
+
+
+class SetpointRamp:
+    """A setpoint that moves toward its target at a limited rate.
+
+    Parameters
+    ----------
+    setpoint_K : float
+        Starting setpoint.
+    rate_K_per_min : float
+        Ramp rate; 0 means jump at once.
+
+    Examples
+    --------
+    >>> ramp = SetpointRamp(4.5, rate_K_per_min=0.6)
+    >>> ramp.target_K = 5.0
+    >>> round(ramp.advance(30.0), 3)     # 30 s at 0.01 K/s
+    4.8
+    """
+
+    def __init__(self, setpoint_K: float, rate_K_per_min: float = 0.0):
+        if rate_K_per_min < 0.0 or not math.isfinite(rate_K_per_min):
+            raise ValueError(f"ramp rate must be >= 0 K/min, got {rate_K_per_min}")
+        self.setpoint_K = float(setpoint_K)
+        self.target_K = float(setpoint_K)
+        self.rate_K_per_min = float(rate_K_per_min)
+
+    @property
+    def ramping(self) -> bool:
+        return self.setpoint_K != self.target_K
+
+    def advance(self, dt_s: float) -> float:
+        """Move toward the target for ``dt_s`` seconds; returns the setpoint (K)."""
+        if self.rate_K_per_min == 0.0:
+            self.setpoint_K = self.target_K
+            return self.setpoint_K
+        step = self.rate_K_per_min / 60.0 * dt_s
+        difference = self.target_K - self.setpoint_K
+        self.setpoint_K = self.target_K if abs(difference) <= step else self.setpoint_K + math.copysign(step, difference)
+        return self.setpoint_K

@@ -64,6 +64,8 @@ class HeaterPath:
         self.direct = float(form.direct)
         self.state = [0.0 * p for p in self.poles]
         self.input = 0.0
+        self._hold_key: tuple[float, float] | None = None
+        self._hold_coefficients: list = []
 
     def settle(self, value: float) -> None:
         """Put the path in steady state for a constant input ``value``."""
@@ -77,13 +79,16 @@ class HeaterPath:
         """
         if duration_s <= 0.0:
             return
+        key = (duration_s, time_scale)
+        if key != self._hold_key:
+            exp = math.exp if self.all_real else cmath.exp
+            decay = [exp(pole * duration_s / time_scale) for pole in self.poles]
+            self._hold_coefficients = [(a, (a - 1.0) / pole) for a, pole in zip(decay, self.poles)]
+            self._hold_key = key
         u = self.input
-        exp = math.exp if self.all_real else cmath.exp
-        factor = duration_s / time_scale
         state = self.state
-        for i, pole in enumerate(self.poles):
-            a = exp(pole * factor)
-            state[i] = a * state[i] + (a - 1.0) / pole * u
+        for i, (a, gain) in enumerate(self._hold_coefficients):
+            state[i] = a * state[i] + gain * u
 
     def output(self) -> float:
         """Output now (the input's direct part uses the input in effect)."""
@@ -183,19 +188,18 @@ class PtcDrive:
             for order, amplitude, phase in ptc.components()
         ]
 
-    def phase_and_frequency(self, elapsed_s):
-        """Fundamental phase (rad, without the component phases) and angular frequency (rad/s).
+    def rotor(self, elapsed_s: float) -> tuple[complex, float]:
+        """``exp(j phase)`` of the fundamental and the angular frequency (rad/s), at one instant."""
+        phase = self.base_angular_frequency * elapsed_s
+        frequency = self.base_angular_frequency
+        if self.drift is not None:
+            phase += float(self.drift.phase_offset(elapsed_s))
+            frequency += float(self.drift.angular_frequency_offset(elapsed_s))
+        return cmath.exp(1j * phase), frequency
 
-        Scalars in, floats out; arrays in, arrays out.
-        """
-        if np.ndim(elapsed_s) == 0:
-            elapsed_s = float(elapsed_s)
-            phase = self.base_angular_frequency * elapsed_s
-            frequency = self.base_angular_frequency
-            if self.drift is not None:
-                phase += float(self.drift.phase_offset(elapsed_s))
-                frequency += float(self.drift.angular_frequency_offset(elapsed_s))
-            return phase, frequency
+    def phase_and_frequency(self, elapsed_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fundamental phase (rad, without the component phases) and angular frequency (rad/s)
+        at many instants."""
         elapsed_s = np.asarray(elapsed_s, dtype=float)
         phase = self.base_angular_frequency * elapsed_s
         frequency = np.full_like(phase, self.base_angular_frequency)
@@ -233,34 +237,46 @@ class PtcPath:
         self._cache: list[complex] = []
 
     def output_phasors(self, frequency, time_scale=1.0) -> list:
-        """Complex output amplitude of each component (K), for the angular frequency given."""
-        key = None
-        if np.ndim(frequency) == 0:
-            key = (float(frequency), float(time_scale))
-            if key == self._cache_key:
-                return self._cache
-        evaluate = _horner if key is not None else np.polyval
+        """Complex output amplitude of each component (K), for the angular frequency given.
+
+        ``frequency`` may be an array (one phasor per instant) or a float.
+        """
         numerator = self.transfer_function.numerator
         denominator = self.transfer_function.denominator
         phasors = []
         for component in self.drive.components:
             s = 1j * component.order * frequency * time_scale
-            gain = evaluate(numerator, s) / evaluate(denominator, s)
+            gain = np.polyval(numerator, s) / np.polyval(denominator, s)
             if self.input_is_heat:
                 phasors.append(gain * component.heat_phasor * frequency)
             else:
                 phasors.append(gain * component.stage_phasor)
-        if key is not None:
-            self._cache_key, self._cache = key, phasors
         return phasors
+
+    def _rotated_phasors(self, frequency: float, time_scale: float) -> list[tuple[int, complex]]:
+        """(order, phasor * exp(j component phase)) at one frequency, cached."""
+        key = (frequency, time_scale)
+        if key != self._cache_key:
+            phasors = []
+            for component in self.drive.components:
+                s = 1j * component.order * frequency * time_scale
+                gain = _horner(self.transfer_function.numerator, s) / _horner(self.transfer_function.denominator, s)
+                source = component.heat_phasor * frequency if self.input_is_heat else component.stage_phasor
+                phasors.append((component.order, gain * source * cmath.exp(1j * component.phase_rad)))
+            self._cache_key, self._cache = key, phasors
+        return self._cache
+
+    def value_at(self, rotor: complex, frequency: float, time_scale: float = 1.0) -> float:
+        """Output at one instant given the drive's rotor and frequency there (K)."""
+        total = 0.0
+        for order, phasor in self._rotated_phasors(frequency, time_scale):
+            total += (phasor * (rotor if order == 1 else rotor ** order)).real
+        return total
 
     def value(self, elapsed_s: float, time_scale: float = 1.0) -> float:
         """Output at one instant, ``elapsed_s`` after the plant started (K)."""
-        phase, frequency = self.drive.phase_and_frequency(elapsed_s)
-        total = 0.0
-        for component, phasor in zip(self.drive.components, self.output_phasors(frequency, time_scale)):
-            total += (phasor * cmath.exp(1j * (component.order * phase + component.phase_rad))).real
-        return total
+        rotor, frequency = self.drive.rotor(elapsed_s)
+        return self.value_at(rotor, frequency, time_scale)
 
     def values(self, elapsed_s: np.ndarray) -> np.ndarray:
         """Output at many instants (K), time constants unscaled."""
@@ -276,13 +292,12 @@ class PtcPath:
         """Mean output over ``[elapsed_s, elapsed_s + duration_s]``, frequency frozen at the start."""
         if duration_s <= 0.0:
             return self.value(elapsed_s, time_scale)
-        phase, frequency = self.drive.phase_and_frequency(elapsed_s)
+        rotor, frequency = self.drive.rotor(elapsed_s)
         total = 0.0
-        for component, phasor in zip(self.drive.components, self.output_phasors(frequency, time_scale)):
-            angular = component.order * frequency
-            start = component.order * phase + component.phase_rad
-            integral = phasor * cmath.exp(1j * start) * (cmath.exp(1j * angular * duration_s) - 1.0) / (1j * angular)
-            total += integral.real
+        for order, phasor in self._rotated_phasors(frequency, time_scale):
+            angular = order * frequency
+            start = phasor * rotor ** order
+            total += (start * (cmath.exp(1j * angular * duration_s) - 1.0) / (1j * angular)).real
         return total / duration_s
 
 
@@ -341,7 +356,7 @@ class CryostatPlant:
         effects = model.effects
         flange_heater, flange_ptc = flange_transfer_functions(model)
         stage_heater, stage_oscillation = stage_transfer_functions(model)
-        drive = PtcDrive(model)
+        drive = self.drive = PtcDrive(model)
         self.flange_heater = HeaterPath(flange_heater)
         self.stage_heater = HeaterPath(stage_heater)
         self.flange_ptc = PtcPath(drive, flange_ptc, input_is_heat=True)
@@ -396,7 +411,7 @@ class CryostatPlant:
         duration = time_s - self.time_s
         if duration <= 0.0:
             return
-        self.flange_heater.hold(duration, self.time_scale())
+        self.flange_heater.hold(duration, self.time_scale() if self.heat_capacity is not None else 1.0)
         self.stage_heater.hold(duration)
         self.time_s = time_s
 
@@ -404,10 +419,10 @@ class CryostatPlant:
     def temperatures(self) -> tuple[float, float]:
         """(T2, T5) in K at the current instant, noise-free."""
         point = self.model.operating_point
-        elapsed = self.time_s - self.start_time_s
-        scale = self.time_scale()
-        flange = point.flange_temperature_K + self.flange_heater.output() + self.flange_ptc.value(elapsed, scale)
-        stage = point.ptc_stage_temperature_K + self.stage_heater.output() + self.stage_ptc.value(elapsed)
+        rotor, frequency = self.drive.rotor(self.time_s - self.start_time_s)
+        scale = self.time_scale() if self.heat_capacity is not None else 1.0
+        flange = point.flange_temperature_K + self.flange_heater.output() + self.flange_ptc.value_at(rotor, frequency, scale)
+        stage = point.ptc_stage_temperature_K + self.stage_heater.output() + self.stage_ptc.value_at(rotor, frequency)
         return flange, stage
 
     def mean_temperatures(self, duration_s: float) -> tuple[float, float]:

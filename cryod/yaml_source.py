@@ -233,6 +233,24 @@ class Section:
             raise self.error(key, f"must be true or false, got {value!r}")
         return value
 
+    def file_mode(self, key: str, default: Any = _MISSING) -> int:
+        """A Unix file mode written in octal, e.g. "0660" (quoted or not)."""
+        value = self._get(key, default)
+        if value is default and default is not _MISSING:
+            return value
+        if isinstance(value, bool):
+            raise self.error(key, f"must be an octal file mode like \"0660\", got {value!r}")
+        if isinstance(value, int):
+            mode = value            # YAML 1.1 reads an unquoted 0660 as octal already
+        else:
+            try:
+                mode = int(str(value), 8)
+            except ValueError:
+                raise self.error(key, f"must be an octal file mode like \"0660\", got {value!r}") from None
+        if not 0 <= mode <= 0o777:
+            raise self.error(key, f"must be between 0000 and 0777, got {value!r}")
+        return mode
+
     def section(self, key: str, default: Any = _MISSING) -> "Section | None":
         """A nested mapping; ``default=None`` makes it optional."""
         value = self._get(key, default)

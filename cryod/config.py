@@ -1,0 +1,383 @@
+"""The daemon configuration: one YAML file, validated before anything touches an instrument.
+
+``config/cryod.yaml`` is the documented example (it runs with ``cryod --simulate``
+as it is). Every error names the file, the line and the key. Relative paths
+(calibration files, data directory, model) are taken relative to the
+configuration file's folder.
+
+Examples
+--------
+>>> config = load_config(EXAMPLE_CONFIG_PATH)
+>>> config.loop.period_s, config.heater.max_current_A
+(0.08, 0.1)
+>>> round(config.heater.max_power_w, 3)      # R * I_max**2
+0.5
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+from cryod.yaml_source import FileFormatError, Section
+
+CONFIG_FORMAT = "cryod-config v1"
+EXAMPLE_CONFIG_PATH = Path(__file__).resolve().parent / "data" / "cryod.yaml"
+
+TRIGGER_MODES = ("gpib-group", "prologix", "external", "sequential")
+HEATER_MODELS = ("keithley6221", "keithley2400")
+SIMULATION_TRANSPORTS = ("tcp", "in-process")
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    period_s: float
+    overrun_streak_limit: int
+    realtime_priority: int
+    lock_memory: bool
+
+
+@dataclass(frozen=True)
+class InstrumentAddress:
+    """Where an instrument is: a VISA resource, or a Prologix adapter and GPIB address."""
+
+    resource: str | None = None
+    prologix_port: str | None = None       # serial device of a GPIB-USB adapter
+    prologix_host: str | None = None       # host of a GPIB-ETHERNET adapter
+    gpib_address: int | None = None
+
+    def describe(self) -> str:
+        if self.resource:
+            return self.resource
+        where = self.prologix_port or f"{self.prologix_host}:1234"
+        return f"Prologix {where}, GPIB address {self.gpib_address}"
+
+
+@dataclass(frozen=True)
+class DmmSettings:
+    """4-wire resistance settings shared by both Keithley 2002s."""
+
+    range_ohm: float
+    nplc: float
+    digits: int
+    filter_count: int
+    autozero: bool
+    offset_compensation: bool
+    line_sync: bool
+    line_frequency_hz: float
+
+
+@dataclass(frozen=True)
+class InstrumentsConfig:
+    trigger: str
+    timeout_s: float
+    visa_library: str
+    flange_dmm: InstrumentAddress
+    ptc_stage_dmm: InstrumentAddress
+    heater_supply: InstrumentAddress
+    heater_model: str
+    dmm: DmmSettings
+
+
+@dataclass(frozen=True)
+class SensorsConfig:
+    flange_calibration: Path
+    ptc_stage_calibration: Path
+
+
+@dataclass(frozen=True)
+class HeaterConfig:
+    resistance_ohm: float
+    max_current_A: float
+    voltage_compliance_V: float
+
+    @property
+    def max_power_w(self) -> float:
+        """R * I_max**2 (W)."""
+        return self.resistance_ohm * self.max_current_A ** 2
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    setpoint_K: float | None
+    ramp_K_per_min: float
+    proportional_W_per_K: float
+    integral_W_per_K_s: float
+    setpoint_min_K: float
+    setpoint_max_K: float
+    max_ramp_K_per_min: float
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    flange_max_K: float
+    ptc_stage_max_K: float
+    max_repeated_readings: int
+    valid_readings_to_resume: int
+    recovery_timeout_s: float
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    directory: Path
+    fsync_interval_s: float
+
+
+@dataclass(frozen=True)
+class SocketConfig:
+    path: Path
+    mode: int
+    owner: str | None
+    group: str | None
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    model: Path | None
+    seed: int
+    transport: str
+
+
+@dataclass(frozen=True)
+class DaemonConfig:
+    """The whole daemon configuration (see ``config/cryod.yaml`` for every key)."""
+
+    loop: LoopConfig
+    instruments: InstrumentsConfig
+    sensors: SensorsConfig
+    heater: HeaterConfig
+    control: ControlConfig
+    safety: SafetyConfig
+    data: DataConfig
+    control_socket: SocketConfig
+    simulation: SimulationConfig
+    source: str = ""
+    text: str = ""
+
+    #: Sections that can change on reload (SIGHUP); others need a restart.
+    RELOADABLE = ("control", "safety", "loop.overrun_streak_limit")
+
+    def restart_needed_for(self, new: "DaemonConfig") -> list[str]:
+        """Keys that differ in ``new`` but cannot be changed on a running daemon."""
+        changed = []
+        for field in dataclasses.fields(self):
+            name = field.name
+            if name in ("source", "text", "control", "safety"):
+                continue
+            old_value, new_value = getattr(self, name), getattr(new, name)
+            if name == "loop":
+                old_value = dataclasses.replace(old_value, overrun_streak_limit=0)
+                new_value = dataclasses.replace(new_value, overrun_streak_limit=0)
+            if old_value != new_value:
+                changed.append(name)
+        return changed
+
+
+def load_config(path: str | Path) -> DaemonConfig:
+    """Read and validate a daemon configuration file.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+
+    Returns
+    -------
+    DaemonConfig
+
+    Raises
+    ------
+    cryod.yaml_source.FileFormatError
+        For a missing file, invalid YAML, an unknown or missing key, a wrong
+        type, a value out of range or a file it names that does not exist;
+        the message names the file, the line and the key.
+    """
+    path = Path(path)
+    top = Section.from_file(path)
+    base = path.resolve().parent
+    config = _config_from_section(top, base)
+    text = path.read_text(encoding="utf-8")
+    return dataclasses.replace(config, source=str(path), text=text)
+
+
+def _existing_file(section: Section, key: str, base: Path, default=None) -> Path | None:
+    value = section.text(key, default)
+    if value is None:
+        return None
+    candidate = Path(value).expanduser()
+    if not candidate.is_absolute():
+        candidate = base / candidate
+    if not candidate.is_file():
+        raise section.error(key, f"file not found: {candidate}")
+    return candidate
+
+
+def _directory(section: Section, key: str, base: Path) -> Path:
+    candidate = Path(section.text(key)).expanduser()
+    return candidate if candidate.is_absolute() else base / candidate
+
+
+def _address(section: Section) -> InstrumentAddress:
+    resource = section.text("resource", None)
+    prologix = section.section("prologix", None)
+    if (resource is None) == (prologix is None):
+        raise section.error(None, "give either 'resource' (a VISA resource) or 'prologix' (adapter and address)")
+    if prologix is not None:
+        port = prologix.text("port", None)
+        host = prologix.text("host", None)
+        if (port is None) == (host is None):
+            raise prologix.error(None, "give either 'port' (GPIB-USB serial device) or 'host' (GPIB-ETHERNET)")
+        address = InstrumentAddress(prologix_port=port, prologix_host=host,
+                                    gpib_address=prologix.number("address", minimum=0, maximum=30, integer=True))
+        prologix.finish()
+        return address
+    return InstrumentAddress(resource=resource)
+
+
+def _config_from_section(top: Section, base: Path) -> DaemonConfig:
+    config_format = top.text("format")
+    if config_format != CONFIG_FORMAT:
+        raise top.error("format", f"expected '{CONFIG_FORMAT}', got {config_format!r}")
+
+    section = top.section("loop")
+    loop = LoopConfig(
+        period_s=section.number("period_s", 0.08, minimum=0.01, maximum=10.0),
+        overrun_streak_limit=section.number("overrun_streak_limit", 5, minimum=1, maximum=1000, integer=True),
+        realtime_priority=section.number("realtime_priority", 20, minimum=0, maximum=99, integer=True),
+        lock_memory=section.flag("lock_memory", True),
+    )
+    section.finish()
+
+    section = top.section("instruments")
+    dmm_section = section.section("dmm")
+    dmm = DmmSettings(
+        range_ohm=dmm_section.number("range_ohm", minimum=0.0, exclusive_minimum=True),
+        nplc=dmm_section.number("nplc", minimum=0.01, maximum=50.0),
+        digits=dmm_section.number("digits", 7, minimum=4, maximum=8, integer=True),
+        filter_count=dmm_section.number("filter_count", 0, minimum=0, maximum=100, integer=True),
+        autozero=dmm_section.flag("autozero", True),
+        offset_compensation=dmm_section.flag("offset_compensation", False),
+        line_sync=dmm_section.flag("line_sync", True),
+        line_frequency_hz=dmm_section.number("line_frequency_hz", 50.0, minimum=50.0, maximum=60.0),
+    )
+    if dmm.line_frequency_hz not in (50.0, 60.0):
+        raise dmm_section.error("line_frequency_hz", f"must be 50 or 60, got {dmm.line_frequency_hz:g}")
+    dmm_section.finish()
+    heater_section = section.section("heater_supply")
+    heater_model = heater_section.text("model", choices=HEATER_MODELS)
+    heater_address = _address(heater_section)
+    heater_section.finish()
+    flange_section = section.section("flange_dmm")
+    flange_address = _address(flange_section)
+    flange_section.finish()
+    stage_section = section.section("ptc_stage_dmm")
+    stage_address = _address(stage_section)
+    stage_section.finish()
+    instruments = InstrumentsConfig(
+        trigger=section.text("trigger", choices=TRIGGER_MODES),
+        timeout_s=section.number("timeout_s", 1.0, minimum=0.01, maximum=60.0),
+        visa_library=section.text("visa_library", "@py"),
+        flange_dmm=flange_address,
+        ptc_stage_dmm=stage_address,
+        heater_supply=heater_address,
+        heater_model=heater_model,
+        dmm=dmm,
+    )
+    integration_s = dmm.nplc / dmm.line_frequency_hz
+    if 2 * integration_s >= loop.period_s:
+        raise dmm_section.error("nplc", f"{dmm.nplc:g} PLC = {integration_s * 1e3:.0f} ms per reading leaves no "
+                                        f"time in a {loop.period_s * 1e3:.0f} ms loop period")
+    section.finish()
+
+    section = top.section("sensors")
+    flange = section.section("flange")
+    stage = section.section("ptc_stage")
+    sensors = SensorsConfig(
+        flange_calibration=_existing_file(flange, "calibration", base),
+        ptc_stage_calibration=_existing_file(stage, "calibration", base),
+    )
+    flange.finish()
+    stage.finish()
+    section.finish()
+
+    section = top.section("heater")
+    heater = HeaterConfig(
+        resistance_ohm=section.number("resistance_ohm", minimum=0.0, exclusive_minimum=True, maximum=1e5),
+        max_current_A=section.number("max_current_A", 0.1, minimum=0.0, exclusive_minimum=True, maximum=0.105),
+        voltage_compliance_V=section.number("voltage_compliance_V", minimum=0.1, maximum=105.0),
+    )
+    if heater.resistance_ohm * heater.max_current_A > heater.voltage_compliance_V:
+        raise section.error("voltage_compliance_V",
+                            f"{heater.voltage_compliance_V:g} V cannot drive {heater.max_current_A:g} A through "
+                            f"{heater.resistance_ohm:g} ohm (needs {heater.resistance_ohm * heater.max_current_A:g} V)")
+    section.finish()
+
+    section = top.section("safety")
+    safety = SafetyConfig(
+        flange_max_K=section.number("flange_max_K", minimum=0.0, exclusive_minimum=True, maximum=400.0),
+        ptc_stage_max_K=section.number("ptc_stage_max_K", minimum=0.0, exclusive_minimum=True, maximum=400.0),
+        max_repeated_readings=section.number("max_repeated_readings", 5, minimum=2, maximum=1000, integer=True),
+        valid_readings_to_resume=section.number("valid_readings_to_resume", 5, minimum=1, maximum=1000, integer=True),
+        recovery_timeout_s=section.number("recovery_timeout_s", 60.0, minimum=0.0, maximum=86400.0),
+    )
+    section.finish()
+
+    control = _control(top.section("control"), safety)
+
+    section = top.section("data")
+    data = DataConfig(
+        directory=_directory(section, "directory", base),
+        fsync_interval_s=section.number("fsync_interval_s", 2.0, minimum=0.01, maximum=2.0),
+    )
+    section.finish()
+
+    section = top.section("control_socket")
+    socket_config = SocketConfig(
+        path=_directory(section, "path", base),
+        mode=section.file_mode("mode", 0o660),
+        owner=section.text("owner", None),
+        group=section.text("group", None),
+    )
+    section.finish()
+
+    section = top.section("simulation", None)
+    simulation = SimulationConfig(model=None, seed=0, transport="tcp")
+    if section is not None:
+        simulation = SimulationConfig(
+            model=_existing_file(section, "model", base, None),
+            seed=section.number("seed", 0, minimum=0, integer=True),
+            transport=section.text("transport", "tcp", choices=SIMULATION_TRANSPORTS),
+        )
+        section.finish()
+    top.finish()
+    return DaemonConfig(loop=loop, instruments=instruments, sensors=sensors, heater=heater, control=control,
+                        safety=safety, data=data, control_socket=socket_config, simulation=simulation)
+
+
+def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
+    setpoint_min = section.number("setpoint_min_K", 1.0, minimum=0.0, exclusive_minimum=True)
+    setpoint_max = section.number("setpoint_max_K", minimum=0.0, exclusive_minimum=True)
+    if setpoint_max <= setpoint_min:
+        raise section.error("setpoint_max_K", f"must be above setpoint_min_K ({setpoint_min:g} K)")
+    if setpoint_max >= safety.flange_max_K:
+        raise section.error("setpoint_max_K", f"must be below the over-temperature limit safety.flange_max_K "
+                                              f"({safety.flange_max_K:g} K)")
+    max_ramp = section.number("max_ramp_K_per_min", 10.0, minimum=0.0, exclusive_minimum=True)
+    setpoint = section.number("setpoint_K", None)
+    if setpoint is not None and not setpoint_min <= setpoint <= setpoint_max:
+        raise section.error("setpoint_K", f"{setpoint:g} K is outside {setpoint_min:g}..{setpoint_max:g} K "
+                                          f"(control.setpoint_min_K, control.setpoint_max_K)")
+    control = ControlConfig(
+        setpoint_K=setpoint,
+        ramp_K_per_min=section.number("ramp_K_per_min", 0.0, minimum=0.0, maximum=max_ramp),
+        proportional_W_per_K=section.number("proportional_W_per_K", minimum=0.0, maximum=1000.0),
+        integral_W_per_K_s=section.number("integral_W_per_K_s", minimum=0.0, maximum=1000.0),
+        setpoint_min_K=setpoint_min,
+        setpoint_max_K=setpoint_max,
+        max_ramp_K_per_min=max_ramp,
+    )
+    section.finish()
+    return control
+
+
+__all__ = ["DaemonConfig", "FileFormatError", "load_config", "EXAMPLE_CONFIG_PATH"]

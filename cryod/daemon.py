@@ -1,0 +1,231 @@
+"""The daemon: configuration, instruments, loop, data log, control socket, systemd, signals.
+
+``cryod run`` and ``cryod --simulate`` both come here; they differ only in
+the instruments handed over (real ones, or drivers talking to simulated ones)
+and the clock.
+
+Threads: the main thread runs the control loop and nothing else. The data
+log writer, the control socket, the status/reload service thread and the log
+listener run beside it and talk to the loop through queues and snapshots.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import platform
+import signal
+import socket
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from cryod import __version__
+from cryod.clock import Clock
+from cryod.config import DaemonConfig, load_config
+from cryod.datalog import DataLog
+from cryod.loop import ROW_COLUMNS, Command, ControlLoop, Instruments, wait_for
+from cryod.realtime import lock_memory, set_realtime_priority
+from cryod.safety import EXIT_CONFIG
+from cryod.service.control_socket import ControlSocketServer
+from cryod.service.notify import SystemdNotifier
+from cryod.yaml_source import FileFormatError
+
+log = logging.getLogger("cryod.daemon")
+
+UNITS = ("time_s: s since the record start, at the trigger instant (monotonic clock); T2_K, T5_K: K; "
+         "heater_W: W, applied from this row until the next; setpoint_K: K, empty when the loop is open; "
+         "T2_ohm, T5_ohm: ohm; trigger_skew_ms, lateness_ms: ms; pi_proportional_W, pi_integral_W: W; "
+         "state: loop state")
+
+
+@dataclass
+class RunResult:
+    """What a daemon run ended with."""
+
+    exit_code: int
+    loop: ControlLoop | None
+    log_paths: list[Path]
+    wall_s: float
+
+
+def record_metadata(config: DaemonConfig, extra: dict | None = None) -> dict:
+    """Header lines of every data file: versions, units, heater, configuration snapshot."""
+    metadata = {
+        "cryod_version": __version__,
+        "python_version": platform.python_version(),
+        "numpy_version": np.__version__,
+        "host": socket.gethostname(),
+        "units": UNITS,
+        "loop_period_s": config.loop.period_s,
+        "heater_resistance_ohm": config.heater.resistance_ohm,
+        "heater_max_current_A": config.heater.max_current_A,
+        "heater_max_power_W": config.heater.max_power_w,
+        "flange_calibration": config.sensors.flange_calibration,
+        "ptc_stage_calibration": config.sensors.ptc_stage_calibration,
+        "config_file": config.source,
+    }
+    metadata.update(extra or {})
+    metadata["config"] = config.text
+    return metadata
+
+
+class Daemon:
+    """Assembles and runs the daemon.
+
+    Parameters
+    ----------
+    config : DaemonConfig
+    open_instruments : callable
+        ``open_instruments(config, clock) -> (instruments, flange_curve, ptc_stage_curve)``;
+        raises on failure (nothing is left on).
+    clock : Clock
+    notifier : SystemdNotifier, optional
+    metadata : dict, optional
+        Extra header lines for the data files (e.g. the simulated model).
+    row_taps : list of callable, optional
+        Also receive every row (e.g. the --simulate metrics).
+    install_signal_handlers : bool
+        SIGTERM/SIGINT stop, SIGHUP reloads (main thread only).
+    """
+
+    def __init__(self, config: DaemonConfig, open_instruments: Callable, clock: Clock,
+                 notifier: SystemdNotifier | None = None, metadata: dict | None = None,
+                 row_taps: list[Callable] | None = None, install_signal_handlers: bool = True):
+        self.config = config
+        self.open_instruments = open_instruments
+        self.clock = clock
+        self.notifier = notifier or SystemdNotifier()
+        self.metadata = metadata or {}
+        self.row_taps = row_taps or []
+        self.install_signal_handlers = install_signal_handlers
+        self.loop: ControlLoop | None = None
+        self.datalog: DataLog | None = None
+        self._reload_wanted = threading.Event()
+        self._service_stop = threading.Event()
+
+    # -- signals ----------------------------------------------------------------
+    def _on_stop_signal(self, number, frame) -> None:
+        if self.loop is not None:
+            self.loop.request_stop(f"{signal.Signals(number).name} received")
+
+    def _on_reload_signal(self, number, frame) -> None:
+        self._reload_wanted.set()
+
+    # -- service thread: STATUS about once a second, reloads --------------------
+    def _service(self) -> None:
+        while not self._service_stop.is_set():
+            if self._reload_wanted.wait(1.0):
+                self._reload_wanted.clear()
+                self.reload()
+            if self.loop is not None:
+                self.notifier.status(self.loop.status.one_line())
+
+    def reload(self) -> Command:
+        """Validate the configuration file again and hand it to the loop (keeps the old one if bad)."""
+        self.notifier.reloading()
+        try:
+            new = load_config(self.config.source)
+        except FileFormatError as error:
+            log.error("reload refused, keeping the running configuration: %s", error)
+            self.notifier.reloaded(f"reload refused: {error}")
+            command = Command("reload")
+            command.answer(False, f"reload refused, keeping the running configuration: {error}")
+            return command
+        command = wait_for(self.loop.submit(Command("reload", new)), 10.0)
+        if command.ok:
+            self.config = new
+            log.info("%s", command.message)
+        else:
+            log.error("%s", command.message)
+        self.notifier.reloaded(command.message)
+        return command
+
+    # -- the run --------------------------------------------------------------------
+    def run(self, duration_s: float | None = None) -> RunResult:
+        """Open everything, run the loop, close everything with the heater off."""
+        started = time.perf_counter()
+        config = self.config
+        instruments: Instruments | None = None
+        control_socket: ControlSocketServer | None = None
+        service = threading.Thread(target=self._service, name="cryod-service", daemon=True)
+        previous_handlers = {}
+        try:
+            instruments, flange_curve, stage_curve = self.open_instruments(config, self.clock)
+            clock_start = self.clock.now()
+            wall_start = time.time()
+            self.datalog = DataLog(config.data.directory, ROW_COLUMNS, record_metadata(config, self.metadata),
+                                   lambda t: wall_start + (t - clock_start), config.loop.period_s,
+                                   config.data.fsync_interval_s)
+            self.datalog.start()
+            taps = [self.datalog.put, *self.row_taps]
+            self.loop = ControlLoop(config, instruments, flange_curve, stage_curve, self.clock,
+                                    emit_row=taps[0] if len(taps) == 1 else _fan_out(taps),
+                                    watchdog=self.notifier.watchdog)
+            control_socket = ControlSocketServer(config.control_socket.path, config.control_socket.mode,
+                                                 config.control_socket.owner, config.control_socket.group,
+                                                 self.loop.submit, lambda: self.loop.status.as_dict())
+            control_socket.start()
+            if self.install_signal_handlers:
+                for number, handler in ((signal.SIGTERM, self._on_stop_signal), (signal.SIGINT, self._on_stop_signal),
+                                        (signal.SIGHUP, self._on_reload_signal)):
+                    previous_handlers[number] = signal.signal(number, handler)
+            for problem in (set_realtime_priority(config.loop.realtime_priority),
+                            lock_memory() if config.loop.lock_memory else None):
+                if problem:
+                    log.warning("%s", problem)
+            service.start()
+            self.notifier.ready(f"started: holding the heater off until {config.safety.valid_readings_to_resume} "
+                                f"valid readings")
+            log.info("cryod %s: loop period %.0f ms, data in %s, control socket %s", __version__,
+                     config.loop.period_s * 1e3, config.data.directory, config.control_socket.path)
+            exit_code = self.loop.run(duration_s)
+        finally:
+            self._service_stop.set()
+            if instruments is not None:
+                try:
+                    instruments.close()
+                except Exception as error:                 # already off in the loop; say so and go on
+                    log.critical("closing the instruments failed (heater was set to 0 W before): %s", error)
+            if control_socket is not None:
+                control_socket.stop()
+            if self.datalog is not None:
+                self.datalog.stop()
+            for number, handler in previous_handlers.items():
+                signal.signal(number, handler)
+            if service.is_alive():
+                service.join(2.0)
+        status = self.loop.status.one_line() if self.loop else "not started"
+        self.notifier.stopping(status)
+        if self.datalog is not None and self.datalog.error is not None:
+            log.critical("the data log failed: %s", self.datalog.error)
+        return RunResult(exit_code, self.loop, list(self.datalog.paths) if self.datalog else [],
+                         time.perf_counter() - started)
+
+
+def _fan_out(receivers: list[Callable]) -> Callable:
+    def emit(item) -> None:
+        for receiver in receivers:
+            receiver(item)
+    return emit
+
+
+def config_or_exit(path: str | Path, stderr) -> DaemonConfig | None:
+    """Load the configuration, or print why not (file, line, key) and return None."""
+    try:
+        return load_config(path)
+    except FileFormatError as error:
+        print(f"cryod: configuration not usable, nothing was started: {error}", file=stderr)
+        return None
+
+
+def with_overrides(config: DaemonConfig, **sections) -> DaemonConfig:
+    """A copy of the configuration with whole sections replaced."""
+    return dataclasses.replace(config, **sections)
+
+
+__all__ = ["Daemon", "RunResult", "record_metadata", "config_or_exit", "EXIT_CONFIG"]

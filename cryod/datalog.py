@@ -1,0 +1,184 @@
+"""The data log: cryod-log v1 files written by a thread of their own.
+
+Rows arrive through a queue (the loop never waits on a disk). Each row is
+written and flushed to the operating system at once; ``fsync`` runs at least
+every ``fsync_interval_s`` (at most 2 s) and on rotation and stop. A process
+killed with SIGKILL therefore loses at most the rows still in its queue (a few
+ticks), a power cut at most the last ``fsync_interval_s``; a cut-short last
+line is dropped by the reader and everything before it is kept.
+
+One file per UTC day, ``cryod-YYYY-MM-DD.csv``, each a complete record with
+its own header (``time_s`` counts from that file's start). An existing file
+is never opened for writing again: a restart the same day writes
+``cryod-YYYY-MM-DD.2.csv``, and so on.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import logging
+import os
+import queue
+import threading
+import time
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+from cryod.record import format_header, format_row
+
+log = logging.getLogger("cryod.datalog")
+
+_STOP = object()
+
+
+def _utc_text(wall_s: float) -> str:
+    return dt.datetime.fromtimestamp(wall_s, dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+class DataLog:
+    """Writes rows and events to daily cryod-log files.
+
+    Parameters
+    ----------
+    directory : pathlib.Path
+        Data directory (created if missing).
+    columns : sequence of str
+        Column names; the first five are the cryod-log v1 required columns.
+    metadata : mapping
+        Header lines (config snapshot, versions, units...).
+    monotonic_to_wall : callable
+        Converts a row's clock time (s) to wall time (s since the epoch), for
+        the file's date and start time.
+    period_s : float
+        Loop period: a file's time origin is one period before its first row.
+    fsync_interval_s : float
+        Longest time between fsyncs while rows arrive (at most 2 s).
+    """
+
+    def __init__(self, directory: Path, columns: Sequence[str], metadata: Mapping[str, object],
+                 monotonic_to_wall: Callable[[float], float], period_s: float, fsync_interval_s: float = 2.0):
+        self.directory = Path(directory)
+        self.columns = list(columns)
+        self.metadata = dict(metadata)
+        self.monotonic_to_wall = monotonic_to_wall
+        self.period_s = period_s
+        self.fsync_interval_s = min(fsync_interval_s, 2.0)
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread: threading.Thread | None = None
+        self._stream = None
+        self._day: str | None = None
+        self._origin_s = 0.0
+        self._last_fsync = 0.0
+        self._dirty = False
+        self.paths: list[Path] = []
+        self.rows_written = 0
+        self.error: BaseException | None = None
+        self._pending_events: list[str] = []     # events before the first file is open
+
+    # -- producer side (any thread, never blocks) ------------------------------
+    def put(self, item) -> None:
+        """A row (dict with ``time_s`` in clock seconds) or an event (str)."""
+        self._queue.put(item)
+
+    # -- lifetime -------------------------------------------------------------------
+    def start(self) -> None:
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self._thread = threading.Thread(target=self._run, name="cryod-datalog", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        """Write what is queued, fsync and close."""
+        if self._thread is None:
+            return
+        self._queue.put(_STOP)
+        self._thread.join(timeout_s)
+        self._thread = None
+
+    @property
+    def current_path(self) -> Path | None:
+        return self.paths[-1] if self.paths else None
+
+    # -- writer thread -------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            while True:
+                try:
+                    item = self._queue.get(timeout=self.fsync_interval_s / 2)
+                except queue.Empty:
+                    self._sync_if_due(force=self._dirty)
+                    continue
+                if item is _STOP:
+                    break
+                if isinstance(item, str):
+                    self._write_event(item)
+                else:
+                    self._write_row(item)
+                self._sync_if_due()
+        except BaseException as error:          # a full disk must not go unnoticed
+            self.error = error
+            log.critical("data log stopped: %s", error)
+        finally:
+            self._close()
+
+    def _write_row(self, row: Mapping[str, object]) -> None:
+        clock_time = float(row["time_s"])
+        wall = self.monotonic_to_wall(clock_time)
+        day = dt.datetime.fromtimestamp(wall, dt.timezone.utc).strftime("%Y-%m-%d")
+        if day != self._day:
+            self._open(day, clock_time - self.period_s)
+        values = dict(row)
+        values["time_s"] = clock_time - self._origin_s
+        self._stream.write(format_row(self.columns, values))
+        self._stream.flush()
+        self._dirty = True
+        self.rows_written += 1
+
+    def _write_event(self, text: str) -> None:
+        if self._stream is None:
+            self._pending_events.append(text)
+            return
+        self._stream.write(f"# event: {' '.join(text.splitlines())}\n")
+        self._stream.flush()
+        self._dirty = True
+
+    def _open(self, day: str, origin_s: float) -> None:
+        self._close()
+        path = self._free_path(day)
+        self._stream = path.open("x", encoding="utf-8", newline="\n")
+        self._day = day
+        self._origin_s = origin_s
+        header = {"record_start_utc": _utc_text(self.monotonic_to_wall(origin_s)), **self.metadata}
+        self._stream.write(format_header(header, self.columns))
+        for text in self._pending_events:
+            self._stream.write(f"# event: {text}\n")
+        self._pending_events.clear()
+        self._stream.flush()
+        self._sync()
+        self.paths.append(path)
+        log.info("data log: writing %s", path)
+
+    def _free_path(self, day: str) -> Path:
+        candidate = self.directory / f"cryod-{day}.csv"
+        number = 2
+        while candidate.exists():
+            candidate = self.directory / f"cryod-{day}.{number}.csv"
+            number += 1
+        return candidate
+
+    def _sync_if_due(self, force: bool = False) -> None:
+        if self._stream is None or not self._dirty:
+            return
+        if force or time.monotonic() - self._last_fsync >= self.fsync_interval_s:
+            self._sync()
+
+    def _sync(self) -> None:
+        os.fsync(self._stream.fileno())
+        self._last_fsync = time.monotonic()
+        self._dirty = False
+
+    def _close(self) -> None:
+        if self._stream is not None:
+            self._stream.flush()
+            self._sync()
+            self._stream.close()
+            self._stream = None

@@ -1,0 +1,73 @@
+"""Real-time aids for the loop thread: scheduling priority, memory locking, garbage collection.
+
+Each is used when the system permits it; when it does not, the reason is
+returned for the log and the daemon carries on.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import gc
+import os
+
+MCL_CURRENT = 1
+MCL_FUTURE = 2
+
+
+def set_realtime_priority(priority: int) -> str | None:
+    """SCHED_FIFO at ``priority`` for the calling thread; None if done, else why not."""
+    if priority <= 0:
+        return "real-time priority not requested (loop.realtime_priority: 0)"
+    if not hasattr(os, "sched_setscheduler"):
+        return "real-time scheduling is not available on this platform"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (PermissionError, OSError) as error:
+        return f"real-time priority {priority} not permitted ({error.strerror or error}); running at normal priority"
+    return None
+
+
+def lock_memory() -> str | None:
+    """mlockall(MCL_CURRENT | MCL_FUTURE); None if done, else why not."""
+    name = ctypes.util.find_library("c")
+    if name is None:
+        return "memory locking: C library not found"
+    libc = ctypes.CDLL(name, use_errno=True)
+    if libc.mlockall(MCL_CURRENT | MCL_FUTURE) != 0:
+        errno = ctypes.get_errno()
+        return f"memory locking not permitted ({os.strerror(errno)}); pages may be swapped"
+    return None
+
+
+class LoopGarbageCollector:
+    """Keeps the garbage collector out of the tick: collect only in the slack after a cycle.
+
+    Automatic collection is switched off; :meth:`collect_if_time` runs a young
+    generation collection when the remaining slack allows it, and an older one
+    every ``full_every`` calls with enough slack (Klipper's approach).
+    """
+
+    def __init__(self, minimum_slack_s: float = 0.02, full_every: int = 750):
+        self.minimum_slack_s = minimum_slack_s
+        self.full_every = full_every
+        self._calls = 0
+        self._was_enabled = gc.isenabled()
+
+    def start(self) -> None:
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+
+    def stop(self) -> None:
+        gc.unfreeze()
+        if self._was_enabled:
+            gc.enable()
+
+    def collect_if_time(self, slack_s: float) -> None:
+        """Collect while ``slack_s`` seconds remain before the next deadline."""
+        if slack_s < self.minimum_slack_s:
+            return
+        self._calls += 1
+        generation = 2 if self._calls % self.full_every == 0 else (1 if self._calls % 50 == 0 else 0)
+        gc.collect(generation)

@@ -1,0 +1,1 @@
+"""Service glue: systemd notification, the control socket, signals."""

@@ -1,0 +1,71 @@
+"""Logging for the service: journald priority prefixes, and no I/O in the loop thread.
+
+Every line on stderr starts with ``<N>`` (sd-daemon priority: 2 critical,
+3 error, 4 warning, 6 info, 7 debug) when stderr goes to the journal or a
+file; in a terminal the prefix is left out. Records pass through a queue, so
+a log call in the loop thread never waits on a stream.
+"""
+
+from __future__ import annotations
+
+import logging
+import logging.handlers
+import os
+import queue
+import sys
+
+PRIORITIES = {logging.CRITICAL: 2, logging.ERROR: 3, logging.WARNING: 4, logging.INFO: 6, logging.DEBUG: 7}
+
+
+class JournalFormatter(logging.Formatter):
+    """``<priority>logger: message`` (one line per record, continuation lines prefixed too)."""
+
+    def __init__(self, prefix: bool):
+        super().__init__("%(name)s: %(message)s")
+        self.prefix = prefix
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        if not self.prefix:
+            return text
+        priority = PRIORITIES.get(record.levelno, 6 if record.levelno < logging.WARNING else 3)
+        return "\n".join(f"<{priority}>{line}" for line in text.splitlines())
+
+
+def wants_prefix(stream=None) -> bool:
+    """Prefix when writing to the journal or anything that is not a terminal."""
+    stream = stream or sys.stderr
+    return "JOURNAL_STREAM" in os.environ or not (hasattr(stream, "isatty") and stream.isatty())
+
+
+class ServiceLogging:
+    """Queue-based logging to stderr for the life of the daemon.
+
+    Parameters
+    ----------
+    level : int
+        Lowest level written.
+    stream : file object, optional
+        Where lines go (default stderr).
+    """
+
+    def __init__(self, level: int = logging.INFO, stream=None):
+        self.stream = stream or sys.stderr
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        handler = logging.StreamHandler(self.stream)
+        handler.setFormatter(JournalFormatter(wants_prefix(self.stream)))
+        self._listener = logging.handlers.QueueListener(self._queue, handler)
+        self._queue_handler = logging.handlers.QueueHandler(self._queue)
+        self.level = level
+        self._logger = logging.getLogger("cryod")
+
+    def start(self) -> None:
+        self._logger.addHandler(self._queue_handler)
+        self._logger.setLevel(self.level)
+        self._logger.propagate = False
+        self._listener.start()
+
+    def stop(self) -> None:
+        self._listener.stop()
+        self._logger.removeHandler(self._queue_handler)
+        self._logger.propagate = True

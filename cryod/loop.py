@@ -304,6 +304,8 @@ class ControlLoop:
         row = {"time_s": tick_start, "lateness_ms": (tick_start - deadline) * 1e3}
         if self.state == STATE_RECOVERING:
             self._maybe_reconnect(tick_start)
+            if self.exit_code is not None:
+                return
         try:
             measurement = self.instruments.measure()
         except InstrumentError as error:

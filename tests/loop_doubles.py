@@ -1,0 +1,61 @@
+"""A direct instrument set on the simulated cryostat, for testing the loop's logic without SCPI.
+
+The fault tests through the real drivers and the simulated instruments are in
+test_daemon_faults.py; this double only lets loop tests script faults exactly.
+"""
+
+from __future__ import annotations
+
+from cryod.loop import Measurement
+
+
+class DirectInstruments:
+    """Reads the simulated cryostat through the calibration curves; faults scripted per call."""
+
+    def __init__(self, cryostat, flange_curve, ptc_stage_curve, clock, measure_time_s=0.03):
+        self.cryostat = cryostat
+        self.flange_curve = flange_curve
+        self.ptc_stage_curve = ptc_stage_curve
+        self.clock = clock
+        self.measure_time_s = measure_time_s
+        self.measure_faults: dict[int, BaseException] = {}
+        self.heater_faults: dict[int, BaseException] = {}
+        self.measure_delays: dict[int, float] = {}
+        self.resistance_override: dict[int, tuple[float, float]] = {}
+        self.measurements = 0
+        self.heater_writes = 0
+        self.heater_log: list[tuple[float, float]] = []
+        self.reconnects = 0
+        self.closed = False
+
+    def measure(self) -> Measurement:
+        call = self.measurements
+        self.measurements += 1
+        trigger = self.clock.now()
+        if call in self.measure_faults:
+            raise self.measure_faults[call]
+        flange_K, stage_K = self.cryostat.read_temperatures()
+        self.clock.sleep_until(trigger + self.measure_time_s + self.measure_delays.get(call, 0.0))
+        flange_ohm = float(self.flange_curve.resistance_ohm(flange_K))
+        stage_ohm = float(self.ptc_stage_curve.resistance_ohm(stage_K))
+        flange_ohm, stage_ohm = self.resistance_override.get(call, (flange_ohm, stage_ohm))
+        return Measurement(trigger, 0.0, flange_ohm, stage_ohm)
+
+    def set_heater_power(self, power_w: float) -> None:
+        call = self.heater_writes
+        self.heater_writes += 1
+        if call in self.heater_faults:
+            raise self.heater_faults[call]
+        self.cryostat.set_heater_power(power_w)
+        self.heater_log.append((self.clock.now(), power_w))
+
+    def heater_off(self) -> None:
+        self.cryostat.set_heater_power(0.0)
+        self.heater_log.append((self.clock.now(), 0.0))
+
+    def reconnect(self) -> None:
+        self.reconnects += 1
+
+    def close(self) -> None:
+        self.heater_off()
+        self.closed = True

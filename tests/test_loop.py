@@ -1,0 +1,205 @@
+"""The control loop's scheduling, control, commands, reload and fault handling (virtual time)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from cryod.clock import VirtualClock
+from cryod.config import load_config
+from cryod.loop import ROW_COLUMNS, Command, ControlLoop
+from cryod.thermometry import load_calibration
+from drivers.errors import ConnectionLost, HeaterCompliance, InstrumentTimeout, OverflowReading
+from simulated_hw.cryostat import SimulatedCryostat
+from tests.conftest import CONFIG
+from tests.loop_doubles import DirectInstruments
+
+
+@pytest.fixture(scope="module")
+def curves():
+    return (load_calibration(CONFIG / "calibration" / "X186279.340"),
+            load_calibration(CONFIG / "calibration" / "X207058.340"))
+
+
+@pytest.fixture(scope="module")
+def base_config():
+    return load_config(CONFIG / "cryod.yaml")
+
+
+def make_loop(reference_model, curves, config, **instrument_options):
+    clock = VirtualClock()
+    cryostat = SimulatedCryostat(reference_model, clock, seed=2)
+    instruments = DirectInstruments(cryostat, *curves, clock, **instrument_options)
+    rows, events = [], []
+    loop = ControlLoop(config, instruments, *curves, clock,
+                       emit_row=lambda item: (events if isinstance(item, str) else rows).append(item))
+    return loop, instruments, cryostat, rows, events
+
+
+def test_regulates_to_setpoint_with_contract_columns(reference_model, curves, base_config):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    assert loop.run(duration_s=900.0, manage_gc=False) == 0
+    assert len(rows) == pytest.approx(900 / 0.08, abs=1)
+    assert set(rows[-1]) <= set(ROW_COLUMNS) and {"time_s", "T2_K", "T5_K", "heater_W", "setpoint_K"} <= set(rows[-1])
+    times = np.array([row["time_s"] for row in rows])
+    np.testing.assert_allclose(np.diff(times), 0.08, atol=1e-9)   # absolute deadlines, no drift
+    late = [row for row in rows if row["time_s"] > 600.0]
+    flange = np.array([row["T2_K"] for row in late])
+    assert np.mean(flange) == pytest.approx(5.0, abs=3e-4)
+    heater = np.array([row["heater_W"] for row in rows])
+    assert heater.min() >= 0.0 and heater.max() <= base_config.heater.max_power_w
+    # the first valid_readings_to_resume ticks hold the heater off
+    assert [row["state"] for row in rows[:5]] == ["holding"] * 5 and rows[5]["state"].startswith("closed")
+    assert instruments.cryostat.heater_power_w == 0.0          # heater off at the end of the run
+    assert any("resumed" in event for event in events)
+
+
+def test_overrun_skips_to_next_deadline_and_a_streak_stops_with_heater_off(reference_model, curves, base_config):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    instruments.measure_delays = {100: 0.2, 101: 0.05}                      # one cycle 2.9 periods long
+    instruments.measure_delays.update({300 + k: 0.1 for k in range(10)})   # then a streak
+    code = loop.run(duration_s=60.0, manage_gc=False)
+    times = np.array([row["time_s"] for row in rows])
+    steps = np.diff(times)
+    assert steps.min() >= 0.08 - 1e-9                       # never a burst to catch up
+    assert np.isclose(steps, 0.24).sum() >= 1               # skipped two deadlines after the long cycle
+    assert code == 5 and loop.last_fault.cause == "overrun_streak"
+    assert loop.timing.summary()["overruns"] >= 5
+    assert cryostat.heater_power_w == 0.0
+
+
+@pytest.mark.parametrize("error, cause", [
+    (InstrumentTimeout("flange DMM", "no reply within 1 s"), "instrument_timeout"),
+    (ConnectionLost("heater", "socket closed"), "connection_lost"),
+    (OverflowReading("flange DMM", "overflow", reply="+9.9E37"), "sensor_overflow"),
+])
+def test_transient_fault_heater_off_at_once_then_resume_after_valid_readings(reference_model, curves, base_config,
+                                                                              error, cause):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    instruments.measure_faults = {2000: error, 2001: error, 2002: error}
+    assert loop.run(duration_s=200.0, manage_gc=False) == 0
+    fault_rows = [i for i, row in enumerate(rows) if row["state"] == f"fault:{cause}"]
+    assert len(fault_rows) == 3 and fault_rows[0] == 2000
+    assert all(rows[i]["heater_W"] == 0.0 for i in fault_rows)
+    # heater written to 0 W in the tick that found the fault
+    fault_time = rows[2000]["time_s"]
+    assert any(t >= fault_time and t < fault_time + 0.08 and p == 0.0 for t, p in instruments.heater_log)
+    after = rows[2003:2003 + 5]
+    assert all(row["state"] == "recovering" and row["heater_W"] == 0.0 for row in after)
+    assert rows[2008]["state"].startswith("closed") and rows[2008]["heater_W"] > 0.0
+    assert any(event.startswith("fault: " + cause) for event in events)
+    if cause in ("instrument_timeout", "connection_lost"):
+        assert instruments.reconnects >= 1
+
+
+def test_recovery_timeout_exits_4(reference_model, curves, base_config):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    instruments.measure_faults = {k: InstrumentTimeout("flange DMM", "no reply") for k in range(100, 2000)}
+    assert loop.run(duration_s=200.0, manage_gc=False) == 4
+    assert "not recovered within 60 s" in str(loop.last_fault)
+    assert cryostat.heater_power_w == 0.0
+
+
+def test_over_temperature_exits_3_with_heater_off(reference_model, curves, base_config):
+    config = dataclasses.replace(base_config, safety=dataclasses.replace(base_config.safety, flange_max_K=4.6),
+                                 control=dataclasses.replace(base_config.control, setpoint_max_K=4.5))
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, config)
+    loop.submit(Command("manual", 0.3))                     # heat open loop until the limit trips
+    assert loop.run(duration_s=600.0, manage_gc=False) == 3
+    assert loop.last_fault.cause == "over_temperature" and "T2" in loop.last_fault.message
+    assert rows[-1]["heater_W"] == 0.0 and rows[-1]["T2_K"] > 4.6
+    assert cryostat.heater_power_w == 0.0
+
+
+def test_sensor_out_of_calibration_and_stale_readings(reference_model, curves, base_config):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    instruments.resistance_override = {500: (1.0, 3000.0)}                        # 1 ohm: far outside the curve
+    instruments.resistance_override.update({1000 + k: (2800.0, 3000.0) for k in range(5)})   # frozen DMM
+    assert loop.run(duration_s=120.0, manage_gc=False) == 0
+    states = [row["state"] for row in rows]
+    assert states[500] == "fault:sensor_out_of_calibration"
+    assert states[1004] == "fault:sensor_stale"
+    assert states[-1].startswith("closed")
+
+
+def test_heater_fault_exits_6(reference_model, curves, base_config):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    instruments.heater_faults = {50: HeaterCompliance("heater", "compliance reached: open heater?")}
+    assert loop.run(duration_s=60.0, manage_gc=False) == 6
+    assert loop.last_fault.cause == "heater_fault"
+    assert cryostat.heater_power_w == 0.0
+
+
+def test_unexpected_exception_turns_heater_off_and_propagates(reference_model, curves, base_config):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    instruments.measure_faults = {300: RuntimeError("bug")}
+    with pytest.raises(RuntimeError):
+        loop.run(duration_s=60.0, manage_gc=False)
+    assert loop.exit_code == 1 and loop.last_fault.cause == "exception"
+    assert cryostat.heater_power_w == 0.0
+
+
+def test_stop_request_turns_heater_off(reference_model, curves, base_config):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    original = instruments.measure
+
+    def measure_then_stop():
+        if instruments.measurements == 800:
+            loop.request_stop("SIGTERM received")
+        return original()
+
+    instruments.measure = measure_then_stop
+    assert loop.run(duration_s=600.0, manage_gc=False) == 0
+    assert len(rows) == 801 and loop.last_fault.cause == "stop_requested"
+    assert cryostat.heater_power_w == 0.0
+
+
+def test_commands_are_checked_against_limits(reference_model, curves, base_config):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    answers = {}
+
+    def measure_and_command():
+        count = instruments.measurements
+        script = {100: ("setpoint", 25.0), 101: ("ramp", 50.0), 102: ("manual", 0.6), 103: ("ramp", 1.0),
+                  104: ("setpoint", 6.0), 3000: ("heater-off", None), 3500: ("manual", 0.05), 4000: ("setpoint", 5.5)}
+        if count in script:
+            answers[count] = loop.submit(Command(*script[count]))
+        return DirectInstruments.measure(instruments)
+
+    instruments.measure = measure_and_command
+    loop.run(duration_s=400.0, manage_gc=False)
+    assert not answers[100].ok and "outside 3..20 K" in answers[100].message
+    assert not answers[101].ok and "max_ramp" in answers[101].message
+    assert not answers[102].ok and "0..0.5 W" in answers[102].message
+    assert answers[103].ok and answers[104].ok
+    ramping = [row["setpoint_K"] for row in rows[200:300]]
+    assert np.all(np.diff(ramping) > 0) and np.diff(ramping)[0] == pytest.approx(1.0 / 60 * 0.08)
+    assert rows[3001]["state"] == "off" and rows[3001]["heater_W"] == 0.0
+    assert rows[3501]["state"] == "manual" and rows[3501]["heater_W"] == 0.05
+    assert rows[4001]["state"].startswith("closed")
+    # bumpless: closing the loop from 50 mW manual continues from 50 mW
+    assert rows[4001]["heater_W"] == pytest.approx(0.05, abs=0.01)
+
+
+def test_reload_is_bumpless_and_refuses_restart_only_changes(reference_model, curves, base_config):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    new_gains = dataclasses.replace(base_config, control=dataclasses.replace(
+        base_config.control, proportional_W_per_K=0.8, integral_W_per_K_s=0.02), source="new.yaml")
+    moved_dmm = dataclasses.replace(base_config, instruments=dataclasses.replace(
+        base_config.instruments, timeout_s=2.0), source="new.yaml")
+    answers = {}
+
+    def measure_and_reload():
+        count = instruments.measurements
+        if count == 9000:
+            answers["gains"] = loop.submit(Command("reload", new_gains))
+        if count == 9001:
+            answers["dmm"] = loop.submit(Command("reload", moved_dmm))
+        return DirectInstruments.measure(instruments)
+
+    instruments.measure = measure_and_reload
+    loop.run(duration_s=800.0, manage_gc=False)
+    assert answers["gains"].ok and loop.pi.gains.proportional_w_per_K == 0.8
+    assert not answers["dmm"].ok and "instruments" in answers["dmm"].message and "restart" in answers["dmm"].message
+    before, after = rows[8999]["heater_W"], rows[9000]["heater_W"]
+    assert abs(after - before) < 0.003       # no bump beyond the normal tick-to-tick change

@@ -1,76 +1,174 @@
-"""Command line: ``cryod --simulate`` (dry run on the simulated cryostat)."""
+"""Command line of cryod.
+
+    cryod run --config PATH [--check]           the service
+    cryod --simulate [--config PATH] [...]      the same daemon on the simulated cryostat
+    cryod ctl [--socket PATH] COMMAND           talk to the running daemon
+    cryod analyze RECORD [...]                  what the simulation gets wrong, and why
+    cryod identify RECORD [...]                 fit a model from measured records
+
+Errors go to stderr with a non-zero exit code: 2 for unusable input (a bad
+configuration, a bad command line), the daemon's fault codes otherwise
+(docs/operations.md).
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
-import time
+from pathlib import Path
 
-import numpy as np
+from cryod import __version__
 
-from cryod.clock import VirtualClock
-from cryod.line_fit import fit_line
-from cryod.model import DEFAULT_MODEL_PATH, load_model
-from cryod.yaml_source import FileFormatError
-
-LOOP_PERIOD_S = 0.08
+DEFAULT_CONFIG = Path("/etc/cryod/cryod.yaml")
 
 
-def _parser() -> argparse.ArgumentParser:
+def _speed(text: str) -> float | str:
+    if text == "max":
+        return "max"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"speed must be a number > 0 or 'max', got {text!r}") from None
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"speed must be > 0, got {text!r}")
+    return value
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="cryod",
         description="Temperature regulation of a pulse-tube cooled cryostat flange.",
+        epilog="Dry run: cryod --simulate --duration 600 --speed max --json",
     )
-    parser.add_argument("--simulate", action="store_true",
-                        help="run against the simulated cryostat instead of real instruments")
-    parser.add_argument("--sim-model", default=str(DEFAULT_MODEL_PATH),
-                        help="model file of the simulated cryostat (default: the shipped model)")
-    parser.add_argument("--duration", type=float, default=600.0, help="simulated seconds to run")
-    parser.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
-    parser.add_argument("--json", action="store_true", help="print one summary object on stdout")
+    parser.add_argument("--version", action="version", version=f"cryod {__version__}")
+    simulate = parser.add_argument_group("dry run on the simulated cryostat (cryod --simulate ...)")
+    simulate.add_argument("--simulate", action="store_true",
+                          help="run the daemon against simulated instruments and a simulated cryostat")
+    simulate.add_argument("--config", type=Path, default=None,
+                          help="daemon configuration (default: the documented example config/cryod.yaml)")
+    simulate.add_argument("--duration", type=_positive, default=None,
+                          help="simulated seconds to run (default: until stopped)")
+    simulate.add_argument("--speed", type=_speed, default=1.0,
+                          help="simulated seconds per real second, or 'max' for virtual time (default 1)")
+    simulate.add_argument("--json", action="store_true", help="print one summary object on stdout at the end")
+    simulate.add_argument("--window", type=_positive, default=300.0,
+                          help="length of the metrics window at the end, s (default 300)")
+    simulate.add_argument("--setpoint", type=float, default=None, help="setpoint in K (overrides the config)")
+    simulate.add_argument("--sim-model", type=Path, default=None,
+                          help="model file of the simulated cryostat (the controller keeps its config)")
+    simulate.add_argument("--seed", type=int, default=None, help="sensor-noise seed (overrides the config)")
+    simulate.add_argument("--data-dir", type=Path, default=None,
+                          help="where the data log goes (default ./cryod-simulate/data)")
+    simulate.add_argument("--socket", type=Path, default=None,
+                          help="control socket (default ./cryod-simulate/control.sock)")
+    simulate.add_argument("--transport", choices=("tcp", "in-process"), default=None,
+                          help="drivers to simulated instruments over TCP on 127.0.0.1 (default, or "
+                               "in-process with --speed max)")
+
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND")
+    run = commands.add_parser("run", help="run the service on the real instruments",
+                              description="Run the daemon on the real instruments (under systemd: Type=notify).")
+    run.add_argument("--config", type=Path, default=DEFAULT_CONFIG, dest="run_config",
+                     help=f"daemon configuration (default {DEFAULT_CONFIG})")
+    run.add_argument("--check", action="store_true",
+                     help="only validate the configuration and the calibration files, then exit")
+    run.add_argument("--duration", type=_positive, default=None, dest="run_duration",
+                     help="stop after this many seconds (default: until SIGTERM)")
+
+    ctl = commands.add_parser("ctl", help="talk to the running daemon",
+                              description="Send one command to the running daemon's control socket.")
+    ctl.add_argument("--socket", type=Path, default=None, dest="ctl_socket",
+                     help="control socket path (default: from --config)")
+    ctl.add_argument("--config", type=Path, default=DEFAULT_CONFIG, dest="ctl_config",
+                     help=f"take the socket path from this configuration (default {DEFAULT_CONFIG})")
+    ctl.add_argument("--json", action="store_true", dest="ctl_json", help="print the raw JSON reply")
+    ctl.add_argument("words", nargs="+", metavar="COMMAND",
+                     help="status | setpoint K | ramp K_PER_MIN | heater-off | manual W")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    if not args.simulate:
-        _parser().print_help(sys.stderr)
-        return 2
-    try:
-        model = load_model(args.sim_model)
-    except FileFormatError as error:
-        print(f"cryod: {error}", file=sys.stderr)
-        return 2
-    from simulated_hw.cryostat import SimulatedCryostat
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.simulate and args.command:
+        parser.error("--simulate runs the daemon itself; do not combine it with a command")
+    if args.simulate:
+        from cryod.simulation import run_simulation
 
-    clock = VirtualClock()
-    cryostat = SimulatedCryostat(model, clock, seed=args.seed)
-    started = time.perf_counter()
-    ticks = int(round(args.duration / LOOP_PERIOD_S))
-    times = np.empty(ticks)
-    flange = np.empty(ticks)
-    stage = np.empty(ticks)
-    for tick in range(ticks):
-        clock.sleep_until((tick + 1) * LOOP_PERIOD_S)
-        times[tick] = clock.now()
-        flange[tick], stage[tick] = cryostat.read_temperatures()
-    wall = time.perf_counter() - started
-    line = fit_line(times, flange, model.ptc.angular_frequency_rad_s)
-    summary = {
-        "duration_s": ticks * LOOP_PERIOD_S,
-        "ticks": ticks,
-        "wall_s": round(wall, 3),
-        "mean_T2_K": float(np.mean(flange)),
-        "mean_T5_K": float(np.mean(stage)),
-        "ptc_line_amplitude_K": line.amplitude[0],
-    }
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        for key, value in summary.items():
+        return run_simulation(args)
+    if args.command == "run":
+        return _run_service(args)
+    if args.command == "ctl":
+        return _ctl(args)
+    if args.command is not None and hasattr(args, "handler"):
+        return args.handler(args)
+    parser.print_help(sys.stderr)
+    return 2
+
+
+def _run_service(args) -> int:
+    from cryod.daemon import Daemon, config_or_exit
+    from cryod.hardware import open_instruments, check_calibrations
+    from cryod.clock import MonotonicClock
+    from cryod.service.logs import ServiceLogging
+
+    config = config_or_exit(args.run_config, sys.stderr)
+    if config is None:
+        return 2
+    problem = check_calibrations(config)
+    if problem:
+        print(f"cryod: {problem}", file=sys.stderr)
+        return 2
+    if args.check:
+        print(f"{args.run_config}: configuration and calibration files are valid")
+        return 0
+    logging_service = ServiceLogging()
+    logging_service.start()
+    try:
+        result = Daemon(config, open_instruments, MonotonicClock()).run(args.run_duration)
+    except Exception as error:
+        print(f"cryod: stopped: {type(error).__name__}: {error}", file=sys.stderr)
+        return 1
+    finally:
+        logging_service.stop()
+    return result.exit_code
+
+
+def _ctl(args) -> int:
+    from cryod.service.control_socket import send_command
+
+    path = args.ctl_socket
+    if path is None:
+        from cryod.daemon import config_or_exit
+
+        config = config_or_exit(args.ctl_config, sys.stderr)
+        if config is None:
+            return 2
+        path = config.control_socket.path
+    try:
+        reply = send_command(path, " ".join(args.words))
+    except (ConnectionError, OSError) as error:
+        print(f"cryod ctl: {error}", file=sys.stderr)
+        return 3
+    if args.ctl_json:
+        print(json.dumps(reply))
+    elif reply.get("message") == "status" and reply.get("ok"):
+        for key, value in reply["status"].items():
             print(f"{key}: {value}")
-    return 0
+    else:
+        print(reply.get("message", ""), file=sys.stdout if reply.get("ok") else sys.stderr)
+    return 0 if reply.get("ok") else 1
 
 
 if __name__ == "__main__":

@@ -67,7 +67,8 @@ class ClosedLoopRun:
 def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: float, *,
                 gains: PiGains, heater_max_w: float, period_s: float = 0.08,
                 ramp_K_per_min: float = 0.0, seed: int | None = 0, noise: bool = True,
-                initial_heater_power_w: float = 0.0) -> ClosedLoopRun:
+                initial_heater_power_w: float = 0.0,
+                current_output_resistance_ohm: float | None = None) -> ClosedLoopRun:
     """Run a program of segments on the simulated cryostat.
 
     Parameters
@@ -90,6 +91,11 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
         Add sensor noise to what the controller sees and what is recorded.
     initial_heater_power_w : float
         Power the cryostat has settled at before the start.
+    current_output_resistance_ohm : float, optional
+        Study a controller whose output is the heater current instead: the
+        gains are then in A/K and A/(K s), the output is held within
+        0..sqrt(heater_max_w / R) A and the power is R I**2 (cryod's own PI
+        outputs power; this is for comparing with controllers that do not).
 
     Returns
     -------
@@ -98,8 +104,17 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
     segments = sorted(segments, key=lambda s: s.start_s)
     ticks = int(round(duration_s / period_s))
     plant = CryostatPlant(model, 0.0, initial_heater_power_w)
-    controller = PiController(gains, 0.0, heater_max_w)
-    controller.set_manual(min(initial_heater_power_w, heater_max_w))
+    resistance = current_output_resistance_ohm
+    output_max = heater_max_w if resistance is None else float(np.sqrt(heater_max_w / resistance))
+
+    def to_power(output: float) -> float:
+        return output if resistance is None else resistance * output * output
+
+    def to_output(power: float) -> float:
+        return power if resistance is None else float(np.sqrt(power / resistance))
+
+    controller = PiController(gains, 0.0, output_max)
+    controller.set_manual(to_output(min(initial_heater_power_w, heater_max_w)))
     ramp = SetpointRamp(model.operating_point.flange_temperature_K, ramp_K_per_min)
     generator = np.random.default_rng(seed)
     noise_flange = model.sensor_noise.flange_thermometer_rms_K if noise else 0.0
@@ -121,14 +136,15 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
                 controller.set_automatic(flange, ramp.setpoint_K)
             setpoint = ramp.advance(period_s)
             requested = controller.update(flange, setpoint, period_s)
-            power = min(max(requested, 0.0), heater_max_w)
-            controller.limit(requested, power)
+            output = min(max(requested, 0.0), output_max)
+            controller.limit(requested, output)
+            power = to_power(output)
         else:
             program = segment.heater_power_w
             power = float(program(now) if callable(program) else program)
             if not 0.0 <= power <= heater_max_w:
                 raise ValueError(f"programmed heater power {power} W at {now:.2f} s is outside 0..{heater_max_w} W")
-            controller.set_manual(power)
+            controller.set_manual(to_output(power))
             setpoint = np.nan
         plant.set_heater_power(power, now)
         for name, value in zip(out, (now, flange, stage, power, setpoint,

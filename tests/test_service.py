@@ -1,0 +1,150 @@
+"""Data log, control socket, systemd notify and journald logging."""
+
+import io
+import json
+import logging
+import os
+import socket
+import threading
+import time
+
+import pytest
+
+from cryod.datalog import DataLog
+from cryod.loop import ROW_COLUMNS, Command
+from cryod.record import read_record
+from cryod.service.control_socket import ControlSocketServer, parse_command, send_command
+from cryod.service.logs import JournalFormatter
+from cryod.service.notify import SystemdNotifier
+
+
+def rows(start, count, period=0.08):
+    return [{"time_s": start + k * period, "T2_K": 4.23 + 1e-6 * k, "T5_K": 3.34, "heater_W": 0.01,
+             "setpoint_K": 5.0 if k % 2 else None, "state": "closed"} for k in range(count)]
+
+
+def test_data_log_writes_contract_files_and_never_overwrites(tmp_path):
+    wall_start = 1_795_000_000.0       # 2026-11-18 UTC, mid-day
+    log_a = DataLog(tmp_path, ROW_COLUMNS, {"site": "test"}, lambda t: wall_start + t, 0.08, 0.5)
+    log_a.start()
+    log_a.put("started")
+    for row in rows(0.08, 100):
+        log_a.put(row)
+    log_a.stop()
+    log_b = DataLog(tmp_path, ROW_COLUMNS, {}, lambda t: wall_start + t, 0.08, 0.5)   # restart the same day
+    log_b.start()
+    for row in rows(50.0, 10):
+        log_b.put(row)
+    log_b.stop()
+    first, second = log_a.paths[0], log_b.paths[0]
+    assert first.name == "cryod-2026-11-18.csv" and second.name == "cryod-2026-11-18.2.csv"
+    record = read_record(first)
+    assert len(record) == 100 and record.time_s[0] == pytest.approx(0.08)
+    assert record.metadata["site"] == "test" and "record_start_utc" in record.metadata
+    assert first.read_text().splitlines()[0] == "# cryod-log v1"
+    assert read_record(second).time_s[0] == pytest.approx(0.08)     # each file counts from its own start
+    assert any("started" in line for line in first.read_text().splitlines()[:5])
+
+
+def test_data_log_rotates_at_utc_midnight(tmp_path):
+    midnight = 1_795_046_400.0         # 2026-11-19 00:00:00 UTC
+    datalog = DataLog(tmp_path, ROW_COLUMNS, {}, lambda t: midnight - 4.0 + t, 0.08, 0.5)
+    datalog.start()
+    for row in rows(0.08, 100):        # 8 s across midnight
+        datalog.put(row)
+    datalog.stop()
+    names = [path.name for path in datalog.paths]
+    assert names == ["cryod-2026-11-18.csv", "cryod-2026-11-19.csv"]
+    before, after = (read_record(path) for path in datalog.paths)
+    assert len(before) + len(after) == 100
+    assert after.time_s[0] == pytest.approx(0.08)
+
+
+def test_parse_command_refuses_malformed_input():
+    assert parse_command("setpoint 5.0").value == 5.0
+    for line, reason in [("", "empty"), ("warm", "unknown command"), ("setpoint", "takes 1 argument"),
+                         ("setpoint five", "not a number"), ("ramp nan", "finite"), ("heater-off now", "takes 0")]:
+        with pytest.raises(ValueError, match=reason):
+            parse_command(line)
+
+
+def test_control_socket_round_trip_and_permissions(tmp_path):
+    path = tmp_path / "control.sock"
+    seen = []
+
+    def submit(command: Command) -> Command:
+        seen.append((command.name, command.value))
+        command.answer(command.value is None or command.value < 10, "done" if (command.value or 0) < 10 else "refused: too hot")
+        return command
+
+    server = ControlSocketServer(path, 0o660, None, None, submit, lambda: {"T2_K": 5.0, "state": "closed"})
+    server.start()
+    try:
+        assert (os.stat(path).st_mode & 0o777) == 0o660
+        reply = send_command(path, "status")
+        assert reply["ok"] and reply["status"]["T2_K"] == 5.0
+        assert send_command(path, "setpoint 5.5")["ok"]
+        refused = send_command(path, "setpoint 50")
+        assert not refused["ok"] and "too hot" in refused["message"]
+        malformed = send_command(path, "setpoint hot")
+        assert not malformed["ok"] and "not a number" in malformed["message"]
+        assert seen == [("setpoint", 5.5), ("setpoint", 50.0)]     # malformed never reached the loop
+        with pytest.raises(OSError, match="in use"):
+            ControlSocketServer(path, 0o660, None, None, submit, dict).start()
+    finally:
+        server.stop()
+    assert not path.exists()
+    with pytest.raises(ConnectionError, match="no cryod daemon"):
+        send_command(path, "status")
+
+
+def test_control_socket_never_replaces_a_regular_file(tmp_path):
+    path = tmp_path / "control.sock"
+    path.write_text("precious")
+    with pytest.raises(OSError, match="not a socket"):
+        ControlSocketServer(path, 0o660, None, None, lambda c: c, dict).start()
+    assert path.read_text() == "precious"
+
+
+def test_systemd_notify_datagrams_on_a_real_socket(tmp_path):
+    address = str(tmp_path / "notify")
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(address)
+    listener.settimeout(2.0)
+    try:
+        notifier = SystemdNotifier({"NOTIFY_SOCKET": address, "WATCHDOG_USEC": "2000000"})
+        notifier.ready("started")
+        assert listener.recv(4096).decode().split("\n") == ["READY=1", "STATUS=started"]
+        notifier.watchdog()
+        notifier.watchdog()            # rate-limited: only one ping within 0.5 s
+        assert listener.recv(4096) == b"WATCHDOG=1"
+        notifier.status("T2 5.0 K")
+        assert listener.recv(4096) == b"STATUS=T2 5.0 K"
+        notifier.reloading()
+        assert listener.recv(4096).startswith(b"RELOADING=1\nMONOTONIC_USEC=")
+    finally:
+        listener.close()
+
+
+def test_notify_abstract_socket_and_absent_socket():
+    name = f"cryod-test-{os.getpid()}"
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind("\0" + name)
+    listener.settimeout(2.0)
+    try:
+        SystemdNotifier({"NOTIFY_SOCKET": "@" + name}).stopping("bye")
+        assert listener.recv(4096) == b"STOPPING=1\nSTATUS=bye"
+    finally:
+        listener.close()
+    quiet = SystemdNotifier({})
+    quiet.ready("x")                   # nothing to send to: no error
+    assert not quiet.enabled and quiet.watchdog_interval_s is None
+
+
+def test_journald_priority_prefixes():
+    formatter = JournalFormatter(prefix=True)
+    record = logging.LogRecord("cryod.loop", logging.CRITICAL, __file__, 1, "heater off: %s", ("over_temperature",), None)
+    assert formatter.format(record) == "<2>cryod.loop: heater off: over_temperature"
+    record = logging.LogRecord("cryod", logging.WARNING, __file__, 1, "two\nlines", (), None)
+    assert formatter.format(record) == "<4>cryod: two\n<4>lines"
+    assert JournalFormatter(prefix=False).format(record) == "cryod: two\nlines"

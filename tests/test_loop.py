@@ -194,17 +194,18 @@ def test_reload_is_bumpless_and_refuses_restart_only_changes(quiet_reference_mod
 
     def measure_and_reload():
         count = instruments.measurements
-        if count == 300:
+        if count == 340:
             answers["gains"] = loop.submit(Command("reload", new_gains))
-        if count == 301:
+        if count == 341:
             answers["dmm"] = loop.submit(Command("reload", moved_dmm))
         return DirectInstruments.measure(instruments)
 
-    instruments.measure = measure_and_reload
+    instruments.measure = measure_and_reload     # submitted during tick k's measurement: applied at tick k + 1
     loop.run(duration_s=100.0, manage_gc=False)
     assert answers["gains"].ok and loop.pi.gains.proportional_w_per_K == 2 * control.proportional_W_per_K
     assert not answers["dmm"].ok and "instruments" in answers["dmm"].message and "restart" in answers["dmm"].message
-    error_K = rows[300]["setpoint_K"] - rows[300]["T2_K"]
-    assert error_K > 0.02                    # a non-bumpless change would step the heater by Kp * error > 0.2 W
-    before, after = rows[299]["heater_W"], rows[300]["heater_W"]
+    error_K = rows[341]["setpoint_K"] - rows[341]["T2_K"]
+    assert error_K > 0.015                   # a non-bumpless change would step the heater by Kp * error > 0.15 W
+    assert rows[340]["state"] == rows[341]["state"] == "closed"      # off the heater limit: a step would show
+    before, after = rows[340]["heater_W"], rows[341]["heater_W"]
     assert abs(after - before) < 0.005     # sensor noise alone moves it by ~0.5 mW per tick

@@ -69,3 +69,13 @@ def test_programmed_heater_outside_range_is_refused(reference_model):
     with pytest.raises(ValueError, match="outside"):
         run_program(reference_model, [Segment(0.0, heater_power_w=0.3)], 1.0,
                     gains=PiGains(0.4, 0.01), heater_max_w=0.25)
+
+
+def test_gain_change_stays_bumpless_when_the_integral_must_go_negative():
+    """A large error and a doubled Kp: the integral has to offset more than it holds."""
+    pi = PiController(PiGains(10.0, 0.2), 0.0, 0.5)
+    pi.set_automatic(measured_K=4.978, setpoint_K=5.0, present_power_w=0.235)
+    before = pi.output_w
+    pi.set_gains(PiGains(20.0, 0.4))
+    assert pi.integral_w < 0.0
+    assert pi.proportional_w + pi.integral_w == pytest.approx(before)

@@ -116,7 +116,10 @@ class PiController:
         self.integral_w = self._clamped_integral(self.integral_w)
 
     def _clamped_integral(self, value: float) -> float:
-        return min(max(value, self.output_min_w), self.output_max_w)
+        """Keep the integral within +-(output span): room for a bumpless transfer to offset a large
+        proportional part, but no unbounded growth."""
+        span = self.output_max_w - self.output_min_w
+        return min(max(value, self.output_min_w - span), self.output_max_w)
 
     # -- the cycle -----------------------------------------------------------
     def update(self, measured_K: float, setpoint_K: float, dt_s: float) -> float:

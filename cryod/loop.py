@@ -121,7 +121,8 @@ class PiTerm:
         self.controller = controller
 
     def start(self, tick: TickInputs, present_power_w: float) -> None:
-        self.controller.set_automatic(tick.flange_K, tick.setpoint_K, present_power_w)
+        # bumpless against the present temperature; a setpoint step then acts through Kp as usual
+        self.controller.set_automatic(tick.flange_K, tick.flange_K, present_power_w)
 
     def update(self, tick: TickInputs) -> float:
         return self.controller.update(tick.flange_K, tick.setpoint_K, tick.dt_s)
@@ -483,8 +484,7 @@ class ControlLoop:
                 ok, message = self._apply(command)
             except (ValueError, TypeError) as error:
                 ok, message = False, str(error)
-            if ok:
-                self._event(f"command: {command.name} {command.value if command.value is not None else ''}".strip())
+            self._event(f"command {command.name}: {message}" if ok else f"command {command.name} refused: {message}")
             command.answer(ok, message)
 
     def _apply(self, command: Command) -> tuple[bool, str]:

@@ -132,8 +132,9 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
         if segment.setpoint_K is not None:
             ramp.target_K = segment.setpoint_K
             if controller.is_manual:
+                # bumpless against the present temperature; the setpoint step then acts through Kp
                 ramp.setpoint_K = flange if ramp_K_per_min > 0.0 else segment.setpoint_K
-                controller.set_automatic(flange, ramp.setpoint_K)
+                controller.set_automatic(flange, flange)
             setpoint = ramp.advance(period_s)
             requested = controller.update(flange, setpoint, period_s)
             output = min(max(requested, 0.0), output_max)

@@ -79,3 +79,13 @@ def test_gain_change_stays_bumpless_when_the_integral_must_go_negative():
     pi.set_gains(PiGains(20.0, 0.4))
     assert pi.integral_w < 0.0
     assert pi.proportional_w + pi.integral_w == pytest.approx(before)
+
+
+def test_integral_from_a_transfer_is_not_pulled_back_at_once():
+    pi = PiController(PiGains(20.0, 0.4), 0.0, 0.5)
+    pi.set_automatic(measured_K=4.9, setpoint_K=5.0, present_power_w=0.3)
+    pi.set_gains(PiGains(40.0, 0.4))         # integral must become 0.3 - 4.0 = -3.7 W
+    assert pi.integral_w == pytest.approx(-3.7)
+    pi.update(measured_K=4.9, setpoint_K=5.0, dt_s=0.08)
+    assert pi.integral_w == pytest.approx(-3.7 + 0.4 * 0.1 * 0.08)   # integrates from there, no jump to -0.5
+    assert pi.output_w == pytest.approx(0.3 + 0.4 * 0.1 * 0.08)

@@ -98,13 +98,17 @@ class PiController:
         self.manual_power_w = None
         self.error_K = setpoint_K - measured_K
         self.proportional_w = self.gains.proportional_w_per_K * self.error_K
-        self.integral_w = self._clamped_integral(power - self.proportional_w)
-        self.output_w = self.proportional_w + self.integral_w
+        self.integral_w = power - self.proportional_w
+        self.output_w = power
 
     def set_gains(self, gains: PiGains) -> None:
-        """New gains, keeping the present output (bumpless)."""
+        """New gains, keeping the present output (bumpless).
+
+        The integral takes whatever value keeps Kp * e + integral unchanged,
+        even outside its usual range; integration then moves it back.
+        """
         new_proportional = gains.proportional_w_per_K * self.error_K
-        self.integral_w = self._clamped_integral(self.integral_w + self.proportional_w - new_proportional)
+        self.integral_w = self.integral_w + self.proportional_w - new_proportional
         self.gains = gains
         self.proportional_w = new_proportional
 
@@ -115,11 +119,14 @@ class PiController:
         self.output_min_w, self.output_max_w = float(output_min_w), float(output_max_w)
         self.integral_w = self._clamped_integral(self.integral_w)
 
+    def _integral_bounds(self) -> tuple[float, float]:
+        """Range the integral may grow into: down to minus the output span (room to offset a
+        proportional part), up to the output maximum."""
+        return self.output_min_w - (self.output_max_w - self.output_min_w), self.output_max_w
+
     def _clamped_integral(self, value: float) -> float:
-        """Keep the integral within +-(output span): room for a bumpless transfer to offset a large
-        proportional part, but no unbounded growth."""
-        span = self.output_max_w - self.output_min_w
-        return min(max(value, self.output_min_w - span), self.output_max_w)
+        low, high = self._integral_bounds()
+        return min(max(value, low), high)
 
     # -- the cycle -----------------------------------------------------------
     def update(self, measured_K: float, setpoint_K: float, dt_s: float) -> float:
@@ -140,7 +147,14 @@ class PiController:
         self.error_K = setpoint_K - measured_K
         self.proportional_w = self.gains.proportional_w_per_K * self.error_K
         previous = self.integral_w
-        self.integral_w = self._clamped_integral(previous + self.gains.integral_w_per_K_s * self.error_K * dt_s)
+        integral = previous + self.gains.integral_w_per_K_s * self.error_K * dt_s
+        low, high = self._integral_bounds()
+        # never grows further out of its bounds; never pulled back to them at once
+        if integral > high and integral > previous:
+            integral = max(previous, high)
+        elif integral < low and integral < previous:
+            integral = min(previous, low)
+        self.integral_w = integral
         self._last_increment_w = self.integral_w - previous
         self.output_w = self.proportional_w + self.integral_w
         return self.output_w

@@ -90,11 +90,12 @@ class CalibrationCurve:
     def temperature_K_from_sensor_units(self, reading):
         """Temperature in K for a reading in ``sensor_unit`` (scalar or array)."""
         return self._convert(reading, self.calibrated_sensor_unit_ranges, self.sensor_unit,
-                             self._temperature_K)
+                             self._temperature_K, self.temperature_range_K)
 
     def sensor_units_at(self, temperature_K):
         """Reading in ``sensor_unit`` at ``temperature_K`` (scalar or array)."""
-        return self._convert(temperature_K, self.calibrated_temperature_ranges_K, "K", self._sensor_units)
+        return self._convert(temperature_K, self.calibrated_temperature_ranges_K, "K", self._sensor_units,
+                             self.sensor_unit_range)
 
     def sensor_units_per_K(self, temperature_K):
         """d(reading)/dT in ``sensor_unit`` per K at ``temperature_K``."""
@@ -120,12 +121,14 @@ class CalibrationCurve:
             Any value outside the calibrated resistance range (or NaN).
         """
         self._require_resistance("temperature_K")
-        return self._convert(resistance_ohm, self.calibrated_sensor_unit_ranges, "ohm", self._temperature_K)
+        return self._convert(resistance_ohm, self.calibrated_sensor_unit_ranges, "ohm", self._temperature_K,
+                             self.temperature_range_K)
 
     def resistance_ohm(self, temperature_K):
         """Resistance in ohm at a temperature in K (scalar or array, like :meth:`temperature_K`)."""
         self._require_resistance("resistance_ohm")
-        return self._convert(temperature_K, self.calibrated_temperature_ranges_K, "K", self._sensor_units)
+        return self._convert(temperature_K, self.calibrated_temperature_ranges_K, "K", self._sensor_units,
+                             self.sensor_unit_range)
 
     def sensitivity_ohm_per_K(self, temperature_K):
         """dR/dT in ohm/K at a temperature in K (negative for a Cernox)."""
@@ -152,11 +155,21 @@ class CalibrationCurve:
             raise TypeError(f"{what}: {self.source} calibrates a sensor read in {self.sensor_unit}, "
                             f"not a resistance thermometer; use the *_sensor_units methods")
 
-    def _convert(self, value, ranges: list[tuple[float, float]], unit: str, function: Callable):
+    def _convert(self, value, ranges: list[tuple[float, float]], unit: str, function: Callable,
+                 result_range: tuple[float, float] | None = None):
+        """Check ``value`` against ``ranges``, apply ``function``, keep the result inside ``result_range``.
+
+        The last step only absorbs rounding (10 ** log10(R) is not always R to
+        the last bit), so that a converted value at the edge of the range is
+        always accepted back.
+        """
         if isinstance(value, (float, int)) and not isinstance(value, bool):
             for low, high in ranges:
                 if low <= value <= high:
-                    return float(function(value))
+                    result = float(function(value))
+                    if result_range is None:
+                        return result
+                    return min(max(result, result_range[0]), result_range[1])
             raise OutOfCalibrationRange(QUANTITY_OF_UNIT[unit], float(value), unit, ranges, self.source)
         values = np.asarray(value, dtype=float)
         inside = np.zeros(values.shape, dtype=bool)
@@ -166,7 +179,8 @@ class CalibrationCurve:
             outside = values[~inside]
             raise OutOfCalibrationRange(QUANTITY_OF_UNIT[unit], float(outside.flat[0]), unit, ranges,
                                         self.source, count=int(outside.size))
-        return np.asarray(function(values), dtype=float)
+        result = np.asarray(function(values), dtype=float)
+        return result if result_range is None else np.clip(result, *result_range)
 
     def __repr__(self) -> str:
         low, high = self.temperature_range_K

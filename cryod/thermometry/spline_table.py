@@ -81,7 +81,8 @@ class SplineTableCurve(SmoothCurve):
         self.temperatures_K = temperatures[order]
         self.resistances_ohm = resistances[order]
         response = SmoothResponse(spline, slope, (resistances[order][0], resistances[order][-1]),
-                                  logarithmic=True, interior_z=z[1:-1])
+                                  logarithmic=True, interior_z=z[1:-1],
+                                  temperature_limits_K=(temperatures[order][0], temperatures[order][-1]))
         super().__init__([response], source=source, sensor_model=sensor_model, serial_number=serial_number,
                          sensor_unit="ohm",
                          method=f"cubic spline of T against log10(R) through {temperatures.size} measured points")

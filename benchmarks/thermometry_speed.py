@@ -44,11 +44,11 @@ def scalar_call_times_us(curve: CalibrationCurve, calls: int = 20000, repeats: i
 def main(arguments: list[str]) -> int:
     paths = [Path(argument) for argument in arguments] or \
         [REPOSITORY / "tests" / "data" / "calibration" / name for name in DEFAULT_FILES]
-    print(f"{'file':16s} {'method':44s} {'T(R) µs':>8s} {'R(T) µs':>8s} {'dR/dT µs':>9s}")
+    print(f"{'file':16s} {'curve':18s} {'T(R) µs':>8s} {'R(T) µs':>8s} {'dR/dT µs':>9s}")
     for path in paths:
         curve = load_calibration(path)
         times = scalar_call_times_us(curve)
-        print(f"{path.name:16s} {curve.method[:44]:44s} {times['temperature_K(R)']:8.2f} "
+        print(f"{path.name:16s} {type(curve).__name__:18s} {times['temperature_K(R)']:8.2f} "
               f"{times['resistance_ohm(T)']:8.2f} {times['sensitivity_ohm_per_K(T)']:9.2f}")
     return 0
 

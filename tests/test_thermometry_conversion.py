@@ -127,6 +127,9 @@ def test_values_outside_the_calibration_are_refused(curves, name):
     curve = curves[name]
     (r_low, r_high), (t_low, t_high) = curve.resistance_range_ohm, curve.temperature_range_K
     assert isinstance(curve.temperature_K(r_low), float) and isinstance(curve.resistance_ohm(t_high), float)
+    # rounding at the edge (10 ** log10(R) is not always R) is absorbed, not refused
+    assert curve.temperature_K(r_high * (1 + 1e-13)) == curve.temperature_K(r_high)
+    assert curve.resistance_ohm([t_low * (1 - 1e-13)]).tolist() == [curve.resistance_ohm(t_low)]
     for resistance in (r_low * (1 - 1e-9), r_high * (1 + 1e-9), float("nan"), -1.0):
         with pytest.raises(OutOfCalibrationRange) as caught:
             curve.temperature_K(resistance)

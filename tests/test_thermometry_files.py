@@ -110,11 +110,12 @@ def test_voltage_curve_refuses_the_resistance_methods(tmp_path):
             call()
 
 
-def test_crlf_and_lf_files_give_the_same_curve(tmp_path):
+@pytest.mark.parametrize("newline", ["\r\n", "\r"], ids=["CRLF", "CR"])
+def test_crlf_and_lf_files_give_the_same_curve(tmp_path, newline):
     for source in (X186279, X162690_COF, CALIBRATION_DATA / "X162690.dat"):
-        crlf = copy_edited(source, tmp_path, lambda lines: lines, newline="\r\n")
-        assert b"\r\n" in crlf.read_bytes()
-        lf, windows = load_calibration(source), load_calibration(crlf)
+        other = copy_edited(source, tmp_path, lambda lines: lines, newline=newline)
+        assert newline.encode() in other.read_bytes() and b"\n" not in other.read_bytes().replace(b"\r\n", b"")
+        lf, windows = load_calibration(source), load_calibration(other)
         temperatures = np.linspace(*lf.calibrated_temperature_ranges_K[0], 50)
         np.testing.assert_array_equal(windows.resistance_ohm(temperatures), lf.resistance_ohm(temperatures))
         assert windows.serial_number == lf.serial_number

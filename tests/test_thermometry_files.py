@@ -147,6 +147,12 @@ def test_340_missing_and_unknown_header_fields_are_refused(tmp_path):
     twice = copy_edited(X186279, tmp_path, lambda lines: lines[:2] + ["Serial Number: X1"] + lines[2:],
                         name="twice.340")
     refused(twice, 3, "'Serial Number' given twice (first on line 2)")
+    blank_model = load_calibration(copy_edited(X186279, tmp_path, lambda lines: ["Sensor Model:"] + lines[1:],
+                                               name="blank.340"))
+    assert blank_model.sensor_model is None and blank_model.serial_number == "X186279"
+    no_count = copy_edited(X186279, tmp_path, lambda lines: [l.split(":")[0] + ":" if "Number of" in l else l
+                                                             for l in lines], name="count.340")
+    refused(no_count, 6, "'Number of Breakpoints' has no value")
     bad_limit = copy_edited(X186279, tmp_path, lambda lines: [l.replace("325.0", "warm") for l in lines],
                             name="limit.340")
     refused(bad_limit, 4, "setpoint limit: not a number: 'warm'")

@@ -23,6 +23,11 @@ from cryod.thermometry.errors import OutOfCalibrationRange
 #: What a reading in each sensor unit measures.
 QUANTITY_OF_UNIT = {"ohm": "resistance", "V": "voltage", "mV": "voltage", "K": "temperature"}
 
+#: Values this close (relative) outside a calibrated range are taken as its end:
+#: rounding, such as 10 ** log10(R) differing from R in the last bit, must not
+#: make a value at the edge of the range unusable. Anything further out is refused.
+EDGE_ROUNDING = 1e-12
+
 
 class CalibrationCurve:
     """Sensor reading to temperature and back, for one calibrated sensor.
@@ -68,6 +73,8 @@ class CalibrationCurve:
         self.method = method
         self.calibrated_sensor_unit_ranges = sorted((float(low), float(high)) for low, high in sensor_unit_ranges)
         self.calibrated_temperature_ranges_K = sorted((float(low), float(high)) for low, high in temperature_ranges_K)
+        self._sensor_unit_windows = _windows(self.calibrated_sensor_unit_ranges)
+        self._temperature_windows = _windows(self.calibrated_temperature_ranges_K)
 
     # -- ranges -------------------------------------------------------------
     @property
@@ -89,16 +96,17 @@ class CalibrationCurve:
     # -- conversions in the sensor's own unit ---------------------------------
     def temperature_K_from_sensor_units(self, reading):
         """Temperature in K for a reading in ``sensor_unit`` (scalar or array)."""
-        return self._convert(reading, self.calibrated_sensor_unit_ranges, self.sensor_unit,
-                             self._temperature_K)
+        return self._convert(reading, self._sensor_unit_windows, self.sensor_unit,
+                             self._temperature_K, self.temperature_range_K)
 
     def sensor_units_at(self, temperature_K):
         """Reading in ``sensor_unit`` at ``temperature_K`` (scalar or array)."""
-        return self._convert(temperature_K, self.calibrated_temperature_ranges_K, "K", self._sensor_units)
+        return self._convert(temperature_K, self._temperature_windows, "K", self._sensor_units,
+                             self.sensor_unit_range)
 
     def sensor_units_per_K(self, temperature_K):
         """d(reading)/dT in ``sensor_unit`` per K at ``temperature_K``."""
-        return self._convert(temperature_K, self.calibrated_temperature_ranges_K, "K",
+        return self._convert(temperature_K, self._temperature_windows, "K",
                              self._sensor_units_per_K)
 
     # -- conversions for resistance thermometers -----------------------------
@@ -120,17 +128,19 @@ class CalibrationCurve:
             Any value outside the calibrated resistance range (or NaN).
         """
         self._require_resistance("temperature_K")
-        return self._convert(resistance_ohm, self.calibrated_sensor_unit_ranges, "ohm", self._temperature_K)
+        return self._convert(resistance_ohm, self._sensor_unit_windows, "ohm", self._temperature_K,
+                             self.temperature_range_K)
 
     def resistance_ohm(self, temperature_K):
         """Resistance in ohm at a temperature in K (scalar or array, like :meth:`temperature_K`)."""
         self._require_resistance("resistance_ohm")
-        return self._convert(temperature_K, self.calibrated_temperature_ranges_K, "K", self._sensor_units)
+        return self._convert(temperature_K, self._temperature_windows, "K", self._sensor_units,
+                             self.sensor_unit_range)
 
     def sensitivity_ohm_per_K(self, temperature_K):
         """dR/dT in ohm/K at a temperature in K (negative for a Cernox)."""
         self._require_resistance("sensitivity_ohm_per_K")
-        return self._convert(temperature_K, self.calibrated_temperature_ranges_K, "K",
+        return self._convert(temperature_K, self._temperature_windows, "K",
                              self._sensor_units_per_K)
 
     # -- for subclasses -------------------------------------------------------
@@ -152,21 +162,39 @@ class CalibrationCurve:
             raise TypeError(f"{what}: {self.source} calibrates a sensor read in {self.sensor_unit}, "
                             f"not a resistance thermometer; use the *_sensor_units methods")
 
-    def _convert(self, value, ranges: list[tuple[float, float]], unit: str, function: Callable):
+    def _convert(self, value, windows: list[tuple[float, float, float, float]], unit: str, function: Callable,
+                 result_range: tuple[float, float] | None = None):
+        """Check ``value`` against the calibrated ``windows``, apply ``function``, keep the result in range.
+
+        A window is (low, high, accepted low, accepted high): values between
+        the accepted and the calibrated end are moved onto the end
+        (:data:`EDGE_ROUNDING`). Keeping the result inside ``result_range`` only
+        absorbs the same kind of rounding on the way out, so that a converted
+        value at the edge of the range is always accepted back.
+        """
         if isinstance(value, (float, int)) and not isinstance(value, bool):
-            for low, high in ranges:
-                if low <= value <= high:
-                    return float(function(value))
-            raise OutOfCalibrationRange(QUANTITY_OF_UNIT[unit], float(value), unit, ranges, self.source)
-        values = np.asarray(value, dtype=float)
+            for low, high, accepted_low, accepted_high in windows:
+                if accepted_low <= value <= accepted_high:
+                    result = float(function(min(max(value, low), high)))
+                    if result_range is None:
+                        return result
+                    return min(max(result, result_range[0]), result_range[1])
+            raise self._out_of_range(unit, float(value), windows, 1)
+        values = np.array(value, dtype=float)
         inside = np.zeros(values.shape, dtype=bool)
-        for low, high in ranges:
-            inside |= (values >= low) & (values <= high)
+        for low, high, accepted_low, accepted_high in windows:
+            window = (values >= accepted_low) & (values <= accepted_high)
+            values[window] = np.clip(values[window], low, high)
+            inside |= window
         if not inside.all():
             outside = values[~inside]
-            raise OutOfCalibrationRange(QUANTITY_OF_UNIT[unit], float(outside.flat[0]), unit, ranges,
-                                        self.source, count=int(outside.size))
-        return np.asarray(function(values), dtype=float)
+            raise self._out_of_range(unit, float(outside.flat[0]), windows, int(outside.size))
+        result = np.asarray(function(values), dtype=float)
+        return result if result_range is None else np.clip(result, *result_range)
+
+    def _out_of_range(self, unit: str, value: float, windows, count: int) -> OutOfCalibrationRange:
+        ranges = [(low, high) for low, high, _, _ in windows]
+        return OutOfCalibrationRange(QUANTITY_OF_UNIT[unit], value, unit, ranges, self.source, count=count)
 
     def __repr__(self) -> str:
         low, high = self.temperature_range_K
@@ -174,3 +202,8 @@ class CalibrationCurve:
         if self.sensor_model:
             sensor += f" ({self.sensor_model})"
         return f"<{type(self).__name__} {sensor}, {low:.6g} to {high:.6g} K, from {self.source}: {self.method}>"
+
+
+def _windows(ranges: list[tuple[float, float]]) -> list[tuple[float, float, float, float]]:
+    """(low, high, accepted low, accepted high) for each calibrated range."""
+    return [(low, high, low - EDGE_ROUNDING * abs(low), high + EDGE_ROUNDING * abs(high)) for low, high in ranges]

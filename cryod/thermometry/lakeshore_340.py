@@ -18,7 +18,8 @@ curve for the Model 340 and later controllers)::
 
 Header labels are matched without regard to case or spacing; the value is the
 first field after the colon (a parenthesised comment may follow). Every header
-field is required. Breakpoints are numbered 1, 2, ... and there must be as many
+line is required; only the sensor model and serial number may be blank (a
+user-made curve). Breakpoints are numbered 1, 2, ... and there must be as many
 as the header announces, so a truncated file is refused. Sensor units and
 temperatures must be strictly monotonic, and their trend must agree with the
 header's temperature coefficient (1 = negative: the reading falls as the
@@ -40,6 +41,11 @@ HEADER_LABELS = {
     "temperature coefficient": "temperature_coefficient",
     "number of breakpoints": "breakpoint_count",
 }
+#: The header labels as Lake Shore writes them, by attribute (for messages).
+HEADER_TITLES = {"sensor_model": "Sensor Model", "serial_number": "Serial Number", "data_format": "Data Format",
+                 "setpoint_limit_K": "SetPoint Limit", "temperature_coefficient": "Temperature coefficient",
+                 "breakpoint_count": "Number of Breakpoints"}
+_EXPECTED_HEADER = f"a .340 header has {', '.join(HEADER_TITLES.values())}"
 TEMPERATURE_COEFFICIENTS = {1: "negative", 2: "positive"}
 _FORMAT_LIST = ", ".join(f"{code} = {fmt.name}" for code, fmt in DATA_FORMATS.items())
 
@@ -60,10 +66,9 @@ def read_340(text: CalibrationText) -> BreakpointCurve:
     if position < len(lines) and not _starts_with_number(lines[position].text):
         position += 1                                   # the "No.  Units  Temperature (K)" title line
     end_of_header = lines[position - 1].number if position else 1
-    missing = [label for label in HEADER_LABELS if HEADER_LABELS[label] not in header]
+    missing = [title for key, title in HEADER_TITLES.items() if key not in header]
     if missing:
-        raise text.error(end_of_header, f"the header lacks {', '.join(repr(m.title()) for m in missing)} "
-                                        f"(a .340 header has {', '.join(l.title() for l in HEADER_LABELS)})")
+        raise text.error(end_of_header, f"the header lacks {', '.join(map(repr, missing))} ({_EXPECTED_HEADER})")
     data_format = _data_format(text, header, header_lines)
     coefficient = _choice(text, header, header_lines, "temperature_coefficient", TEMPERATURE_COEFFICIENTS)
     setpoint_limit_K = text.number(header["setpoint_limit_K"], header_lines["setpoint_limit_K"], "setpoint limit")
@@ -94,13 +99,15 @@ def _read_header(text: CalibrationText, lines: list[NumberedLine]):
         label, value = label_and_value(line.text)
         key = HEADER_LABELS.get(label)
         if key is None:
-            raise text.error(line.number, f"unknown header line {line.text.strip()!r} "
-                                          f"(a .340 header has {', '.join(l.title() for l in HEADER_LABELS)})")
+            raise text.error(line.number, f"unknown header line {line.text.strip()!r} ({_EXPECTED_HEADER})")
         if key in header:
-            raise text.error(line.number, f"{label.title()!r} given twice (first on line {header_lines[key]})")
-        if not value:
-            raise text.error(line.number, f"{label.title()!r} has no value")
-        header[key] = value if key in ("sensor_model", "serial_number") else leading_field(value)
+            raise text.error(line.number, f"{HEADER_TITLES[key]!r} given twice (first on line {header_lines[key]})")
+        if key in ("sensor_model", "serial_number"):
+            header[key] = value or None                 # a user-made curve may leave these blank
+        elif not value:
+            raise text.error(line.number, f"{HEADER_TITLES[key]!r} has no value")
+        else:
+            header[key] = leading_field(value)
         header_lines[key] = line.number
         position += 1
     return header, header_lines, position

@@ -61,6 +61,10 @@ class SmoothResponse:
         the inverse table never straddles one.
     relative_tolerance : float
         Largest |T(z(T)) - T| / T accepted for the tabulated inverse.
+    temperature_limits_K : (float, float), optional
+        The temperatures at the reading limits when the calibration states
+        them (the end points of a measured table), so that they are inside
+        the calibrated range to the last digit; by default T at the limits.
 
     Raises
     ------
@@ -71,7 +75,7 @@ class SmoothResponse:
 
     def __init__(self, temperature_of_z: Callable, slope_of_z: Callable, reading_limits: tuple[float, float],
                  *, logarithmic: bool, interior_z: Sequence[float] = (), relative_tolerance: float = 1e-11,
-                 unit_name: str = "ohm"):
+                 temperature_limits_K: tuple[float, float] | None = None, unit_name: str = "ohm"):
         self.reading_low, self.reading_high = float(reading_limits[0]), float(reading_limits[1])
         if not self.reading_low < self.reading_high:
             raise ValueError(f"reading limits must rise, got {reading_limits}")
@@ -85,8 +89,13 @@ class SmoothResponse:
         inner = np.asarray(interior_z, dtype=float)
         nodes = np.concatenate(([self.z_low], inner[(inner > self.z_low) & (inner < self.z_high)], [self.z_high]))
         self._inverse = self._tabulate_inverse(np.unique(nodes), relative_tolerance)
-        ends = (float(temperature_of_z(self.z_low)), float(temperature_of_z(self.z_high)))
-        self.temperature_limits_K = (min(ends), max(ends))
+        ends = sorted((float(temperature_of_z(self.z_low)), float(temperature_of_z(self.z_high))))
+        if temperature_limits_K is not None:
+            stated = sorted(float(limit) for limit in temperature_limits_K)
+            if not np.allclose(stated, ends, rtol=1e-9, atol=0.0):
+                raise ValueError(f"stated temperature limits {stated} differ from the response's {ends}")
+            ends = stated
+        self.temperature_limits_K = (ends[0], ends[1])
 
     def z_of(self, reading):
         return np.log10(reading) if self.logarithmic else reading

@@ -9,7 +9,7 @@ Lake Shore uses for negative-temperature-coefficient resistors, T against
 log10(R) (data format 4, "log Ω/K": "log resistance vs. kelvin for NTC
 resistive sensors", Model 211 manual, 3.13.1). The spline passes through every
 measured point; between them, on the tables in ``tests/data/calibration`` it
-predicts a left-out point to a median 4e-5 of its temperature (see
+predicts a left-out point to a median 4e-5 to 6e-5 of its temperature (see
 ``docs/thermometry.md``).
 
 A spline can overshoot; one that is not monotonic between the first and the
@@ -81,7 +81,8 @@ class SplineTableCurve(SmoothCurve):
         self.temperatures_K = temperatures[order]
         self.resistances_ohm = resistances[order]
         response = SmoothResponse(spline, slope, (resistances[order][0], resistances[order][-1]),
-                                  logarithmic=True, interior_z=z[1:-1])
+                                  logarithmic=True, interior_z=z[1:-1],
+                                  temperature_limits_K=(temperatures[order][0], temperatures[order][-1]))
         super().__init__([response], source=source, sensor_model=sensor_model, serial_number=serial_number,
                          sensor_unit="ohm",
                          method=f"cubic spline of T against log10(R) through {temperatures.size} measured points")

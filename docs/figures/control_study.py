@@ -91,6 +91,17 @@ def main() -> None:
           f"{m['overshoot_mK']:.1f} mK, within 1 mK after {m['settle_s']:.0f} s, line {m['line_mK']:.3f} mK, "
           f"heater at 0 or limit {m['heater_at_limit_percent']:.0f} % of the time")
 
+    print("\nexample config heater (50 ohm, 0.5 W limit): gains scan, fastest settling within 1 mK")
+    scan = []
+    for kp in (0.5, 1.0, 2.0, 5.0, 10.0, 20.0):
+        for ki in (0.005, 0.01, 0.02, 0.05, 0.1, 0.2):
+            m = figures_of_merit(run(50.0, PiGains(kp, ki)))
+            scan.append((m["settle_s"], kp, ki, m))
+    print("| Kp (W/K) | Ki (W/(K s)) | rise (s) | overshoot (mK) | within 1 mK after (s) | PTC line (mK) |")
+    print("|---|---|---|---|---|---|")
+    for settle, kp, ki, m in sorted(scan, key=lambda item: item[0])[:5]:
+        print(f"| {kp:g} | {ki:g} | {m['rise_s']:.0f} | {m['overshoot_mK']:.1f} | {settle:.0f} | {m['line_mK']:.3f} |")
+
     figure, (a_rise, a_line, a_heater) = plt.subplots(1, 3, figsize=(15, 4.6))
     for kp, color in zip((20.0, 40.0, 80.0, 160.0), ("tab:orange", "tab:green", "tab:blue", "tab:purple")):
         result, _ = grid[(kp, 4.0)]

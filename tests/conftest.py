@@ -9,6 +9,7 @@ from cryod.model import load_model
 REPOSITORY = Path(__file__).resolve().parent.parent
 CONFIG = REPOSITORY / "config"
 DATA = Path(__file__).resolve().parent / "data"
+CALIBRATION_DATA = DATA / "calibration"
 
 
 @pytest.fixture(scope="session")

@@ -260,6 +260,14 @@ class ScpiInstrument:
             raise BadReply(self.label, f"{what}: reply to {command} is not finite", reply=reply)
         return value
 
+    def query_bool(self, command: str, what: str) -> bool:
+        """A ``1``/``0`` reply; :class:`BadReply` naming ``what`` otherwise."""
+        reply = self.query(command)
+        try:
+            return parse_bool(reply)
+        except ValueError:
+            raise BadReply(self.label, f"{what}: reply to {command} is not 1 or 0", reply=reply) from None
+
     # -- identity and errors ------------------------------------------------------------
     def check_identity(self) -> Identity:
         """Ask ``*IDN?``; :class:`IdentityMismatch` unless it is the expected model."""

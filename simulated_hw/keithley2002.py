@@ -309,6 +309,8 @@ class Keithley2002Emulator(EmulatedInstrument):
             self._last_autozero_s = trigger_time_s
         self._pending = _PendingAction(trigger_time_s, start, timing.ready_time_s(start))
         self._timer_due_s = trigger_time_s + self.trigger_timer_s
+        if start <= self.clock.now() + TIME_TOLERANCE_S:
+            self._measure(self._pending)     # taken at the trigger instant, not when fetched
 
     def _event(self, kind: str, line: int | None = None) -> None:
         """A trigger event of ``kind`` ('BUS', 'EXTERNAL', 'TLINK') arrives now."""

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import Iterator
 
 from cryod.clock import Clock
-from drivers.errors import ConnectionLost, HeaterLimitRefused, InstrumentError
+from drivers.errors import ConnectionLost, HeaterLimitRefused, HeaterRefused, InstrumentError
 from drivers.scpi import ScpiInstrument
 from drivers.transports.base import Transport
 
@@ -261,4 +261,9 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
 
     @abc.abstractmethod
     def write_output_off(self) -> None:
-        """0 A and output off, without checks."""
+        """0 A and output off, confirmed by reading the output state back."""
+
+    def confirm_output_off(self) -> None:
+        """Read the output state back (this also waits until the supply has executed the off)."""
+        if self.query_bool(":OUTPut:STATe?", "output state"):
+            raise HeaterRefused(self.label, "output still on after :OUTPut:STATe OFF")

@@ -101,3 +101,4 @@ class Keithley6221(HeaterSupply):
     def write_output_off(self) -> None:
         self.write(":SOURce:CURRent 0.000000E+00")
         self.write(":OUTPut:STATe OFF")
+        self.confirm_output_off()

@@ -2,7 +2,9 @@
 
 Each strategy knows which trigger source the DMMs must wait for and fires
 one trigger, returning when it happened (clock time) and the skew between
-the flange DMM's and the PTC-stage DMM's trigger:
+the flange DMM's and the PTC-stage DMM's trigger. Bus triggers are time
+stamped when the command has been sent (a GPIB write returns once the
+listeners accepted it), the hardware edge just before it is made:
 
 * :class:`GpibGroupTrigger` — one GPIB Group Execute Trigger to several
   listeners (IEEE 488.1 GET, sent by PyVISA's ``GPIBInterface.group_execute_trigger``):
@@ -86,12 +88,11 @@ class GpibGroupTrigger:
         self.clock = clock
 
     def fire(self) -> TriggerEvent:
-        time_s = self.clock.now()
         try:
             self.interface.group_execute_trigger(*self.resources)
         except (VisaIOError, OSError) as error:
             raise ConnectionLost("GPIB interface", f"group execute trigger failed: {error}") from error
-        return TriggerEvent(time_s, 0.0)
+        return TriggerEvent(self.clock.now(), 0.0)      # the GET is on the bus when the call returns
 
 
 class PrologixGroupTrigger:
@@ -106,9 +107,8 @@ class PrologixGroupTrigger:
         self.clock = clock
 
     def fire(self) -> TriggerEvent:
-        time_s = self.clock.now()
         self.adapter.trigger(self.primary_addresses)
-        return TriggerEvent(time_s, 0.0)
+        return TriggerEvent(self.clock.now(), 0.0)      # sent; the controller issues the GET at once
 
 
 class HardwareTrigger:

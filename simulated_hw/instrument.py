@@ -106,11 +106,15 @@ class EmulatedInstrument:
                 return GARBAGE_REPLY
             return reply
 
-    def group_execute_trigger(self) -> None:
-        """The GPIB GET interface message addressed to this instrument (same effect as ``*TRG``)."""
+    def group_execute_trigger(self, time_s: float | None = None) -> None:
+        """The GPIB GET interface message addressed to this instrument (same effect as ``*TRG``).
+
+        ``time_s``: the instant of the GET when one message reaches several listeners
+        (they all see the same instant); now by default.
+        """
         with self._lock:
             self.update()
-            self.bus_trigger()
+            self.bus_trigger(time_s)
 
     def selected_device_clear(self) -> None:
         """The GPIB SDC interface message: clear the input and output buffers."""
@@ -124,8 +128,8 @@ class EmulatedInstrument:
     def reset(self) -> None:
         """``*RST``: the instrument's reset defaults."""
 
-    def bus_trigger(self) -> None:
-        """React to GET or ``*TRG``; the default is the SCPI reply to an unwanted trigger."""
+    def bus_trigger(self, time_s: float | None = None) -> None:
+        """React to GET or ``*TRG`` (at ``time_s``, default now); the default ignores it with -211."""
         self.errors.push(*TRIGGER_IGNORED)
 
     # -- common commands -------------------------------------------------------

@@ -312,10 +312,10 @@ class Keithley2002Emulator(EmulatedInstrument):
         if start <= self.clock.now() + TIME_TOLERANCE_S:
             self._measure(self._pending)     # taken at the trigger instant, not when fetched
 
-    def _event(self, kind: str, line: int | None = None) -> None:
-        """A trigger event of ``kind`` ('BUS', 'EXTERNAL', 'TLINK') arrives now."""
+    def _event(self, kind: str, line: int | None = None, time_s: float | None = None) -> None:
+        """A trigger event of ``kind`` ('BUS', 'EXTERNAL', 'TLINK') arriving at ``time_s`` (default now)."""
         self.update()
-        now = self.clock.now()
+        now = self.clock.now() if time_s is None else min(time_s, self.clock.now())
         matches = (self.trigger_source == kind
                    and (kind != "TLINK" or line == self.link_input_line))
         if not self.initiated or not matches:
@@ -327,18 +327,18 @@ class Keithley2002Emulator(EmulatedInstrument):
             return
         self._start_action(now)
 
-    def bus_trigger(self) -> None:
-        self._event("BUS")
+    def bus_trigger(self, time_s: float | None = None) -> None:
+        self._event("BUS", time_s=time_s)
 
-    def external_trigger(self) -> None:
+    def external_trigger(self, time_s: float | None = None) -> None:
         """A falling TTL edge on the rear EXTERNAL TRIGGER input (manual section 2.7.6)."""
         with self._lock:
-            self._event("EXTERNAL")
+            self._event("EXTERNAL", time_s=time_s)
 
-    def trigger_link_pulse(self, line: int) -> None:
+    def trigger_link_pulse(self, line: int, time_s: float | None = None) -> None:
         """An input trigger pulse on Trigger Link line ``line`` (1 to 6, manual section 2.7.7)."""
         with self._lock:
-            self._event("TLINK", line)
+            self._event("TLINK", line, time_s)
 
     def update(self) -> None:
         """Complete device actions whose time has come; start free-running ones (IMM, TIM)."""

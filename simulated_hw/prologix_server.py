@@ -29,6 +29,7 @@ import socket
 from dataclasses import dataclass, field
 from typing import Mapping, Protocol
 
+from cryod.clock import Clock
 from simulated_hw.scpi_server import ThreadedTcpServer
 
 ESC, CR, LF = 0x1B, 0x0D, 0x0A
@@ -36,9 +37,11 @@ VERSION = "Prologix GPIB-ETHERNET Controller version 01.06.06.00 (simulated)"
 
 
 class GpibDevice(Protocol):
+    clock: Clock
+
     def handle(self, message: str) -> str | None: ...
 
-    def group_execute_trigger(self) -> None: ...
+    def group_execute_trigger(self, time_s: float | None = None) -> None: ...
 
     def selected_device_clear(self) -> None: ...
 
@@ -65,6 +68,8 @@ class PrologixServer(ThreadedTcpServer):
         super().__init__(host, port)
         self.devices = dict(devices)
         self.group_triggers: list[tuple[int, ...]] = []
+        #: Every controller command received (``addr 16``, ``read eoi`` ...), for inspection.
+        self.controller_commands: list[str] = []
 
     @property
     def interface_resource_name(self) -> str:
@@ -120,6 +125,7 @@ class PrologixServer(ThreadedTcpServer):
                 connection.sendall(pending.encode("ascii", "replace") + b"\n")
 
     def _controller_command(self, state: _ControllerState, command: str) -> str | None:
+        self.controller_commands.append(command)
         name, _, argument = command.partition(" ")
         name = name.lower()
         argument = argument.strip()
@@ -138,9 +144,11 @@ class PrologixServer(ThreadedTcpServer):
         if name == "trg":
             addresses = tuple(int(a) for a in argument.split() if 0 <= int(a) <= 30) or (state.address,)
             self.group_triggers.append(addresses)
-            for address in addresses:
-                if address in self.devices:
-                    self.devices[address].group_execute_trigger()
+            listeners = [self.devices[address] for address in addresses if address in self.devices]
+            if listeners:
+                instant = listeners[0].clock.now()      # one GET: every listener, one instant
+                for device in listeners:
+                    device.group_execute_trigger(instant)
             return None
         if name == "clr":
             if state.address in self.devices:

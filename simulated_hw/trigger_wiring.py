@@ -16,11 +16,15 @@ from __future__ import annotations
 
 from typing import Protocol, Sequence
 
+from cryod.clock import Clock
+
 
 class TriggerableDmm(Protocol):
-    def external_trigger(self) -> None: ...
+    clock: Clock
 
-    def trigger_link_pulse(self, line: int) -> None: ...
+    def external_trigger(self, time_s: float | None = None) -> None: ...
+
+    def trigger_link_pulse(self, line: int, time_s: float | None = None) -> None: ...
 
 
 class SimulatedTriggerLine:
@@ -45,13 +49,16 @@ class SimulatedTriggerLine:
         self.pulses = 0
 
     def pulse(self) -> None:
-        """One trigger pulse to every DMM on the wire."""
+        """One trigger pulse to every DMM on the wire, all at the same instant."""
         self.pulses += 1
+        if not self.dmms:
+            return
+        instant = self.dmms[0].clock.now()
         for dmm in self.dmms:
             if self.kind == "external":
-                dmm.external_trigger()
+                dmm.external_trigger(instant)
             else:
-                dmm.trigger_link_pulse(self.link_line)
+                dmm.trigger_link_pulse(self.link_line, instant)
 
 
 class SimulatedSerialPort:
@@ -84,7 +91,9 @@ class SimulatedSerialPort:
 
 
 class GpibListener(Protocol):
-    def group_execute_trigger(self) -> None: ...
+    clock: Clock
+
+    def group_execute_trigger(self, time_s: float | None = None) -> None: ...
 
 
 class SimulatedGpibInterface:
@@ -94,6 +103,10 @@ class SimulatedGpibInterface:
         self.group_triggers = 0
 
     def group_execute_trigger(self, *devices: GpibListener) -> None:
+        """One GET: every listed device sees the same instant."""
         self.group_triggers += 1
+        if not devices:
+            return
+        instant = devices[0].clock.now()
         for device in devices:
-            device.group_execute_trigger()
+            device.group_execute_trigger(instant)

@@ -38,7 +38,7 @@ from pyvisa import rname
 from pyvisa.errors import VisaIOError
 
 from drivers.errors import ConnectionLost
-from drivers.transports.visa import VisaTransport, resource_manager
+from drivers.transports.visa import VisaTransport, peer_closed, resource_manager, send_without_delay
 
 #: TCP port of the Prologix GPIB-ETHERNET controller (its manual, section 5).
 ETHERNET_PORT = 1234
@@ -95,6 +95,8 @@ class PrologixAdapter:
             self._interface = None
             raise ConnectionLost(self.interface_resource_name,
                                  f"cannot open the Prologix controller: {error}") from error
+        if "TCPIP" in self.interface_resource_name:
+            send_without_delay(self._interface)
         self.generation += 1
 
     def close(self) -> None:
@@ -125,7 +127,7 @@ class PrologixAdapter:
         if not 1 <= len(primary_addresses) <= 15:
             raise ValueError("the Prologix ++trg command takes 1 to 15 addresses")
         command = "++trg " + " ".join(str(int(address)) for address in primary_addresses) + "\n"
-        if self._interface is None:
+        if self._interface is None or peer_closed(self._interface):
             raise ConnectionLost(self.interface_resource_name, "controller connection is closed")
         session = self.manager.visalib.sessions.get(self._interface.session)
         lock = getattr(session, "intfc_lock", None) or threading.Lock()
@@ -150,6 +152,10 @@ class PrologixInstrument(VisaTransport):
         super().__init__(resource, name=name or f"{resource} via {adapter.interface_resource_name}",
                          timeout_s=adapter.timeout_s, resource_manager=adapter.manager,
                          read_termination=None)
+        # pyvisa-py 0.8.1 discards stale input before a Prologix write by reading until the
+        # socket is quiet; on a socket the controller has closed that loop never ends. Looking
+        # first turns the closed connection into ConnectionLost instead.
+        self.check_peer_before_io = True
 
     def reopen(self) -> None:
         self.close()

@@ -223,7 +223,8 @@ CONFIGURE_6221 = [
     (":SOURce:CURRent 0.000000E+00", None),
     QUEUE_EMPTY,
 ]
-OFF_6221 = [(":SOURce:CURRent 0.000000E+00", None), (":OUTPut:STATe OFF", None)]
+OFF = [(":SOURce:CURRent 0.000000E+00", None), (":OUTPut:STATe OFF", None), (":OUTPut:STATe?", "0")]
+OFF_6221 = OFF
 
 
 def supply_6221(transport, clock):
@@ -349,8 +350,7 @@ def test_2400_set_power_read_back_off(clock):
         (":SENSe:VOLTage:PROTection:TRIPped?", "0"),
         (":READ?", "+2.345208E+00,+4.690416E-02"),
         (":SENSe:VOLTage:PROTection:TRIPped?", "0"),
-        (":SOURce:CURRent 0.000000E+00", None),
-        (":OUTPut:STATe OFF", None),
+        *OFF,
     ]) as transport:
         heater = supply_2400(transport, clock)
         heater.set_power_w(0.110)
@@ -366,8 +366,7 @@ def test_2400_blocked_output_reports_802(clock):
         (":OUTPut:STATe?", "0"),
         (":SYSTem:ERRor?", '802,"OUTPUT blocked by output enable"'),
         QUEUE_EMPTY,
-        (":SOURce:CURRent 0.000000E+00", None),
-        (":OUTPut:STATe OFF", None),
+        *OFF,
     ]) as transport:
         heater = supply_2400(transport, clock)
         with pytest.raises(HeaterRefused) as raised:
@@ -381,8 +380,7 @@ def test_2400_compliance_is_a_fault(clock):
         (":OUTPut:STATe ON", None),
         (":OUTPut:STATe?", "1"),
         (":SENSe:VOLTage:PROTection:TRIPped?", "1"),
-        (":SOURce:CURRent 0.000000E+00", None),
-        (":OUTPut:STATe OFF", None),
+        *OFF,
         QUEUE_EMPTY,
     ]) as transport:
         heater = supply_2400(transport, clock)

@@ -1,0 +1,269 @@
+"""One interface for the loop to the heater: power in watts, read back, off.
+
+A heater supply here is a current source into the flange heater. The loop
+asks for a power; the driver sends the current I = sqrt(P / R) for the
+configured heater resistance R. Limits refuse, they never clip:
+
+* a power needing more than ``max_current_a`` (100 mA by default), or more
+  voltage than the compliance, raises :class:`~drivers.errors.HeaterLimitRefused`
+  (a ``ValueError``) before anything is sent: the output stays as it was;
+* a negative, infinite or NaN power is refused the same way (the heater only heats).
+
+Safe by construction: the output is off until the first accepted power;
+it goes to 0 A and off on :meth:`HeaterSupply.close`, on leaving a ``with``
+block, and whenever an operation inside the driver fails for any reason
+other than a refused request — the error then carries the supply's error
+queue. If the connection itself dropped, the driver reopens it once to
+send the supply to 0 A: a supply left alone keeps its last current. The supply reaching voltage compliance (an open heater) is such a
+failure: :class:`~drivers.errors.HeaterCompliance`. An output that does not
+come on (interlock, output enable) is :class:`~drivers.errors.HeaterRefused`.
+"""
+
+from __future__ import annotations
+
+import abc
+import contextlib
+import math
+from dataclasses import dataclass
+from typing import Iterator
+
+from cryod.clock import Clock
+from drivers.errors import ConnectionLost, HeaterLimitRefused, HeaterRefused, InstrumentError
+from drivers.scpi import ScpiInstrument
+from drivers.transports.base import Transport
+
+
+@dataclass(frozen=True)
+class HeaterSetting:
+    """What :meth:`HeaterSupply.set_power_w` applied.
+
+    Attributes
+    ----------
+    requested_power_w : float
+        The power asked for (W).
+    current_a : float
+        The current sent to the supply (A).
+    power_w : float
+        I^2 R with the configured resistance (W): the request, to the supply's resolution.
+    """
+
+    requested_power_w: float
+    current_a: float
+    power_w: float
+
+
+@dataclass(frozen=True)
+class HeaterReadback:
+    """The supply's state as read back.
+
+    Attributes
+    ----------
+    current_a : float
+        Output current (A): measured (2400) or the programmed value (6221).
+    voltage_v : float
+        Output voltage (V): measured (2400) or I R with the configured resistance (6221).
+    power_w : float
+        V I (W): the delivered power when the voltage is measured.
+    voltage_measured : bool
+        True when the supply measured the voltage (so the power is known, not assumed).
+    """
+
+    current_a: float
+    voltage_v: float
+    power_w: float
+    voltage_measured: bool
+
+
+class HeaterSupply(ScpiInstrument, abc.ABC):
+    """Base of the heater supply drivers.
+
+    Parameters
+    ----------
+    transport : Transport
+        How to reach the supply.
+    clock : Clock
+        The injected clock.
+    heater_resistance_ohm : float
+        Resistance of the flange heater (ohm), as measured in the lab.
+    max_current_a : float
+        Hard limit of the heater current (A); 0.1 by default.
+    voltage_compliance_v : float
+        Voltage limit of the supply (V); must allow ``max_current_a`` through the heater.
+    name : str
+        Its role in error messages.
+    check_identity : bool
+        Ask ``*IDN?`` now and refuse another model.
+    verify_each_setting : bool
+        After every current change, ask the supply whether it is in compliance (one query).
+    """
+
+    #: The supply's own largest current and voltage limits (A, V), per model.
+    supply_max_current_a: float = 0.0
+    supply_compliance_range_v: tuple[float, float] = (0.0, 0.0)
+
+    def __init__(self, transport: Transport, clock: Clock, heater_resistance_ohm: float, *,
+                 max_current_a: float = 0.1, voltage_compliance_v: float = 10.0, name: str = "heater supply",
+                 check_identity: bool = True, verify_each_setting: bool = True):
+        super().__init__(transport, clock, name)
+        if not (math.isfinite(heater_resistance_ohm) and heater_resistance_ohm > 0.0):
+            raise ValueError(f"{name}: heater resistance must be positive, got {heater_resistance_ohm}")
+        if not 0.0 < max_current_a <= self.supply_max_current_a:
+            raise ValueError(f"{name}: max current {max_current_a} A outside (0, {self.supply_max_current_a}] A "
+                             f"of the {self.expected_model}")
+        low, high = self.supply_compliance_range_v
+        if not low <= voltage_compliance_v <= high:
+            raise ValueError(f"{name}: voltage compliance {voltage_compliance_v} V outside {low} to {high} V")
+        if heater_resistance_ohm * max_current_a > voltage_compliance_v:
+            raise ValueError(f"{name}: {max_current_a} A through {heater_resistance_ohm} ohm needs "
+                             f"{heater_resistance_ohm * max_current_a:.3g} V, above the {voltage_compliance_v:g} V "
+                             "compliance: raise the compliance or lower the maximum current")
+        self.heater_resistance_ohm = float(heater_resistance_ohm)
+        self.max_current_a = float(max_current_a)
+        self.voltage_compliance_v = float(voltage_compliance_v)
+        self.verify_each_setting = verify_each_setting
+        self.output_is_on = False
+        self.current_a = 0.0
+        with self.safe_on_fault():
+            if check_identity:
+                self.check_identity()
+            self.configure_source()
+
+    # -- limits ------------------------------------------------------------------------
+    @property
+    def max_power_w(self) -> float:
+        """Largest power the limits allow: R I_max^2 (W)."""
+        return self.heater_resistance_ohm * self.max_current_a ** 2
+
+    def current_for_power(self, power_w: float) -> float:
+        """I = sqrt(P / R) for ``power_w``; :class:`HeaterLimitRefused` outside the limits."""
+        if not (isinstance(power_w, (int, float)) and math.isfinite(power_w)):
+            raise HeaterLimitRefused(self.label, f"heater power {power_w!r} W refused: not a finite number")
+        if power_w < 0.0:
+            raise HeaterLimitRefused(self.label, f"heater power {power_w:g} W refused: the heater cannot cool")
+        current = math.sqrt(power_w / self.heater_resistance_ohm)
+        self._check_current(current, f"{power_w:g} W")
+        return current
+
+    def _check_current(self, current_a: float, what: str) -> None:
+        if not (math.isfinite(current_a) and 0.0 <= current_a):
+            raise HeaterLimitRefused(self.label, f"heater current {current_a!r} A refused")
+        if current_a > self.max_current_a:
+            raise HeaterLimitRefused(self.label, f"{what} refused: needs {current_a * 1e3:.4g} mA, above the "
+                                                 f"{self.max_current_a * 1e3:.4g} mA maximum "
+                                                 f"({self.max_power_w * 1e3:.4g} mW at {self.heater_resistance_ohm:g} ohm)")
+
+    # -- safety --------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def safe_on_fault(self) -> Iterator[None]:
+        """Any failure inside: output to 0 A and off (best effort), error queue attached, re-raised."""
+        try:
+            yield
+        except HeaterLimitRefused:
+            raise
+        except BaseException as error:
+            self._force_off()
+            if isinstance(error, InstrumentError):
+                self.examine_fault(error)
+            raise
+
+    def _force_off(self) -> None:
+        """0 A and output off whatever happened; a dropped connection is reopened once for it."""
+        for attempt in (1, 2):
+            try:
+                self.write_output_off()
+                break
+            except ConnectionLost:
+                if attempt == 2:
+                    break
+                try:
+                    self.transport.reopen()
+                except Exception:  # noqa: BLE001 - unreachable: nothing more a driver can do
+                    break
+            except Exception:  # noqa: BLE001 - the fault being handled is reported by the caller
+                break
+        self.output_is_on = False
+        self.current_a = 0.0
+
+    # -- the loop's interface ----------------------------------------------------------------
+    def set_power_w(self, power_w: float) -> HeaterSetting:
+        """Apply ``power_w`` (W) as I = sqrt(P / R); turns the output on the first time.
+
+        Raises
+        ------
+        HeaterLimitRefused
+            Above the maximum current or negative: nothing sent, output unchanged.
+        HeaterRefused, HeaterCompliance, InstrumentError
+            The output is then at 0 A and off.
+        """
+        current = self.current_for_power(power_w)
+        setting = self.set_current_a(current)
+        return HeaterSetting(float(power_w), setting.current_a, setting.power_w)
+
+    def set_current_a(self, current_a: float) -> HeaterSetting:
+        """Apply ``current_a`` (A) directly; same limits and safety as :meth:`set_power_w`."""
+        self._check_current(current_a, f"{current_a * 1e3:.4g} mA")
+        with self.safe_on_fault():
+            self.write_current(current_a)
+            self.current_a = current_a
+            if not self.output_is_on:
+                self.turn_output_on()
+                self.output_is_on = True
+            if self.verify_each_setting:
+                self.check_compliance()
+        power = current_a ** 2 * self.heater_resistance_ohm
+        return HeaterSetting(power, current_a, power)
+
+    def read_back(self) -> HeaterReadback:
+        """Current, voltage and power as the supply reports them; compliance is a fault."""
+        with self.safe_on_fault():
+            return self.measure_output()
+
+    def output_off(self) -> None:
+        """Current to 0 A and output off."""
+        with self.safe_on_fault():
+            self.write_output_off()
+        self.output_is_on = False
+        self.current_a = 0.0
+
+    shutdown = output_off
+
+    def close(self) -> None:
+        """Output off (best effort) and release the connection."""
+        self._force_off()
+        self.transport.close()
+
+    def __enter__(self) -> "HeaterSupply":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    # -- per model -----------------------------------------------------------------------------
+    @abc.abstractmethod
+    def configure_source(self) -> None:
+        """Output off, current source on a range holding ``max_current_a``, compliance set, 0 A."""
+
+    @abc.abstractmethod
+    def write_current(self, current_a: float) -> None:
+        """Program the output current."""
+
+    @abc.abstractmethod
+    def turn_output_on(self) -> None:
+        """Turn the output on and verify it is on (:class:`HeaterRefused` otherwise)."""
+
+    @abc.abstractmethod
+    def check_compliance(self) -> None:
+        """:class:`HeaterCompliance` if the output is voltage-limited."""
+
+    @abc.abstractmethod
+    def measure_output(self) -> HeaterReadback:
+        """Read the output back."""
+
+    @abc.abstractmethod
+    def write_output_off(self) -> None:
+        """0 A and output off, confirmed by reading the output state back."""
+
+    def confirm_output_off(self) -> None:
+        """Read the output state back (this also waits until the supply has executed the off)."""
+        if self.query_bool(":OUTPut:STATe?", "output state"):
+            raise HeaterRefused(self.label, "output still on after :OUTPut:STATe OFF")

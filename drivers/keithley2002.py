@@ -1,0 +1,439 @@
+"""Keithley 2002 8½-digit multimeter: 4-wire resistance of a Cernox, triggered, fetched.
+
+Every command below is in the Model 2002 User's Manual (document 2002-900-01),
+section 3 "IEEE-488 Reference"; the section is cited with each setting.
+``docs/instruments.md`` lists them all with the exact strings sent.
+
+The measurement cycle cryod runs every 80 ms:
+
+1. ``:INITiate`` takes the DMM out of idle into the trigger layer (3.19);
+2. a trigger (GET, ``*TRG``, an EXTernal edge or a Trigger Link pulse) starts
+   one device action: one 4-wire resistance reading;
+3. after the time the reading takes (:mod:`drivers.keithley2002_timing`)
+   ``:FETCh?`` returns it (3.14). ``:FETCh?`` does not wait for a new reading:
+   it "continues to return the old reading" until there is a new one, so the
+   reading number element (``RNUMber``, 3.17 ``:FORMat:ELEMents``) is part of
+   every reply and a reading whose number has not advanced is refused as stale.
+
+An overflow reads +9.9E37 (status ``O``): :class:`~drivers.errors.OverflowReading`,
+never a temperature. ``*IDN?`` is checked at construction; the error queue is
+read after configuration and attached to any fault.
+
+Examples
+--------
+>>> import math
+>>> from cryod.clock import VirtualClock
+>>> from cryod.model import load_model
+>>> from drivers.transports import InProcessTransport
+>>> from simulated_hw.cryostat import SimulatedCryostat
+>>> from simulated_hw.keithley2002 import Keithley2002Emulator
+>>> class Curve:                                   # any R(T) will do here
+...     def resistance_ohm(self, temperature_K): return 100 * math.exp(5 / temperature_K ** 0.5)
+>>> clock = VirtualClock()
+>>> emulator = Keithley2002Emulator(SimulatedCryostat(load_model(), clock, seed=1), "flange", Curve())
+>>> dmm = Keithley2002(InProcessTransport(emulator), clock, name="flange DMM")
+>>> dmm.configure_four_wire_resistance(FourWireSettings(range_ohm=20e3, nplc=1))
+>>> dmm.configure_trigger(TriggerSource.BUS)
+>>> dmm.initiate(); dmm.transport.trigger(); trigger_time_s = clock.now()
+>>> reading = dmm.fetch_new_reading(trigger_time_s)
+>>> 1e3 < reading.resistance_ohm < 1e4, reading.reading_number
+(True, 0)
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import re
+from dataclasses import dataclass
+
+from cryod.clock import Clock
+from drivers.errors import BadReply, InstrumentTimeout, OverflowReading
+from drivers.keithley2002_timing import ReadingTiming
+from drivers.scpi import (Control, ScpiInstrument, count_or_infinite, integer, number, on_off, one_of,
+                          parse_bool, parse_count, parse_token)
+from drivers.transports.base import Transport
+
+#: Largest reading the 2002 sends for a real value; +9.9E37 is its overflow marker.
+OVERFLOW_MARKER = 9.9e37
+#: Highest 4-wire range (2 MOhm) and its 5 % over-range (manual 2.4.3: 4-wire up to 2.1 MOhm).
+MAXIMUM_FOUR_WIRE_OHM = 2.1e6
+
+
+class TriggerSource(enum.Enum):
+    """Control sources of the trigger (measure) layer (manual 3.22 ``:TRIGger:SOURce``)."""
+
+    IMMEDIATE = "IMMediate"
+    BUS = "BUS"                 # GPIB GET or *TRG
+    EXTERNAL = "EXTernal"       # rear EXTERNAL TRIGGER input, falling TTL edge
+    TRIGGER_LINK = "TLINk"      # Trigger Link input line (asynchronous)
+    TIMER = "TIMer"
+    HOLD = "HOLD"
+    MANUAL = "MANual"
+
+
+class FilterType(enum.Enum):
+    """Digital filter types (manual 3.18 ``:AVERage:TCONtrol``)."""
+
+    REPEATING = "REPeat"
+    MOVING = "MOVing"
+
+
+class DataElement(enum.Enum):
+    """Elements of a reading string (manual 3.17 ``:FORMat:ELEMents``), in the order they are sent."""
+
+    READING = "READing"
+    STATUS = "STATus"
+    UNITS = "UNITs"
+    TIMESTAMP = "TIMEstamp"
+    READING_NUMBER = "RNUMber"
+    CHANNEL = "CHANnel"
+
+
+#: What cryod asks for: value, its status (N/O/R) and the reading number (staleness check).
+DEFAULT_ELEMENTS = (DataElement.READING, DataElement.STATUS, DataElement.READING_NUMBER)
+
+_SOURCE_TOKENS = {source: source.value for source in TriggerSource}
+_ARM_SOURCE_TOKENS = {source: source.value for source in TriggerSource if source is not TriggerSource.TIMER}
+_READING_FIELD = re.compile(r"^([+-]?(?:\d+\.?\d*|\.\d+)(?:[Ee][+-]?\d+)?)([NOR])?(OHM4W)?$", re.IGNORECASE)
+_INTEGER_FIELD = re.compile(r"^([+-]?\d+)")
+_DECIMAL_FIELD = re.compile(r"^([+-]?\d+(?:\.\d*)?)")
+
+
+@dataclass(frozen=True)
+class FourWireSettings:
+    """How to measure a Cernox: 4-wire resistance settings.
+
+    Parameters
+    ----------
+    range_ohm : float or None
+        Expected largest resistance; the DMM picks the smallest range that holds it.
+        None: autorange (not recommended for triggered, timed readings).
+    nplc : float
+        Integration time in power-line cycles (0.01 to 10).
+    digits : int
+        Display resolution, 4 to 9 (3½ to 8½ digits); readings carry this resolution.
+    filter_count : int
+        Readings averaged by the digital filter (1: filter off).
+    filter_type : FilterType
+        REPEATING (N conversions per triggered reading) or MOVING.
+    autozero : bool
+        Autozero on.
+    autozero_synchronous : bool
+        A zero with every reading (SYNChronous) instead of every 200 ms (NORMal).
+    offset_compensation : bool
+        Offset-compensated ohms (removes thermal EMFs; doubles the conversion time).
+    line_sync : bool
+        Start every integration at a positive-going zero crossing of the mains.
+    """
+
+    range_ohm: float | None = 20e3
+    nplc: float = 1.0
+    digits: int = 8
+    filter_count: int = 1
+    filter_type: FilterType = FilterType.REPEATING
+    autozero: bool = True
+    autozero_synchronous: bool = False
+    offset_compensation: bool = False
+    line_sync: bool = False
+
+
+@dataclass(frozen=True)
+class DmmReading:
+    """One reading as the 2002 sent it.
+
+    Attributes
+    ----------
+    resistance_ohm : float
+        The reading (ohm).
+    reading_number : int or None
+        The DMM's reading counter (None unless ``RNUMber`` is among the elements).
+    status : str or None
+        ``N`` normal, ``R`` relative (None unless ``STATus`` is among the elements).
+    timestamp_s : float or None
+        The DMM's own time stamp (None unless ``TIMEstamp`` is among the elements).
+    reply : str
+        The reply verbatim.
+    """
+
+    resistance_ohm: float
+    reading_number: int | None
+    status: str | None
+    timestamp_s: float | None
+    reply: str
+
+
+class Keithley2002(ScpiInstrument):
+    """Driver of a Keithley 2002 reading one 4-wire resistance.
+
+    Parameters
+    ----------
+    transport : Transport
+        How to reach the DMM.
+    clock : Clock
+        The injected clock: waits for readings are ``clock.sleep_until`` (free on a VirtualClock).
+    name : str
+        Its role, e.g. "flange DMM", used in every error.
+    line_frequency_hz : float
+        Mains frequency in the lab (sets the integration time of one PLC).
+    check_identity : bool
+        Ask ``*IDN?`` now and refuse another model (:class:`~drivers.errors.IdentityMismatch`).
+    fetch_poll_interval_s : float
+        Wait between two ``:FETCh?`` while the new reading is not there yet.
+    fetch_margin_s : float
+        Added to the expected reading time before the first ``:FETCh?``.
+    """
+
+    expected_model = "MODEL 2002"
+
+    # -- 4-wire resistance (manual 3.18, [SENSe[1]] subsystem) ----------------------
+    function = Control(":SENSe:FUNCtion {}", ":SENSe:FUNCtion?",
+                       "Measurement function (3.18.1); cryod uses 4-wire ohms only.",
+                       one_of({"4-wire resistance": "'FRESistance'"}),
+                       parse_token({"4-wire resistance": "FRESistance"}))
+    range_ohm = Control(":SENSe:FRESistance:RANGe {}", ":SENSe:FRESistance:RANGe?",
+                        "Expected reading in ohm (3.18.3 :RANGe[:UPPer]); picks the smallest range holding it.",
+                        number(0.0, MAXIMUM_FOUR_WIRE_OHM, "ohm"), float)
+    autorange = Control(":SENSe:FRESistance:RANGe:AUTO {}", ":SENSe:FRESistance:RANGe:AUTO?",
+                        "Autorange on/off (3.18.3 :RANGe:AUTO).", on_off, parse_bool)
+    nplc = Control(":SENSe:FRESistance:NPLCycles {}", ":SENSe:FRESistance:NPLCycles?",
+                   "Integration time in power-line cycles (3.18.4 :NPLCycles).",
+                   number(0.01, 10.0, "PLC"), float)
+    digits = Control(":SENSe:FRESistance:DIGits {}", ":SENSe:FRESistance:DIGits?",
+                     "Resolution: 4 to 9 for 3½ to 8½ digits (3.18.6 :DIGits).", integer(4, 9),
+                     lambda reply: int(float(reply)))
+    filter_enabled = Control(":SENSe:FRESistance:AVERage:STATe {}", ":SENSe:FRESistance:AVERage:STATe?",
+                             "Digital filter on/off (3.18.9 :AVERage[:STATe]).", on_off, parse_bool)
+    filter_type = Control(":SENSe:FRESistance:AVERage:TCONtrol {}", ":SENSe:FRESistance:AVERage:TCONtrol?",
+                          "Filter type, repeating or moving (3.18.9 :AVERage:TCONtrol).",
+                          one_of({kind: kind.value for kind in FilterType}),
+                          parse_token({kind: kind.value for kind in FilterType}))
+    filter_count = Control(":SENSe:FRESistance:AVERage:COUNt {}", ":SENSe:FRESistance:AVERage:COUNt?",
+                           "Readings in the filter, 1 to 100 (3.18.9 :AVERage:COUNt).", integer(1, 100),
+                           lambda reply: int(float(reply)))
+    offset_compensation = Control(":SENSe:FRESistance:OCOMpensated {}", ":SENSe:FRESistance:OCOMpensated?",
+                                  "Offset-compensated ohms on/off (3.18 :FRESistance:OCOMpensated; 2.4.3).",
+                                  on_off, parse_bool)
+    # -- system (manual 3.21) ------------------------------------------------------
+    autozero = Control(":SYSTem:AZERo:STATe {}", ":SYSTem:AZERo:STATe?",
+                       "Autozero on/off (3.21.5 :AZERo:STATe).", on_off, parse_bool)
+    autozero_synchronous = Control(":SYSTem:AZERo:TYPE {}", ":SYSTem:AZERo:TYPE?",
+                                   "Autozero with every reading (SYNChronous) or every 200 ms (NORMal), 3.21.5.",
+                                   one_of({True: "SYNChronous", False: "NORMal"}),
+                                   parse_token({True: "SYNChronous", False: "NORMal"}))
+    line_sync = Control(":SYSTem:LSYNc:STATe {}", ":SYSTem:LSYNc:STATe?",
+                        "Line-cycle synchronisation of the integration on/off (3.21 :LSYNc).",
+                        on_off, parse_bool)
+    # -- trigger model (manual 3.22) -----------------------------------------------------
+    arm_source = Control(":ARM:SOURce {}", ":ARM:SOURce?", "Arm layer 1 control source (3.22).",
+                         one_of(_ARM_SOURCE_TOKENS), parse_token(_ARM_SOURCE_TOKENS))
+    arm_count = Control(":ARM:COUNt {}", ":ARM:COUNt?", "Arm layer 1 count.",
+                        count_or_infinite(99999), parse_count)
+    scan_source = Control(":ARM:LAYer2:SOURce {}", ":ARM:LAYer2:SOURce?",
+                          "Arm layer 2 (scan layer) control source (3.22).",
+                          one_of(_SOURCE_TOKENS), parse_token(_SOURCE_TOKENS))
+    scan_count = Control(":ARM:LAYer2:COUNt {}", ":ARM:LAYer2:COUNt?", "Arm layer 2 count.",
+                         count_or_infinite(99999), parse_count)
+    trigger_source = Control(":TRIGger:SOURce {}", ":TRIGger:SOURce?",
+                             "Trigger (measure) layer control source (3.22 :SOURce).",
+                             one_of(_SOURCE_TOKENS), parse_token(_SOURCE_TOKENS))
+    trigger_count = Control(":TRIGger:COUNt {}", ":TRIGger:COUNt?",
+                            "Device actions per pass through the trigger layer (3.22 :COUNt).",
+                            count_or_infinite(99999), parse_count)
+    trigger_delay_s = Control(":TRIGger:DELay {}", ":TRIGger:DELay?",
+                              "Delay between trigger and device action in s (3.22 :DELay).",
+                              number(0.0, 999999.999, "s"), float)
+    trigger_link_protocol = Control(":TRIGger:TCONfigure:PROTocol {}", ":TRIGger:TCONfigure:PROTocol?",
+                                    "Trigger Link protocol (3.22 :TCONfigure:PROTocol); cryod uses asynchronous.",
+                                    one_of({"asynchronous": "ASYNchronous"}),
+                                    parse_token({"asynchronous": "ASYNchronous"}))
+    trigger_link_input_line = Control(":TRIGger:TCONfigure:ASYNchronous:ILINe {}",
+                                      ":TRIGger:TCONfigure:ASYNchronous:ILINe?",
+                                      "Trigger Link input line, 1 to 6 (3.22 :ASYNchronous:ILINe).",
+                                      integer(1, 6), lambda reply: int(float(reply)))
+    trigger_link_output_line = Control(":TRIGger:TCONfigure:ASYNchronous:OLINe {}",
+                                       ":TRIGger:TCONfigure:ASYNchronous:OLINe?",
+                                       "Trigger Link output line, 1 to 6, not the input line (3.22 :OLINe).",
+                                       integer(1, 6), lambda reply: int(float(reply)))
+    continuous_initiation = Control(":INITiate:CONTinuous {}", ":INITiate:CONTinuous?",
+                                    "Continuous initiation on/off (3.19 :INITiate:CONTinuous).", on_off, parse_bool)
+    # -- data format (manual 3.17) ---------------------------------------------------------
+    data_elements = Control(":FORMat:ELEMents {}", ":FORMat:ELEMents?",
+                            "Elements of each reading string (3.17 :ELEMents).",
+                            lambda elements: ",".join(DataElement(e).value for e in elements),
+                            lambda reply: tuple(parse_token({e: e.value for e in DataElement})(part)
+                                                for part in reply.split(",")))
+
+    def __init__(self, transport: Transport, clock: Clock, name: str = "Keithley 2002", *,
+                 line_frequency_hz: float = 50.0, check_identity: bool = True,
+                 fetch_poll_interval_s: float = 0.002, fetch_margin_s: float = 0.0005):
+        super().__init__(transport, clock, name)
+        if line_frequency_hz not in (50.0, 60.0):
+            raise ValueError(f"{name}: line frequency must be 50 or 60 Hz, got {line_frequency_hz}")
+        self.line_frequency_hz = float(line_frequency_hz)
+        self.fetch_poll_interval_s = float(fetch_poll_interval_s)
+        self.fetch_margin_s = float(fetch_margin_s)
+        self.settings = FourWireSettings()
+        self.elements: tuple[DataElement, ...] = DEFAULT_ELEMENTS
+        self._trigger_delay_s = 0.0
+        self.last_reading_number: int | None = None
+        if check_identity:
+            with self.reporting_faults():
+                self.check_identity()
+
+    # -- configuration ----------------------------------------------------------------
+    def configure_four_wire_resistance(self, settings: FourWireSettings = FourWireSettings(), *,
+                                       elements: tuple[DataElement, ...] = DEFAULT_ELEMENTS) -> None:
+        """Set up 4-wire resistance readings; reads the error queue afterwards.
+
+        Refuses (``ValueError``, nothing sent) a setting outside the manual's limits.
+        """
+        cls, label = type(self), self.label
+        commands = ["*CLS", cls.function.command("4-wire resistance", label)]
+        if settings.range_ohm is None:
+            commands.append(cls.autorange.command(True, label))
+        else:
+            commands += [cls.autorange.command(False, label), cls.range_ohm.command(settings.range_ohm, label)]
+        commands += [cls.nplc.command(settings.nplc, label), cls.digits.command(settings.digits, label)]
+        filtered = settings.filter_count > 1
+        commands.append(cls.filter_enabled.command(filtered, label))
+        if filtered:
+            commands += [cls.filter_type.command(settings.filter_type, label),
+                         cls.filter_count.command(settings.filter_count, label)]
+        commands += [cls.offset_compensation.command(settings.offset_compensation, label),
+                     cls.autozero.command(settings.autozero, label)]
+        if settings.autozero:
+            commands.append(cls.autozero_synchronous.command(settings.autozero_synchronous, label))
+        commands += [cls.line_sync.command(settings.line_sync, label), ":FORMat:DATA ASCii",
+                     cls.data_elements.command(elements, label), ":SYSTem:RNUMber:RESet"]
+        with self.reporting_faults():
+            for command in commands:
+                self.write(command)
+            self.check_error_queue("4-wire resistance configuration")
+        self.settings = settings
+        self.elements = tuple(elements)
+        self.last_reading_number = None
+
+    def configure_trigger(self, source: TriggerSource, *, delay_s: float = 0.0,
+                          link_input_line: int = 2, link_output_line: int = 1) -> None:
+        """One reading per trigger from ``source``, re-armed by :meth:`initiate` each cycle.
+
+        Arm layers pass immediately (count 1); the trigger layer waits for ``source`` (count 1)
+        and returns to idle after the reading, so ``:FETCh?`` always finds a finished one.
+        For ``TRIGGER_LINK`` the asynchronous protocol with ``link_input_line`` is used.
+        """
+        if source is TriggerSource.TRIGGER_LINK and link_input_line == link_output_line:
+            raise ValueError(f"{self.label}: Trigger Link input and output lines must differ")
+        cls, label = type(self), self.label
+        commands = [":ABORt", cls.continuous_initiation.command(False, label),
+                    cls.arm_source.command(TriggerSource.IMMEDIATE, label), cls.arm_count.command(1, label),
+                    cls.scan_source.command(TriggerSource.IMMEDIATE, label), cls.scan_count.command(1, label),
+                    cls.trigger_source.command(source, label), cls.trigger_count.command(1, label),
+                    cls.trigger_delay_s.command(delay_s, label)]
+        if source is TriggerSource.TRIGGER_LINK:
+            commands += [cls.trigger_link_protocol.command("asynchronous", label),
+                         cls.trigger_link_input_line.command(link_input_line, label),
+                         cls.trigger_link_output_line.command(link_output_line, label)]
+        with self.reporting_faults():
+            for command in commands:
+                self.write(command)
+            self.check_error_queue("trigger configuration")
+        self._trigger_delay_s = float(delay_s)
+
+    @property
+    def timing(self) -> ReadingTiming:
+        """Timing of a triggered reading with the present configuration."""
+        s = self.settings
+        repeat = s.filter_count if (s.filter_count > 1 and s.filter_type is FilterType.REPEATING) else 1
+        return ReadingTiming(nplc=s.nplc, line_frequency_hz=self.line_frequency_hz,
+                             offset_compensation=s.offset_compensation, autozero=s.autozero,
+                             autozero_synchronous=s.autozero_synchronous, line_sync=s.line_sync,
+                             conversions_per_reading=repeat, trigger_delay_s=self._trigger_delay_s)
+
+    @property
+    def reading_delay_s(self) -> float:
+        """Longest time from a trigger to the reading being available (s)."""
+        return self.timing.worst_case_delay_s
+
+    # -- the cycle -----------------------------------------------------------------------
+    def initiate(self) -> None:
+        """``:INITiate``: out of idle, waiting for the trigger (3.19)."""
+        with self.reporting_faults():
+            self.write(":INITiate")
+
+    def abort(self) -> None:
+        """``:ABORt``: back to idle (3.19)."""
+        with self.reporting_faults():
+            self.write(":ABORt")
+
+    def fetch(self) -> DmmReading:
+        """``:FETCh?``: the latest reading, parsed (it may be an old one; see :meth:`fetch_new_reading`)."""
+        with self.reporting_faults():
+            return self.parse_reading(self.query(":FETCh?"))
+
+    def fetch_new_reading(self, trigger_time_s: float, *, timeout_s: float | None = None) -> DmmReading:
+        """The reading of the trigger at ``trigger_time_s``, waiting on the clock until it is there.
+
+        Waits until ``trigger_time_s + reading_delay_s + fetch_margin_s``, then fetches; a reading whose number
+        has not advanced is the previous one, and is fetched again every
+        ``fetch_poll_interval_s`` until ``timeout_s`` after the expected time
+        (default: the transport's timeout), then :class:`~drivers.errors.InstrumentTimeout`.
+        """
+        expected = trigger_time_s + self.reading_delay_s + self.fetch_margin_s
+        limit = expected + (self.transport.timeout_s if timeout_s is None else timeout_s)
+        self.clock.sleep_until(expected)
+        with self.reporting_faults():
+            while True:
+                reading = self.parse_reading(self.query(":FETCh?"))
+                if reading.reading_number is None or reading.reading_number != self.last_reading_number:
+                    self.last_reading_number = reading.reading_number
+                    return reading
+                if self.clock.now() >= limit:
+                    raise InstrumentTimeout(self.label, f"no new reading (number {reading.reading_number} "
+                                                        f"again) {self.clock.now() - trigger_time_s:.3f} s "
+                                                        f"after the trigger", reply=reading.reply)
+                self.clock.sleep_until(self.clock.now() + self.fetch_poll_interval_s)
+
+    def parse_reading(self, reply: str) -> DmmReading:
+        """A reading string with the configured elements; overflow and garbage are typed errors."""
+        fields = [field.strip() for field in reply.split(",")]
+        order = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
+                             DataElement.CHANNEL) if e in self.elements]
+        if len(fields) != len(order):
+            raise BadReply(self.label, f"expected {len(order)} elements "
+                                       f"({', '.join(e.value for e in order)}), got {len(fields)}", reply=reply)
+        values = dict(zip(order, fields))
+        resistance, status = None, None
+        if DataElement.READING in values:
+            match = _READING_FIELD.match(values[DataElement.READING])
+            if not match:
+                raise BadReply(self.label, "reading is not a number", reply=reply)
+            resistance = float(match.group(1))
+            status = match.group(2).upper() if match.group(2) else None
+            if status == "O" or abs(resistance) >= OVERFLOW_MARKER or not math.isfinite(resistance):
+                raise OverflowReading(self.label, "overflow: resistance above the range "
+                                                  "(open sensor lead or wrong range)", reply=reply)
+        number_field = values.get(DataElement.READING_NUMBER)
+        reading_number = None
+        if number_field is not None:
+            match = _INTEGER_FIELD.match(number_field)
+            if not match:
+                raise BadReply(self.label, "reading number is not an integer", reply=reply)
+            reading_number = int(match.group(1))
+        timestamp = None
+        if DataElement.TIMESTAMP in values:
+            match = _DECIMAL_FIELD.match(values[DataElement.TIMESTAMP])
+            if not match:
+                raise BadReply(self.label, "time stamp is not a number", reply=reply)
+            timestamp = float(match.group(1))
+        if resistance is None:
+            raise BadReply(self.label, "the READing element is not configured", reply=reply)
+        return DmmReading(resistance, reading_number, status, timestamp, reply)
+
+    def shutdown(self) -> None:
+        """Back to idle (``:ABORt``) and release the connection; best effort, never raises."""
+        try:
+            self.write(":ABORt")
+        except Exception:  # noqa: BLE001 - shutting down: the link may already be gone
+            pass
+        self.transport.close()

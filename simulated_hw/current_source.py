@@ -1,0 +1,114 @@
+"""The physics every simulated heater supply shares: a current source into the flange heater.
+
+The supply drives its programmed current through the heater while the
+voltage that takes stays under the compliance limit; beyond it, the output
+holds the compliance voltage and the current falls to V/R (an open heater:
+no current at all). The power the heater then dissipates, V*I, goes to the
+simulated cryostat at the instant of the command that changed it.
+
+Faults (issue 3, section 6): :meth:`inject_refuse_output` (the interlock or
+output enable is open: the output stays off when asked on) and
+:meth:`inject_open_heater` (a broken heater wire: infinite resistance).
+"""
+
+from __future__ import annotations
+
+import math
+
+from simulated_hw.cryostat import SimulatedCryostat
+from simulated_hw.instrument import EmulatedInstrument
+
+
+class EmulatedCurrentSource(EmulatedInstrument):
+    """A current source whose load is the simulated cryostat's flange heater.
+
+    Parameters
+    ----------
+    cryostat : SimulatedCryostat
+        Where the heater power goes (and whose clock the supply lives on).
+    heater_resistance_ohm : float
+        Resistance of the flange heater.
+    identity : str
+        ``*IDN?`` reply.
+    """
+
+    def __init__(self, cryostat: SimulatedCryostat, heater_resistance_ohm: float, identity: str):
+        if not heater_resistance_ohm > 0.0:
+            raise ValueError(f"heater resistance must be positive, got {heater_resistance_ohm}")
+        super().__init__(cryostat.clock, identity)
+        self.cryostat = cryostat
+        self.heater_resistance_ohm = float(heater_resistance_ohm)
+        self.output_blocked = False
+        self.heater_open = False
+        self.output_on = False
+        self.current_setpoint_a = 0.0
+        self.compliance_v = 10.0
+
+    # -- faults ----------------------------------------------------------------------
+    def inject_refuse_output(self, blocked: bool = True) -> None:
+        """Fault: the supply refuses to turn its output on (interlock / output enable open)."""
+        with self._lock:
+            self.output_blocked = blocked
+            if blocked:
+                self.output_on = False
+            self.apply_to_heater()
+
+    def inject_open_heater(self, is_open: bool = True) -> None:
+        """Fault: the heater circuit is open (infinite resistance)."""
+        with self._lock:
+            self.heater_open = is_open
+            self.apply_to_heater()
+
+    # -- the load --------------------------------------------------------------------
+    @property
+    def load_resistance_ohm(self) -> float:
+        return math.inf if self.heater_open else self.heater_resistance_ohm
+
+    @property
+    def in_compliance(self) -> bool:
+        """The output is voltage-limited: R*I would exceed the compliance."""
+        if not self.output_on:
+            return False
+        return abs(self.current_setpoint_a) * self.load_resistance_ohm > self.compliance_v
+
+    @property
+    def output_voltage_v(self) -> float:
+        """Voltage across the output terminals (V)."""
+        if not self.output_on:
+            return 0.0
+        if self.in_compliance:
+            return math.copysign(self.compliance_v, self.current_setpoint_a)
+        return self.current_setpoint_a * self.heater_resistance_ohm
+
+    @property
+    def output_current_a(self) -> float:
+        """Current actually flowing through the heater (A)."""
+        if not self.output_on:
+            return 0.0
+        if self.in_compliance:
+            return self.output_voltage_v / self.load_resistance_ohm
+        return self.current_setpoint_a
+
+    @property
+    def heater_power_w(self) -> float:
+        """Power dissipated in the heater (W)."""
+        return self.output_voltage_v * self.output_current_a
+
+    def apply_to_heater(self) -> None:
+        """Give the cryostat the heater power of the present output state, from now on."""
+        self.cryostat.set_heater_power(abs(self.heater_power_w))
+
+    def turn_output(self, on: bool) -> bool:
+        """Turn the output on or off; False when on was asked but the output is blocked."""
+        refused = on and self.output_blocked
+        self.output_on = on and not refused
+        self.apply_to_heater()
+        return not refused
+
+    def set_current(self, current_a: float) -> None:
+        self.current_setpoint_a = current_a
+        self.apply_to_heater()
+
+    def set_compliance(self, compliance_v: float) -> None:
+        self.compliance_v = abs(compliance_v)
+        self.apply_to_heater()

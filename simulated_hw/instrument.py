@@ -1,0 +1,166 @@
+"""What every simulated instrument shares: IEEE 488.2 common commands, the error queue, faults.
+
+A subclass registers its own SCPI headers on ``self.commands`` and gets, from
+here, ``*IDN?``, ``*RST``, ``*CLS``, ``*OPC?``, ``*TRG``, ``:SYSTem:ERRor?``,
+``:STATus:QUEue?``, the bus actions a controller performs without a command
+(group execute trigger, selected device clear) and the faults of section 6
+of issue 3 (no reply, garbage reply, dropped connection).
+
+Thread safety: the TCP server calls :meth:`EmulatedInstrument.handle` from
+its connection threads; every entry point takes the instrument's lock.
+
+Sessions stand for connections: :meth:`open_session` gives a number, and
+:meth:`drop_connections` makes every open session dead, as a cable pulled
+out or a server restarted would. A transport that finds its session dead
+raises :class:`drivers.errors.ConnectionLost` and recovers by opening a new
+one.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+from cryod.clock import Clock
+from simulated_hw.scpi import (CommandTable, ErrorQueue, TRIGGER_IGNORED, parse_boolean,
+                               single_argument)
+
+
+@dataclass
+class CommunicationFaults:
+    """Faults of the link, injected by tests and ``cryod --simulate`` fault drills.
+
+    Attributes
+    ----------
+    silent : bool
+        The instrument executes commands but never answers a query (the
+        controller times out), as a hung or powered-down instrument would.
+    garbage_replies : int
+        The next this many replies are replaced by line noise.
+    """
+
+    silent: bool = False
+    garbage_replies: int = 0
+
+
+#: What a garbage reply looks like: bytes of a corrupted transfer, no number in it.
+GARBAGE_REPLY = "#\x7f?@K:;\x1b~"
+
+
+class EmulatedInstrument:
+    """Base of the simulated instruments.
+
+    Parameters
+    ----------
+    clock : Clock
+        The clock the instrument lives on (the simulated cryostat's).
+    identity : str
+        The ``*IDN?`` reply.
+    """
+
+    def __init__(self, clock: Clock, identity: str):
+        self.clock = clock
+        self.identity = identity
+        self.errors = ErrorQueue()
+        self.faults = CommunicationFaults()
+        self.commands = CommandTable()
+        self._lock = threading.RLock()
+        self._generation = 0
+        self._register_common_commands()
+
+    # -- connections ---------------------------------------------------------
+    def open_session(self) -> int:
+        """A new connection; returns its token for :meth:`session_alive`."""
+        with self._lock:
+            return self._generation
+
+    def session_alive(self, session: int) -> bool:
+        return session == self._generation
+
+    def drop_connections(self) -> None:
+        """Fault: every open connection is lost (the next I/O on it fails)."""
+        with self._lock:
+            self._generation += 1
+
+    # -- faults --------------------------------------------------------------
+    def inject_no_reply(self, silent: bool = True) -> None:
+        """Fault: stop (or resume) answering queries; the controller times out."""
+        with self._lock:
+            self.faults.silent = silent
+
+    def inject_garbage(self, count: int = 1) -> None:
+        """Fault: the next ``count`` replies are garbage."""
+        with self._lock:
+            self.faults.garbage_replies += count
+
+    # -- the controller's side -------------------------------------------------
+    def handle(self, message: str) -> str | None:
+        """Execute one program message; its reply, or None when there is nothing to send."""
+        with self._lock:
+            self.update()
+            reply = self.commands.execute(message, self.errors)
+            if reply is None or self.faults.silent:
+                return None
+            if self.faults.garbage_replies > 0:
+                self.faults.garbage_replies -= 1
+                return GARBAGE_REPLY
+            return reply
+
+    def group_execute_trigger(self, time_s: float | None = None) -> None:
+        """The GPIB GET interface message addressed to this instrument (same effect as ``*TRG``).
+
+        ``time_s``: the instant of the GET when one message reaches several listeners
+        (they all see the same instant); now by default.
+        """
+        with self._lock:
+            self.update()
+            self.bus_trigger(time_s)
+
+    def selected_device_clear(self) -> None:
+        """The GPIB SDC interface message: clear the input and output buffers."""
+        with self._lock:
+            self.update()
+
+    # -- hooks for subclasses ----------------------------------------------------
+    def update(self) -> None:
+        """Bring the instrument's state to the clock's now (called on every entry)."""
+
+    def reset(self) -> None:
+        """``*RST``: the instrument's reset defaults."""
+
+    def bus_trigger(self, time_s: float | None = None) -> None:
+        """React to GET or ``*TRG`` (at ``time_s``, default now); the default ignores it with -211."""
+        self.errors.push(*TRIGGER_IGNORED)
+
+    # -- common commands -------------------------------------------------------
+    def _register_common_commands(self) -> None:
+        add = self.commands.add
+        add("*IDN", query=lambda args: self.identity)
+        add("*RST", write=lambda args: self.reset())
+        add("*CLS", write=lambda args: self.errors.clear())
+        add("*OPC", write=lambda args: None, query=lambda args: "1")
+        add("*WAI", write=lambda args: None)
+        add("*TRG", write=lambda args: self.bus_trigger())
+        add(":SYSTem:ERRor[:NEXT]", query=lambda args: ErrorQueue.format(self.errors.pop()))
+        add(":STATus:QUEue[:NEXT]", query=lambda args: ErrorQueue.format(self.errors.pop()))
+        add(":SYSTem:PRESet", write=lambda args: self.reset())
+
+
+def on_off(value: bool) -> str:
+    """How Keithley instruments answer a boolean query: ``1`` or ``0``."""
+    return "1" if value else "0"
+
+
+def boolean_setting(instrument: object, attribute: str):
+    """(write, query) handlers for a boolean setting stored on ``instrument``."""
+    def write(arguments: list[str]) -> None:
+        setattr(instrument, attribute, parse_boolean(arguments))
+
+    def query(arguments: list[str]) -> str:
+        return on_off(getattr(instrument, attribute))
+
+    return write, query
+
+
+__all__ = ["EmulatedInstrument", "CommunicationFaults", "GARBAGE_REPLY", "on_off",
+           "boolean_setting", "single_argument"]

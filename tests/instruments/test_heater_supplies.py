@@ -1,0 +1,187 @@
+"""Heater supply drivers against the simulated 6221 and 2400 (issue 3, sections 2, 5 and 6), in process."""
+
+import math
+
+import pytest
+
+from drivers.errors import (BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterRefused,
+                            IdentityMismatch, InstrumentTimeout)
+from drivers.keithley2400 import Keithley2400
+from drivers.keithley6221 import Keithley6221
+from drivers.transports import InProcessTransport
+from simulated_hw.bench import SimulatedBench
+
+from conftest import HEATER_RESISTANCE_OHM
+
+DRIVERS = {"6221": Keithley6221, "2400": Keithley2400}
+
+
+@pytest.fixture(params=sorted(DRIVERS))
+def supply(request, clock, flange_curve, ptc_stage_curve):
+    """(simulated bench, heater driver) for each supply model."""
+    bench = SimulatedBench(clock, flange_curve, ptc_stage_curve, heater_resistance_ohm=HEATER_RESISTANCE_OHM,
+                           supply=request.param, noise=False)
+    transport = InProcessTransport(bench.heater_supply, "simulated heater supply", timeout_s=0.5)
+    heater = DRIVERS[request.param](transport, clock, HEATER_RESISTANCE_OHM, max_current_a=0.1,
+                                    voltage_compliance_v=10.0, name="flange heater")
+    return bench, heater
+
+
+def assert_off(bench):
+    assert not bench.heater_supply.output_on
+    assert bench.cryostat.heater_power_w == 0.0
+
+
+def test_power_is_applied_as_current_squared_times_resistance(supply, clock):
+    bench, heater = supply
+    setting = heater.set_power_w(0.110)
+    assert setting.current_a == pytest.approx(math.sqrt(0.110 / HEATER_RESISTANCE_OHM), rel=1e-6)
+    assert bench.heater_supply.output_on
+    assert bench.cryostat.heater_power_w == pytest.approx(0.110, rel=1e-5)
+
+
+def test_power_reaches_the_cryostat_at_the_instant_of_the_write(supply, clock):
+    bench, heater = supply
+    clock.advance(10.0)
+    heater.set_power_w(0.05)
+    assert bench.cryostat.plant.time_s == 10.0
+    flange_before_K = bench.cryostat.true_temperatures()[0]
+    clock.advance(100.0)
+    assert bench.cryostat.true_temperatures()[0] > flange_before_K + 0.01
+
+
+def test_read_back(supply):
+    bench, heater = supply
+    heater.set_power_w(0.08)
+    readback = heater.read_back()
+    assert readback.current_a == pytest.approx(0.04, rel=1e-6)
+    assert readback.voltage_v == pytest.approx(2.0, rel=1e-6)
+    assert readback.power_w == pytest.approx(0.08, rel=1e-5)
+    assert readback.voltage_measured is isinstance(heater, Keithley2400)
+
+
+def test_above_the_maximum_current_is_refused_and_nothing_changes(supply):
+    bench, heater = supply
+    heater.set_power_w(0.1)
+    current_before = bench.heater_supply.current_setpoint_a
+    with pytest.raises(HeaterLimitRefused, match="above the 100 mA maximum") as raised:
+        heater.set_power_w(0.51)          # 101 mA at 50 ohm
+    assert isinstance(raised.value, ValueError)
+    assert bench.heater_supply.current_setpoint_a == current_before
+    assert bench.heater_supply.output_on
+    assert bench.cryostat.heater_power_w == pytest.approx(0.1, rel=1e-5)
+
+
+@pytest.mark.parametrize("power", [-1e-3, math.nan, math.inf])
+def test_negative_or_non_finite_power_is_refused(supply, power):
+    bench, heater = supply
+    with pytest.raises(HeaterLimitRefused):
+        heater.set_power_w(power)
+    assert not bench.heater_supply.output_on
+
+
+def test_maximum_power_is_accepted(supply):
+    bench, heater = supply
+    heater.set_power_w(heater.max_power_w)
+    assert bench.cryostat.heater_power_w == pytest.approx(0.5, rel=1e-5)
+
+
+def test_configuration_that_cannot_reach_the_maximum_current_is_refused(clock, bench):
+    with pytest.raises(ValueError, match="above the 4 V compliance"):
+        Keithley6221(InProcessTransport(bench.heater_supply), clock, HEATER_RESISTANCE_OHM, max_current_a=0.1,
+                     voltage_compliance_v=4.0)
+
+
+def test_output_off_on_close_and_on_context_exit(supply):
+    bench, heater = supply
+    heater.set_power_w(0.1)
+    heater.close()
+    assert_off(bench)
+    heater.transport.reopen()
+    with heater:
+        heater.set_power_w(0.1)
+        assert bench.heater_supply.output_on
+    assert_off(bench)
+
+
+def test_output_off_when_the_caller_fails_inside_the_context(supply):
+    bench, heater = supply
+    with pytest.raises(RuntimeError):
+        with heater:
+            heater.set_power_w(0.1)
+            raise RuntimeError("loop crashed")
+    assert_off(bench)
+
+
+def test_open_heater_is_compliance_and_leaves_the_output_off(supply):
+    bench, heater = supply
+    heater.set_power_w(0.05)
+    bench.heater_supply.inject_open_heater()
+    with pytest.raises(HeaterCompliance, match="flange heater.*compliance"):
+        heater.set_power_w(0.06)
+    assert_off(bench)
+
+
+def test_open_heater_found_by_read_back(supply):
+    bench, heater = supply
+    heater.set_power_w(0.05)
+    bench.heater_supply.inject_open_heater()
+    with pytest.raises(HeaterCompliance):
+        heater.read_back()
+    assert_off(bench)
+
+
+def test_refused_output_is_heater_refused_and_off(supply):
+    bench, heater = supply
+    bench.heater_supply.inject_refuse_output()
+    with pytest.raises(HeaterRefused) as raised:
+        heater.set_power_w(0.05)
+    assert_off(bench)
+    if isinstance(heater, Keithley2400):
+        assert raised.value.error_queue == ((802, "OUTPUT blocked by output enable"),)
+    else:
+        assert "interlock" in str(raised.value)
+
+
+def test_timeout_is_typed_and_leaves_the_output_off(supply, clock):
+    bench, heater = supply
+    heater.set_power_w(0.05)
+    bench.heater_supply.inject_no_reply()
+    start = clock.now()
+    with pytest.raises(InstrumentTimeout, match="flange heater"):
+        heater.set_power_w(0.06)
+    assert clock.now() - start >= 0.5                 # the timeout elapsed on the injected clock
+    assert_off(bench)
+
+
+def test_garbage_reply_is_bad_reply_and_leaves_the_output_off(supply):
+    bench, heater = supply
+    heater.set_power_w(0.05)
+    bench.heater_supply.inject_garbage()
+    with pytest.raises(BadReply):
+        heater.set_power_w(0.06)
+    assert_off(bench)
+
+
+def test_dropped_connection_is_reopened_to_switch_the_output_off(supply):
+    bench, heater = supply
+    heater.set_power_w(0.05)
+    bench.heater_supply.drop_connections()
+    with pytest.raises(ConnectionLost, match="dropped"):
+        heater.set_power_w(0.06)
+    assert_off(bench)
+    heater.set_power_w(0.02)                         # recovered: the loop may carry on
+    assert bench.cryostat.heater_power_w == pytest.approx(0.02, rel=1e-5)
+
+
+def test_wrong_instrument_is_refused_at_connect(clock, bench):
+    with pytest.raises(IdentityMismatch, match="expected a MODEL 2400"):
+        Keithley2400(InProcessTransport(bench.heater_supply), clock, HEATER_RESISTANCE_OHM)
+
+
+def test_2400_emulator_reports_read_with_output_off(clock, flange_curve, ptc_stage_curve):
+    bench = SimulatedBench(clock, flange_curve, ptc_stage_curve, supply="2400", noise=False)
+    transport = InProcessTransport(bench.heater_supply, timeout_s=0.0)
+    with pytest.raises(InstrumentTimeout):
+        transport.query(":READ?")
+    assert transport.query(":SYSTem:ERRor?") == '803,"Not permitted with OUTPUT off"'

@@ -1,0 +1,186 @@
+"""Transports (issue 3, section 3): in process, TCP sockets through pyvisa-py, a Prologix controller."""
+
+import time
+
+import pytest
+
+from cryod.clock import MonotonicClock
+from drivers.errors import ConnectionLost, InstrumentTimeout
+from drivers.keithley2002 import FourWireSettings, Keithley2002, TriggerSource
+from drivers.keithley6221 import Keithley6221
+from drivers.transports import InProcessTransport, PrologixAdapter, VisaTransport
+from simulated_hw.bench import PROLOGIX_ADDRESSES, SimulatedBench
+from simulated_hw.scpi_server import ScpiServer
+
+IDN_2002 = "KEITHLEY INSTRUMENTS INC.,MODEL 2002,0000002,B02  /A02"
+TCP_TIMEOUT_S = 0.25
+
+
+@pytest.fixture
+def real_time_bench(flange_curve, ptc_stage_curve):
+    """Over TCP the instruments answer from server threads: the clock must run by itself."""
+    return SimulatedBench(MonotonicClock(), flange_curve, ptc_stage_curve, noise=False)
+
+
+# -- in process ------------------------------------------------------------------------------
+def test_in_process_timeout_costs_the_timeout_on_the_clock(bench, clock):
+    transport = InProcessTransport(bench.flange_dmm, "flange", timeout_s=0.3)
+    bench.flange_dmm.inject_no_reply()
+    with pytest.raises(InstrumentTimeout, match="no reply within 0.3 s"):
+        transport.query("*IDN?")
+    assert clock.now() == pytest.approx(0.3)
+
+
+def test_in_process_dropped_connection_and_reopen(bench):
+    transport = InProcessTransport(bench.flange_dmm, "flange")
+    bench.flange_dmm.drop_connections()
+    with pytest.raises(ConnectionLost):
+        transport.query("*IDN?")
+    with pytest.raises(ConnectionLost):             # stays lost until reopened
+        transport.query("*IDN?")
+    transport.reopen()
+    assert transport.query("*IDN?") == IDN_2002
+
+
+def test_in_process_trigger_is_a_group_execute_trigger(bench):
+    transport = InProcessTransport(bench.flange_dmm)
+    transport.trigger()                              # not initiated: the 2002 ignores it
+    assert transport.query(":SYSTem:ERRor?") == '-211,"Trigger ignored"'
+
+
+# -- TCP sockets through pyvisa-py ---------------------------------------------------------------
+def test_socket_query_and_settings(real_time_bench):
+    with ScpiServer(real_time_bench.flange_dmm) as server:
+        transport = VisaTransport(server.resource_name, timeout_s=TCP_TIMEOUT_S)
+        assert transport.query("*IDN?") == IDN_2002
+        transport.write(":SENS:FRES:NPLC 2")
+        assert transport.query(":SENS:FRES:NPLC?") == "2"
+        transport.close()
+
+
+def test_socket_timeout_is_typed(real_time_bench):
+    with ScpiServer(real_time_bench.flange_dmm) as server:
+        transport = VisaTransport(server.resource_name, timeout_s=TCP_TIMEOUT_S)
+        real_time_bench.flange_dmm.inject_no_reply()
+        start = time.monotonic()
+        with pytest.raises(InstrumentTimeout, match="no reply within 0.25 s"):
+            transport.query("*IDN?")
+        assert time.monotonic() - start >= TCP_TIMEOUT_S * 0.9
+        transport.close()
+
+
+def test_socket_dropped_connection_then_reopen(real_time_bench):
+    with ScpiServer(real_time_bench.flange_dmm) as server:
+        transport = VisaTransport(server.resource_name, timeout_s=TCP_TIMEOUT_S)
+        assert transport.query("*IDN?") == IDN_2002
+        real_time_bench.flange_dmm.drop_connections()
+        time.sleep(0.05)                              # the server closes the socket
+        with pytest.raises(ConnectionLost):
+            transport.query("*IDN?")
+        transport.reopen()
+        assert transport.query("*IDN?") == IDN_2002
+        transport.close()
+
+
+def test_socket_closed_transport_and_unreachable_server(real_time_bench):
+    with ScpiServer(real_time_bench.flange_dmm) as server:
+        transport = VisaTransport(server.resource_name, timeout_s=TCP_TIMEOUT_S)
+        transport.close()
+        with pytest.raises(ConnectionLost, match="closed"):
+            transport.query("*IDN?")
+        port = server.port
+    nobody_listening = VisaTransport(f"TCPIP0::127.0.0.1::{port}::SOCKET", timeout_s=TCP_TIMEOUT_S)
+    with pytest.raises(ConnectionLost, match="refused"):      # pyvisa-py opens; the first I/O fails
+        nobody_listening.query("*IDN?")
+
+
+def test_socket_trigger_sends_trg(real_time_bench):
+    clock = real_time_bench.clock
+    with ScpiServer(real_time_bench.flange_dmm) as server:
+        transport = VisaTransport(server.resource_name, timeout_s=TCP_TIMEOUT_S)
+        dmm = Keithley2002(transport, clock, "flange DMM")
+        dmm.configure_four_wire_resistance(FourWireSettings(range_ohm=20e3, nplc=0.1, autozero=False))
+        dmm.configure_trigger(TriggerSource.BUS)
+        dmm.initiate()
+        transport.trigger()
+        trigger_time = clock.now()                    # the *TRG has left when write returns
+        reading = dmm.fetch_new_reading(trigger_time)
+        assert 2700 < reading.resistance_ohm < 2800 and reading.reading_number == 0
+        dmm.shutdown()
+
+
+# -- Prologix GPIB-ETHERNET through pyvisa-py ------------------------------------------------------
+def test_prologix_switches_address_between_instruments(real_time_bench):
+    with real_time_bench.serve_prologix() as controller:
+        adapter = PrologixAdapter(controller.interface_resource_name, timeout_s=TCP_TIMEOUT_S)
+        flange = adapter.instrument(PROLOGIX_ADDRESSES["flange"], name="flange DMM")
+        heater = adapter.instrument(PROLOGIX_ADDRESSES["heater"], name="heater")
+        assert flange.query("*IDN?") == IDN_2002
+        assert "MODEL 6221" in heater.query("*IDN?")
+        assert flange.query("*IDN?") == IDN_2002
+        addresses = [c for c in controller.controller_commands if c.startswith("addr")]
+        assert addresses == ["addr 16", "addr 24", "addr 16"]
+        for transport in (flange, heater):
+            transport.close()
+        adapter.close()
+
+
+def test_prologix_escapes_data_so_a_plus_sign_arrives(real_time_bench):
+    with real_time_bench.serve_prologix() as controller:
+        adapter = PrologixAdapter(controller.interface_resource_name, timeout_s=TCP_TIMEOUT_S)
+        heater = adapter.instrument(PROLOGIX_ADDRESSES["heater"])
+        heater.write(":SOURce:CURRent +1.000000E-02")
+        assert float(heater.query(":SOURce:CURRent?")) == 0.01
+        heater.close()
+        adapter.close()
+
+
+def test_prologix_group_trigger_reaches_both_dmms_at_once(real_time_bench):
+    bench = real_time_bench
+    with bench.serve_prologix() as controller:
+        adapter = PrologixAdapter(controller.interface_resource_name, timeout_s=TCP_TIMEOUT_S)
+        for emulator in (bench.flange_dmm, bench.ptc_stage_dmm):
+            for command in (":TRIG:SOUR BUS", ":INIT"):
+                emulator.handle(command)
+        adapter.trigger([16, 17])
+        deadline = time.monotonic() + 1.0
+        while controller.group_triggers == [] and time.monotonic() < deadline:
+            time.sleep(0.001)
+        assert controller.group_triggers == [(16, 17)]
+        assert bench.flange_dmm._pending.trigger_time_s == bench.ptc_stage_dmm._pending.trigger_time_s
+        adapter.close()
+
+
+def test_prologix_timeout_and_dropped_controller_connection(real_time_bench):
+    bench = real_time_bench
+    with bench.serve_prologix() as controller:
+        adapter = PrologixAdapter(controller.interface_resource_name, timeout_s=TCP_TIMEOUT_S)
+        flange = adapter.instrument(16, name="flange DMM")
+        stage = adapter.instrument(17, name="PTC-stage DMM")
+        bench.flange_dmm.inject_no_reply()
+        with pytest.raises(InstrumentTimeout):
+            flange.query("*IDN?")
+        bench.flange_dmm.inject_no_reply(False)
+        controller.drop_connections()
+        time.sleep(0.05)
+        with pytest.raises(ConnectionLost):
+            flange.query("*IDN?")
+        flange.reopen()                                # reconnects the controller once ...
+        stage.reopen()                                 # ... the second instrument only reopens itself
+        assert adapter.generation == 2
+        assert flange.query("*IDN?") == IDN_2002
+        assert "MODEL 2002,0000005" in stage.query("*IDN?")
+        for transport in (flange, stage):
+            transport.close()
+        adapter.close()
+
+
+def test_prologix_heater_driver_unchanged(real_time_bench):
+    bench = real_time_bench
+    with bench.serve_prologix() as controller:
+        adapter = PrologixAdapter(controller.interface_resource_name, timeout_s=TCP_TIMEOUT_S)
+        with Keithley6221(adapter.instrument(24), bench.clock, 50.0, name="heater") as heater:
+            heater.set_power_w(0.110)
+            assert bench.cryostat.heater_power_w == pytest.approx(0.110, rel=1e-5)
+        assert bench.cryostat.heater_power_w == 0.0
+        adapter.close()

@@ -69,6 +69,16 @@ class DmmSettings:
 
 
 @dataclass(frozen=True)
+class TriggerOutputConfig:
+    """The wire of an external hardware trigger: a serial port's control line to both DMMs."""
+
+    port: str
+    line: str
+    dmm_input: str          # "external" (rear BNC inputs) or "trigger_link"
+    link_line: int
+
+
+@dataclass(frozen=True)
 class InstrumentsConfig:
     trigger: str
     timeout_s: float
@@ -78,6 +88,7 @@ class InstrumentsConfig:
     heater_supply: InstrumentAddress
     heater_model: str
     dmm: DmmSettings
+    trigger_output: TriggerOutputConfig | None = None
 
 
 @dataclass(frozen=True)
@@ -253,8 +264,8 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     dmm = DmmSettings(
         range_ohm=dmm_section.number("range_ohm", minimum=0.0, exclusive_minimum=True),
         nplc=dmm_section.number("nplc", minimum=0.01, maximum=50.0),
-        digits=dmm_section.number("digits", 7, minimum=4, maximum=8, integer=True),
-        filter_count=dmm_section.number("filter_count", 0, minimum=0, maximum=100, integer=True),
+        digits=dmm_section.number("digits", 7, minimum=4, maximum=9, integer=True),
+        filter_count=dmm_section.number("filter_count", 1, minimum=1, maximum=100, integer=True),
         autozero=dmm_section.flag("autozero", True),
         offset_compensation=dmm_section.flag("offset_compensation", False),
         line_sync=dmm_section.flag("line_sync", True),
@@ -273,8 +284,22 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     stage_section = section.section("ptc_stage_dmm")
     stage_address = _address(stage_section)
     stage_section.finish()
+    trigger = section.text("trigger", choices=TRIGGER_MODES)
+    output_section = section.section("trigger_output", None)
+    trigger_output = None
+    if output_section is not None:
+        trigger_output = TriggerOutputConfig(
+            port=output_section.text("port"),
+            line=output_section.text("line", "rts", choices=("rts", "dtr")),
+            dmm_input=output_section.text("dmm_input", "external", choices=("external", "trigger_link")),
+            link_line=output_section.number("link_line", 1, minimum=1, maximum=6, integer=True),
+        )
+        output_section.finish()
+    elif trigger == "external":
+        raise section.error("trigger", "external needs instruments.trigger_output: {port: /dev/ttyS0, line: rts}")
     instruments = InstrumentsConfig(
-        trigger=section.text("trigger", choices=TRIGGER_MODES),
+        trigger=trigger,
+        trigger_output=trigger_output,
         timeout_s=section.number("timeout_s", 1.0, minimum=0.01, maximum=60.0),
         visa_library=section.text("visa_library", "@py"),
         flange_dmm=flange_address,

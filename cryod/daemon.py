@@ -105,8 +105,9 @@ class Daemon:
         self.install_signal_handlers = install_signal_handlers
         self.loop: ControlLoop | None = None
         self.datalog: DataLog | None = None
-        self._reload_wanted = threading.Event()
-        self._service_stop = threading.Event()
+        self._reload_wanted = False
+        self._service_stop = False
+        self._service_wake = threading.Event()      # a reload or the stop
 
     # -- signals ----------------------------------------------------------------
     def _on_stop_signal(self, number, frame) -> None:
@@ -114,13 +115,18 @@ class Daemon:
             self.loop.request_stop(f"{signal.Signals(number).name} received")
 
     def _on_reload_signal(self, number, frame) -> None:
-        self._reload_wanted.set()
+        self._reload_wanted = True
+        self._service_wake.set()
 
     # -- service thread: STATUS about once a second, reloads --------------------
     def _service(self) -> None:
-        while not self._service_stop.is_set():
-            if self._reload_wanted.wait(1.0):
-                self._reload_wanted.clear()
+        while True:
+            self._service_wake.wait(1.0)
+            self._service_wake.clear()
+            if self._service_stop:
+                return
+            if self._reload_wanted:
+                self._reload_wanted = False
                 self.reload()
             if self.loop is not None:
                 self.notifier.status(self.loop.status.one_line())
@@ -185,7 +191,8 @@ class Daemon:
                      config.loop.period_s * 1e3, config.data.directory, config.control_socket.path)
             exit_code = self.loop.run(duration_s)
         finally:
-            self._service_stop.set()
+            self._service_stop = True
+            self._service_wake.set()
             if instruments is not None:
                 try:
                     instruments.close()

@@ -1,0 +1,257 @@
+"""The instruments as the loop sees them, built from the configuration.
+
+:func:`open_instruments` opens the real instruments (``cryod run``); the
+simulation (``cryod --simulate``) hands :func:`assemble_instruments` the
+transports and trigger of the simulated bench instead, so both go through the
+same drivers and the same :class:`DriverInstruments`.
+
+Opening is all or nothing: if any instrument fails, the ones already open are
+closed with the heater output off, and the error names the instrument.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Callable
+
+from cryod.config import DaemonConfig, DmmSettings, InstrumentAddress
+from cryod.loop import Measurement
+from cryod.thermometry import CalibrationCurve, load_calibration
+from cryod.yaml_source import FileFormatError
+from drivers.errors import InstrumentError
+from drivers.heater import HeaterSupply
+from drivers.keithley2002 import FourWireSettings, Keithley2002, TriggerSource
+from drivers.keithley2400 import Keithley2400
+from drivers.keithley6221 import Keithley6221
+from drivers.pair_triggers import (GpibGroupTrigger, HardwareTrigger, PairTrigger, PrologixGroupTrigger,
+                                   SequentialTrigger)
+from drivers.thermometer_pair import ThermometerPair
+from drivers.transports.base import Transport
+from drivers.transports.prologix import PrologixAdapter
+from drivers.transports.visa import VisaTransport, resource_manager
+from drivers.trigger_lines import SerialControlLine
+
+log = logging.getLogger("cryod.hardware")
+
+HEATER_DRIVERS = {"keithley6221": Keithley6221, "keithley2400": Keithley2400}
+
+
+# ---------------------------------------------------------------------------
+# calibration
+# ---------------------------------------------------------------------------
+def load_curves(config: DaemonConfig) -> tuple[CalibrationCurve, CalibrationCurve]:
+    """The flange and PTC-stage calibration curves named in the configuration."""
+    return (load_calibration(config.sensors.flange_calibration),
+            load_calibration(config.sensors.ptc_stage_calibration))
+
+
+def check_calibrations(config: DaemonConfig) -> str | None:
+    """None if both calibration files load, else what is wrong with which file."""
+    try:
+        load_curves(config)
+    except FileFormatError as error:
+        return f"calibration file not usable: {error}"
+    return None
+
+
+# ---------------------------------------------------------------------------
+# the loop's view
+# ---------------------------------------------------------------------------
+class DriverInstruments:
+    """Two Keithley 2002s and a heater supply behind the loop's :class:`cryod.loop.Instruments` interface.
+
+    Parameters
+    ----------
+    pair : ThermometerPair
+    heater : HeaterSupply
+    dmm_settings : FourWireSettings
+        Applied again after a reconnect.
+    transports : list of Transport
+        Everything to reopen on :meth:`reconnect` and close on :meth:`close`.
+    on_close : callable, optional
+        Releases what else was opened (a trigger port, a GPIB board).
+    """
+
+    def __init__(self, pair: ThermometerPair, heater: HeaterSupply, dmm_settings: FourWireSettings,
+                 transports: list[Transport], on_close: Callable[[], None] | None = None):
+        self.pair = pair
+        self.heater = heater
+        self.dmm_settings = dmm_settings
+        self.transports = transports
+        self.on_close = on_close
+
+    def measure(self) -> Measurement:
+        reading = self.pair.measure()
+        return Measurement(reading.trigger_time_s, reading.skew_s, reading.flange_resistance_ohm,
+                           reading.ptc_stage_resistance_ohm)
+
+    def set_heater_power(self, power_w: float) -> None:
+        self.heater.set_power_w(power_w)
+
+    def heater_off(self) -> None:
+        self.heater.output_off()
+
+    def reconnect(self) -> None:
+        """Reopen every connection, then configure the DMMs and the heater again (output off)."""
+        for transport in self.transports:
+            transport.reopen()
+        for dmm in self.pair.dmms:
+            dmm.configure_four_wire_resistance(self.dmm_settings)
+        self.pair.prepare()
+        self.heater.configure_source()
+        self.heater.output_is_on = False
+
+    def close(self) -> None:
+        """Heater output off first, then everything else (each step best effort)."""
+        try:
+            self.heater.close()
+        finally:
+            try:
+                self.pair.close()
+            except InstrumentError as error:
+                log.warning("closing the DMMs: %s", error)
+            for transport in self.transports:
+                try:
+                    transport.close()
+                except Exception as error:  # noqa: BLE001 - already closing; say so and go on
+                    log.warning("closing %s: %s", getattr(transport, "name", transport), error)
+            if self.on_close is not None:
+                self.on_close()
+
+
+def four_wire_settings(settings: DmmSettings) -> FourWireSettings:
+    """The driver's settings from the configuration's ``instruments.dmm``."""
+    return FourWireSettings(range_ohm=settings.range_ohm, nplc=settings.nplc, digits=settings.digits,
+                            filter_count=settings.filter_count, autozero=settings.autozero,
+                            offset_compensation=settings.offset_compensation, line_sync=settings.line_sync)
+
+
+def assemble_instruments(config: DaemonConfig, clock, flange_transport: Transport, stage_transport: Transport,
+                         heater_transport: Transport, make_trigger: Callable[[], PairTrigger],
+                         extra_transports: list[Transport] = (), on_close: Callable[[], None] | None = None
+                         ) -> DriverInstruments:
+    """Drivers on the given transports: identity checked, configured, heater output off.
+
+    On any failure, what was opened is closed (heater off first) and the error re-raised.
+    """
+    transports = [heater_transport, flange_transport, stage_transport, *extra_transports]
+    heater = None
+    try:
+        heater_config = config.heater
+        heater = HEATER_DRIVERS[config.instruments.heater_model](
+            heater_transport, clock, heater_config.resistance_ohm, max_current_a=heater_config.max_current_A,
+            voltage_compliance_v=heater_config.voltage_compliance_V, name="heater supply")
+        line = config.instruments.dmm.line_frequency_hz
+        flange = Keithley2002(flange_transport, clock, "flange DMM (T2)", line_frequency_hz=line)
+        stage = Keithley2002(stage_transport, clock, "PTC-stage DMM (T5)", line_frequency_hz=line)
+        settings = four_wire_settings(config.instruments.dmm)
+        for dmm in (flange, stage):
+            dmm.configure_four_wire_resistance(settings)
+        pair = ThermometerPair(flange, stage, make_trigger(), clock)
+        pair.prepare()
+        if pair.reading_delay_s >= config.loop.period_s:
+            raise ValueError(f"a reading takes {pair.reading_delay_s * 1e3:.0f} ms, longer than the "
+                             f"{config.loop.period_s * 1e3:.0f} ms loop period: lower instruments.dmm.nplc")
+        return DriverInstruments(pair, heater, settings, transports, on_close)
+    except BaseException:
+        if heater is not None:
+            heater.close()
+        for transport in transports:
+            try:
+                transport.close()
+            except Exception:  # noqa: BLE001 - the original error is what matters
+                pass
+        if on_close is not None:
+            on_close()
+        raise
+
+
+# ---------------------------------------------------------------------------
+# real instruments
+# ---------------------------------------------------------------------------
+def _adapter_key(address: InstrumentAddress) -> tuple[str, str]:
+    return ("usb", address.prologix_port) if address.prologix_port else ("ethernet", address.prologix_host)
+
+
+def open_transport(address: InstrumentAddress, config: DaemonConfig, adapters: dict, name: str) -> Transport:
+    """A VISA transport, or a Prologix one sharing its adapter with the other instruments on it."""
+    timeout = config.instruments.timeout_s
+    if address.resource:
+        return VisaTransport(address.resource, visa_library=config.instruments.visa_library, timeout_s=timeout,
+                             name=name)
+    key = _adapter_key(address)
+    if key not in adapters:
+        adapters[key] = (PrologixAdapter.usb(address.prologix_port, timeout_s=timeout) if key[0] == "usb"
+                         else PrologixAdapter.ethernet(address.prologix_host, timeout_s=timeout))
+    return adapters[key].instrument(address.gpib_address, name=name)
+
+
+def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, CalibrationCurve, CalibrationCurve]:
+    """Open the configured instruments (``cryod run``).
+
+    Returns
+    -------
+    (DriverInstruments, flange curve, PTC-stage curve)
+    """
+    curves = load_curves(config)
+    instruments = config.instruments
+    adapters: dict = {}
+    opened: list = []
+    try:
+        heater = open_transport(instruments.heater_supply, config, adapters, "heater supply")
+        opened.append(heater)
+        flange = open_transport(instruments.flange_dmm, config, adapters, "flange DMM (T2)")
+        opened.append(flange)
+        stage = open_transport(instruments.ptc_stage_dmm, config, adapters, "PTC-stage DMM (T5)")
+        opened.append(stage)
+    except BaseException:
+        for transport in opened:
+            transport.close()
+        for adapter in adapters.values():
+            adapter.close()
+        raise
+    closers: list[Callable[[], None]] = [adapter.close for adapter in adapters.values()]
+
+    def make_trigger() -> PairTrigger:
+        mode = instruments.trigger
+        if mode == "sequential":
+            return SequentialTrigger([flange, stage], clock)
+        if mode == "gpib-group":
+            board = _gpib_board(instruments.flange_dmm, instruments.ptc_stage_dmm)
+            interface = resource_manager(instruments.visa_library).open_resource(f"GPIB{board}::INTFC")
+            closers.append(interface.close)
+            return GpibGroupTrigger(interface, [flange, stage], clock)
+        if mode == "prologix":
+            keys = {_adapter_key(instruments.flange_dmm), _adapter_key(instruments.ptc_stage_dmm)}
+            if instruments.flange_dmm.resource or instruments.ptc_stage_dmm.resource or len(keys) != 1:
+                raise ValueError("instruments.trigger: prologix needs both DMMs on the same Prologix adapter")
+            return PrologixGroupTrigger(adapters[keys.pop()], [instruments.flange_dmm.gpib_address,
+                                                               instruments.ptc_stage_dmm.gpib_address], clock)
+        output = instruments.trigger_output
+        line = SerialControlLine.open(output.port, clock, line=output.line)
+        closers.append(line.close)
+        source = TriggerSource.EXTERNAL if output.dmm_input == "external" else TriggerSource.TRIGGER_LINK
+        return HardwareTrigger(line, clock, dmm_input=source, link_input_line=output.link_line)
+
+    def close_others() -> None:
+        for close in closers:
+            try:
+                close()
+            except Exception as error:  # noqa: BLE001 - closing; say so and go on
+                log.warning("closing: %s", error)
+
+    instruments_set = assemble_instruments(config, clock, flange, stage, heater, make_trigger,
+                                           on_close=close_others)
+    return (instruments_set, *curves)
+
+
+def _gpib_board(*addresses: InstrumentAddress) -> int:
+    boards = set()
+    for address in addresses:
+        if not address.resource or not address.resource.upper().startswith("GPIB"):
+            raise ValueError("instruments.trigger: gpib-group needs both DMMs on a GPIB card (GPIBn::addr::INSTR)")
+        prefix = address.resource.upper().split("::")[0][4:]
+        boards.add(int(prefix or 0))
+    if len(boards) != 1:
+        raise ValueError("instruments.trigger: gpib-group needs both DMMs on the same GPIB board")
+    return boards.pop()

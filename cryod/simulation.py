@@ -1,0 +1,261 @@
+"""``cryod --simulate``: the daemon's own code path against the simulated cryostat.
+
+The configuration is validated as for ``cryod run``; the drivers are the real
+ones; only the far end differs: the simulated bench (simulated cryostat,
+Keithley 2002s and heater supply speaking their SCPI). By default the drivers
+reach it through pyvisa-py over TCP on 127.0.0.1, in real time. ``--speed X``
+runs the clock X times faster; ``--speed max`` runs on virtual time as fast as
+the CPU allows, with the in-process transport (a virtual clock cannot be
+shared with server threads).
+
+Trigger modes: ``external`` and ``sequential`` are simulated as configured;
+``gpib-group`` uses the simulated GPIB board in process, and over TCP (which
+has no GPIB bus) the simulated external trigger wire, equally simultaneous;
+``prologix`` serves all three instruments behind a simulated Prologix
+GPIB-ETHERNET controller (TCP only).
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import dataclasses
+import json
+import logging
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from cryod.clock import MonotonicClock, ScaledClock, VirtualClock
+from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig
+from cryod.daemon import Daemon, config_or_exit
+from cryod.hardware import assemble_instruments, check_calibrations, load_curves
+from cryod.metrics import regulation_metrics
+from cryod.model import DEFAULT_MODEL_PATH, load_model
+from cryod.service.control_socket import finite_or_none
+from cryod.service.logs import ServiceLogging
+from cryod.yaml_source import FileFormatError
+from drivers.keithley2002 import TriggerSource
+from drivers.pair_triggers import GpibGroupTrigger, HardwareTrigger, PrologixGroupTrigger, SequentialTrigger
+from drivers.transports.prologix import PrologixAdapter
+from drivers.transports.visa import VisaTransport
+from drivers.trigger_lines import SerialControlLine
+from simulated_hw.bench import PROLOGIX_ADDRESSES, SimulatedBench
+
+log = logging.getLogger("cryod.simulate")
+
+SIMULATION_DIRECTORY = Path("cryod-simulate")
+MAX_SOCKET_PATH = 100
+SUPPLY_MODELS = {"keithley6221": "6221", "keithley2400": "2400"}
+
+
+class WindowCollector:
+    """Keeps the last ``window_s`` of rows for the end-of-run metrics."""
+
+    def __init__(self, window_s: float, period_s: float):
+        self.rows = collections.deque(maxlen=int(window_s / period_s) + 2)
+        self.window_s = window_s
+
+    def __call__(self, item) -> None:
+        if isinstance(item, dict):
+            self.rows.append((item["time_s"], item.get("T2_K", np.nan), item.get("T5_K", np.nan),
+                              item.get("setpoint_K", np.nan)))
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        if not self.rows:
+            return (np.zeros(0),) * 4
+        data = np.array(self.rows, dtype=float)
+        data = data[data[:, 0] >= data[-1, 0] - self.window_s]
+        return tuple(data[:, i] for i in range(4))
+
+
+def simulation_config(args, config: DaemonConfig) -> DaemonConfig:
+    """The configuration with the command line's overrides (setpoint, seed, paths, transport)."""
+    control = config.control
+    if args.setpoint is not None:
+        if not control.setpoint_min_K <= args.setpoint <= control.setpoint_max_K:
+            raise ValueError(f"--setpoint {args.setpoint:g} K is outside control.setpoint_min_K.."
+                             f"setpoint_max_K = {control.setpoint_min_K:g}..{control.setpoint_max_K:g} K "
+                             f"of {config.source}")
+        control = dataclasses.replace(control, setpoint_K=args.setpoint)
+    simulation = config.simulation
+    transport = args.transport or ("in-process" if args.speed == "max" else simulation.transport)
+    if args.speed == "max" and transport == "tcp":
+        raise ValueError("--speed max runs on virtual time, which only the in-process transport can share; "
+                         "use --transport in-process or a numeric --speed")
+    simulation = dataclasses.replace(simulation, transport=transport,
+                                     seed=args.seed if args.seed is not None else simulation.seed)
+    data = dataclasses.replace(config.data, directory=args.data_dir or SIMULATION_DIRECTORY / "data")
+    socket_path = args.socket or SIMULATION_DIRECTORY / "control.sock"
+    if len(str(socket_path.absolute())) > MAX_SOCKET_PATH:
+        raise ValueError(f"control socket path {socket_path.absolute()} is too long for a Unix socket; "
+                         f"give a shorter one with --socket")
+    control_socket = dataclasses.replace(config.control_socket, path=socket_path, owner=None, group=None)
+    return dataclasses.replace(config, control=control, simulation=simulation, data=data,
+                               control_socket=control_socket)
+
+
+class SimulatedInstrumentsOpener:
+    """``open_instruments`` for the daemon: the drivers on the simulated bench."""
+
+    def __init__(self, model, seed: int):
+        self.model = model
+        self.seed = seed
+        self.bench: SimulatedBench | None = None
+        self.trigger_note = ""
+        self._stack = contextlib.ExitStack()
+
+    def __call__(self, config: DaemonConfig, clock):
+        flange_curve, stage_curve = load_curves(config)
+        self.bench = bench = SimulatedBench(
+            clock, flange_curve, stage_curve, model=self.model, heater_resistance_ohm=config.heater.resistance_ohm,
+            supply=SUPPLY_MODELS[config.instruments.heater_model], seed=self.seed,
+            line_frequency_hz=config.instruments.dmm.line_frequency_hz)
+        mode = config.instruments.trigger
+        timeout = config.instruments.timeout_s
+        extra: list = []
+        if config.simulation.transport == "in-process":
+            links = bench.in_process_transports(timeout_s=timeout)
+            flange, stage, heater = links.flange_dmm, links.ptc_stage_dmm, links.heater_supply
+        elif mode == "prologix":
+            server = self._stack.enter_context(bench.serve_prologix())
+            adapter = PrologixAdapter.ethernet(server.host, server.port, timeout_s=timeout)
+            self._stack.callback(adapter.close)
+            flange = adapter.instrument(PROLOGIX_ADDRESSES["flange"], name="flange DMM (T2)")
+            stage = adapter.instrument(PROLOGIX_ADDRESSES["ptc_stage"], name="PTC-stage DMM (T5)")
+            heater = adapter.instrument(PROLOGIX_ADDRESSES["heater"], name="heater supply")
+        else:
+            resources = self._stack.enter_context(bench.serve_tcp())
+            flange, stage, heater = (VisaTransport(resources[key], visa_library="@py", timeout_s=timeout, name=name)
+                                     for key, name in (("flange_dmm", "flange DMM (T2)"),
+                                                       ("ptc_stage_dmm", "PTC-stage DMM (T5)"),
+                                                       ("heater_supply", "heater supply")))
+
+        def external_wire():
+            return HardwareTrigger(SerialControlLine(bench.trigger_port, clock), clock,
+                                   dmm_input=TriggerSource.EXTERNAL)
+
+        def make_trigger():
+            in_process = config.simulation.transport == "in-process"
+            if mode == "sequential":
+                self.trigger_note = "sequential *TRG"
+                return SequentialTrigger([flange, stage], clock)
+            if mode == "gpib-group" and in_process:
+                self.trigger_note = "GPIB group execute trigger on the simulated board"
+                return GpibGroupTrigger(bench.gpib_interface, [flange, stage], clock)
+            if mode == "prologix" and not in_process:
+                self.trigger_note = "Prologix ++trg on the simulated controller"
+                return PrologixGroupTrigger(adapter, [PROLOGIX_ADDRESSES["flange"],
+                                                      PROLOGIX_ADDRESSES["ptc_stage"]], clock)
+            if mode != "external":
+                self.trigger_note = (f"{mode} has no simulated counterpart over this transport: "
+                                     f"the simulated external trigger wire (also simultaneous)")
+            else:
+                self.trigger_note = "the simulated external trigger wire"
+            return external_wire()
+
+        try:
+            instruments = assemble_instruments(config, clock, flange, stage, heater, make_trigger, extra,
+                                               on_close=self._stack.close)
+        except BaseException:
+            self._stack.close()
+            raise
+        log.info("simulated instruments over %s; trigger: %s", config.simulation.transport, self.trigger_note)
+        return instruments, flange_curve, stage_curve
+
+
+def _clock(speed):
+    if speed == "max":
+        return VirtualClock()
+    return MonotonicClock() if speed == 1.0 else ScaledClock(speed)
+
+
+def run_simulation(args) -> int:
+    """Run ``cryod --simulate``; returns the exit code."""
+    config_path = args.config or EXAMPLE_CONFIG_PATH
+    config = config_or_exit(config_path, sys.stderr)
+    if config is None:
+        return 2
+    try:
+        config = simulation_config(args, config)
+    except ValueError as error:
+        print(f"cryod: {error}", file=sys.stderr)
+        return 2
+    problem = check_calibrations(config)
+    if problem:
+        print(f"cryod: {problem}", file=sys.stderr)
+        return 2
+    model_path = args.sim_model or config.simulation.model or DEFAULT_MODEL_PATH
+    try:
+        model = load_model(model_path)
+    except FileFormatError as error:
+        print(f"cryod: simulated cryostat model not usable: {error}", file=sys.stderr)
+        return 2
+    clock = _clock(args.speed)
+    opener = SimulatedInstrumentsOpener(model, config.simulation.seed)
+    collector = WindowCollector(args.window, config.loop.period_s)
+    metadata = {"simulated": "yes (cryod --simulate)", "simulated_model": str(model_path),
+                "simulation_seed": config.simulation.seed, "simulation_speed": args.speed,
+                "simulation_transport": config.simulation.transport}
+    logging_service = ServiceLogging()
+    logging_service.start()
+    cpu_start = _cpu_seconds()
+    try:
+        daemon = Daemon(config, opener, clock, metadata=metadata, row_taps=[collector])
+        result = daemon.run(args.duration)
+    except Exception as error:
+        logging.getLogger("cryod").critical("simulation stopped: %s: %s", type(error).__name__, error)
+        logging_service.stop()
+        print(f"cryod: {type(error).__name__}: {error}", file=sys.stderr)
+        return 1
+    finally:
+        if logging_service is not None:
+            logging_service.stop()
+    summary = summarize(result, collector, model.ptc.angular_frequency_rad_s, _cpu_seconds() - cpu_start)
+    summary["trigger"] = opener.trigger_note
+    if args.json:
+        print(json.dumps(finite_or_none(summary)))
+    else:
+        for key, value in summary.items():
+            print(f"{key}: {value}")
+    return result.exit_code
+
+
+def _cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: float) -> dict:
+    """The ``--json`` object: timing, regulation metrics over the window, where the log is."""
+    loop = result.loop
+    timing = loop.timing.summary() if loop else {}
+    time_s, flange, stage, setpoint = collector.arrays()
+    metrics = regulation_metrics(time_s, flange, stage, setpoint, line_rad_s)
+    duration = timing.get("ticks", 0) * (loop.period_s if loop else 0.0)
+    return {
+        "duration_s": round(duration, 3),
+        "ticks": timing.get("ticks", 0),
+        "overruns": timing.get("overruns", 0),
+        "lateness_ms_p50": timing.get("lateness_ms_p50"),
+        "lateness_ms_p99": timing.get("lateness_ms_p99"),
+        "lateness_ms_max": timing.get("lateness_ms_max"),
+        "wall_s": round(result.wall_s, 3),
+        "cpu_s": round(cpu_s, 3),
+        "cpu_percent_of_one_core": round(100.0 * cpu_s / result.wall_s, 2) if result.wall_s > 0 else None,
+        "window_s": round(metrics["window_s"], 3),
+        "ptc_line_amplitude_K": metrics["ptc_line_amplitude_K"],
+        "ptc_line_rad_s": metrics["ptc_line_rad_s"],
+        "rms_K": metrics["rms_K"],
+        "mean_error_K": metrics["mean_error_K"],
+        "lowfreq_rms_K": metrics["lowfreq_rms_K"],
+        "setpoint_K": float(setpoint[-1]) if setpoint.size and np.isfinite(setpoint[-1]) else None,
+        "state": loop.status.state if loop else None,
+        "last_fault": str(loop.last_fault) if loop and loop.last_fault else None,
+        "exit_code": result.exit_code,
+        "log_path": str(result.log_paths[0]) if result.log_paths else None,
+        "log_paths": [str(path) for path in result.log_paths],
+    }

@@ -91,12 +91,18 @@ class Daemon:
         Also receive every row (e.g. the --simulate metrics).
     install_signal_handlers : bool
         SIGTERM/SIGINT stop, SIGHUP reloads (main thread only).
+    reload_config : callable, optional
+        Reads and validates the configuration again on reload (default:
+        :func:`cryod.config.load_config` of the file it came from);
+        ``cryod --simulate`` passes one that applies its command-line overrides.
     """
 
     def __init__(self, config: DaemonConfig, open_instruments: Callable, clock: Clock,
                  notifier: SystemdNotifier | None = None, metadata: dict | None = None,
-                 row_taps: list[Callable] | None = None, install_signal_handlers: bool = True):
+                 row_taps: list[Callable] | None = None, install_signal_handlers: bool = True,
+                 reload_config: Callable[[], DaemonConfig] | None = None):
         self.config = config
+        self.reload_config = reload_config or (lambda: load_config(self.config.source))
         self.open_instruments = open_instruments
         self.clock = clock
         self.notifier = notifier or SystemdNotifier()
@@ -135,8 +141,8 @@ class Daemon:
         """Validate the configuration file again and hand it to the loop (keeps the old one if bad)."""
         self.notifier.reloading()
         try:
-            new = load_config(self.config.source)
-        except FileFormatError as error:
+            new = self.reload_config()
+        except (FileFormatError, ValueError) as error:
             log.error("reload refused, keeping the running configuration: %s", error)
             self.notifier.reloaded(f"reload refused: {error}")
             command = Command("reload")

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from cryod.clock import MonotonicClock, ScaledClock, VirtualClock
-from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig
+from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config
 from cryod.daemon import Daemon, config_or_exit
 from cryod.hardware import assemble_instruments, check_calibrations, load_curves
 from cryod.metrics import regulation_metrics
@@ -204,7 +204,8 @@ def run_simulation(args) -> int:
     logging_service.start()
     cpu_start = _cpu_seconds()
     try:
-        daemon = Daemon(config, opener, clock, metadata=metadata, row_taps=[collector])
+        daemon = Daemon(config, opener, clock, metadata=metadata, row_taps=[collector],
+                        reload_config=lambda: simulation_config(args, load_config(config_path)))
         result = daemon.run(args.duration)
     except Exception as error:
         logging.getLogger("cryod").critical("simulation stopped: %s: %s", type(error).__name__, error)

@@ -1,0 +1,136 @@
+"""Every fault through the real drivers and the simulated instruments' fault injection.
+
+The whole daemon runs in process on virtual time: SimulatedInstrumentsOpener
+builds the real drivers on the simulated bench, the Daemon runs its loop, and a
+row tap injects a fault into the bench at a given tick. Each fault must put the
+heater at 0 A in the tick that finds it, be recorded with its cause in the data
+file and the status, and the daemon must then recover or exit with the fault's code.
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from cryod.clock import VirtualClock
+from cryod.config import load_config
+from cryod.daemon import Daemon
+from cryod.model import load_model
+from cryod.record import read_record
+from cryod.service.notify import SystemdNotifier
+from cryod.simulation import SimulatedInstrumentsOpener
+from tests.conftest import CONFIG
+
+
+def simulated_config(tmp_path, **control):
+    config = load_config(CONFIG / "cryod.yaml")
+    return dataclasses.replace(
+        config,
+        data=dataclasses.replace(config.data, directory=tmp_path / "data"),
+        control_socket=dataclasses.replace(config.control_socket, path=tmp_path / "control.sock"),
+        simulation=dataclasses.replace(config.simulation, transport="in-process"),
+        control=dataclasses.replace(config.control, **control),
+    )
+
+
+class FaultDrill:
+    """Runs the daemon on the simulated bench; ``actions[tick](bench)`` fires after that row."""
+
+    def __init__(self, tmp_path, actions, config=None, before_start=None):
+        self.config = config or simulated_config(tmp_path)
+        self.opener = SimulatedInstrumentsOpener(load_model(), seed=4)
+        self.actions = dict(actions)
+        self.before_start = before_start
+        self.rows = []
+        self.heater_at_fault = []
+
+    def tap(self, item):
+        if not isinstance(item, dict):
+            return
+        self.rows.append(item)
+        action = self.actions.pop(len(self.rows) - 1, None)
+        if action is not None:
+            action(self.opener.bench)
+
+    def open_instruments(self, config, clock):
+        opened = self.opener(config, clock)
+        if self.before_start is not None:
+            self.before_start(self.opener.bench)
+        return opened
+
+    def run(self, duration_s):
+        daemon = Daemon(self.config, self.open_instruments, VirtualClock(), notifier=SystemdNotifier({}),
+                        row_taps=[self.tap], install_signal_handlers=False)
+        self.result = daemon.run(duration_s)
+        self.record = read_record(self.result.log_paths[0])
+        self.states = [str(state) for state in self.record.columns["state"]]
+        return self.result
+
+    def supply_current_a(self):
+        return self.opener.bench.heater_supply.output_current_a
+
+
+def first_fault(drill, cause):
+    return drill.states.index(f"fault:{cause}")
+
+
+@pytest.mark.parametrize("cause, inject, clear", [
+    ("instrument_timeout", lambda bench: bench.flange_dmm.inject_no_reply(True),
+     lambda bench: bench.flange_dmm.inject_no_reply(False)),
+    ("sensor_overflow", lambda bench: bench.ptc_stage_dmm.inject_overflow(3), None),
+    ("bad_reply", lambda bench: bench.flange_dmm.inject_garbage(2), None),
+    ("connection_lost", lambda bench: bench.heater_supply.drop_connections(), None),
+])
+def test_transient_faults_heater_off_then_recover(tmp_path, cause, inject, clear):
+    actions = {1500: inject}
+    if clear is not None:
+        actions[1503] = clear
+    drill = FaultDrill(tmp_path, actions)
+    assert drill.run(300.0).exit_code == 0
+    index = first_fault(drill, cause)
+    assert 1500 <= index <= 1502
+    assert drill.record.heater_w[index] == 0.0
+    assert any(f"fault: {cause}" in text for _, text in drill.record.events)
+    resumed = next(i for i in range(index, len(drill.states)) if drill.states[i].startswith("closed"))
+    assert all(drill.record.heater_w[index:resumed] == 0.0)
+    assert resumed - index < 40                        # reconnected and 5 valid readings, within ~3 s
+    late = drill.record.time_s > drill.record.time_s[-1] - 60
+    assert np.mean(drill.record.flange_K[late]) == pytest.approx(5.0, abs=2e-3)
+    assert drill.supply_current_a() == 0.0             # off at the end of the run
+
+
+def test_heater_supply_refusing_output_stops_with_exit_6(tmp_path):
+    drill = FaultDrill(tmp_path, {}, before_start=lambda bench: bench.heater_supply.inject_refuse_output())
+    assert drill.run(60.0).exit_code == 6
+    assert drill.result.loop.last_fault.cause == "heater_fault"
+    assert "output" in drill.result.loop.last_fault.message
+    assert drill.supply_current_a() == 0.0 and not drill.opener.bench.heater_supply.output_on
+
+
+def test_open_heater_compliance_stops_with_exit_6(tmp_path):
+    drill = FaultDrill(tmp_path, {1000: lambda bench: bench.heater_supply.inject_open_heater()})
+    assert drill.run(300.0).exit_code == 6
+    assert drill.result.loop.last_fault.cause == "heater_fault"
+    assert "compliance" in drill.result.loop.last_fault.message.lower()
+    assert drill.states[-1] == "fault:heater_fault" and drill.record.heater_w[-1] == 0.0
+    assert drill.supply_current_a() == 0.0
+
+
+def test_over_temperature_stops_with_exit_3(tmp_path):
+    config = simulated_config(tmp_path, setpoint_K=5.4, setpoint_max_K=5.5)
+    config = dataclasses.replace(config, safety=dataclasses.replace(config.safety, flange_max_K=5.3))
+    drill = FaultDrill(tmp_path, {}, config=config)
+    assert drill.run(600.0).exit_code == 3
+    assert drill.result.loop.last_fault.cause == "over_temperature"
+    index = first_fault(drill, "over_temperature")
+    assert drill.record.flange_K[index] > 5.3 and drill.record.heater_w[index] == 0.0
+    assert drill.supply_current_a() == 0.0
+
+
+def test_recovery_timeout_exits_4(tmp_path):
+    config = simulated_config(tmp_path)
+    config = dataclasses.replace(config, safety=dataclasses.replace(config.safety, recovery_timeout_s=10.0))
+    drill = FaultDrill(tmp_path, {500: lambda bench: bench.ptc_stage_dmm.inject_no_reply(True)}, config=config)
+    assert drill.run(120.0).exit_code == 4
+    assert "not recovered within 10 s" in drill.result.loop.last_fault.message
+    assert drill.supply_current_a() == 0.0

@@ -48,7 +48,7 @@ import re
 from dataclasses import dataclass
 
 from cryod.clock import Clock
-from drivers.errors import BadReply, InstrumentTimeout, OverflowReading
+from drivers.errors import BadReply, InstrumentError, InstrumentTimeout, OverflowReading
 from drivers.keithley2002_timing import ReadingTiming
 from drivers.scpi import (Control, ScpiInstrument, count_or_infinite, integer, number, on_off, one_of,
                           parse_bool, parse_count, parse_token)
@@ -182,6 +182,10 @@ class Keithley2002(ScpiInstrument):
         Wait between two ``:FETCh?`` while the new reading is not there yet.
     fetch_margin_s : float
         Added to the expected reading time before the first ``:FETCh?``.
+    first_reading_margin_s : float
+        Added as well for the first reading after configuration: then there is no older
+        reading to tell a too-early ``:FETCh?`` by, the 2002 answers it with ``-230`` and
+        nothing, and the controller would wait out its whole timeout.
     """
 
     expected_model = "MODEL 2002"
@@ -266,13 +270,15 @@ class Keithley2002(ScpiInstrument):
 
     def __init__(self, transport: Transport, clock: Clock, name: str = "Keithley 2002", *,
                  line_frequency_hz: float = 50.0, check_identity: bool = True,
-                 fetch_poll_interval_s: float = 0.002, fetch_margin_s: float = 0.0005):
+                 fetch_poll_interval_s: float = 0.002, fetch_margin_s: float = 0.0005,
+                 first_reading_margin_s: float = 0.05):
         super().__init__(transport, clock, name)
         if line_frequency_hz not in (50.0, 60.0):
             raise ValueError(f"{name}: line frequency must be 50 or 60 Hz, got {line_frequency_hz}")
         self.line_frequency_hz = float(line_frequency_hz)
         self.fetch_poll_interval_s = float(fetch_poll_interval_s)
         self.fetch_margin_s = float(fetch_margin_s)
+        self.first_reading_margin_s = float(first_reading_margin_s)
         self.settings = FourWireSettings()
         self.elements: tuple[DataElement, ...] = DEFAULT_ELEMENTS
         self._trigger_delay_s = 0.0
@@ -361,6 +367,15 @@ class Keithley2002(ScpiInstrument):
         with self.reporting_faults():
             self.write(":INITiate")
 
+    def trigger(self) -> None:
+        """A bus trigger to this DMM alone: GPIB GET, or ``*TRG`` where the bus has no GET (3.10.13)."""
+        with self.reporting_faults():
+            try:
+                self.transport.trigger()
+            except InstrumentError as error:
+                error.relabelled(self.label)
+                raise
+
     def abort(self) -> None:
         """``:ABORt``: back to idle (3.19)."""
         with self.reporting_faults():
@@ -374,12 +389,15 @@ class Keithley2002(ScpiInstrument):
     def fetch_new_reading(self, trigger_time_s: float, *, timeout_s: float | None = None) -> DmmReading:
         """The reading of the trigger at ``trigger_time_s``, waiting on the clock until it is there.
 
-        Waits until ``trigger_time_s + reading_delay_s + fetch_margin_s``, then fetches; a reading whose number
-        has not advanced is the previous one, and is fetched again every
+        Waits until ``trigger_time_s + reading_delay_s + fetch_margin_s`` (plus
+        ``first_reading_margin_s`` for the first reading after configuration), then
+        fetches; a reading whose number has not advanced is the previous one, and is fetched again every
         ``fetch_poll_interval_s`` until ``timeout_s`` after the expected time
         (default: the transport's timeout), then :class:`~drivers.errors.InstrumentTimeout`.
         """
         expected = trigger_time_s + self.reading_delay_s + self.fetch_margin_s
+        if self.last_reading_number is None:
+            expected += self.first_reading_margin_s
         limit = expected + (self.transport.timeout_s if timeout_s is None else timeout_s)
         self.clock.sleep_until(expected)
         with self.reporting_faults():

@@ -361,6 +361,11 @@ class Keithley2002(ScpiInstrument):
         """Longest time from a trigger to the reading being available (s)."""
         return self.timing.worst_case_delay_s
 
+    @property
+    def earliest_reading_delay_s(self) -> float:
+        """Shortest time from a trigger to the reading (s): when the first ``:FETCh?`` goes out."""
+        return self.timing.earliest_delay_s
+
     # -- the cycle -----------------------------------------------------------------------
     def initiate(self) -> None:
         """``:INITiate``: out of idle, waiting for the trigger (3.19)."""
@@ -389,17 +394,20 @@ class Keithley2002(ScpiInstrument):
     def fetch_new_reading(self, trigger_time_s: float, *, timeout_s: float | None = None) -> DmmReading:
         """The reading of the trigger at ``trigger_time_s``, waiting on the clock until it is there.
 
-        Waits until ``trigger_time_s + reading_delay_s + fetch_margin_s`` (plus
-        ``first_reading_margin_s`` for the first reading after configuration), then
-        fetches; a reading whose number has not advanced is the previous one, and is fetched again every
-        ``fetch_poll_interval_s`` until ``timeout_s`` after the expected time
-        (default: the transport's timeout), then :class:`~drivers.errors.InstrumentTimeout`.
+        Waits until the earliest time the reading can exist (``earliest_reading_delay_s``
+        after the trigger, plus ``fetch_margin_s``, plus ``first_reading_margin_s`` for
+        the first reading after configuration), then fetches. A reading whose number
+        has not advanced is the previous one (a NORMal autozero or the line-sync wait
+        delayed the new one): it is fetched again every ``fetch_poll_interval_s`` until
+        ``timeout_s`` (default: the transport's timeout) after the latest time the
+        reading could take, then :class:`~drivers.errors.InstrumentTimeout`.
         """
-        expected = trigger_time_s + self.reading_delay_s + self.fetch_margin_s
+        first = trigger_time_s + self.earliest_reading_delay_s + self.fetch_margin_s
         if self.last_reading_number is None:
-            expected += self.first_reading_margin_s
-        limit = expected + (self.transport.timeout_s if timeout_s is None else timeout_s)
-        self.clock.sleep_until(expected)
+            first += self.first_reading_margin_s
+        limit = (trigger_time_s + self.reading_delay_s + self.fetch_margin_s
+                 + (self.transport.timeout_s if timeout_s is None else timeout_s))
+        self.clock.sleep_until(first)
         with self.reporting_faults():
             while True:
                 reading = self.parse_reading(self.query(":FETCh?"))

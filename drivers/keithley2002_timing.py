@@ -26,8 +26,8 @@ replace with a measured value on the lab's instruments.
 Examples
 --------
 >>> timing = ReadingTiming(nplc=1.0, line_frequency_hz=50.0)
->>> round(timing.integration_time_s, 6), round(timing.worst_case_delay_s, 6)
-(0.02, 0.042)
+>>> round(timing.integration_time_s, 6), round(timing.earliest_delay_s, 6), round(timing.worst_case_delay_s, 6)
+(0.02, 0.022, 0.042)
 >>> round(ReadingTiming(nplc=1.0, line_frequency_hz=50.0, autozero=False).worst_case_delay_s, 6)
 0.022
 """
@@ -117,6 +117,11 @@ class ReadingTiming:
     def ready_time_s(self, integration_start_s: float) -> float:
         """When the reading whose integration starts at ``integration_start_s`` can be fetched."""
         return integration_start_s + self.measurement_span_s + self.processing_time_s
+
+    @property
+    def earliest_delay_s(self) -> float:
+        """Shortest time from trigger to an available reading (s): no autozero due, no line-sync wait."""
+        return self.trigger_delay_s + self.measurement_span_s + self.processing_time_s
 
     @property
     def worst_case_delay_s(self) -> float:

@@ -296,18 +296,23 @@ class CommandTable:
 
     def __init__(self) -> None:
         self._commands: list[_Command] = []
+        self._found: dict[tuple[tuple[str, ...], bool], Handler | None] = {}
 
     def add(self, pattern: str, *, write: Handler | None = None, query: Handler | None = None) -> None:
         """Register a header; ``write`` for the command form, ``query`` for ``HEADER?``."""
         self._commands.append(_Command(parse_pattern(pattern), write, query))
+        self._found.clear()
 
     def _find(self, parts: list[str], is_query: bool) -> Handler:
-        for command in self._commands:
-            if _matches(command.nodes, parts):
-                handler = command.query if is_query else command.write
-                if handler is not None:
-                    return handler
-        raise scpi_error(UNDEFINED_HEADER)
+        key = (tuple(part.upper() for part in parts), is_query)
+        if key not in self._found:
+            self._found[key] = next(
+                (handler for command in self._commands if _matches(command.nodes, parts)
+                 for handler in [command.query if is_query else command.write] if handler is not None), None)
+        handler = self._found[key]
+        if handler is None:
+            raise scpi_error(UNDEFINED_HEADER)
+        return handler
 
     def execute(self, message: str, errors: ErrorQueue) -> str | None:
         """Run one program message; replies of its queries joined by ``;`` (None: no query).

@@ -60,6 +60,7 @@ def test_both_readings_are_taken_at_the_trigger_instant(bench, clock, flange_cur
     assert reading.flange_resistance_ohm == pytest.approx(expected[0][0], abs=RESOLUTION_OHM)
     assert reading.ptc_stage_resistance_ohm == pytest.approx(expected[0][1], abs=RESOLUTION_OHM / 10)
     first_margin = pair.flange_dmm.first_reading_margin_s
+    assert pair.reading_delay_s == pair.flange_dmm.earliest_reading_delay_s   # autozero off: no spread
     assert reading.fetched_time_s == pytest.approx(12.345 + pair.reading_delay_s + 0.0005 + first_margin)
     second = pair.measure()
     assert second.fetched_time_s - second.trigger_time_s == pytest.approx(pair.reading_delay_s + 0.0005)

@@ -14,8 +14,8 @@ it goes to 0 A and off on :meth:`HeaterSupply.close`, on leaving a ``with``
 block, and whenever an operation inside the driver fails for any reason
 other than a refused request — the error then carries the supply's error
 queue. If the connection itself dropped, the driver reopens it once to
-send the supply to 0 A: a supply left alone keeps its last current. The supply reaching voltage compliance (an open heater) is such a
-failure: :class:`~drivers.errors.HeaterCompliance`. An output that does not
+send the supply to 0 A: a supply left alone keeps its last current. The
+supply reaching voltage compliance (an open heater) is such a failure: :class:`~drivers.errors.HeaterCompliance`. An output that does not
 come on (interlock, output enable) is :class:`~drivers.errors.HeaterRefused`.
 """
 
@@ -148,9 +148,10 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         if not (math.isfinite(current_a) and 0.0 <= current_a):
             raise HeaterLimitRefused(self.label, f"heater current {current_a!r} A refused")
         if current_a > self.max_current_a:
-            raise HeaterLimitRefused(self.label, f"{what} refused: needs {current_a * 1e3:.4g} mA, above the "
-                                                 f"{self.max_current_a * 1e3:.4g} mA maximum "
-                                                 f"({self.max_power_w * 1e3:.4g} mW at {self.heater_resistance_ohm:g} ohm)")
+            raise HeaterLimitRefused(
+                self.label, f"{what} refused: needs {current_a * 1e3:.4g} mA, above the "
+                            f"{self.max_current_a * 1e3:.4g} mA maximum "
+                            f"({self.max_power_w * 1e3:.4g} mW at {self.heater_resistance_ohm:g} ohm)")
 
     # -- safety --------------------------------------------------------------------------
     @contextlib.contextmanager

@@ -1,18 +1,18 @@
 """Keithley 2002 8½-digit multimeter: 4-wire resistance of a Cernox, triggered, fetched.
 
 Every command below is in the Model 2002 User's Manual (document 2002-900-01),
-section 3 "IEEE-488 Reference"; the section is cited with each setting.
+section 3 "IEEE-488 Reference" (sections and pages cited with each setting).
 ``docs/instruments.md`` lists them all with the exact strings sent.
 
 The measurement cycle cryod runs every 80 ms:
 
-1. ``:INITiate`` takes the DMM out of idle into the trigger layer (3.19);
+1. ``:INITiate`` takes the DMM out of idle into the trigger layer (3.22, trigger model pp. 2-12, 3-21);
 2. a trigger (GET, ``*TRG``, an EXTernal edge or a Trigger Link pulse) starts
    one device action: one 4-wire resistance reading;
 3. after the time the reading takes (:mod:`drivers.keithley2002_timing`)
-   ``:FETCh?`` returns it (3.14). ``:FETCh?`` does not wait for a new reading:
+   ``:FETCh?`` returns it. ``:FETCh?`` does not wait for a new reading:
    it "continues to return the old reading" until there is a new one, so the
-   reading number element (``RNUMber``, 3.17 ``:FORMat:ELEMents``) is part of
+   reading number element (``RNUMber``, ``:FORMat:ELEMents``, pp. 3-81, 3-82) is part of
    every reply and a reading whose number has not advanced is refused as stale.
 
 An overflow reads +9.9E37 (status ``O``): :class:`~drivers.errors.OverflowReading`,
@@ -61,7 +61,7 @@ MAXIMUM_FOUR_WIRE_OHM = 2.1e6
 
 
 class TriggerSource(enum.Enum):
-    """Control sources of the trigger (measure) layer (manual 3.22 ``:TRIGger:SOURce``)."""
+    """Control sources of the trigger (measure) layer (manual 3.22 TRIGger subsystem, ``:SOURce``)."""
 
     IMMEDIATE = "IMMediate"
     BUS = "BUS"                 # GPIB GET or *TRG
@@ -73,14 +73,14 @@ class TriggerSource(enum.Enum):
 
 
 class FilterType(enum.Enum):
-    """Digital filter types (manual 3.18 ``:AVERage:TCONtrol``)."""
+    """Digital filter types (manual 3.18, ``:AVERage:TCONtrol``, p. 3-103)."""
 
     REPEATING = "REPeat"
     MOVING = "MOVing"
 
 
 class DataElement(enum.Enum):
-    """Elements of a reading string (manual 3.17 ``:FORMat:ELEMents``), in the order they are sent."""
+    """Elements of a reading string (``:FORMat:ELEMents``, p. 3-81), in the order they are sent."""
 
     READING = "READing"
     STATUS = "STATus"
@@ -192,41 +192,43 @@ class Keithley2002(ScpiInstrument):
 
     # -- 4-wire resistance (manual 3.18, [SENSe[1]] subsystem) ----------------------
     function = Control(":SENSe:FUNCtion {}", ":SENSe:FUNCtion?",
-                       "Measurement function (3.18.1); cryod uses 4-wire ohms only.",
+                       "Measurement function (3.18, :FUNCtion); cryod uses 4-wire ohms only.",
                        one_of({"4-wire resistance": "'FRESistance'"}),
                        parse_token({"4-wire resistance": "FRESistance"}))
     range_ohm = Control(":SENSe:FRESistance:RANGe {}", ":SENSe:FRESistance:RANGe?",
-                        "Expected reading in ohm (3.18.3 :RANGe[:UPPer]); picks the smallest range holding it.",
+                        "Expected reading in ohm (3.18, :RANGe[:UPPer]); picks the smallest range holding it.",
                         number(0.0, MAXIMUM_FOUR_WIRE_OHM, "ohm"), float)
     autorange = Control(":SENSe:FRESistance:RANGe:AUTO {}", ":SENSe:FRESistance:RANGe:AUTO?",
-                        "Autorange on/off (3.18.3 :RANGe:AUTO).", on_off, parse_bool)
+                        "Autorange on/off (3.18, :RANGe:AUTO).", on_off, parse_bool)
     nplc = Control(":SENSe:FRESistance:NPLCycles {}", ":SENSe:FRESistance:NPLCycles?",
-                   "Integration time in power-line cycles (3.18.4 :NPLCycles).",
+                   "Integration time in power-line cycles (3.18, :NPLCycles, pp. 3-94, 3-95).",
                    number(0.01, 10.0, "PLC"), float)
     digits = Control(":SENSe:FRESistance:DIGits {}", ":SENSe:FRESistance:DIGits?",
-                     "Resolution: 4 to 9 for 3½ to 8½ digits (3.18.6 :DIGits).", integer(4, 9),
+                     "Resolution: 4 to 9 for 3½ to 8½ digits (3.18, :DIGits).", integer(4, 9),
                      lambda reply: int(float(reply)))
     filter_enabled = Control(":SENSe:FRESistance:AVERage:STATe {}", ":SENSe:FRESistance:AVERage:STATe?",
-                             "Digital filter on/off (3.18.9 :AVERage[:STATe]).", on_off, parse_bool)
+                             "Digital filter on/off (3.18, :AVERage[:STATe], p. 3-103).", on_off, parse_bool)
     filter_type = Control(":SENSe:FRESistance:AVERage:TCONtrol {}", ":SENSe:FRESistance:AVERage:TCONtrol?",
-                          "Filter type, repeating or moving (3.18.9 :AVERage:TCONtrol).",
+                          "Filter type, repeating or moving (3.18, :AVERage:TCONtrol, p. 3-103).",
                           one_of({kind: kind.value for kind in FilterType}),
                           parse_token({kind: kind.value for kind in FilterType}))
     filter_count = Control(":SENSe:FRESistance:AVERage:COUNt {}", ":SENSe:FRESistance:AVERage:COUNt?",
-                           "Readings in the filter, 1 to 100 (3.18.9 :AVERage:COUNt).", integer(1, 100),
+                           "Readings in the filter, 1 to 100 (3.18, :AVERage:COUNt, p. 3-103).", integer(1, 100),
                            lambda reply: int(float(reply)))
     offset_compensation = Control(":SENSe:FRESistance:OCOMpensated {}", ":SENSe:FRESistance:OCOMpensated?",
-                                  "Offset-compensated ohms on/off (3.18 :FRESistance:OCOMpensated; 2.4.3).",
+                                  "Offset-compensated ohms on/off (3.18, :FRESistance:OCOMpensated; "
+                                  "resistance configuration, p. 2-28).",
                                   on_off, parse_bool)
     # -- system (manual 3.21) ------------------------------------------------------
     autozero = Control(":SYSTem:AZERo:STATe {}", ":SYSTem:AZERo:STATe?",
-                       "Autozero on/off (3.21.5 :AZERo:STATe).", on_off, parse_bool)
+                       "Autozero on/off (3.21 SYSTem, :AZERo, p. 3-138).", on_off, parse_bool)
     autozero_synchronous = Control(":SYSTem:AZERo:TYPE {}", ":SYSTem:AZERo:TYPE?",
-                                   "Autozero with every reading (SYNChronous) or every 200 ms (NORMal), 3.21.5.",
+                                   "Autozero with every reading (SYNChronous) or every 200 ms (NORMal); "
+                                   "3.21, :AZERo:TYPE, p. 3-138.",
                                    one_of({True: "SYNChronous", False: "NORMal"}),
                                    parse_token({True: "SYNChronous", False: "NORMal"}))
     line_sync = Control(":SYSTem:LSYNc:STATe {}", ":SYSTem:LSYNc:STATe?",
-                        "Line-cycle synchronisation of the integration on/off (3.21 :LSYNc).",
+                        "Line-cycle synchronisation of the integration on/off (3.21 SYSTem, :LSYNc).",
                         on_off, parse_bool)
     # -- trigger model (manual 3.22) -----------------------------------------------------
     arm_source = Control(":ARM:SOURce {}", ":ARM:SOURce?", "Arm layer 1 control source (3.22).",
@@ -253,17 +255,18 @@ class Keithley2002(ScpiInstrument):
                                     parse_token({"asynchronous": "ASYNchronous"}))
     trigger_link_input_line = Control(":TRIGger:TCONfigure:ASYNchronous:ILINe {}",
                                       ":TRIGger:TCONfigure:ASYNchronous:ILINe?",
-                                      "Trigger Link input line, 1 to 6 (3.22 :ASYNchronous:ILINe).",
+                                      "Trigger Link input line, 1 to 6 (3.22, :ASYNchronous:ILINe, p. 3-156).",
                                       integer(1, 6), lambda reply: int(float(reply)))
     trigger_link_output_line = Control(":TRIGger:TCONfigure:ASYNchronous:OLINe {}",
                                        ":TRIGger:TCONfigure:ASYNchronous:OLINe?",
-                                       "Trigger Link output line, 1 to 6, not the input line (3.22 :OLINe).",
+                                       "Trigger Link output line, 1 to 6, not the input line "
+                                       "(3.22, :ASYNchronous:OLINe, p. 3-156).",
                                        integer(1, 6), lambda reply: int(float(reply)))
     continuous_initiation = Control(":INITiate:CONTinuous {}", ":INITiate:CONTinuous?",
-                                    "Continuous initiation on/off (3.19 :INITiate:CONTinuous).", on_off, parse_bool)
-    # -- data format (manual 3.17) ---------------------------------------------------------
+                                    "Continuous initiation on/off (3.22, :INITiate:CONTinuous).", on_off, parse_bool)
+    # -- data format (FORMat subsystem, p. 3-81) ---------------------------------------------------------
     data_elements = Control(":FORMat:ELEMents {}", ":FORMat:ELEMents?",
-                            "Elements of each reading string (3.17 :ELEMents).",
+                            "Elements of each reading string (:FORMat:ELEMents, p. 3-81).",
                             lambda elements: ",".join(DataElement(e).value for e in elements),
                             lambda reply: tuple(parse_token({e: e.value for e in DataElement})(part)
                                                 for part in reply.split(",")))
@@ -368,12 +371,12 @@ class Keithley2002(ScpiInstrument):
 
     # -- the cycle -----------------------------------------------------------------------
     def initiate(self) -> None:
-        """``:INITiate``: out of idle, waiting for the trigger (3.19)."""
+        """``:INITiate``: out of idle, waiting for the trigger (3.22)."""
         with self.reporting_faults():
             self.write(":INITiate")
 
     def trigger(self) -> None:
-        """A bus trigger to this DMM alone: GPIB GET, or ``*TRG`` where the bus has no GET (3.10.13)."""
+        """A bus trigger to this DMM alone: GPIB GET, or ``*TRG`` where there is none (3.10.13, p. 3-39)."""
         with self.reporting_faults():
             try:
                 self.transport.trigger()
@@ -382,7 +385,7 @@ class Keithley2002(ScpiInstrument):
                 raise
 
     def abort(self) -> None:
-        """``:ABORt``: back to idle (3.19)."""
+        """``:ABORt``: back to idle (3.22)."""
         with self.reporting_faults():
             self.write(":ABORt")
 

@@ -2,7 +2,7 @@
 
 The Keithley 2002 takes a trigger on its rear EXTERNAL TRIGGER input (a
 falling TTL edge; User's Manual section 2.7.6) or on a Trigger Link line
-(section 2.7.7; lines are pulled low to trigger). Wire both DMMs to the same
+("Trigger Link", p. 2-53; asynchronous mode uses the same TTL pulses). Wire both DMMs to the same
 edge and they start integrating at the same instant, whatever the bus
 latency. A PC makes the edge with a serial port's RTS (or DTR) line,
 through a level shifter from RS-232 (±5 to ±12 V) to TTL, or an

@@ -13,7 +13,7 @@ split into units at ``;``; a unit without a leading ``:`` continues at the
 level of the previous one.
 
 Errors are SCPI's own numbers and texts as Keithley's manuals list them
-(Model 2002 User's Manual, Table 2-4 and section 3.21.4 ``:SYSTem:ERRor?``;
+(Model 2002 User's Manual, Table 2-4 and ``:SYSTem:ERRor?``, p. 3-138;
 Model 2400 Series User's Manual, Appendix B; Model 622x Reference Manual,
 Appendix B): a header the instrument does not know is ``-113,"Undefined
 header"``.
@@ -80,7 +80,7 @@ def scpi_error(entry: tuple[int, str]) -> ScpiError:
 class ErrorQueue:
     """First in, first out, ten entries; a full queue ends in ``-350,"Queue overflow"``.
 
-    Model 2002 User's Manual, section 3.21.4 (``:SYSTem:ERRor?``): "The Error
+    Model 2002 User's Manual, ``:SYSTem:ERRor?`` (p. 3-138): "The Error
     Queue is a first-in, first-out (FIFO) register that can hold up to 10
     messages ... When the Error Queue is empty, the message 0, 'No error' is
     placed in the Error Queue."

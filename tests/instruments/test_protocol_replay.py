@@ -5,7 +5,8 @@ import math
 import pytest
 
 from drivers.errors import HeaterCompliance, HeaterLimitRefused, HeaterRefused, InstrumentReportedError
-from drivers.keithley2002 import DEFAULT_ELEMENTS, DataElement, FilterType, FourWireSettings, Keithley2002, TriggerSource
+from drivers.keithley2002 import (DEFAULT_ELEMENTS, DataElement, FilterType, FourWireSettings, Keithley2002,
+                                  TriggerSource)
 from drivers.keithley2400 import Keithley2400
 from drivers.keithley6221 import Keithley6221
 from drivers.pair_triggers import SequentialTrigger

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 from typing import Iterator
 
 from cryod.clock import Clock
-from drivers.errors import ConnectionLost, HeaterLimitRefused, HeaterRefused, InstrumentError
-from drivers.scpi import ScpiInstrument
+from drivers.errors import ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterRefused, InstrumentError
+from drivers.scpi import Control, ScpiInstrument, on_off, parse_bool
 from drivers.transports.base import Transport
 
 
@@ -239,32 +239,48 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
     def __exit__(self, *exc_info) -> None:
         self.close()
 
+    # -- what both Keithley supplies share: :SOURce:CURRent and :OUTPut:STATe ------------------
+    output_enabled = Control(":OUTPut:STATe {}", ":OUTPut:STATe?", "Output on/off (OUTPut subsystem).",
+                             on_off, parse_bool)
+
+    def write_current(self, current_a: float) -> None:
+        """Program the output current (the model's ``source_current_a`` setting)."""
+        self.source_current_a = current_a  # type: ignore[attr-defined]
+
+    def turn_output_on(self) -> None:
+        """Turn the output on and read it back: :meth:`output_refused` if it stays off."""
+        self.output_enabled = True
+        if not self.output_enabled:
+            raise self.output_refused()
+
+    def check_compliance(self) -> None:
+        """:class:`HeaterCompliance` if the output is voltage-limited."""
+        if self.in_compliance():
+            raise HeaterCompliance(self.label, f"in voltage compliance at {self.current_a * 1e3:.4g} mA "
+                                               f"({self.voltage_compliance_v:g} V limit): heater open or "
+                                               "its resistance too high")
+
+    def write_output_off(self) -> None:
+        """0 A and output off, confirmed by reading the output state back (which also waits
+        until the supply has executed the off)."""
+        self.source_current_a = 0.0  # type: ignore[attr-defined]
+        self.output_enabled = False
+        if self.output_enabled:
+            raise HeaterRefused(self.label, "output still on after :OUTPut:STATe OFF")
+
     # -- per model -----------------------------------------------------------------------------
     @abc.abstractmethod
     def configure_source(self) -> None:
         """Output off, current source on a range holding ``max_current_a``, compliance set, 0 A."""
 
     @abc.abstractmethod
-    def write_current(self, current_a: float) -> None:
-        """Program the output current."""
+    def output_refused(self) -> HeaterRefused:
+        """The error for an output that stayed off, with the supply's reason."""
 
     @abc.abstractmethod
-    def turn_output_on(self) -> None:
-        """Turn the output on and verify it is on (:class:`HeaterRefused` otherwise)."""
-
-    @abc.abstractmethod
-    def check_compliance(self) -> None:
-        """:class:`HeaterCompliance` if the output is voltage-limited."""
+    def in_compliance(self) -> bool:
+        """Whether the output is voltage-limited now."""
 
     @abc.abstractmethod
     def measure_output(self) -> HeaterReadback:
         """Read the output back."""
-
-    @abc.abstractmethod
-    def write_output_off(self) -> None:
-        """0 A and output off, confirmed by reading the output state back."""
-
-    def confirm_output_off(self) -> None:
-        """Read the output state back (this also waits until the supply has executed the off)."""
-        if self.query_bool(":OUTPut:STATe?", "output state"):
-            raise HeaterRefused(self.label, "output still on after :OUTPut:STATe OFF")

@@ -311,6 +311,14 @@ def test_malformed_tables_are_refused(tmp_path):
             "a table needs at least 4 points, found 3")
 
 
+def test_table_whose_spline_would_turn_back_is_refused(tmp_path):
+    """Monotonic points, but a jump between them that no cubic can follow without overshooting."""
+    uneven = tmp_path / "uneven.dat"
+    uneven.write_text("Temperature Resistance\n" + "".join(f"{t} {r}\n" for t, r in
+                                                          [(1, 1000), (2, 999), (3, 998), (4, 100), (5, 99), (6, 98)]))
+    refused(uneven, 4, "the cubic spline through the table turns back near 480.252 ohm")
+
+
 def test_unreadable_files_are_refused(tmp_path):
     refused(tmp_path / "absent.340", None, "file not found")
     binary = tmp_path / "image.dat"

@@ -101,7 +101,8 @@ class ChebyshevFitRange:
         polynomial = self.polynomial()
         z_limits = np.log10([self.lower_limit, self.upper_limit]) if logarithmic else \
             np.array([self.lower_limit, self.upper_limit])
-        k_limits = polynomial.mapparms()[0] + polynomial.mapparms()[1] * z_limits
+        offset, scale = polynomial.mapparms()
+        k_limits = offset + scale * z_limits
         if k_limits[0] < -1.0 - K_SLACK or k_limits[1] > 1.0 + K_SLACK:
             raise ValueError(f"limits {self.lower_limit:g} to {self.upper_limit:g} reach outside "
                              f"Zlower..Zupper ({self.z_lower:g} to {self.z_upper:g})")

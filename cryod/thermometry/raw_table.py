@@ -31,10 +31,12 @@ by serial number); the sensor model is not known.
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
 from cryod.thermometry.source_text import CalibrationText, NumberedLine
+from cryod.thermometry.smooth_response import NotMonotonic
 from cryod.thermometry.spline_table import MINIMUM_POINTS, SplineTableCurve
 
 #: Above this no value in a column can be a calibrated sensor's temperature (K).
@@ -53,8 +55,9 @@ def read_raw_table(text: CalibrationText) -> SplineTableCurve:
     ------
     CalibrationFileError
         A line that is not two numbers, fewer than 4 points, columns that
-        cannot be told apart, a repeated temperature, or resistance that is
-        not a strictly monotonic function of temperature.
+        cannot be told apart, a repeated temperature, resistance that is not
+        a strictly monotonic function of temperature, or a spline through the
+        points that is not monotonic.
     """
     header: list[NumberedLine] = []
     rows: list[tuple[float, float]] = []
@@ -84,7 +87,14 @@ def read_raw_table(text: CalibrationText) -> SplineTableCurve:
             raise text.error(row_lines[index], f"temperature and resistance must be positive, got "
                                                f"T = {temperature:g} K, R = {resistance:g} ohm")
     _require_monotonic(text, temperatures, resistances, row_lines)
-    return SplineTableCurve(temperatures, resistances, source=text.source, serial_number=Path(text.source).stem)
+    try:
+        return SplineTableCurve(temperatures, resistances, source=text.source, serial_number=Path(text.source).stem)
+    except NotMonotonic as error:
+        nearest = min(range(len(resistances)), key=lambda index: abs(math.log(resistances[index] / error.reading)))
+        raise text.error(row_lines[nearest], f"the cubic spline through the table turns back near "
+                                             f"{error.reading:.6g} ohm, so one resistance would give two "
+                                             f"temperatures; the points around this line are too uneven "
+                                             f"for a spline") from None
 
 
 def _is_number(field: str) -> bool:

@@ -94,6 +94,17 @@ def test_socket_closed_transport_and_unreachable_server(real_time_bench):
         nobody_listening.query("*IDN?")
 
 
+def test_serial_instrument_resource(real_time_bench):
+    """An ASRL resource (a serial port); pyserial's socket:// URL stands in for the cable."""
+    with ScpiServer(real_time_bench.flange_dmm) as server:
+        transport = VisaTransport(f"ASRLsocket://127.0.0.1:{server.port}::INSTR", timeout_s=TCP_TIMEOUT_S)
+        assert not transport.is_gpib_instrument and not transport.is_socket
+        assert transport.query("*IDN?") == IDN_2002
+        transport.trigger()                             # no GET on a serial line: *TRG
+        assert transport.query(":SYSTem:ERRor?") == '-211,"Trigger ignored"'
+        transport.close()
+
+
 def test_socket_trigger_sends_trg(real_time_bench):
     clock = real_time_bench.clock
     with ScpiServer(real_time_bench.flange_dmm) as server:
@@ -175,3 +186,20 @@ def test_prologix_heater_driver_unchanged(real_time_bench, prologix):
         heater.set_power_w(0.110)
         assert bench.cryostat.heater_power_w == pytest.approx(0.110, rel=1e-5)
     assert bench.cryostat.heater_power_w == 0.0
+
+
+def test_prologix_gpib_usb_path_through_pyserial(real_time_bench):
+    """The GPIB-USB controller is a serial port; pyserial's socket:// URL stands in for the USB cable."""
+    bench = real_time_bench
+    with bench.serve_prologix() as controller:
+        adapter = PrologixAdapter.usb(f"socket://127.0.0.1:{controller.port}", timeout_s=TCP_TIMEOUT_S)
+        assert adapter.interface_resource_name.startswith("PRLGX-ASRL0::")
+        flange = adapter.instrument(PROLOGIX_ADDRESSES["flange"], name="flange DMM")
+        assert flange.query("*IDN?") == IDN_2002
+        adapter.trigger([16, 17])
+        deadline = time.monotonic() + 1.0
+        while controller.group_triggers == [] and time.monotonic() < deadline:
+            time.sleep(0.001)
+        assert controller.group_triggers == [(16, 17)]
+        flange.close()
+        adapter.close()

@@ -24,6 +24,7 @@ from __future__ import annotations
 import abc
 import contextlib
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Iterator
 
@@ -136,7 +137,7 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
 
     def current_for_power(self, power_w: float) -> float:
         """I = sqrt(P / R) for ``power_w``; :class:`HeaterLimitRefused` outside the limits."""
-        if not (isinstance(power_w, (int, float)) and math.isfinite(power_w)):
+        if isinstance(power_w, bool) or not (isinstance(power_w, numbers.Real) and math.isfinite(power_w)):
             raise HeaterLimitRefused(self.label, f"heater power {power_w!r} W refused: not a finite number")
         if power_w < 0.0:
             raise HeaterLimitRefused(self.label, f"heater power {power_w:g} W refused: the heater cannot cool")
@@ -145,7 +146,8 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         return current
 
     def _check_current(self, current_a: float, what: str) -> None:
-        if not (math.isfinite(current_a) and 0.0 <= current_a):
+        if isinstance(current_a, bool) or not (isinstance(current_a, numbers.Real) and math.isfinite(current_a)
+                                                and 0.0 <= current_a):
             raise HeaterLimitRefused(self.label, f"heater current {current_a!r} A refused")
         if current_a > self.max_current_a:
             raise HeaterLimitRefused(

@@ -14,8 +14,8 @@ it goes to 0 A and off on :meth:`HeaterSupply.close`, on leaving a ``with``
 block, and whenever an operation inside the driver fails for any reason
 other than a refused request — the error then carries the supply's error
 queue. If the connection itself dropped, the driver reopens it once to
-send the supply to 0 A: a supply left alone keeps its last current. The supply reaching voltage compliance (an open heater) is such a
-failure: :class:`~drivers.errors.HeaterCompliance`. An output that does not
+send the supply to 0 A: a supply left alone keeps its last current. The
+supply reaching voltage compliance (an open heater) is such a failure: :class:`~drivers.errors.HeaterCompliance`. An output that does not
 come on (interlock, output enable) is :class:`~drivers.errors.HeaterRefused`.
 """
 
@@ -24,12 +24,13 @@ from __future__ import annotations
 import abc
 import contextlib
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Iterator
 
 from cryod.clock import Clock
-from drivers.errors import ConnectionLost, HeaterLimitRefused, HeaterRefused, InstrumentError
-from drivers.scpi import ScpiInstrument
+from drivers.errors import ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterRefused, InstrumentError
+from drivers.scpi import Control, ScpiInstrument, on_off, parse_bool
 from drivers.transports.base import Transport
 
 
@@ -136,7 +137,7 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
 
     def current_for_power(self, power_w: float) -> float:
         """I = sqrt(P / R) for ``power_w``; :class:`HeaterLimitRefused` outside the limits."""
-        if not (isinstance(power_w, (int, float)) and math.isfinite(power_w)):
+        if isinstance(power_w, bool) or not (isinstance(power_w, numbers.Real) and math.isfinite(power_w)):
             raise HeaterLimitRefused(self.label, f"heater power {power_w!r} W refused: not a finite number")
         if power_w < 0.0:
             raise HeaterLimitRefused(self.label, f"heater power {power_w:g} W refused: the heater cannot cool")
@@ -145,12 +146,14 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         return current
 
     def _check_current(self, current_a: float, what: str) -> None:
-        if not (math.isfinite(current_a) and 0.0 <= current_a):
+        if isinstance(current_a, bool) or not (isinstance(current_a, numbers.Real) and math.isfinite(current_a)
+                                                and 0.0 <= current_a):
             raise HeaterLimitRefused(self.label, f"heater current {current_a!r} A refused")
         if current_a > self.max_current_a:
-            raise HeaterLimitRefused(self.label, f"{what} refused: needs {current_a * 1e3:.4g} mA, above the "
-                                                 f"{self.max_current_a * 1e3:.4g} mA maximum "
-                                                 f"({self.max_power_w * 1e3:.4g} mW at {self.heater_resistance_ohm:g} ohm)")
+            raise HeaterLimitRefused(
+                self.label, f"{what} refused: needs {current_a * 1e3:.4g} mA, above the "
+                            f"{self.max_current_a * 1e3:.4g} mA maximum "
+                            f"({self.max_power_w * 1e3:.4g} mW at {self.heater_resistance_ohm:g} ohm)")
 
     # -- safety --------------------------------------------------------------------------
     @contextlib.contextmanager
@@ -238,32 +241,48 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
     def __exit__(self, *exc_info) -> None:
         self.close()
 
+    # -- what both Keithley supplies share: :SOURce:CURRent and :OUTPut:STATe ------------------
+    output_enabled = Control(":OUTPut:STATe {}", ":OUTPut:STATe?", "Output on/off (OUTPut subsystem).",
+                             on_off, parse_bool)
+
+    def write_current(self, current_a: float) -> None:
+        """Program the output current (the model's ``source_current_a`` setting)."""
+        self.source_current_a = current_a  # type: ignore[attr-defined]
+
+    def turn_output_on(self) -> None:
+        """Turn the output on and read it back: :meth:`output_refused` if it stays off."""
+        self.output_enabled = True
+        if not self.output_enabled:
+            raise self.output_refused()
+
+    def check_compliance(self) -> None:
+        """:class:`HeaterCompliance` if the output is voltage-limited."""
+        if self.in_compliance():
+            raise HeaterCompliance(self.label, f"in voltage compliance at {self.current_a * 1e3:.4g} mA "
+                                               f"({self.voltage_compliance_v:g} V limit): heater open or "
+                                               "its resistance too high")
+
+    def write_output_off(self) -> None:
+        """0 A and output off, confirmed by reading the output state back (which also waits
+        until the supply has executed the off)."""
+        self.source_current_a = 0.0  # type: ignore[attr-defined]
+        self.output_enabled = False
+        if self.output_enabled:
+            raise HeaterRefused(self.label, "output still on after :OUTPut:STATe OFF")
+
     # -- per model -----------------------------------------------------------------------------
     @abc.abstractmethod
     def configure_source(self) -> None:
         """Output off, current source on a range holding ``max_current_a``, compliance set, 0 A."""
 
     @abc.abstractmethod
-    def write_current(self, current_a: float) -> None:
-        """Program the output current."""
+    def output_refused(self) -> HeaterRefused:
+        """The error for an output that stayed off, with the supply's reason."""
 
     @abc.abstractmethod
-    def turn_output_on(self) -> None:
-        """Turn the output on and verify it is on (:class:`HeaterRefused` otherwise)."""
-
-    @abc.abstractmethod
-    def check_compliance(self) -> None:
-        """:class:`HeaterCompliance` if the output is voltage-limited."""
+    def in_compliance(self) -> bool:
+        """Whether the output is voltage-limited now."""
 
     @abc.abstractmethod
     def measure_output(self) -> HeaterReadback:
         """Read the output back."""
-
-    @abc.abstractmethod
-    def write_output_off(self) -> None:
-        """0 A and output off, confirmed by reading the output state back."""
-
-    def confirm_output_off(self) -> None:
-        """Read the output state back (this also waits until the supply has executed the off)."""
-        if self.query_bool(":OUTPut:STATe?", "output state"):
-            raise HeaterRefused(self.label, "output still on after :OUTPut:STATe OFF")

@@ -1,18 +1,18 @@
 """Keithley 2002 8½-digit multimeter: 4-wire resistance of a Cernox, triggered, fetched.
 
 Every command below is in the Model 2002 User's Manual (document 2002-900-01),
-section 3 "IEEE-488 Reference"; the section is cited with each setting.
+section 3 "IEEE-488 Reference" (sections and pages cited with each setting).
 ``docs/instruments.md`` lists them all with the exact strings sent.
 
 The measurement cycle cryod runs every 80 ms:
 
-1. ``:INITiate`` takes the DMM out of idle into the trigger layer (3.19);
+1. ``:INITiate`` takes the DMM out of idle into the trigger layer (3.22, trigger model pp. 2-12, 3-21);
 2. a trigger (GET, ``*TRG``, an EXTernal edge or a Trigger Link pulse) starts
    one device action: one 4-wire resistance reading;
 3. after the time the reading takes (:mod:`drivers.keithley2002_timing`)
-   ``:FETCh?`` returns it (3.14). ``:FETCh?`` does not wait for a new reading:
+   ``:FETCh?`` returns it. ``:FETCh?`` does not wait for a new reading:
    it "continues to return the old reading" until there is a new one, so the
-   reading number element (``RNUMber``, 3.17 ``:FORMat:ELEMents``) is part of
+   reading number element (``RNUMber``, ``:FORMat:ELEMents``, pp. 3-81, 3-82) is part of
    every reply and a reading whose number has not advanced is refused as stale.
 
 An overflow reads +9.9E37 (status ``O``): :class:`~drivers.errors.OverflowReading`,
@@ -48,7 +48,7 @@ import re
 from dataclasses import dataclass
 
 from cryod.clock import Clock
-from drivers.errors import BadReply, InstrumentTimeout, OverflowReading
+from drivers.errors import BadReply, InstrumentError, InstrumentTimeout, OverflowReading
 from drivers.keithley2002_timing import ReadingTiming
 from drivers.scpi import (Control, ScpiInstrument, count_or_infinite, integer, number, on_off, one_of,
                           parse_bool, parse_count, parse_token)
@@ -61,7 +61,7 @@ MAXIMUM_FOUR_WIRE_OHM = 2.1e6
 
 
 class TriggerSource(enum.Enum):
-    """Control sources of the trigger (measure) layer (manual 3.22 ``:TRIGger:SOURce``)."""
+    """Control sources of the trigger (measure) layer (manual 3.22 TRIGger subsystem, ``:SOURce``)."""
 
     IMMEDIATE = "IMMediate"
     BUS = "BUS"                 # GPIB GET or *TRG
@@ -73,14 +73,14 @@ class TriggerSource(enum.Enum):
 
 
 class FilterType(enum.Enum):
-    """Digital filter types (manual 3.18 ``:AVERage:TCONtrol``)."""
+    """Digital filter types (manual 3.18, ``:AVERage:TCONtrol``, p. 3-103)."""
 
     REPEATING = "REPeat"
     MOVING = "MOVing"
 
 
 class DataElement(enum.Enum):
-    """Elements of a reading string (manual 3.17 ``:FORMat:ELEMents``), in the order they are sent."""
+    """Elements of a reading string (``:FORMat:ELEMents``, p. 3-81), in the order they are sent."""
 
     READING = "READing"
     STATUS = "STATus"
@@ -182,47 +182,53 @@ class Keithley2002(ScpiInstrument):
         Wait between two ``:FETCh?`` while the new reading is not there yet.
     fetch_margin_s : float
         Added to the expected reading time before the first ``:FETCh?``.
+    first_reading_margin_s : float
+        Added as well for the first reading after configuration: then there is no older
+        reading to tell a too-early ``:FETCh?`` by, the 2002 answers it with ``-230`` and
+        nothing, and the controller would wait out its whole timeout.
     """
 
     expected_model = "MODEL 2002"
 
     # -- 4-wire resistance (manual 3.18, [SENSe[1]] subsystem) ----------------------
     function = Control(":SENSe:FUNCtion {}", ":SENSe:FUNCtion?",
-                       "Measurement function (3.18.1); cryod uses 4-wire ohms only.",
+                       "Measurement function (3.18, :FUNCtion); cryod uses 4-wire ohms only.",
                        one_of({"4-wire resistance": "'FRESistance'"}),
                        parse_token({"4-wire resistance": "FRESistance"}))
     range_ohm = Control(":SENSe:FRESistance:RANGe {}", ":SENSe:FRESistance:RANGe?",
-                        "Expected reading in ohm (3.18.3 :RANGe[:UPPer]); picks the smallest range holding it.",
+                        "Expected reading in ohm (3.18, :RANGe[:UPPer]); picks the smallest range holding it.",
                         number(0.0, MAXIMUM_FOUR_WIRE_OHM, "ohm"), float)
     autorange = Control(":SENSe:FRESistance:RANGe:AUTO {}", ":SENSe:FRESistance:RANGe:AUTO?",
-                        "Autorange on/off (3.18.3 :RANGe:AUTO).", on_off, parse_bool)
+                        "Autorange on/off (3.18, :RANGe:AUTO).", on_off, parse_bool)
     nplc = Control(":SENSe:FRESistance:NPLCycles {}", ":SENSe:FRESistance:NPLCycles?",
-                   "Integration time in power-line cycles (3.18.4 :NPLCycles).",
+                   "Integration time in power-line cycles (3.18, :NPLCycles, pp. 3-94, 3-95).",
                    number(0.01, 10.0, "PLC"), float)
     digits = Control(":SENSe:FRESistance:DIGits {}", ":SENSe:FRESistance:DIGits?",
-                     "Resolution: 4 to 9 for 3½ to 8½ digits (3.18.6 :DIGits).", integer(4, 9),
+                     "Resolution: 4 to 9 for 3½ to 8½ digits (3.18, :DIGits).", integer(4, 9),
                      lambda reply: int(float(reply)))
     filter_enabled = Control(":SENSe:FRESistance:AVERage:STATe {}", ":SENSe:FRESistance:AVERage:STATe?",
-                             "Digital filter on/off (3.18.9 :AVERage[:STATe]).", on_off, parse_bool)
+                             "Digital filter on/off (3.18, :AVERage[:STATe], p. 3-103).", on_off, parse_bool)
     filter_type = Control(":SENSe:FRESistance:AVERage:TCONtrol {}", ":SENSe:FRESistance:AVERage:TCONtrol?",
-                          "Filter type, repeating or moving (3.18.9 :AVERage:TCONtrol).",
+                          "Filter type, repeating or moving (3.18, :AVERage:TCONtrol, p. 3-103).",
                           one_of({kind: kind.value for kind in FilterType}),
                           parse_token({kind: kind.value for kind in FilterType}))
     filter_count = Control(":SENSe:FRESistance:AVERage:COUNt {}", ":SENSe:FRESistance:AVERage:COUNt?",
-                           "Readings in the filter, 1 to 100 (3.18.9 :AVERage:COUNt).", integer(1, 100),
+                           "Readings in the filter, 1 to 100 (3.18, :AVERage:COUNt, p. 3-103).", integer(1, 100),
                            lambda reply: int(float(reply)))
     offset_compensation = Control(":SENSe:FRESistance:OCOMpensated {}", ":SENSe:FRESistance:OCOMpensated?",
-                                  "Offset-compensated ohms on/off (3.18 :FRESistance:OCOMpensated; 2.4.3).",
+                                  "Offset-compensated ohms on/off (3.18, :FRESistance:OCOMpensated; "
+                                  "resistance configuration, p. 2-28).",
                                   on_off, parse_bool)
     # -- system (manual 3.21) ------------------------------------------------------
     autozero = Control(":SYSTem:AZERo:STATe {}", ":SYSTem:AZERo:STATe?",
-                       "Autozero on/off (3.21.5 :AZERo:STATe).", on_off, parse_bool)
+                       "Autozero on/off (3.21 SYSTem, :AZERo, p. 3-138).", on_off, parse_bool)
     autozero_synchronous = Control(":SYSTem:AZERo:TYPE {}", ":SYSTem:AZERo:TYPE?",
-                                   "Autozero with every reading (SYNChronous) or every 200 ms (NORMal), 3.21.5.",
+                                   "Autozero with every reading (SYNChronous) or every 200 ms (NORMal); "
+                                   "3.21, :AZERo:TYPE, p. 3-138.",
                                    one_of({True: "SYNChronous", False: "NORMal"}),
                                    parse_token({True: "SYNChronous", False: "NORMal"}))
     line_sync = Control(":SYSTem:LSYNc:STATe {}", ":SYSTem:LSYNc:STATe?",
-                        "Line-cycle synchronisation of the integration on/off (3.21 :LSYNc).",
+                        "Line-cycle synchronisation of the integration on/off (3.21 SYSTem, :LSYNc).",
                         on_off, parse_bool)
     # -- trigger model (manual 3.22) -----------------------------------------------------
     arm_source = Control(":ARM:SOURce {}", ":ARM:SOURce?", "Arm layer 1 control source (3.22).",
@@ -249,30 +255,33 @@ class Keithley2002(ScpiInstrument):
                                     parse_token({"asynchronous": "ASYNchronous"}))
     trigger_link_input_line = Control(":TRIGger:TCONfigure:ASYNchronous:ILINe {}",
                                       ":TRIGger:TCONfigure:ASYNchronous:ILINe?",
-                                      "Trigger Link input line, 1 to 6 (3.22 :ASYNchronous:ILINe).",
+                                      "Trigger Link input line, 1 to 6 (3.22, :ASYNchronous:ILINe, p. 3-156).",
                                       integer(1, 6), lambda reply: int(float(reply)))
     trigger_link_output_line = Control(":TRIGger:TCONfigure:ASYNchronous:OLINe {}",
                                        ":TRIGger:TCONfigure:ASYNchronous:OLINe?",
-                                       "Trigger Link output line, 1 to 6, not the input line (3.22 :OLINe).",
+                                       "Trigger Link output line, 1 to 6, not the input line "
+                                       "(3.22, :ASYNchronous:OLINe, p. 3-156).",
                                        integer(1, 6), lambda reply: int(float(reply)))
     continuous_initiation = Control(":INITiate:CONTinuous {}", ":INITiate:CONTinuous?",
-                                    "Continuous initiation on/off (3.19 :INITiate:CONTinuous).", on_off, parse_bool)
-    # -- data format (manual 3.17) ---------------------------------------------------------
+                                    "Continuous initiation on/off (3.22, :INITiate:CONTinuous).", on_off, parse_bool)
+    # -- data format (FORMat subsystem, p. 3-81) ---------------------------------------------------------
     data_elements = Control(":FORMat:ELEMents {}", ":FORMat:ELEMents?",
-                            "Elements of each reading string (3.17 :ELEMents).",
+                            "Elements of each reading string (:FORMat:ELEMents, p. 3-81).",
                             lambda elements: ",".join(DataElement(e).value for e in elements),
                             lambda reply: tuple(parse_token({e: e.value for e in DataElement})(part)
                                                 for part in reply.split(",")))
 
     def __init__(self, transport: Transport, clock: Clock, name: str = "Keithley 2002", *,
                  line_frequency_hz: float = 50.0, check_identity: bool = True,
-                 fetch_poll_interval_s: float = 0.002, fetch_margin_s: float = 0.0005):
+                 fetch_poll_interval_s: float = 0.002, fetch_margin_s: float = 0.0005,
+                 first_reading_margin_s: float = 0.05):
         super().__init__(transport, clock, name)
         if line_frequency_hz not in (50.0, 60.0):
             raise ValueError(f"{name}: line frequency must be 50 or 60 Hz, got {line_frequency_hz}")
         self.line_frequency_hz = float(line_frequency_hz)
         self.fetch_poll_interval_s = float(fetch_poll_interval_s)
         self.fetch_margin_s = float(fetch_margin_s)
+        self.first_reading_margin_s = float(first_reading_margin_s)
         self.settings = FourWireSettings()
         self.elements: tuple[DataElement, ...] = DEFAULT_ELEMENTS
         self._trigger_delay_s = 0.0
@@ -355,14 +364,28 @@ class Keithley2002(ScpiInstrument):
         """Longest time from a trigger to the reading being available (s)."""
         return self.timing.worst_case_delay_s
 
+    @property
+    def earliest_reading_delay_s(self) -> float:
+        """Shortest time from a trigger to the reading (s): when the first ``:FETCh?`` goes out."""
+        return self.timing.earliest_delay_s
+
     # -- the cycle -----------------------------------------------------------------------
     def initiate(self) -> None:
-        """``:INITiate``: out of idle, waiting for the trigger (3.19)."""
+        """``:INITiate``: out of idle, waiting for the trigger (3.22)."""
         with self.reporting_faults():
             self.write(":INITiate")
 
+    def trigger(self) -> None:
+        """A bus trigger to this DMM alone: GPIB GET, or ``*TRG`` where there is none (3.10.13, p. 3-39)."""
+        with self.reporting_faults():
+            try:
+                self.transport.trigger()
+            except InstrumentError as error:
+                error.relabelled(self.label)
+                raise
+
     def abort(self) -> None:
-        """``:ABORt``: back to idle (3.19)."""
+        """``:ABORt``: back to idle (3.22)."""
         with self.reporting_faults():
             self.write(":ABORt")
 
@@ -374,14 +397,20 @@ class Keithley2002(ScpiInstrument):
     def fetch_new_reading(self, trigger_time_s: float, *, timeout_s: float | None = None) -> DmmReading:
         """The reading of the trigger at ``trigger_time_s``, waiting on the clock until it is there.
 
-        Waits until ``trigger_time_s + reading_delay_s + fetch_margin_s``, then fetches; a reading whose number
-        has not advanced is the previous one, and is fetched again every
-        ``fetch_poll_interval_s`` until ``timeout_s`` after the expected time
-        (default: the transport's timeout), then :class:`~drivers.errors.InstrumentTimeout`.
+        Waits until the earliest time the reading can exist (``earliest_reading_delay_s``
+        after the trigger, plus ``fetch_margin_s``, plus ``first_reading_margin_s`` for
+        the first reading after configuration), then fetches. A reading whose number
+        has not advanced is the previous one (a NORMal autozero or the line-sync wait
+        delayed the new one): it is fetched again every ``fetch_poll_interval_s`` until
+        ``timeout_s`` (default: the transport's timeout) after the latest time the
+        reading could take, then :class:`~drivers.errors.InstrumentTimeout`.
         """
-        expected = trigger_time_s + self.reading_delay_s + self.fetch_margin_s
-        limit = expected + (self.transport.timeout_s if timeout_s is None else timeout_s)
-        self.clock.sleep_until(expected)
+        first = trigger_time_s + self.earliest_reading_delay_s + self.fetch_margin_s
+        if self.last_reading_number is None:
+            first += self.first_reading_margin_s
+        limit = (trigger_time_s + self.reading_delay_s + self.fetch_margin_s
+                 + (self.transport.timeout_s if timeout_s is None else timeout_s))
+        self.clock.sleep_until(first)
         with self.reporting_faults():
             while True:
                 reading = self.parse_reading(self.query(":FETCh?"))

@@ -5,16 +5,16 @@ daemon, to check that a configuration fits in the 80 ms cycle), and by the
 simulated 2002, to make a reading available no earlier than the real one
 would. The parts come from the Model 2002 User's Manual:
 
-* integration: NPLC power-line cycles (section 3.18.4 ``:NPLCycles``);
+* integration: NPLC power-line cycles (section 3.18, ``:NPLCycles``, pp. 3-94, 3-95);
 * offset-compensated ohms: a second A/D conversion with the test current
-  off for every reading (section 2.4.3, "OFFSETCOMP");
-* autozero (section 3.21.5 ``:SYSTem:AZERo``): SYNChronous takes a zero
+  off for every reading (resistance configuration, "OFFSETCOMP", p. 2-28 ff.);
+* autozero (section 3.21, ``:SYSTem:AZERo:TYPE``, p. 3-138): SYNChronous takes a zero
   reading with every reading; NORMal "every 200 msec", which delays the
   reading that falls due by one more integration;
-* line synchronisation (section 3.21 ``:SYSTem:LSYNc``): "the integration
+* line synchronisation (the ``:NPLCycles`` note on ``:SYSTem:LSYNc``, p. 3-95): "the integration
   period will not start until the beginning of the next power line cycle",
   i.e. the next positive-going zero crossing;
-* repeating filter of N readings (section 3.18 ``:AVERage:TCONtrol``): N
+* repeating filter of N readings (section 3.18, ``:AVERage:TCONtrol``, p. 3-103): N
   conversions per triggered reading; the moving filter takes one;
 * trigger delay (``:TRIGger:DELay``).
 
@@ -26,8 +26,8 @@ replace with a measured value on the lab's instruments.
 Examples
 --------
 >>> timing = ReadingTiming(nplc=1.0, line_frequency_hz=50.0)
->>> round(timing.integration_time_s, 6), round(timing.worst_case_delay_s, 6)
-(0.02, 0.042)
+>>> round(timing.integration_time_s, 6), round(timing.earliest_delay_s, 6), round(timing.worst_case_delay_s, 6)
+(0.02, 0.022, 0.042)
 >>> round(ReadingTiming(nplc=1.0, line_frequency_hz=50.0, autozero=False).worst_case_delay_s, 6)
 0.022
 """
@@ -117,6 +117,11 @@ class ReadingTiming:
     def ready_time_s(self, integration_start_s: float) -> float:
         """When the reading whose integration starts at ``integration_start_s`` can be fetched."""
         return integration_start_s + self.measurement_span_s + self.processing_time_s
+
+    @property
+    def earliest_delay_s(self) -> float:
+        """Shortest time from trigger to an available reading (s): no autozero due, no line-sync wait."""
+        return self.trigger_delay_s + self.measurement_span_s + self.processing_time_s
 
     @property
     def worst_case_delay_s(self) -> float:

@@ -12,14 +12,10 @@ line is reported by the 2400 as ``+802,"OUTPUT blocked by output enable"``.
 Examples
 --------
 >>> from cryod.clock import VirtualClock
->>> from cryod.model import load_model
->>> from drivers.transports import InProcessTransport
->>> from simulated_hw.cryostat import SimulatedCryostat
->>> from simulated_hw.keithley2400 import Keithley2400Emulator
+>>> from simulated_hw.bench import SimulatedBench
 >>> clock = VirtualClock()
->>> cryostat = SimulatedCryostat(load_model(), clock, seed=1)
->>> transport = InProcessTransport(Keithley2400Emulator(cryostat, heater_resistance_ohm=50.0))
->>> heater = Keithley2400(transport, clock, heater_resistance_ohm=50.0, voltage_compliance_v=10.0)
+>>> bench = SimulatedBench(clock, supply="2400", heater_resistance_ohm=50.0)
+>>> heater = Keithley2400(bench.in_process_transports().heater_supply, clock, heater_resistance_ohm=50.0)
 >>> _ = heater.set_power_w(0.05)
 >>> readback = heater.read_back()
 >>> round(readback.voltage_v, 4), round(readback.power_w, 6), readback.voltage_measured
@@ -30,7 +26,7 @@ Examples
 from __future__ import annotations
 
 from cryod.clock import Clock
-from drivers.errors import BadReply, HeaterCompliance, HeaterRefused
+from drivers.errors import BadReply, HeaterRefused
 from drivers.heater import HeaterReadback, HeaterSupply
 from drivers.scpi import Control, number, on_off, one_of, parse_bool, parse_token
 from drivers.transports.base import Transport
@@ -52,8 +48,6 @@ class Keithley2400(HeaterSupply):
     supply_max_current_a = 1.05
     supply_compliance_range_v = (0.0, 210.0)
 
-    output_enabled = Control(":OUTPut:STATe {}", ":OUTPut:STATe?", "Output on/off (18, OUTPut subsystem).",
-                             on_off, parse_bool)
     source_function = Control(":SOURce:FUNCtion {}", ":SOURce:FUNCtion?", "Source function (18, SOURce).",
                               one_of({"current": "CURRent"}), parse_token({"current": "CURRent"}))
     source_mode = Control(":SOURce:CURRent:MODE {}", ":SOURce:CURRent:MODE?", "Current source mode.",
@@ -105,20 +99,12 @@ class Keithley2400(HeaterSupply):
         self.data_elements = ("voltage", "current")
         self.check_error_queue("source-meter configuration")
 
-    def write_current(self, current_a: float) -> None:
-        self.source_current_a = current_a
+    def output_refused(self) -> HeaterRefused:
+        return HeaterRefused(self.label, "output refused (output enable or interlock)",
+                             error_queue=self.read_error_queue())
 
-    def turn_output_on(self) -> None:
-        self.output_enabled = True
-        if not self.output_enabled:
-            entries = self.read_error_queue()
-            raise HeaterRefused(self.label, "output refused (output enable or interlock)", error_queue=entries)
-
-    def check_compliance(self) -> None:
-        if self.query_bool(":SENSe:VOLTage:PROTection:TRIPped?", "compliance state"):
-            raise HeaterCompliance(self.label, f"in voltage compliance at {self.current_a * 1e3:.4g} mA "
-                                               f"({self.voltage_compliance_v:g} V limit): heater open or "
-                                               "its resistance too high")
+    def in_compliance(self) -> bool:
+        return self.query_bool(":SENSe:VOLTage:PROTection:TRIPped?", "compliance state")
 
     def measure_output(self) -> HeaterReadback:
         if not self.output_is_on:
@@ -131,8 +117,3 @@ class Keithley2400(HeaterSupply):
             raise BadReply(self.label, "expected <voltage>,<current> from :READ?", reply=reply) from None
         self.check_compliance()
         return HeaterReadback(current, voltage, voltage * current, voltage_measured=True)
-
-    def write_output_off(self) -> None:
-        self.write(":SOURce:CURRent 0.000000E+00")
-        self.write(":OUTPut:STATe OFF")
-        self.confirm_output_off()

@@ -30,7 +30,7 @@ Examples
 
 from __future__ import annotations
 
-from drivers.errors import HeaterCompliance, HeaterRefused
+from drivers.errors import HeaterRefused
 from drivers.heater import HeaterReadback, HeaterSupply
 from drivers.scpi import Control, number, on_off, parse_bool
 
@@ -45,8 +45,6 @@ class Keithley6221(HeaterSupply):
     supply_max_current_a = 0.105
     supply_compliance_range_v = (0.1, 105.0)
 
-    output_enabled = Control(":OUTPut:STATe {}", ":OUTPut:STATe?", "Output on/off (OUTPut subsystem).",
-                             on_off, parse_bool)
     source_current_a = Control(":SOURce:CURRent {}", ":SOURce:CURRent?",
                                "DC output current in A, -105e-3 to 105e-3 (SOURce:CURRent[:LEVel]...).",
                                number(-0.105, 0.105, "A", "{:.6E}"), float)
@@ -72,23 +70,13 @@ class Keithley6221(HeaterSupply):
         """The measurement condition register (bits: B1 interlock asserted, B3 compliance)."""
         return int(self.query_number(":STATus:MEASurement:CONDition?", "measurement condition register"))
 
-    def write_current(self, current_a: float) -> None:
-        self.source_current_a = current_a
-
-    def turn_output_on(self) -> None:
-        self.output_enabled = True
-        if not self.output_enabled:
-            condition = self.measurement_condition()
-            why = ("interlock not asserted" if not condition & INTERLOCK_ASSERTED_BIT
-                   else "output did not turn on")
-            raise HeaterRefused(self.label, f"output refused: {why} (measurement condition {condition})")
-
-    def check_compliance(self) -> None:
+    def output_refused(self) -> HeaterRefused:
         condition = self.measurement_condition()
-        if condition & COMPLIANCE_BIT:
-            raise HeaterCompliance(self.label, f"in voltage compliance at {self.current_a * 1e3:.4g} mA "
-                                               f"({self.voltage_compliance_v:g} V limit): heater open or "
-                                               "its resistance too high")
+        why = "interlock not asserted" if not condition & INTERLOCK_ASSERTED_BIT else "output did not turn on"
+        return HeaterRefused(self.label, f"output refused: {why} (measurement condition {condition})")
+
+    def in_compliance(self) -> bool:
+        return bool(self.measurement_condition() & COMPLIANCE_BIT)
 
     def measure_output(self) -> HeaterReadback:
         current = self.query_number(":SOURce:CURRent?", "output current")
@@ -97,8 +85,3 @@ class Keithley6221(HeaterSupply):
             current = 0.0
         voltage = current * self.heater_resistance_ohm
         return HeaterReadback(current, voltage, voltage * current, voltage_measured=False)
-
-    def write_output_off(self) -> None:
-        self.write(":SOURce:CURRent 0.000000E+00")
-        self.write(":OUTPut:STATe OFF")
-        self.confirm_output_off()

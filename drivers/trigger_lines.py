@@ -2,18 +2,23 @@
 
 The Keithley 2002 takes a trigger on its rear EXTERNAL TRIGGER input (a
 falling TTL edge; User's Manual section 2.7.6) or on a Trigger Link line
-(section 2.7.7; lines are pulled low to trigger). Wire both DMMs to the same
+("Trigger Link", p. 2-53; asynchronous mode uses the same TTL pulses). Wire both DMMs to the same
 edge and they start integrating at the same instant, whatever the bus
 latency. A PC makes the edge with a serial port's RTS (or DTR) line,
 through a level shifter from RS-232 (±5 to ±12 V) to TTL, or an
 open-collector transistor for a Trigger Link line (docs/instruments.md,
 "Trigger cabling").
 
-:class:`SerialControlLine` holds the line at its idle level and pulses it:
-idle high, a low pulse of ``pulse_width_s``, back high (``active_low``), or
-the opposite. It works on anything with a writable ``rts``/``dtr``
-attribute: a ``serial.Serial`` for the lab, a simulated port that fans the
-edge out to simulated DMMs for ``cryod --simulate`` and the tests.
+:class:`SerialControlLine` holds the line at its idle level and pulses it
+for ``pulse_width_s``. The 2002 triggers on a falling TTL edge, so the idle
+level must come out TTL high: with a non-inverting level shifter (a clamp:
+RS-232 positive gives TTL high) the line idles asserted and the pulse
+deasserts it (``idle_asserted=True``, the default); with an inverting one
+(a MAX232-type receiver) it idles deasserted and the pulse asserts it
+(``idle_asserted=False``). It works on anything with a writable
+``rts``/``dtr`` attribute: a ``serial.Serial`` for the lab, a simulated
+port that fans the edge out to simulated DMMs for ``cryod --simulate`` and
+the tests.
 
 Examples
 --------
@@ -55,13 +60,13 @@ class SerialControlLine:
         Which modem-control line is wired to the trigger inputs.
     pulse_width_s : float
         Width of the pulse (the 2002 needs microseconds; 1 ms is safe through USB adapters).
-    active_low : bool
-        Idle high, pulse low (falling edge triggers, as the 2002's inputs want after a
-        non-inverting level shifter); False for an inverting one.
+    idle_asserted : bool
+        The line's level between pulses: True (asserted) behind a non-inverting level
+        shifter, False behind an inverting one; either way the trigger edge starts the pulse.
     """
 
     def __init__(self, port: Any, clock: Clock, *, line: str = "rts", pulse_width_s: float = 0.001,
-                 active_low: bool = True):
+                 idle_asserted: bool = True):
         if line not in ("rts", "dtr"):
             raise ValueError(f"line must be 'rts' or 'dtr', got {line!r}")
         if not pulse_width_s > 0.0:
@@ -70,7 +75,7 @@ class SerialControlLine:
         self.clock = clock
         self.line = line
         self.pulse_width_s = float(pulse_width_s)
-        self.idle_level = active_low
+        self.idle_level = idle_asserted
         self._set(self.idle_level)
 
     @classmethod

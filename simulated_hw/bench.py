@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
+import cryod
 from cryod.clock import Clock
 from cryod.model import CryostatModel, load_model
 from drivers.transports.in_process import InProcessTransport
@@ -35,7 +36,8 @@ from simulated_hw.prologix_server import PrologixServer
 from simulated_hw.scpi_server import ScpiServer
 from simulated_hw.trigger_wiring import SimulatedGpibInterface, SimulatedSerialPort, SimulatedTriggerLine
 
-CALIBRATION_DIRECTORY = Path(__file__).resolve().parent.parent / "config" / "calibration"
+#: The shipped calibrations (``config/calibration``, installed as ``cryod/data/calibration``).
+CALIBRATION_DIRECTORY = Path(cryod.__file__).resolve().parent / "data" / "calibration"
 FLANGE_CALIBRATION = CALIBRATION_DIRECTORY / "X186279.340"
 PTC_STAGE_CALIBRATION = CALIBRATION_DIRECTORY / "X207058.340"
 SUPPLIES = {"6221": Keithley6221Emulator, "2400": Keithley2400Emulator}

@@ -10,8 +10,8 @@ error queue. Parameters outside the manual's ranges give ``-222``; a
 function other than 4-wire ohms (which is all this DMM is wired to) gives
 ``-224``.
 
-Readings (Model 2002 User's Manual, section 2.7 "Triggering" and 3.22
-"TRIGger subsystem"): each trigger event starts one device action; the
+Readings (Model 2002 User's Manual, trigger model pp. 2-12 and 3-21, and section
+3.22 "TRIGger subsystem"): each trigger event starts one device action; the
 reading is the Cernox resistance (through the calibration curve) at the
 trigger instant, averaged over the span of the A/D conversions the settings
 ask for (see :mod:`drivers.keithley2002_timing`), and becomes available to
@@ -21,14 +21,14 @@ not trigger a measurement ... continues to return the old reading");
 before any reading it reports ``-230,"Data corrupt or stale"`` and sends
 nothing. A trigger during a device action is ignored with ``-211,"Trigger
 ignored"`` ("Any triggers received while the instrument is processing a
-reading will be ignored", section 3.18.4).
+reading will be ignored", ``:NPLCycles``, p. 3-94).
 
 Averaging note: the simulated cryostat gives the mean temperature over the
 window; the reading is R(mean T). The difference to mean R(T) is
 R''(T) var(T) / 2, below 1e-5 relative for the PTC stage's 0.12 K line over
 one power-line cycle, far under the sensor noise.
 
-Output format (section 3.17 ``:FORMat:ELEMents``, Figure 3-18): elements in
+Output format (``:FORMat:ELEMents``, p. 3-81 and Figure 3-18): elements in
 the order reading (with status N/O/R and unit ``OHM4W`` attached), time
 stamp, reading number, channel, separated by commas; an overflow reads
 +9.9E37 with status O.
@@ -128,7 +128,7 @@ class Keithley2002Emulator(EmulatedInstrument):
 
     # -- settings ------------------------------------------------------------------
     def reset(self) -> None:
-        """``*RST`` defaults that matter here (manual, section 3.16 tables of defaults)."""
+        """``*RST`` defaults that matter here (``*RST`` column of the manual's command tables)."""
         self.function = "FRESISTANCE"
         self.range_ohm = FOUR_WIRE_RANGES_OHM[-1]
         self.autorange = True
@@ -336,7 +336,7 @@ class Keithley2002Emulator(EmulatedInstrument):
             self._event("EXTERNAL", time_s=time_s)
 
     def trigger_link_pulse(self, line: int, time_s: float | None = None) -> None:
-        """An input trigger pulse on Trigger Link line ``line`` (1 to 6, manual section 2.7.7)."""
+        """An input trigger pulse on Trigger Link line ``line`` (1 to 6, "Trigger Link", p. 2-53)."""
         with self._lock:
             self._event("TLINK", line, time_s)
 

@@ -13,7 +13,7 @@ split into units at ``;``; a unit without a leading ``:`` continues at the
 level of the previous one.
 
 Errors are SCPI's own numbers and texts as Keithley's manuals list them
-(Model 2002 User's Manual, Table 2-4 and section 3.21.4 ``:SYSTem:ERRor?``;
+(Model 2002 User's Manual, Table 2-4 and ``:SYSTem:ERRor?``, p. 3-138;
 Model 2400 Series User's Manual, Appendix B; Model 622x Reference Manual,
 Appendix B): a header the instrument does not know is ``-113,"Undefined
 header"``.
@@ -80,7 +80,7 @@ def scpi_error(entry: tuple[int, str]) -> ScpiError:
 class ErrorQueue:
     """First in, first out, ten entries; a full queue ends in ``-350,"Queue overflow"``.
 
-    Model 2002 User's Manual, section 3.21.4 (``:SYSTem:ERRor?``): "The Error
+    Model 2002 User's Manual, ``:SYSTem:ERRor?`` (p. 3-138): "The Error
     Queue is a first-in, first-out (FIFO) register that can hold up to 10
     messages ... When the Error Queue is empty, the message 0, 'No error' is
     placed in the Error Queue."
@@ -296,18 +296,23 @@ class CommandTable:
 
     def __init__(self) -> None:
         self._commands: list[_Command] = []
+        self._found: dict[tuple[tuple[str, ...], bool], Handler | None] = {}
 
     def add(self, pattern: str, *, write: Handler | None = None, query: Handler | None = None) -> None:
         """Register a header; ``write`` for the command form, ``query`` for ``HEADER?``."""
         self._commands.append(_Command(parse_pattern(pattern), write, query))
+        self._found.clear()
 
     def _find(self, parts: list[str], is_query: bool) -> Handler:
-        for command in self._commands:
-            if _matches(command.nodes, parts):
-                handler = command.query if is_query else command.write
-                if handler is not None:
-                    return handler
-        raise scpi_error(UNDEFINED_HEADER)
+        key = (tuple(part.upper() for part in parts), is_query)
+        if key not in self._found:
+            self._found[key] = next(
+                (handler for command in self._commands if _matches(command.nodes, parts)
+                 for handler in [command.query if is_query else command.write] if handler is not None), None)
+        handler = self._found[key]
+        if handler is None:
+            raise scpi_error(UNDEFINED_HEADER)
+        return handler
 
     def execute(self, message: str, errors: ErrorQueue) -> str | None:
         """Run one program message; replies of its queries joined by ``;`` (None: no query).

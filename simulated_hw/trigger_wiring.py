@@ -62,7 +62,9 @@ class SimulatedTriggerLine:
 
 
 class SimulatedSerialPort:
-    """A serial port whose modem-control line drives a trigger wire (falling edge triggers).
+    """A serial port whose modem-control line drives a trigger wire through a non-inverting shifter.
+
+    Deasserting the wired line makes the falling TTL edge that triggers the DMMs.
 
     Parameters
     ----------

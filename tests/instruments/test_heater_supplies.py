@@ -1,15 +1,19 @@
-"""Heater supply drivers against the simulated 6221 and 2400 (issue 3, sections 2, 5 and 6), in process."""
+"""Heater supply drivers against the simulated 6221 and 2400 (issue 3, sections 2, 5, 6), in process and over TCP."""
 
+import contextlib
 import math
+import time
 
 import pytest
 
+from cryod.clock import MonotonicClock, VirtualClock
 from drivers.errors import (BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterRefused,
                             IdentityMismatch, InstrumentTimeout)
 from drivers.keithley2400 import Keithley2400
 from drivers.keithley6221 import Keithley6221
-from drivers.transports import InProcessTransport
+from drivers.transports import InProcessTransport, VisaTransport
 from simulated_hw.bench import SimulatedBench
+from simulated_hw.scpi_server import ScpiServer
 
 from conftest import HEATER_RESISTANCE_OHM
 
@@ -113,13 +117,52 @@ def test_output_off_when_the_caller_fails_inside_the_context(supply):
     assert_off(bench)
 
 
-def test_open_heater_is_compliance_and_leaves_the_output_off(supply):
-    bench, heater = supply
-    heater.set_power_w(0.05)
-    bench.heater_supply.inject_open_heater()
-    with pytest.raises(HeaterCompliance, match="flange heater.*compliance"):
+@pytest.fixture(params=[(model, link) for model in sorted(DRIVERS) for link in ("in process", "TCP")],
+                ids=lambda param: f"{param[0]} {param[1]}")
+def linked_supply(request, flange_curve, ptc_stage_curve):
+    """(bench, heater driver) for each supply, in process on a VirtualClock and over TCP via pyvisa-py."""
+    model, link = request.param
+    clock = VirtualClock() if link == "in process" else MonotonicClock()
+    bench = SimulatedBench(clock, flange_curve, ptc_stage_curve, heater_resistance_ohm=HEATER_RESISTANCE_OHM,
+                           supply=model, noise=False)
+    with contextlib.ExitStack() as stack:
+        if link == "in process":
+            transport = InProcessTransport(bench.heater_supply, "simulated heater supply", timeout_s=0.25)
+        else:
+            server = stack.enter_context(ScpiServer(bench.heater_supply))
+            transport = VisaTransport(server.resource_name, timeout_s=0.25)
+        heater = DRIVERS[model](transport, clock, HEATER_RESISTANCE_OHM, name="flange heater")
+        heater.set_power_w(0.05)
+        assert bench.cryostat.heater_power_w == pytest.approx(0.05, rel=1e-5)
+        yield bench, heater
+        heater.close()
+
+
+@pytest.mark.parametrize("fault, error, match", [
+    ("inject_open_heater", HeaterCompliance, "flange heater.*compliance"),
+    ("inject_refuse_output", HeaterRefused, "flange heater"),
+    ("inject_no_reply", InstrumentTimeout, "flange heater"),
+    ("inject_garbage", BadReply, "flange heater"),
+    ("drop_connections", ConnectionLost, "flange heater"),
+])
+def test_each_fault_is_typed_and_leaves_the_output_off(linked_supply, fault, error, match):
+    bench, heater = linked_supply
+    if fault == "inject_refuse_output":
+        heater.output_off()                        # the refusal shows when the output is turned on
+    getattr(bench.heater_supply, fault)()
+    if fault == "drop_connections":
+        time.sleep(0.05)                           # over TCP, the server closes the socket
+    start = bench.clock.now()
+    with pytest.raises(error, match=match) as raised:
         heater.set_power_w(0.06)
     assert_off(bench)
+    if fault == "inject_no_reply":
+        assert bench.clock.now() - start >= 0.25   # the timeout elapsed on the clock
+    if fault == "inject_refuse_output" and isinstance(heater, Keithley2400):
+        assert raised.value.error_queue == ((802, "OUTPUT blocked by output enable"),)
+    if fault == "drop_connections":
+        heater.set_power_w(0.02)                   # reopened: the loop may carry on
+        assert bench.cryostat.heater_power_w == pytest.approx(0.02, rel=1e-5)
 
 
 def test_open_heater_found_by_read_back(supply):
@@ -129,49 +172,6 @@ def test_open_heater_found_by_read_back(supply):
     with pytest.raises(HeaterCompliance):
         heater.read_back()
     assert_off(bench)
-
-
-def test_refused_output_is_heater_refused_and_off(supply):
-    bench, heater = supply
-    bench.heater_supply.inject_refuse_output()
-    with pytest.raises(HeaterRefused) as raised:
-        heater.set_power_w(0.05)
-    assert_off(bench)
-    if isinstance(heater, Keithley2400):
-        assert raised.value.error_queue == ((802, "OUTPUT blocked by output enable"),)
-    else:
-        assert "interlock" in str(raised.value)
-
-
-def test_timeout_is_typed_and_leaves_the_output_off(supply, clock):
-    bench, heater = supply
-    heater.set_power_w(0.05)
-    bench.heater_supply.inject_no_reply()
-    start = clock.now()
-    with pytest.raises(InstrumentTimeout, match="flange heater"):
-        heater.set_power_w(0.06)
-    assert clock.now() - start >= 0.5                 # the timeout elapsed on the injected clock
-    assert_off(bench)
-
-
-def test_garbage_reply_is_bad_reply_and_leaves_the_output_off(supply):
-    bench, heater = supply
-    heater.set_power_w(0.05)
-    bench.heater_supply.inject_garbage()
-    with pytest.raises(BadReply):
-        heater.set_power_w(0.06)
-    assert_off(bench)
-
-
-def test_dropped_connection_is_reopened_to_switch_the_output_off(supply):
-    bench, heater = supply
-    heater.set_power_w(0.05)
-    bench.heater_supply.drop_connections()
-    with pytest.raises(ConnectionLost, match="dropped"):
-        heater.set_power_w(0.06)
-    assert_off(bench)
-    heater.set_power_w(0.02)                         # recovered: the loop may carry on
-    assert bench.cryostat.heater_power_w == pytest.approx(0.02, rel=1e-5)
 
 
 def test_wrong_instrument_is_refused_at_connect(clock, bench):

@@ -5,7 +5,8 @@ import math
 import pytest
 
 from drivers.errors import HeaterCompliance, HeaterLimitRefused, HeaterRefused, InstrumentReportedError
-from drivers.keithley2002 import DEFAULT_ELEMENTS, DataElement, FilterType, FourWireSettings, Keithley2002, TriggerSource
+from drivers.keithley2002 import (DEFAULT_ELEMENTS, DataElement, FilterType, FourWireSettings, Keithley2002,
+                                  TriggerSource)
 from drivers.keithley2400 import Keithley2400
 from drivers.keithley6221 import Keithley6221
 from drivers.pair_triggers import SequentialTrigger
@@ -162,8 +163,8 @@ def test_2002_fetch_new_reading_fetches_again_while_the_number_has_not_advanced(
         first = meter.fetch_new_reading(0.0)
         second = meter.fetch_new_reading(clock.now())
     assert (first.reading_number, second.reading_number) == (12, 13)
-    assert clock.now() == pytest.approx(meter.reading_delay_s * 2 + 2 * meter.fetch_margin_s
-                                        + meter.fetch_poll_interval_s)
+    assert clock.now() == pytest.approx(meter.earliest_reading_delay_s * 2 + 2 * meter.fetch_margin_s
+                                        + meter.first_reading_margin_s + meter.fetch_poll_interval_s)
 
 
 def test_2002_error_queue_read(clock):

@@ -94,6 +94,17 @@ def test_socket_closed_transport_and_unreachable_server(real_time_bench):
         nobody_listening.query("*IDN?")
 
 
+def test_serial_instrument_resource(real_time_bench):
+    """An ASRL resource (a serial port); pyserial's socket:// URL stands in for the cable."""
+    with ScpiServer(real_time_bench.flange_dmm) as server:
+        transport = VisaTransport(f"ASRLsocket://127.0.0.1:{server.port}::INSTR", timeout_s=TCP_TIMEOUT_S)
+        assert not transport.is_gpib_instrument and not transport.is_socket
+        assert transport.query("*IDN?") == IDN_2002
+        transport.trigger()                             # no GET on a serial line: *TRG
+        assert transport.query(":SYSTem:ERRor?") == '-211,"Trigger ignored"'
+        transport.close()
+
+
 def test_socket_trigger_sends_trg(real_time_bench):
     clock = real_time_bench.clock
     with ScpiServer(real_time_bench.flange_dmm) as server:
@@ -110,77 +121,85 @@ def test_socket_trigger_sends_trg(real_time_bench):
 
 
 # -- Prologix GPIB-ETHERNET through pyvisa-py ------------------------------------------------------
-def test_prologix_switches_address_between_instruments(real_time_bench):
+@pytest.fixture
+def prologix(real_time_bench):
+    """(simulated controller, adapter) with the bench's instruments at addresses 16, 17 and 24."""
     with real_time_bench.serve_prologix() as controller:
         adapter = PrologixAdapter(controller.interface_resource_name, timeout_s=TCP_TIMEOUT_S)
-        flange = adapter.instrument(PROLOGIX_ADDRESSES["flange"], name="flange DMM")
-        heater = adapter.instrument(PROLOGIX_ADDRESSES["heater"], name="heater")
-        assert flange.query("*IDN?") == IDN_2002
-        assert "MODEL 6221" in heater.query("*IDN?")
-        assert flange.query("*IDN?") == IDN_2002
-        addresses = [c for c in controller.controller_commands if c.startswith("addr")]
-        assert addresses == ["addr 16", "addr 24", "addr 16"]
-        for transport in (flange, heater):
-            transport.close()
+        yield controller, adapter
         adapter.close()
 
 
-def test_prologix_escapes_data_so_a_plus_sign_arrives(real_time_bench):
-    with real_time_bench.serve_prologix() as controller:
-        adapter = PrologixAdapter(controller.interface_resource_name, timeout_s=TCP_TIMEOUT_S)
-        heater = adapter.instrument(PROLOGIX_ADDRESSES["heater"])
-        heater.write(":SOURce:CURRent +1.000000E-02")
-        assert float(heater.query(":SOURce:CURRent?")) == 0.01
-        heater.close()
-        adapter.close()
+def test_prologix_switches_address_between_instruments(prologix):
+    controller, adapter = prologix
+    flange = adapter.instrument(PROLOGIX_ADDRESSES["flange"], name="flange DMM")
+    heater = adapter.instrument(PROLOGIX_ADDRESSES["heater"], name="heater")
+    assert flange.query("*IDN?") == IDN_2002
+    assert "MODEL 6221" in heater.query("*IDN?")
+    assert flange.query("*IDN?") == IDN_2002
+    addresses = [c for c in controller.controller_commands if c.startswith("addr")]
+    assert addresses == ["addr 16", "addr 24", "addr 16"]
 
 
-def test_prologix_group_trigger_reaches_both_dmms_at_once(real_time_bench):
+def test_prologix_escapes_data_so_a_plus_sign_arrives(prologix):
+    controller, adapter = prologix
+    heater = adapter.instrument(PROLOGIX_ADDRESSES["heater"])
+    heater.write(":SOURce:CURRent +1.000000E-02")
+    assert float(heater.query(":SOURce:CURRent?")) == 0.01
+
+
+def test_prologix_group_trigger_reaches_both_dmms_at_once(real_time_bench, prologix):
+    bench, (controller, adapter) = real_time_bench, prologix
+    for emulator in (bench.flange_dmm, bench.ptc_stage_dmm):
+        for command in (":TRIG:SOUR BUS", ":INIT"):
+            emulator.handle(command)
+    adapter.trigger([16, 17])
+    deadline = time.monotonic() + 1.0
+    while controller.group_triggers == [] and time.monotonic() < deadline:
+        time.sleep(0.001)
+    assert controller.group_triggers == [(16, 17)]
+    assert bench.flange_dmm._pending.trigger_time_s == bench.ptc_stage_dmm._pending.trigger_time_s
+
+
+def test_prologix_timeout_and_dropped_controller_connection(real_time_bench, prologix):
+    bench, (controller, adapter) = real_time_bench, prologix
+    flange = adapter.instrument(16, name="flange DMM")
+    stage = adapter.instrument(17, name="PTC-stage DMM")
+    bench.flange_dmm.inject_no_reply()
+    with pytest.raises(InstrumentTimeout):
+        flange.query("*IDN?")
+    bench.flange_dmm.inject_no_reply(False)
+    controller.drop_connections()
+    time.sleep(0.05)
+    with pytest.raises(ConnectionLost):
+        flange.query("*IDN?")
+    flange.reopen()                                # reconnects the controller once ...
+    stage.reopen()                                 # ... the second instrument only reopens itself
+    assert adapter.generation == 2
+    assert flange.query("*IDN?") == IDN_2002
+    assert "MODEL 2002,0000005" in stage.query("*IDN?")
+
+
+def test_prologix_heater_driver_unchanged(real_time_bench, prologix):
+    bench, (controller, adapter) = real_time_bench, prologix
+    with Keithley6221(adapter.instrument(24), bench.clock, 50.0, name="heater") as heater:
+        heater.set_power_w(0.110)
+        assert bench.cryostat.heater_power_w == pytest.approx(0.110, rel=1e-5)
+    assert bench.cryostat.heater_power_w == 0.0
+
+
+def test_prologix_gpib_usb_path_through_pyserial(real_time_bench):
+    """The GPIB-USB controller is a serial port; pyserial's socket:// URL stands in for the USB cable."""
     bench = real_time_bench
     with bench.serve_prologix() as controller:
-        adapter = PrologixAdapter(controller.interface_resource_name, timeout_s=TCP_TIMEOUT_S)
-        for emulator in (bench.flange_dmm, bench.ptc_stage_dmm):
-            for command in (":TRIG:SOUR BUS", ":INIT"):
-                emulator.handle(command)
+        adapter = PrologixAdapter.usb(f"socket://127.0.0.1:{controller.port}", timeout_s=TCP_TIMEOUT_S)
+        assert adapter.interface_resource_name.startswith("PRLGX-ASRL0::")
+        flange = adapter.instrument(PROLOGIX_ADDRESSES["flange"], name="flange DMM")
+        assert flange.query("*IDN?") == IDN_2002
         adapter.trigger([16, 17])
         deadline = time.monotonic() + 1.0
         while controller.group_triggers == [] and time.monotonic() < deadline:
             time.sleep(0.001)
         assert controller.group_triggers == [(16, 17)]
-        assert bench.flange_dmm._pending.trigger_time_s == bench.ptc_stage_dmm._pending.trigger_time_s
-        adapter.close()
-
-
-def test_prologix_timeout_and_dropped_controller_connection(real_time_bench):
-    bench = real_time_bench
-    with bench.serve_prologix() as controller:
-        adapter = PrologixAdapter(controller.interface_resource_name, timeout_s=TCP_TIMEOUT_S)
-        flange = adapter.instrument(16, name="flange DMM")
-        stage = adapter.instrument(17, name="PTC-stage DMM")
-        bench.flange_dmm.inject_no_reply()
-        with pytest.raises(InstrumentTimeout):
-            flange.query("*IDN?")
-        bench.flange_dmm.inject_no_reply(False)
-        controller.drop_connections()
-        time.sleep(0.05)
-        with pytest.raises(ConnectionLost):
-            flange.query("*IDN?")
-        flange.reopen()                                # reconnects the controller once ...
-        stage.reopen()                                 # ... the second instrument only reopens itself
-        assert adapter.generation == 2
-        assert flange.query("*IDN?") == IDN_2002
-        assert "MODEL 2002,0000005" in stage.query("*IDN?")
-        for transport in (flange, stage):
-            transport.close()
-        adapter.close()
-
-
-def test_prologix_heater_driver_unchanged(real_time_bench):
-    bench = real_time_bench
-    with bench.serve_prologix() as controller:
-        adapter = PrologixAdapter(controller.interface_resource_name, timeout_s=TCP_TIMEOUT_S)
-        with Keithley6221(adapter.instrument(24), bench.clock, 50.0, name="heater") as heater:
-            heater.set_power_w(0.110)
-            assert bench.cryostat.heater_power_w == pytest.approx(0.110, rel=1e-5)
-        assert bench.cryostat.heater_power_w == 0.0
+        flange.close()
         adapter.close()

@@ -164,10 +164,13 @@ def read_record_text(text: str, source: str = "<record>") -> Record:
     metadata: dict[str, str] = {}
     index = 1
     while index < len(lines) and lines[index].startswith("#"):
-        body = lines[index][1:].strip()
+        body = lines[index][1:].rstrip("\r")
         if ":" in body:
             key, value = body.split(":", 1)
-            metadata[key.strip()] = value.strip()
+            # "# key: value": drop the one separating space, keep any indentation after it
+            key, value = key.strip(), (value[1:] if value.startswith(" ") else value).rstrip()
+            # a multi-line value is written as repeated lines with the same key
+            metadata[key] = f"{metadata[key]}\n{value}" if key in metadata else value
         index += 1
     if index >= len(lines):
         raise RecordFormatError(source, index + 1, "no column header line after the metadata")

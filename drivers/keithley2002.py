@@ -370,10 +370,20 @@ class Keithley2002(ScpiInstrument):
         return self.timing.earliest_delay_s
 
     # -- the cycle -----------------------------------------------------------------------
-    def initiate(self) -> None:
-        """``:INITiate``: out of idle, waiting for the trigger (3.22)."""
+    def initiate(self, confirm: bool = False) -> None:
+        """``:INITiate``: out of idle, waiting for the trigger (3.22).
+
+        ``confirm``: follow it with ``:INITiate:CONTinuous?``, whose reply shows
+        the DMM has parsed the ``:INITiate`` before it (commands are executed
+        in order). Needed before a trigger that does not travel in the
+        command stream (a hardware edge), which would otherwise reach a DMM
+        that is still parsing and be ignored. A bus trigger (GET, ``*TRG``)
+        is queued in order with the commands and needs no confirmation.
+        """
         with self.reporting_faults():
             self.write(":INITiate")
+            if confirm:
+                self.query(":INITiate:CONTinuous?")
 
     def trigger(self) -> None:
         """A bus trigger to this DMM alone: GPIB GET, or ``*TRG`` where there is none (3.10.13, p. 3-39)."""

@@ -56,6 +56,9 @@ class PairTrigger(Protocol):
     dmm_trigger_source: TriggerSource
     #: Trigger Link input line (used when the source is TRIGGER_LINK).
     link_input_line: int
+    #: True when the trigger reaches the DMMs outside their command stream (a hardware
+    #: edge), so each ``:INITiate`` must be confirmed parsed before firing.
+    bypasses_command_stream: bool
 
     def fire(self) -> TriggerEvent: ...
 
@@ -81,6 +84,7 @@ class GpibGroupTrigger:
 
     dmm_trigger_source = TriggerSource.BUS
     link_input_line = 1
+    bypasses_command_stream = False      # GET and *TRG are queued in order with commands
 
     def __init__(self, interface: GpibInterface, transports: Sequence[Transport], clock: Clock):
         self.interface = interface
@@ -100,6 +104,7 @@ class PrologixGroupTrigger:
 
     dmm_trigger_source = TriggerSource.BUS
     link_input_line = 1
+    bypasses_command_stream = False      # GET and *TRG are queued in order with commands
 
     def __init__(self, adapter: PrologixAdapter, primary_addresses: Sequence[int], clock: Clock):
         self.adapter = adapter
@@ -126,6 +131,10 @@ class HardwareTrigger:
         The Trigger Link line the edge is on (TRIGGER_LINK only).
     """
 
+    #: The edge reaches the DMMs outside their command stream: :class:`ThermometerPair`
+    #: confirms each ``:INITiate`` was parsed before firing.
+    bypasses_command_stream = True
+
     def __init__(self, output: TriggerOutput, clock: Clock, *,
                  dmm_input: TriggerSource = TriggerSource.EXTERNAL, link_input_line: int = 1):
         if dmm_input not in (TriggerSource.EXTERNAL, TriggerSource.TRIGGER_LINK):
@@ -146,6 +155,7 @@ class SequentialTrigger:
 
     dmm_trigger_source = TriggerSource.BUS
     link_input_line = 1
+    bypasses_command_stream = False      # GET and *TRG are queued in order with commands
 
     def __init__(self, transports: Sequence[Transport], clock: Clock):
         if len(transports) != 2:

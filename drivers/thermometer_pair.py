@@ -111,7 +111,7 @@ class ThermometerPair:
         if not self._prepared:
             self.prepare()
         for dmm in self.dmms:
-            dmm.initiate()
+            dmm.initiate(confirm=self.trigger.bypasses_command_stream)
         event = self.trigger.fire()
         flange = self.flange_dmm.fetch_new_reading(event.time_s)
         stage = self.ptc_stage_dmm.fetch_new_reading(event.time_s + event.skew_s)

@@ -10,6 +10,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -36,29 +37,36 @@ class DaemonProcess:
         self.data = tmp_path / "data"
         env = dict(os.environ, PYTHONPATH=str(REPOSITORY))
         self.notify = None
-        if notify:
+        self.messages: list[str] = []
+        if notify:                    # read continuously, as systemd does
             self.notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
             self.notify.bind(str(tmp_path / "notify"))
             self.notify.settimeout(0.2)
             env.update(NOTIFY_SOCKET=str(tmp_path / "notify"), WATCHDOG_USEC="2000000")
-        self.messages: list[str] = []
+            self._reading = True
+            self._reader = threading.Thread(target=self._read_notifications, daemon=True)
+            self._reader.start()
         self.process = subprocess.Popen(
             [sys.executable, "-m", "cryod.cli", "--simulate", "--config", str(self.config), "--data-dir",
              str(self.data), "--socket", str(self.socket_path), *arguments],
             env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
-    def receive(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
+    def _read_notifications(self) -> None:
+        while self._reading:
             try:
                 self.messages.append(self.notify.recv(4096).decode())
             except socket.timeout:
                 pass
+            except OSError:
+                return
+
+    def receive(self, seconds: float) -> None:
+        time.sleep(seconds)
 
     def wait_for_message(self, prefix: str, seconds: float = 30.0) -> str:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            for message in self.messages:
+            for message in list(self.messages):
                 if message.startswith(prefix) or f"\n{prefix}" in message:
                     return message
             if self.process.poll() is not None:
@@ -81,6 +89,8 @@ class DaemonProcess:
             self.process.kill()
             self.process.wait(10)
         if self.notify is not None:
+            self._reading = False
+            self._reader.join(2.0)
             self.notify.close()
 
 
@@ -124,6 +134,7 @@ def test_service_behaviour_of_a_real_process(daemon):
     assert run.process.wait(15) == 0
     run.receive(0.5)
     assert any(message.startswith("STOPPING=1") for message in run.messages)
+    assert any(message.startswith("RELOADING=1") for message in run.messages)
     stderr = run.process.stderr.read()
     lines = [line for line in stderr.splitlines() if line]
     assert lines and all(line[0] == "<" and line[2] == ">" for line in lines), stderr[:500]

@@ -56,6 +56,7 @@ def test_write_then_read_round_trip_and_never_overwrite(tmp_path):
     assert record.flange_K.tolist() == [4.2306589, 4.23]
     assert record.columns["lateness_ms"].tolist() == [0.1, 0.2]
     assert path.read_text().splitlines()[1:3] == ["# note: two", "# note: lines"]
+    assert record.metadata["note"] == "two\nlines"
     with pytest.raises(FileExistsError):
         write_record(path, columns)
 
@@ -65,3 +66,10 @@ def test_row_format_matches_contract():
     assert format_row(names, {"time_s": 0.08, "T2_K": 4.2306589, "T5_K": 3.256174, "heater_W": 0.0,
                               "setpoint_K": None}) == "0.0800,4.2306589,3.256174,0.000000e+00,\n"
     assert format_header({}, names) == "# cryod-log v1\ntime_s,T2_K,T5_K,heater_W,setpoint_K\n"
+
+
+def test_multi_line_metadata_keeps_its_indentation(tmp_path):
+    config_text = "control:\n  setpoint_K: 5.0\n  ramp_K_per_min: 0.0\n"
+    path = write_record(tmp_path / "r.csv", {"time_s": [0.08], "T2_K": [4.23], "T5_K": [3.34], "heater_W": [0.0],
+                                            "setpoint_K": [None]}, {"config": config_text})
+    assert read_record(path).metadata["config"] == config_text.rstrip("\n")

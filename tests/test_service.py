@@ -148,3 +148,18 @@ def test_journald_priority_prefixes():
     record = logging.LogRecord("cryod", logging.WARNING, __file__, 1, "two\nlines", (), None)
     assert formatter.format(record) == "<4>cryod: two\n<4>lines"
     assert JournalFormatter(prefix=False).format(record) == "cryod: two\nlines"
+
+
+def test_notify_never_blocks_on_a_receiver_that_does_not_read(tmp_path):
+    address = str(tmp_path / "notify")
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(address)
+    try:
+        notifier = SystemdNotifier({"NOTIFY_SOCKET": address})
+        started = time.monotonic()
+        for _ in range(5000):
+            notifier.status("x" * 200)
+        assert time.monotonic() - started < 2.0
+        assert notifier.dropped > 0
+    finally:
+        listener.close()

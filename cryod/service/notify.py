@@ -44,19 +44,26 @@ class SystemdNotifier:
         if watchdog_usec.isdigit() and int(watchdog_usec) > 0 and (not watchdog_pid or watchdog_pid == str(os.getpid())):
             self.watchdog_interval_s = int(watchdog_usec) / 1e6
         self._last_ping = -float("inf")
+        self.dropped = 0
 
     def send(self, *fields: str) -> None:
-        """Send ``KEY=value`` fields as one datagram (errors are ignored: the service must go on)."""
+        """Send ``KEY=value`` fields as one datagram.
+
+        Never blocks (the loop thread sends the watchdog pings): a full or
+        missing receiver drops the message, and errors are ignored, since the
+        service must go on.
+        """
         if not self.enabled:
             return
         message = "\n".join(fields).encode("utf-8")
         with self._lock:
             try:
                 if self._socket is None:
-                    self._socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+                    self._socket = socket.socket(socket.AF_UNIX,
+                                                 socket.SOCK_DGRAM | socket.SOCK_CLOEXEC | socket.SOCK_NONBLOCK)
                 self._socket.sendto(message, self._address)
             except OSError:
-                pass
+                self.dropped += 1
 
     def ready(self, status: str) -> None:
         self.send("READY=1", f"STATUS={status}")

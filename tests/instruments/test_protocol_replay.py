@@ -151,6 +151,16 @@ def test_2002_initiate_trigger_fetch(clock):
     assert reading.resistance_ohm == 2754.6321 and reading.reading_number == 12 and reading.status == "N"
 
 
+def test_2002_initiate_confirmed_before_a_hardware_trigger(clock):
+    """A hardware edge does not travel in the command stream: the DMM must have parsed :INITiate."""
+    with expected_protocol([
+        ("*IDN?", IDN_2002),
+        (":INITiate", None),
+        (":INITiate:CONTinuous?", "0"),
+    ]) as transport:
+        dmm(transport, clock).initiate(confirm=True)
+
+
 def test_2002_fetch_new_reading_fetches_again_while_the_number_has_not_advanced(clock):
     with expected_protocol([
         ("*IDN?", IDN_2002),

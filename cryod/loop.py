@@ -150,7 +150,11 @@ class Status:
     target_K: float | None = None
     ramp_K_per_min: float = 0.0
     last_fault: str | None = None
-    timing: dict = field(default_factory=dict)
+    loop_timing: LoopTiming | None = None      # summarised when asked, not every tick
+
+    @property
+    def timing(self) -> dict:
+        return self.loop_timing.summary() if self.loop_timing is not None else {}
 
     def as_dict(self) -> dict:
         return {
@@ -374,7 +378,7 @@ class ControlLoop:
             heater_w=self.heater_w, setpoint_K=self.ramp.setpoint_K if self.state == STATE_CLOSED else None,
             target_K=self.ramp.target_K if self.state == STATE_CLOSED else None,
             ramp_K_per_min=self.ramp.rate_K_per_min,
-            last_fault=str(self.last_fault) if self.last_fault else None, timing=self.timing.summary())
+            last_fault=str(self.last_fault) if self.last_fault else None, loop_timing=self.timing)
 
     # -- start-up and recovery ----------------------------------------------------
     def _count_valid(self, in_range: bool, measurement: Measurement, flange_K: float, stage_K: float,
@@ -467,7 +471,7 @@ class ControlLoop:
         self._publish_fault_state(STATE_STOPPED)
 
     def _publish_fault_state(self, state: str) -> None:
-        self.status = replace(self.status, state=state, heater_w=0.0, timing=self.timing.summary(),
+        self.status = replace(self.status, state=state, heater_w=0.0, loop_timing=self.timing,
                               last_fault=str(self.last_fault) if self.last_fault else None)
 
     def _event(self, text: str) -> None:

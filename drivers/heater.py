@@ -206,13 +206,19 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         """Apply ``current_a`` (A) directly; same limits and safety as :meth:`set_power_w`."""
         self._check_current(current_a, f"{current_a * 1e3:.4g} mA")
         with self.safe_on_fault():
-            self.write_current(current_a)
-            self.current_a = current_a
-            if not self.output_is_on:
-                self.turn_output_on()
-                self.output_is_on = True
-            if self.verify_each_setting:
-                self.check_compliance()
+            if self.output_is_on and self.verify_each_setting:
+                # every cycle: the setting and its compliance check in one program message
+                reply = self.query(f"{self.current_command(current_a)};{self.compliance_query}")
+                self.current_a = current_a
+                self._raise_if_in_compliance(self.compliance_from_reply(reply))
+            else:
+                self.write_current(current_a)
+                self.current_a = current_a
+                if not self.output_is_on:
+                    self.turn_output_on()
+                    self.output_is_on = True
+                if self.verify_each_setting:
+                    self.check_compliance()
         power = current_a ** 2 * self.heater_resistance_ohm
         return HeaterSetting(power, current_a, power)
 
@@ -249,6 +255,21 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         """Program the output current (the model's ``source_current_a`` setting)."""
         self.source_current_a = current_a  # type: ignore[attr-defined]
 
+    def current_command(self, current_a: float) -> str:
+        """The command that programs ``current_a``, without sending it."""
+        return type(self).source_current_a.command(current_a, self.label)  # type: ignore[attr-defined]
+
+    #: The query whose reply says whether the output is in compliance (per model).
+    compliance_query: str = ""
+
+    def compliance_from_reply(self, reply: str) -> bool:
+        """True if ``reply`` to :attr:`compliance_query` says the output is in compliance (per model)."""
+        raise NotImplementedError
+
+    def in_compliance(self) -> bool:
+        """Ask the supply whether its output is voltage-limited."""
+        return self.compliance_from_reply(self.query(self.compliance_query))
+
     def turn_output_on(self) -> None:
         """Turn the output on and read it back: :meth:`output_refused` if it stays off."""
         self.output_enabled = True
@@ -257,7 +278,10 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
 
     def check_compliance(self) -> None:
         """:class:`HeaterCompliance` if the output is voltage-limited."""
-        if self.in_compliance():
+        self._raise_if_in_compliance(self.in_compliance())
+
+    def _raise_if_in_compliance(self, in_compliance: bool) -> None:
+        if in_compliance:
             raise HeaterCompliance(self.label, f"in voltage compliance at {self.current_a * 1e3:.4g} mA "
                                                f"({self.voltage_compliance_v:g} V limit): heater open or "
                                                "its resistance too high")
@@ -278,10 +302,6 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
     @abc.abstractmethod
     def output_refused(self) -> HeaterRefused:
         """The error for an output that stayed off, with the supply's reason."""
-
-    @abc.abstractmethod
-    def in_compliance(self) -> bool:
-        """Whether the output is voltage-limited now."""
 
     @abc.abstractmethod
     def measure_output(self) -> HeaterReadback:

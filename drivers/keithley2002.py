@@ -49,7 +49,7 @@ from dataclasses import dataclass
 
 from cryod.clock import Clock
 from drivers.errors import BadReply, InstrumentError, InstrumentTimeout, OverflowReading
-from drivers.keithley2002_timing import ReadingTiming
+from drivers.keithley2002_timing import NORMAL_AUTOZERO_INTERVAL_S, ReadingTiming
 from drivers.scpi import (Control, ScpiInstrument, count_or_infinite, integer, number, on_off, one_of,
                           parse_bool, parse_count, parse_token)
 from drivers.transports.base import Transport
@@ -285,7 +285,13 @@ class Keithley2002(ScpiInstrument):
         self.settings = FourWireSettings()
         self.elements: tuple[DataElement, ...] = DEFAULT_ELEMENTS
         self._trigger_delay_s = 0.0
+        self._timing_key: tuple | None = None
+        self._timing: ReadingTiming | None = None
+        self._layout_key: tuple | None = None          # reading-string layout, kept until elements change
+        self._layout: list[DataElement] = []
         self.last_reading_number: int | None = None
+        #: Trigger time of the reading at which the DMM was last seen to take its NORMal autozero.
+        self.last_autozero_trigger_s: float | None = None
         if check_identity:
             with self.reporting_faults():
                 self.check_identity()
@@ -351,13 +357,17 @@ class Keithley2002(ScpiInstrument):
 
     @property
     def timing(self) -> ReadingTiming:
-        """Timing of a triggered reading with the present configuration."""
+        """Timing of a triggered reading with the present configuration (kept until it changes)."""
         s = self.settings
-        repeat = s.filter_count if (s.filter_count > 1 and s.filter_type is FilterType.REPEATING) else 1
-        return ReadingTiming(nplc=s.nplc, line_frequency_hz=self.line_frequency_hz,
-                             offset_compensation=s.offset_compensation, autozero=s.autozero,
-                             autozero_synchronous=s.autozero_synchronous, line_sync=s.line_sync,
-                             conversions_per_reading=repeat, trigger_delay_s=self._trigger_delay_s)
+        key = (s, self.line_frequency_hz, self._trigger_delay_s)
+        if key != self._timing_key:
+            repeat = s.filter_count if (s.filter_count > 1 and s.filter_type is FilterType.REPEATING) else 1
+            self._timing = ReadingTiming(nplc=s.nplc, line_frequency_hz=self.line_frequency_hz,
+                                         offset_compensation=s.offset_compensation, autozero=s.autozero,
+                                         autozero_synchronous=s.autozero_synchronous, line_sync=s.line_sync,
+                                         conversions_per_reading=repeat, trigger_delay_s=self._trigger_delay_s)
+            self._timing_key = key
+        return self._timing
 
     @property
     def reading_delay_s(self) -> float:
@@ -415,7 +425,13 @@ class Keithley2002(ScpiInstrument):
         ``timeout_s`` (default: the transport's timeout) after the latest time the
         reading could take, then :class:`~drivers.errors.InstrumentTimeout`.
         """
-        first = trigger_time_s + self.earliest_reading_delay_s + self.fetch_margin_s
+        timing = self.timing
+        first = trigger_time_s + timing.earliest_delay_s + self.fetch_margin_s
+        normal_autozero = timing.autozero and not timing.autozero_synchronous
+        zero_expected = (normal_autozero and self.last_autozero_trigger_s is not None
+                         and trigger_time_s - self.last_autozero_trigger_s >= NORMAL_AUTOZERO_INTERVAL_S)
+        if zero_expected:               # the zero delays this reading by one integration: don't poll for it
+            first += timing.integration_time_s
         if self.last_reading_number is None:
             first += self.first_reading_margin_s
         limit = (trigger_time_s + self.reading_delay_s + self.fetch_margin_s
@@ -426,6 +442,9 @@ class Keithley2002(ScpiInstrument):
                 reading = self.parse_reading(self.query(":FETCh?"))
                 if reading.reading_number is None or reading.reading_number != self.last_reading_number:
                     self.last_reading_number = reading.reading_number
+                    late = self.clock.now() - trigger_time_s - timing.earliest_delay_s
+                    if normal_autozero and (zero_expected or late > 0.5 * timing.integration_time_s):
+                        self.last_autozero_trigger_s = trigger_time_s
                     return reading
                 if self.clock.now() >= limit:
                     raise InstrumentTimeout(self.label, f"no new reading (number {reading.reading_number} "
@@ -436,8 +455,11 @@ class Keithley2002(ScpiInstrument):
     def parse_reading(self, reply: str) -> DmmReading:
         """A reading string with the configured elements; overflow and garbage are typed errors."""
         fields = [field.strip() for field in reply.split(",")]
-        order = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
-                             DataElement.CHANNEL) if e in self.elements]
+        if self._layout_key != self.elements:
+            self._layout = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
+                                        DataElement.CHANNEL) if e in self.elements]
+            self._layout_key = self.elements
+        order = self._layout
         if len(fields) != len(order):
             raise BadReply(self.label, f"expected {len(order)} elements "
                                        f"({', '.join(e.value for e in order)}), got {len(fields)}", reply=reply)

@@ -103,8 +103,14 @@ class Keithley2400(HeaterSupply):
         return HeaterRefused(self.label, "output refused (output enable or interlock)",
                              error_queue=self.read_error_queue())
 
-    def in_compliance(self) -> bool:
-        return self.query_bool(":SENSe:VOLTage:PROTection:TRIPped?", "compliance state")
+    compliance_query = ":SENSe:VOLTage:PROTection:TRIPped?"
+
+    def compliance_from_reply(self, reply: str) -> bool:
+        try:
+            return parse_bool(reply)
+        except ValueError:
+            raise BadReply(self.label, f"compliance state: reply to {self.compliance_query} is not 1 or 0",
+                           reply=reply) from None
 
     def measure_output(self) -> HeaterReadback:
         if not self.output_is_on:

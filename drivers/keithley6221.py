@@ -30,7 +30,7 @@ Examples
 
 from __future__ import annotations
 
-from drivers.errors import HeaterRefused
+from drivers.errors import BadReply, HeaterRefused
 from drivers.heater import HeaterReadback, HeaterSupply
 from drivers.scpi import Control, number, on_off, parse_bool
 
@@ -66,17 +66,28 @@ class Keithley6221(HeaterSupply):
         self.source_current_a = 0.0
         self.check_error_queue("current source configuration")
 
+    #: The measurement condition register (bits: B1 interlock asserted, B3 compliance).
+    compliance_query = ":STATus:MEASurement:CONDition?"
+
+    def _condition_from_reply(self, reply: str) -> int:
+        try:
+            return int(float(reply))
+        except ValueError:
+            raise BadReply(self.label, f"measurement condition register: reply to {self.compliance_query} "
+                                       "is not a number", reply=reply) from None
+
     def measurement_condition(self) -> int:
         """The measurement condition register (bits: B1 interlock asserted, B3 compliance)."""
-        return int(self.query_number(":STATus:MEASurement:CONDition?", "measurement condition register"))
+        return self._condition_from_reply(self.query(self.compliance_query))
+
+    def compliance_from_reply(self, reply: str) -> bool:
+        return bool(self._condition_from_reply(reply) & COMPLIANCE_BIT)
 
     def output_refused(self) -> HeaterRefused:
         condition = self.measurement_condition()
         why = "interlock not asserted" if not condition & INTERLOCK_ASSERTED_BIT else "output did not turn on"
         return HeaterRefused(self.label, f"output refused: {why} (measurement condition {condition})")
 
-    def in_compliance(self) -> bool:
-        return bool(self.measurement_condition() & COMPLIANCE_BIT)
 
     def measure_output(self) -> HeaterReadback:
         current = self.query_number(":SOURce:CURRent?", "output current")

@@ -53,6 +53,8 @@ class SimulatedCryostat:
         self._random = np.random.default_rng(seed)
         self._lock = threading.Lock()
         self.plant = CryostatPlant(model, clock.now(), initial_heater_power_w)
+        self._last_window: tuple | None = None
+        self._last_window_temperatures = (0.0, 0.0)
 
     @property
     def heater_power_w(self) -> float:
@@ -82,11 +84,18 @@ class SimulatedCryostat:
         """(T2, T5) in K averaged over ``[start_s, start_s + duration_s]``, with noise.
 
         A DMM's integration window: the plant advances to ``start_s`` (which
-        must not be in the plant's past) and the heater is taken as held.
+        must not be in the plant's past) and the heater is taken as held. Both
+        DMMs of one trigger ask for the same window: they get the same pair
+        (each thermometer's own noise drawn once), computed once.
         """
         with self._lock:
+            key = (start_s, duration_s, self.plant.commanded_power_w)
+            if key == self._last_window:
+                return self._last_window_temperatures
             self.plant.advance_to(max(start_s, self.plant.time_s))
-            return self._noisy(*self.plant.mean_temperatures(duration_s))
+            result = self._noisy(*self.plant.mean_temperatures(duration_s))
+            self._last_window, self._last_window_temperatures = key, result
+            return result
 
     def set_heater_power(self, power_w: float) -> None:
         """Apply a heater power (W) from the clock's now on."""

@@ -119,6 +119,8 @@ class Keithley2002Emulator(EmulatedInstrument):
         self.reset()
         self._reading_counter = 0
         self._last_autozero_s = -math.inf
+        self._timing_key: tuple | None = None
+        self._timing: ReadingTiming | None = None
 
     # -- faults ------------------------------------------------------------------
     def inject_overflow(self, count: int = 1) -> None:
@@ -271,14 +273,20 @@ class Keithley2002Emulator(EmulatedInstrument):
     # -- timing ---------------------------------------------------------------------
     @property
     def timing(self) -> ReadingTiming:
-        """The timing the present settings imply."""
-        repeat = self.filter_count if (self.filter_enabled and self.filter_type == "REPEAT") else 1
-        extra = {} if self.processing_time_s is None else {"processing_time_s": self.processing_time_s}
-        return ReadingTiming(nplc=self.nplc, line_frequency_hz=self.line_frequency_hz,
-                             offset_compensation=self.offset_compensation, autozero=self.autozero,
-                             autozero_synchronous=self.autozero_type == "SYNCHRONOUS",
-                             line_sync=self.line_sync, conversions_per_reading=repeat,
-                             trigger_delay_s=self.trigger_delay_s, **extra)
+        """The timing the present settings imply (kept until a setting changes)."""
+        key = (self.nplc, self.line_frequency_hz, self.offset_compensation, self.autozero, self.autozero_type,
+               self.line_sync, self.filter_enabled, self.filter_type, self.filter_count, self.trigger_delay_s,
+               self.processing_time_s)
+        if key != self._timing_key:
+            repeat = self.filter_count if (self.filter_enabled and self.filter_type == "REPEAT") else 1
+            extra = {} if self.processing_time_s is None else {"processing_time_s": self.processing_time_s}
+            self._timing = ReadingTiming(nplc=self.nplc, line_frequency_hz=self.line_frequency_hz,
+                                         offset_compensation=self.offset_compensation, autozero=self.autozero,
+                                         autozero_synchronous=self.autozero_type == "SYNCHRONOUS",
+                                         line_sync=self.line_sync, conversions_per_reading=repeat,
+                                         trigger_delay_s=self.trigger_delay_s, **extra)
+            self._timing_key = key
+        return self._timing
 
     # -- the trigger model -------------------------------------------------------------
     def _initiate(self, args: list[str]) -> None:

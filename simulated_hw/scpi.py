@@ -194,6 +194,8 @@ def _matches(nodes: Sequence[_Node], parts: Sequence[str]) -> bool:
 # parameters
 # ---------------------------------------------------------------------------
 def _split_outside_quotes(text: str, separator: str) -> list[str]:
+    if "'" not in text and '"' not in text:       # the usual case: nothing quoted
+        return text.split(separator)
     pieces, current, quote = [], [], ""
     for character in text:
         if quote:

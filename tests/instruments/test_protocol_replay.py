@@ -253,8 +253,8 @@ def test_6221_set_power_first_time_turns_output_on(clock):
         (":OUTPut:STATe ON", None),
         (":OUTPut:STATe?", "1"),
         (":STATus:MEASurement:CONDition?", "2"),
-        (":SOURce:CURRent 1.414214E-02", None),
-        (":STATus:MEASurement:CONDition?", "2"),
+        # with the output on, each setting and its compliance check go in one program message
+        (":SOURce:CURRent 1.414214E-02;:STATus:MEASurement:CONDition?", "2"),
     ]) as transport:
         heater = supply_6221(transport, clock)
         first = heater.set_power_w(0.110)
@@ -368,6 +368,37 @@ def test_2400_set_power_read_back_off(clock):
         readback = heater.read_back()
         heater.output_off()
     assert readback.power_w == pytest.approx(0.110, rel=1e-6) and readback.voltage_measured
+
+
+def test_6221_compliance_on_a_later_setting_switches_off(clock):
+    with expected_protocol(CONFIGURE_6221 + [
+        (":SOURce:CURRent 1.000000E-02", None),
+        (":OUTPut:STATe ON", None),
+        (":OUTPut:STATe?", "1"),
+        (":STATus:MEASurement:CONDition?", "2"),
+        (":SOURce:CURRent 2.000000E-02;:STATus:MEASurement:CONDition?", "10"),
+        *OFF_6221,
+        QUEUE_EMPTY,
+    ]) as transport:
+        heater = supply_6221(transport, clock)
+        heater.set_current_a(0.010)
+        with pytest.raises(HeaterCompliance, match="at 20 mA"):
+            heater.set_current_a(0.020)
+    assert not heater.output_is_on and heater.current_a == 0.0
+
+
+def test_2400_later_settings_carry_their_compliance_query(clock):
+    with expected_protocol(CONFIGURE_2400 + [
+        (":SOURce:CURRent 1.000000E-02", None),
+        (":OUTPut:STATe ON", None),
+        (":OUTPut:STATe?", "1"),
+        (":SENSe:VOLTage:PROTection:TRIPped?", "0"),
+        (":SOURce:CURRent 2.000000E-02;:SENSe:VOLTage:PROTection:TRIPped?", "0"),
+    ]) as transport:
+        heater = supply_2400(transport, clock)
+        heater.set_current_a(0.010)
+        heater.set_current_a(0.020)
+    assert heater.current_a == 0.02
 
 
 def test_2400_blocked_output_reports_802(clock):

@@ -1,0 +1,92 @@
+"""The command line: help, errors a user can act on, and the --simulate --json contract."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from cryod.cli import main
+from cryod.record import read_record
+from tests.conftest import CONFIG, REPOSITORY
+
+CONTRACT_KEYS = {"duration_s", "ticks", "overruns", "lateness_ms_p50", "lateness_ms_p99", "lateness_ms_max",
+                 "wall_s", "ptc_line_amplitude_K", "rms_K", "mean_error_K", "lowfreq_rms_K", "log_path"}
+
+
+def cryod(*arguments, timeout=120):
+    return subprocess.run([sys.executable, "-m", "cryod.cli", *arguments], capture_output=True, text=True,
+                          cwd=REPOSITORY, timeout=timeout)
+
+
+def simulate_args(tmp_path, *extra):
+    return ["--simulate", "--speed", "max", "--data-dir", str(tmp_path / "data"),
+            "--socket", str(tmp_path / "c.sock"), *extra]
+
+
+@pytest.mark.parametrize("arguments, words", [
+    (["--help"], ["--simulate", "run", "ctl", "--speed", "--sim-model", "--window"]),
+    (["run", "--help"], ["--config", "--check"]),
+    (["ctl", "--help"], ["setpoint", "heater-off", "--socket"]),
+])
+def test_help(arguments, words):
+    result = cryod(*arguments)
+    assert result.returncode == 0
+    assert all(word in result.stdout for word in words)
+
+
+def test_no_command_prints_usage_and_fails():
+    result = cryod()
+    assert result.returncode == 2 and "usage: cryod" in result.stderr
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--simulate", "run"], "do not combine"),
+    (["--simulate", "--speed", "0"], "speed must be > 0"),
+    (["--simulate", "--speed", "fast"], "a number > 0 or 'max'"),
+    (["--simulate", "--speed", "max", "--setpoint", "50"], "--setpoint 50 K is outside"),
+    (["--simulate", "--speed", "max", "--transport", "tcp"], "only the in-process transport"),
+    (["--simulate", "--speed", "max", "--sim-model", "no/such/model.yaml"], "file not found"),
+])
+def test_usage_errors_name_the_problem(arguments, message):
+    result = cryod(*arguments)
+    assert result.returncode == 2
+    assert message in result.stderr
+
+
+def test_ctl_without_daemon(tmp_path):
+    result = cryod("ctl", "--socket", str(tmp_path / "nobody.sock"), "status")
+    assert result.returncode == 3 and "no cryod daemon listening" in result.stderr
+
+
+def test_run_check_validates_without_instruments():
+    result = cryod("run", "--config", str(CONFIG / "cryod.yaml"), "--check")
+    assert result.returncode == 0 and "valid" in result.stdout
+
+
+def test_simulate_json_contract_and_log(tmp_path, capsys):
+    code = main(simulate_args(tmp_path, "--duration", "600", "--window", "300", "--json", "--seed", "3"))
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert CONTRACT_KEYS <= set(summary)
+    assert summary["ticks"] == 7500 and summary["duration_s"] == pytest.approx(600.0)
+    assert summary["overruns"] == 0
+    assert summary["window_s"] == pytest.approx(300.0, abs=0.2)
+    assert 1.5e-3 < summary["ptc_line_amplitude_K"] < 2.1e-3          # PI cannot remove the line
+    assert abs(summary["mean_error_K"]) < 1e-4 and summary["lowfreq_rms_K"] < 1e-4
+    assert summary["rms_K"] == pytest.approx(summary["ptc_line_amplitude_K"] / 2 ** 0.5, rel=0.1)
+    record = read_record(summary["log_path"])
+    assert len(record) == 7500 and record.metadata["simulation_transport"] == "in-process"
+
+
+def test_sim_model_changes_the_cryostat_but_not_the_controller(tmp_path, capsys):
+    """--sim-model: a cryostat whose thermometer lags 0.3 s shows a smaller line; the config is unchanged."""
+    model = (CONFIG / "model.yaml").read_text().replace(
+        "effects: {}", "effects:\n  sensor_lag: {flange_thermometer_time_constant_s: 0.3}")
+    path = tmp_path / "lagging.yaml"
+    path.write_text(model)
+    assert main(simulate_args(tmp_path, "--duration", "400", "--window", "200", "--json",
+                              "--sim-model", str(path))) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["ptc_line_amplitude_K"] < 0.7e-3                   # 1.78 mK / |1 + j 3.25|
+    assert read_record(summary["log_path"]).metadata["simulated_model"] == str(path)

@@ -1,0 +1,85 @@
+"""The daemon configuration: every error names file, line and key; nothing runs on a bad file."""
+
+import dataclasses
+import subprocess
+import sys
+
+import pytest
+
+from cryod.config import load_config
+from cryod.yaml_source import FileFormatError
+from tests.conftest import CONFIG, REPOSITORY
+
+EXAMPLE = (CONFIG / "cryod.yaml").read_text()
+
+
+def written(tmp_path, old, new):
+    assert old in EXAMPLE, old
+    text = EXAMPLE.replace(old, new, 1).replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/")
+    path = tmp_path / "cryod.yaml"
+    path.write_text(text)
+    return path, text
+
+
+def line_of(text, fragment):
+    return next(number for number, line in enumerate(text.splitlines(), 1) if fragment in line)
+
+
+def test_example_config_is_valid_and_complete():
+    config = load_config(CONFIG / "cryod.yaml")
+    assert config.loop.period_s == 0.08 and config.heater.max_current_A == 0.1
+    assert config.heater.max_power_w == pytest.approx(0.5)
+    assert config.sensors.flange_calibration.name == "X186279.340"
+    assert config.control_socket.mode == 0o660 and config.simulation.transport == "tcp"
+
+
+@pytest.mark.parametrize("old, new, key, reason", [
+    ("  period_s: 0.08", "  period_s: 0.08\n  perod_s: 0.08", "loop.perod_s", "unknown key"),
+    ("  resistance_ohm: 50.0", "  resistance_ohm: fifty", "heater.resistance_ohm", "must be a number"),
+    ("  max_current_A: 0.1", "  max_current_A: 0.2", "heater.max_current_A", "at most 0.105"),
+    ("    calibration: calibration/X186279.340", "    calibration: calibration/missing.340",
+     "sensors.flange.calibration", "file not found"),
+    ("  setpoint_K: 5.0", "  setpoint_K: 30.0", "control.setpoint_K", "outside 3..20 K"),
+    ("  setpoint_max_K: 20.0", "  setpoint_max_K: 26.0", "control.setpoint_max_K", "over-temperature limit"),
+    ("  trigger: gpib-group", "  trigger: smoke-signal", "instruments.trigger", "must be one of"),
+    ("    nplc: 1 ", "    nplc: 3 ", "instruments.dmm.nplc", "leaves no time"),
+    ("  voltage_compliance_V: 10.0", "  voltage_compliance_V: 2.0", "heater.voltage_compliance_V",
+     "cannot drive"),
+    ('  mode: "0660"', '  mode: "rw-rw----"', "control_socket.mode", "octal"),
+    ("  lock_memory: true", "  lock_memory: yes please", "loop.lock_memory", "true or false"),
+])
+def test_errors_name_file_line_and_key(tmp_path, old, new, key, reason):
+    path, text = written(tmp_path, old, new)
+    with pytest.raises(FileFormatError) as caught:
+        load_config(path)
+    error = caught.value
+    assert error.source == str(path) and error.key == key, str(error)
+    assert reason in error.reason
+    assert error.line == line_of(text, key.split(".")[-1].split("[")[0] + ":"), str(error)
+
+
+def test_missing_section_is_named(tmp_path):
+    text = EXAMPLE.replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/")
+    start = text.index("heater:\n  resistance_ohm")
+    end = text.index("control:\n")
+    path = tmp_path / "cryod.yaml"
+    path.write_text(text[:start] + text[end:])
+    with pytest.raises(FileFormatError, match="heater: missing required key"):
+        load_config(path)
+
+
+def test_restart_needed_for_lists_sections_that_cannot_reload():
+    config = load_config(CONFIG / "cryod.yaml")
+    gains = dataclasses.replace(config, control=dataclasses.replace(config.control, proportional_W_per_K=1.0))
+    assert config.restart_needed_for(gains) == []
+    moved = dataclasses.replace(config, heater=dataclasses.replace(config.heater, resistance_ohm=25.0))
+    assert config.restart_needed_for(moved) == ["heater"]
+
+
+def test_bad_config_stops_run_before_any_instrument(tmp_path):
+    path, _ = written(tmp_path, "  resistance_ohm: 50.0", "  resistance_ohm: -5")
+    result = subprocess.run([sys.executable, "-m", "cryod.cli", "run", "--config", str(path)],
+                            capture_output=True, text=True, cwd=REPOSITORY, timeout=60)
+    assert result.returncode == 2
+    assert "nothing was started" in result.stderr and "heater.resistance_ohm" in result.stderr
+    assert f"{path}:" in result.stderr

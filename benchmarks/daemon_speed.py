@@ -1,0 +1,72 @@
+"""The daemon's two performance targets (issue: the daemon), measured through its own command line.
+
+Run: PYTHONPATH=. python3 benchmarks/daemon_speed.py [--realtime-s 600] [--max-s 3600] [--skip-realtime]
+
+* --speed max: one simulated hour (45,000 ticks of the full daemon: drivers, simulated
+  instruments in process, loop, data log) on virtual time; target <= 10 s wall time.
+* real time, drivers to the simulated instruments through pyvisa-py over TCP on 127.0.0.1,
+  10 minutes; target 0 overruns, p99 lateness <= 2 ms, CPU <= 10 % of one core.
+
+Each run is a separate `cryod --simulate ... --json` process; the numbers are from its summary
+(CPU is the process's user + system time over its wall time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPOSITORY = Path(__file__).resolve().parent.parent
+
+
+def run(*arguments: str) -> dict:
+    with tempfile.TemporaryDirectory() as folder:
+        started = time.perf_counter()
+        result = subprocess.run(
+            [sys.executable, "-m", "cryod.cli", "--simulate", "--json", "--data-dir", f"{folder}/data",
+             "--socket", f"{folder}/c.sock", *arguments],
+            capture_output=True, text=True, cwd=REPOSITORY, env=dict(os.environ, PYTHONPATH=str(REPOSITORY)))
+        elapsed = time.perf_counter() - started
+    if result.returncode != 0:
+        raise SystemExit(f"cryod failed ({result.returncode}): {result.stderr[-2000:]}")
+    summary = json.loads(result.stdout)
+    summary["process_wall_s"] = elapsed
+    return summary
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--realtime-s", type=float, default=600.0)
+    parser.add_argument("--max-s", type=float, default=3600.0)
+    parser.add_argument("--skip-realtime", action="store_true")
+    args = parser.parse_args()
+    print(f"python {platform.python_version()}, {os.cpu_count()} cores, load average "
+          f"{os.getloadavg()[0]:.2f} at start")
+    fast = run("--speed", "max", "--duration", str(args.max_s))
+    print(f"\n--speed max, {args.max_s:g} simulated s ({fast['ticks']} ticks, in process):")
+    print(f"| wall time of the loop (s) | whole process incl. start-up (s) | simulated s per wall s "
+          f"| CPU (% of one core) |")
+    print("|---|---|---|---|")
+    print(f"| {fast['wall_s']:.2f} | {fast['process_wall_s']:.2f} | {args.max_s / fast['wall_s']:.0f} "
+          f"| {fast['cpu_percent_of_one_core']:.0f} |")
+    if args.skip_realtime:
+        return
+    real = run("--duration", str(args.realtime_s))
+    print(f"\nreal time, {args.realtime_s:g} s, drivers over TCP (pyvisa-py) to the simulated instruments:")
+    print("| ticks | overruns | lateness p50 (ms) | p99 (ms) | max (ms) | CPU (% of one core) | trigger |")
+    print("|---|---|---|---|---|---|---|")
+    print(f"| {real['ticks']} | {real['overruns']} | {real['lateness_ms_p50']} | {real['lateness_ms_p99']} "
+          f"| {real['lateness_ms_max']} | {real['cpu_percent_of_one_core']:.1f} | {real['trigger']} |")
+    print(f"\nregulation over the last 300 s of the real-time run: line {real['ptc_line_amplitude_K'] * 1e3:.3f} mK, "
+          f"rms {real['rms_K'] * 1e3:.3f} mK, mean error {real['mean_error_K'] * 1e6:.1f} uK")
+
+
+if __name__ == "__main__":
+    main()

@@ -23,18 +23,6 @@ from cryod import __version__
 DEFAULT_CONFIG = Path("/etc/cryod/cryod.yaml")
 
 
-def _speed(text: str) -> float | str:
-    if text == "max":
-        return "max"
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"speed must be a number > 0 or 'max', got {text!r}") from None
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"speed must be > 0, got {text!r}")
-    return value
-
-
 def _positive(text: str) -> float:
     try:
         value = float(text)
@@ -43,6 +31,15 @@ def _positive(text: str) -> float:
     if not value > 0.0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
     return value
+
+
+def _speed(text: str) -> float | str:
+    if text == "max":
+        return "max"
+    try:
+        return _positive(text)
+    except argparse.ArgumentTypeError as error:
+        raise argparse.ArgumentTypeError(f"speed must be a number > 0 or 'max': {error}") from None
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -42,7 +42,7 @@ def test_no_command_prints_usage_and_fails():
 
 @pytest.mark.parametrize("arguments, message", [
     (["--simulate", "run"], "do not combine"),
-    (["--simulate", "--speed", "0"], "speed must be > 0"),
+    (["--simulate", "--speed", "0"], "must be > 0, got '0'"),
     (["--simulate", "--speed", "fast"], "a number > 0 or 'max'"),
     (["--simulate", "--speed", "max", "--setpoint", "50"], "--setpoint 50 K is outside"),
     (["--simulate", "--speed", "max", "--transport", "tcp"], "only the in-process transport"),

@@ -439,6 +439,8 @@ class ControlLoop:
         self._event(f"fault: {fault}")
         if fault.recoverable:
             log.warning("heater off: %s; recovering", fault)
+            if self.state in (STATE_CLOSED, STATE_MANUAL, STATE_OFF):
+                self.mode_after_holding = self.state      # recovery returns to what was running
             self.state = STATE_RECOVERING
             self._recovering_since = self.clock.now()
             self._last_reconnect_s = -math.inf

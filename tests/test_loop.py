@@ -213,3 +213,22 @@ def test_reload_is_bumpless_and_refuses_restart_only_changes(quiet_reference_mod
     # a non-bumpless change would add Kp_old * error > 0.07 W, unclipped (0.3 + 0.07 < 0.5 W);
     # the normal tick-to-tick change here is Kp times about 1 mK
     assert abs(after - before) < 0.03
+
+
+@pytest.mark.parametrize("command, state, heater", [(("heater-off", None), "off", 0.0),
+                                                    (("manual", 0.02), "manual", 0.02)])
+def test_recovery_returns_to_the_mode_that_was_running(reference_model, curves, base_config, command, state, heater):
+    """A transient fault after heater-off (or manual) must not bring regulation back."""
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    original = instruments.measure
+
+    def measure():
+        if instruments.measurements == 100:
+            loop.submit(Command(*command))
+        return original()
+
+    instruments.measure = measure
+    instruments.measure_faults = {500: InstrumentTimeout("flange DMM", "no reply")}
+    assert loop.run(duration_s=60.0, manage_gc=False) == 0
+    assert rows[499]["state"] == state and rows[500]["state"] == "fault:instrument_timeout"
+    assert rows[-1]["state"] == state and rows[-1]["heater_W"] == heater

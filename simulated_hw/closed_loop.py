@@ -67,7 +67,8 @@ class ClosedLoopRun:
 def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: float, *,
                 gains: PiGains, heater_max_w: float, period_s: float = 0.08,
                 ramp_K_per_min: float = 0.0, seed: int | None = 0, noise: bool = True,
-                initial_heater_power_w: float = 0.0) -> ClosedLoopRun:
+                initial_heater_power_w: float = 0.0,
+                unrecorded_heat_w: Callable[[float], float] | None = None) -> ClosedLoopRun:
     """Run a program of segments on the simulated cryostat.
 
     Parameters
@@ -90,6 +91,10 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
         Add sensor noise to what the controller sees and what is recorded.
     initial_heater_power_w : float
         Power the cryostat has settled at before the start.
+    unrecorded_heat_w : callable, optional
+        Extra heat (W) reaching the heater's paths at time t (s) that the
+        record does not show: a disturbance (a heat leak) for testing the
+        analysis. The recorded ``heater_w`` stays the commanded power.
 
     Returns
     -------
@@ -130,7 +135,7 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
                 raise ValueError(f"programmed heater power {power} W at {now:.2f} s is outside 0..{heater_max_w} W")
             controller.set_manual(power)
             setpoint = np.nan
-        plant.set_heater_power(power, now)
+        plant.set_heater_power(power + (unrecorded_heat_w(now) if unrecorded_heat_w else 0.0), now)
         for name, value in zip(out, (now, flange, stage, power, setpoint,
                                       controller.proportional_w if not controller.is_manual else np.nan,
                                       controller.integral_w if not controller.is_manual else np.nan)):

@@ -16,6 +16,18 @@ from cryod.yaml_source import FileFormatError
 
 LOOP_PERIOD_S = 0.08
 
+#: Subcommands with their own module (``configure_parser(parser)`` and ``run(args) -> int``).
+SUBCOMMANDS = {"analyze": "cryod.analysis.command", "identify": "cryod.identification.command"}
+
+
+def run_subcommand(name: str, argv: list[str]) -> int:
+    """``cryod <name> ...`` for a subcommand module of :data:`SUBCOMMANDS`."""
+    import importlib
+
+    module = importlib.import_module(SUBCOMMANDS[name])
+    parser = module.configure_parser(argparse.ArgumentParser(prog=f"cryod {name}"))
+    return module.run(parser.parse_args(argv))
+
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -33,6 +45,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in SUBCOMMANDS:
+        return run_subcommand(argv[0], argv[1:])
     args = _parser().parse_args(argv)
     if not args.simulate:
         _parser().print_help(sys.stderr)

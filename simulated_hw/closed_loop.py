@@ -68,7 +68,8 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
                 gains: PiGains, heater_max_w: float, period_s: float = 0.08,
                 ramp_K_per_min: float = 0.0, seed: int | None = 0, noise: bool = True,
                 initial_heater_power_w: float = 0.0,
-                unrecorded_heat_w: Callable[[float], float] | None = None) -> ClosedLoopRun:
+                unrecorded_heat_w: Callable[[float], float] | None = None,
+                timing_jitter_s: float = 0.0) -> ClosedLoopRun:
     """Run a program of segments on the simulated cryostat.
 
     Parameters
@@ -111,8 +112,9 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
     noise_stage = model.sensor_noise.ptc_stage_thermometer_rms_K if noise else 0.0
     out = {name: np.empty(ticks) for name in ("t", "T2", "T5", "P", "sp", "p", "i")}
     starts = [s.start_s for s in segments]
+    lateness = generator.uniform(0.0, timing_jitter_s, ticks) if timing_jitter_s > 0.0 else np.zeros(ticks)
     for tick in range(ticks):
-        now = tick * period_s
+        now = tick * period_s + float(lateness[tick])
         plant.advance_to(now)
         flange, stage = plant.temperatures()
         flange += noise_flange * generator.standard_normal()

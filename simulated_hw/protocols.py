@@ -92,7 +92,9 @@ class SimulatedRecordColumns:
 
 def make_record(model: CryostatModel, protocol: str, *, duration_s: float = 3600.0, seed: int = 0,
                 unrecorded_heat_w: Callable[[float], float] | None = None,
-                flange_offset_K: Callable[[np.ndarray], np.ndarray] | None = None) -> SimulatedRecordColumns:
+                flange_offset_K: Callable[[np.ndarray], np.ndarray] | None = None,
+                period_s: float = 0.08, timing_jitter_s: float = 0.0,
+                setpoint_K: float = 5.0) -> SimulatedRecordColumns:
     """Run a protocol on the simulated cryostat.
 
     Parameters
@@ -108,6 +110,10 @@ def make_record(model: CryostatModel, protocol: str, *, duration_s: float = 3600
         Heat reaching the flange that the record does not show (disturbance).
     flange_offset_K : callable, optional
         Added to the recorded T2 after the run (a thermometer drift the loop did not see).
+    period_s, timing_jitter_s : float
+        Loop period and the largest lateness of a trigger (s).
+    setpoint_K : float
+        Setpoint of the PI-only protocol.
 
     Returns
     -------
@@ -116,11 +122,11 @@ def make_record(model: CryostatModel, protocol: str, *, duration_s: float = 3600
     if protocol == "identification":
         segments = identification_program(model, duration_s)
     elif protocol == "pi_only":
-        segments = pi_only_program()
+        segments = pi_only_program(setpoint_K)
     else:
         raise ValueError(f"unknown protocol {protocol!r}; known: {', '.join(PROTOCOLS)}")
     run = run_program(model, segments, duration_s, gains=RECORD_GAINS, heater_max_w=HEATER_MAX_W, seed=seed,
-                      unrecorded_heat_w=unrecorded_heat_w)
+                      unrecorded_heat_w=unrecorded_heat_w, period_s=period_s, timing_jitter_s=timing_jitter_s)
     columns = run.columns()
     if flange_offset_K is not None:
         columns["T2_K"] = columns["T2_K"] + flange_offset_K(columns["time_s"])
@@ -130,6 +136,6 @@ def make_record(model: CryostatModel, protocol: str, *, duration_s: float = 3600
         "heater_resistance_ohm": f"{HEATER_RESISTANCE_OHM}",
         "heater_current_limit_A": f"{HEATER_CURRENT_LIMIT_A}",
         "pi_gains": f"Kp {RECORD_GAINS.proportional_w_per_K} W/K, Ki {RECORD_GAINS.integral_w_per_K_s} W/(K s)",
-        "loop_period_s": "0.08",
+        "loop_period_s": f"{period_s}",
     }
     return SimulatedRecordColumns(columns, metadata)

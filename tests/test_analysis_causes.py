@@ -97,3 +97,23 @@ def test_effects_with_sampling_jitter_and_another_period(cause):
     analysis = analyze(RecordData.from_record(Record(record.metadata, record.columns, source="jittered")),
                        base_model())
     _check_found(analysis, cause, truth)
+
+
+@pytest.mark.parametrize("cause", ["none", "heater_nonlinearity"])
+def test_record_cut_in_the_middle_of_a_transient(cause):
+    """A record cut from a longer log 30 s after a heater step: the start is not a settled state."""
+    from cryod.analysis.pipeline import analyze
+    from cryod.analysis.record_data import RecordData
+    from cryod.record import Record
+    from simulated_hw.protocols import make_record
+
+    model, truth = (other_day(base_model(), 0), {}) if cause == "none" else hidden_model(cause, 1)
+    record = make_record(model, "identification", duration_s=1500.0, seed=9)
+    start = record.columns["time_s"] >= 270.0          # the 10 mW step is at 237 s
+    columns = {name: values[start] for name, values in record.columns.items()}
+    columns["time_s"] = columns["time_s"] - columns["time_s"][0]
+    analysis = analyze(RecordData.from_record(Record(record.metadata, columns, source="cut")), base_model())
+    if cause == "none":
+        assert analysis.cause == "none", analysis.decision.reason
+    else:
+        _check_found(analysis, cause, truth)

@@ -23,7 +23,7 @@ heat_capacity_temperature    exponent n of (T / T_ref)^n, T_ref the base model's
 heater_nonlinearity          quadratic coefficient k: the delivered power P + k P^2 makes every
                              heater path linear in k, so k is a linear least-squares coefficient
                              (response of both thermometers to P^2)
-ptc_harmonics                harmonics of T5 up to the Nyquist frequency, kept if above 5
+ptc_harmonics                harmonics of T5 up to order 5 (aliased ones too), kept if above 5
                              standard errors (linear fit of T5)
 ptc_frequency_drift          rate (and wander) from T5's phase track, refined on T5
 ===========================  ===================================================================
@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize
 
-from cryod.analysis.ptc_line import PtcLine, orders_below_nyquist
+from cryod.analysis.ptc_line import PtcLine, measurable_orders
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replay, Replayer
 from cryod.model import (
@@ -281,9 +281,9 @@ def fit_link_dynamics(context: FitContext) -> CandidateFit:
 
 
 def fit_ptc_harmonics(context: FitContext) -> CandidateFit:
-    """Harmonics of the stage oscillation, measured in T5 up to the Nyquist frequency."""
+    """Harmonics of the stage oscillation measured in T5: every order the sampling can tell apart, up to 5."""
     base = context.base_model
-    orders = orders_below_nyquist(context.base_line.angular_frequency_rad_s, context.data.sample_interval_s)
+    orders = measurable_orders(context.base_line.angular_frequency_rad_s, context.data.sample_interval_s)
     orders = tuple(sorted(set(orders) | set(context.base_line.orders)))
     line = context.replayer.stage_line(base, orders=orders, drift=base.effects.ptc_frequency_drift is not None,
                                        angular_frequency_rad_s=context.base_line.angular_frequency_rad_s,

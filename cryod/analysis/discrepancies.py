@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from cryod.analysis.ptc_line import fit_phase_track, orders_below_nyquist, phase_track
+from cryod.analysis.ptc_line import fit_phase_track, measurable_orders, phase_track
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replay
 from cryod.analysis.segments import RecordSegment, find_segments, find_steps
@@ -114,7 +114,7 @@ def harmonic_discrepancies(data: RecordData, replay: Replay, angular_frequency: 
     """Amplitude of each harmonic of the line in T5 and T2 over the whole record."""
     valid = data.valid
     t = data.elapsed_s[valid]
-    orders = orders_below_nyquist(angular_frequency, data.sample_interval_s)
+    orders = measurable_orders(angular_frequency, data.sample_interval_s)
     if len(orders) < 2:
         return []
     found = []

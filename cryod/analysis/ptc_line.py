@@ -139,11 +139,31 @@ def line_phase(elapsed_s, angular_frequency_rad_s: float, drift: PtcFrequencyDri
     return phase
 
 
-def orders_below_nyquist(angular_frequency_rad_s: float, sample_interval_s: float, most: int = 5) -> tuple[int, ...]:
-    """Harmonic orders 1, 2, ... whose frequency stays below 98 % of the Nyquist frequency."""
+def aliased_angular_frequency(angular_frequency_rad_s: float, sample_interval_s: float) -> float:
+    """Where a line appears in a record sampled every ``sample_interval_s`` (rad/s, 0 to Nyquist)."""
+    sampling = 2.0 * math.pi / sample_interval_s
+    return abs((angular_frequency_rad_s + 0.5 * sampling) % sampling - 0.5 * sampling)
+
+
+def measurable_orders(angular_frequency_rad_s: float, sample_interval_s: float, most: int = 5,
+                      separation_rad_s: float = 0.3) -> tuple[int, ...]:
+    """Harmonic orders 1, 2, ... that a record sampled every ``sample_interval_s`` can tell apart.
+
+    Orders above the Nyquist frequency are kept when their alias stays
+    ``separation_rad_s`` away from 0, from the Nyquist frequency and from every
+    lower order's alias: the fit uses the sample instants, so an aliased
+    harmonic is measured as well as any other.
+    """
     nyquist = math.pi / sample_interval_s
-    count = max(1, min(most, int(0.98 * nyquist // angular_frequency_rad_s)))
-    return tuple(range(1, count + 1))
+    kept, seen = [1], [aliased_angular_frequency(angular_frequency_rad_s, sample_interval_s)]
+    for order in range(2, most + 1):
+        alias = aliased_angular_frequency(order * angular_frequency_rad_s, sample_interval_s)
+        if alias < separation_rad_s or nyquist - alias < separation_rad_s:
+            continue
+        if all(abs(alias - other) >= separation_rad_s for other in seen):
+            kept.append(order)
+            seen.append(alias)
+    return tuple(kept)
 
 
 def _line_columns(phase: np.ndarray, orders) -> np.ndarray:

@@ -9,14 +9,15 @@ from it, by linear least squares on the fit samples, for every model replayed
 alike:
 
 * the operating point (T2_0, T5_0): records come from other days;
-* the state at the first sample: the heater power the cryostat had settled at
-  before the record started, through the response of each thermometer to a
-  power offset held up to the first sample (it decays with the model's own time
-  constants). A PI record that starts at 0 W with the heater jumping to its
-  limit is then replayed as it happened. The offset found with the base model
-  (from T5, which the candidate effects hardly touch) becomes the settled power
-  of every later replay (:attr:`Replayer.initial_heater_power_w`), so that
-  models whose time constants depend on temperature start from the right state.
+* the state at the first sample, which need not be a settled one (a record
+  cut from a longer log starts in the middle of a transient): the amplitude
+  of each of the T2 heater path's modes (they decay with the model's own time
+  constants), and for T5 the heater power its path had settled at. That
+  power, found with the base model, becomes the settled power of every later
+  replay (:attr:`Replayer.initial_heater_power_w`), so that models whose time
+  constants depend on temperature start from the right state: a PI record that
+  starts at 0 W with the heater jumping to its limit in its first row is
+  replayed as it happened.
 
 Examples
 --------
@@ -52,6 +53,24 @@ def _release_response(transfer_function: TransferFunction, elapsed_s: np.ndarray
     return response
 
 
+def flange_mode_columns(model: CryostatModel, elapsed_s, sample_interval_s: float) -> np.ndarray:
+    """Free decays of the T2 heater path's modes from the first sample (one column per real mode,
+    two per complex pair); modes faster than two samples are left out."""
+    elapsed_s = np.asarray(elapsed_s, dtype=float)
+    flange_heater, _ = flange_transfer_functions(model)
+    delay = model.effects.dead_time.heater_to_flange_s if model.effects.dead_time else 0.0
+    shifted = np.clip(elapsed_s - delay, 0.0, None)
+    columns = []
+    for pole in flange_heater.modal_form().poles:
+        if -1.0 / pole.real < 2.0 * sample_interval_s or pole.imag < 0.0:
+            continue
+        decay = np.exp(pole * shifted)
+        columns.append(decay.real)
+        if pole.imag > 0.0:
+            columns.append(decay.imag)
+    return np.column_stack(columns) if columns else np.zeros((elapsed_s.size, 0))
+
+
 def initial_state_response(model: CryostatModel, elapsed_s) -> tuple[np.ndarray, np.ndarray]:
     """(T2, T5) response in K per W of delivered power to a different settled power before the record.
 
@@ -78,9 +97,9 @@ class Replay:
         Measured minus predicted (NaN where a reading is missing).
     shared_coefficients : numpy.ndarray
         Coefficients of the extra columns fitted jointly (empty if none).
-    initial_power_offset_w : tuple of float
-        (from T2, from T5) settled power before the record, less the power the
-        replay assumed (W).
+    initial_power_offset_w : float
+        Settled power of T5's heater path before the record, less the power
+        the replay assumed (W).
     """
 
     model: CryostatModel
@@ -89,7 +108,7 @@ class Replay:
     flange_residual_K: np.ndarray
     ptc_stage_residual_K: np.ndarray
     shared_coefficients: np.ndarray
-    initial_power_offset_w: tuple[float, float] = (0.0, 0.0)
+    initial_power_offset_w: float = 0.0
 
     @property
     def operating_point(self) -> OperatingPoint:
@@ -120,7 +139,7 @@ class Replayer:
     def settle_from(self, replay: Replay) -> None:
         """Take the settled power before the record from a replay's T5 initial-state estimate."""
         start = self.initial_heater_power_w if self.initial_heater_power_w is not None else float(self.data.heater_w[0])
-        self.initial_heater_power_w = max(start + replay.initial_power_offset_w[1], 0.0)
+        self.initial_heater_power_w = max(start + replay.initial_power_offset_w, 0.0)
 
     # -- the line ----------------------------------------------------------
     def stage_line(self, model: CryostatModel, *, orders=(1,), drift: bool = False,
@@ -174,12 +193,12 @@ class Replayer:
                          shared_columns=None) -> Replay:
         """Fit the nuisance parameters to a simulation already made."""
         data = self.data
-        flange_release, stage_release = initial_state_response(aligned, data.elapsed_s)
+        _, stage_release = initial_state_response(aligned, data.elapsed_s)
+        modes = flange_mode_columns(aligned, data.elapsed_s, data.sample_interval_s)
         count = data.time_s.size
-        ones = np.ones(count)
-        zeros = np.zeros((count, 2))
-        flange_design = np.column_stack([ones, flange_release, zeros])
-        stage_design = np.column_stack([zeros, ones, stage_release])
+        flange_columns = 1 + modes.shape[1]                 # offset, mode amplitudes
+        flange_design = np.column_stack([np.ones(count), modes, np.zeros((count, 2))])
+        stage_design = np.column_stack([np.zeros((count, flange_columns)), np.ones(count), stage_release])
         shared = 0
         if shared_columns is not None:
             flange_extra = np.asarray(shared_columns[0], dtype=float).reshape(count, -1)
@@ -197,13 +216,13 @@ class Replayer:
         stage_predicted = stage_K + stage_design @ solution
         point = aligned.operating_point
         estimated = OperatingPoint(point.flange_temperature_K + float(solution[0]),
-                                   point.ptc_stage_temperature_K + float(solution[2]))
+                                   point.ptc_stage_temperature_K + float(solution[flange_columns]))
         return Replay(
             model=replace(aligned, operating_point=estimated),
             flange_K=flange_predicted,
             ptc_stage_K=stage_predicted,
             flange_residual_K=data.flange_K - flange_predicted,
             ptc_stage_residual_K=data.ptc_stage_K - stage_predicted,
-            shared_coefficients=solution[4:4 + shared],
-            initial_power_offset_w=(float(solution[1]), float(solution[3])),
+            shared_coefficients=solution[flange_columns + 2:flange_columns + 2 + shared],
+            initial_power_offset_w=float(solution[flange_columns + 1]),
         )

@@ -33,7 +33,7 @@ from scipy import optimize
 
 from cryod.analysis.candidates import first_order_link
 from cryod.analysis.noise import white_noise_rms
-from cryod.analysis.ptc_line import PtcLine, line_phase, orders_below_nyquist
+from cryod.analysis.ptc_line import PtcLine, line_phase, measurable_orders
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replayer
 from cryod.model import CryostatModel, OperatingPoint, SensorNoise
@@ -91,7 +91,7 @@ class Identification:
 
 def _prepare(data: RecordData, base: CryostatModel, harmonics: bool) -> _Prepared:
     replayer = Replayer(data, np.ones(data.time_s.size, dtype=bool))
-    orders = orders_below_nyquist(base.ptc.angular_frequency_rad_s, data.sample_interval_s) if harmonics else (1,)
+    orders = measurable_orders(base.ptc.angular_frequency_rad_s, data.sample_interval_s) if harmonics else (1,)
     line = replayer.stage_line(base, orders=orders, significant_only=True)
     phase = line_phase(data.elapsed_s, line.angular_frequency_rad_s, line.drift)
     oscillation = sum(c.amplitude_K * np.sin(c.order * phase + c.phase_rad) for c in line.components)

@@ -198,7 +198,9 @@ def fit_heater_nonlinearity(context: FitContext) -> CandidateFit:
     """Delivered power P + k P^2: k from the linear response of both thermometers to P^2."""
     replayer, data = context.replayer, context.data
     quiet = context.base_line.applied_to(context.base_model).with_ptc(ptc_stage_amplitude_K=0.0, harmonics=()) \
-        .with_effects(ptc_frequency_drift=None)
+        .with_effects(ptc_frequency_drift=None, heater_nonlinearity=None)
+    present = context.base_model.effects.heater_nonlinearity
+    already = present.quadratic_coefficient_per_W if present is not None else 0.0
     settled = replayer.initial_heater_power_w if replayer.initial_heater_power_w is not None else data.heater_w[0]
     squared = replayer.simulate(quiet, data.heater_w ** 2, settled ** 2)
     point = quiet.operating_point
@@ -206,10 +208,10 @@ def fit_heater_nonlinearity(context: FitContext) -> CandidateFit:
     base_simulation = replayer.simulate(context.base_line.applied_to(context.base_model))
     linear = replayer.replay_simulated(context.base_line.applied_to(context.base_model), base_simulation.flange_K,
                                        base_simulation.ptc_stage_K, shared_columns=columns)
-    coefficient = float(np.clip(linear.shared_coefficients[0], -1.0, 10.0))
+    found = already + float(linear.shared_coefficients[0])
+    coefficient = float(np.clip(found, -1.0, 10.0))
     model = context.base_model.with_effects(heater_nonlinearity=HeaterNonlinearity(coefficient))
-    note = "" if coefficient == linear.shared_coefficients[0] else \
-        f"least squares gave {linear.shared_coefficients[0]:.4g} /W, held to the model's range -1..10 /W"
+    note = "" if coefficient == found else f"least squares gave {found:.4g} /W, held to the model's range -1..10 /W"
     return CandidateFit("heater_nonlinearity", {"quadratic_coefficient_per_W": coefficient}, model,
                         replayer.replay(model, context.base_line), context.base_line, note)
 

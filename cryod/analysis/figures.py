@@ -38,6 +38,13 @@ COLOURS = {"measured": "black", "base": "tab:red", "extended": "tab:blue"}
 SEGMENT_COLOURS = {"closed loop": "tab:green", "hold": "tab:gray", "modulated": "tab:orange"}
 
 
+def _save(figure, path: Path) -> Path:
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
+
+
 def _thin(*arrays):
     step = max(1, arrays[0].size // MOST_POINTS)
     return [array[::step] for array in arrays]
@@ -87,10 +94,7 @@ def overview(analysis: Analysis, segments, path: Path) -> Path:
     for axis in axes:
         _shade_segments(axis, analysis, segments)
     axes[0].set_title(f"{Path(data.source).name}: cause {analysis.cause}")
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
+    return _save(figure, path)
 
 
 def residual_spectrum(analysis: Analysis, path: Path) -> Path:
@@ -117,10 +121,7 @@ def residual_spectrum(analysis: Analysis, path: Path) -> Path:
         axis.set_ylabel(f"{name} residual (K/sqrt(Hz))")
         axis.legend(loc="best", fontsize=8)
     axes[1].set_xlabel("frequency (Hz); dotted: PTC line and harmonics")
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
+    return _save(figure, path)
 
 
 def ptc_line(analysis: Analysis, path: Path) -> Path:
@@ -145,10 +146,7 @@ def ptc_line(analysis: Analysis, path: Path) -> Path:
     twin.set_ylabel("T5 (K)", color="tab:cyan")
     axis.legend(loc="upper left", fontsize=8)
     axis.set_title("PTC line where the base model misses it most")
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
+    return _save(figure, path)
 
 
 def candidates(analysis: Analysis, path: Path) -> Path:
@@ -166,10 +164,7 @@ def candidates(analysis: Analysis, path: Path) -> Path:
     axis.set_xlabel("held-out improvement over the base model (noise-variance units, symlog)")
     axis.set_title(f"candidates (blue: named; counts from {CANDIDATE_SIGMA:g} sigma)")
     axis.legend(loc="lower right", fontsize=8)
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
+    return _save(figure, path)
 
 
 def steps(analysis: Analysis, segments, path: Path) -> Path | None:
@@ -197,10 +192,7 @@ def steps(analysis: Analysis, segments, path: Path) -> Path | None:
     for axis in list(axes.flat)[len(found):]:
         axis.set_visible(False)
     axes.flat[0].legend(fontsize=8)
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
+    return _save(figure, path)
 
 
 def correlation(analysis: Analysis, path: Path) -> Path:
@@ -227,10 +219,7 @@ def correlation(analysis: Analysis, path: Path) -> Path:
     axes[0].set_ylabel("T2 residual autocorrelation")
     axes[1].set_xlabel("lag (samples, + 0.5)")
     axes[1].set_ylabel("correlation with the heater")
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
+    return _save(figure, path)
 
 
 def make_figures(analysis: Analysis, segments, directory: Path) -> dict[str, Path]:

@@ -93,9 +93,5 @@ def run(args: argparse.Namespace) -> int:
                   f"{stage:.3g} x on T5 in {path}: these records are not all explained by the model's form "
                   "(different cryostats, or an effect: run cryod analyze on them)", file=sys.stderr)
     text = summary(dataclasses.replace(result, model=model), out)
-    if args.json:
-        print(json.dumps(text))
-    else:
-        for key, value in text.items():
-            print(f"{key}: {value}")
+    print(json.dumps(text) if args.json else "\n".join(f"{key}: {value}" for key, value in text.items()))
     return 0

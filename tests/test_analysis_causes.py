@@ -6,8 +6,12 @@ cause x both protocols x three magnitudes, clean records and every
 disturbance in both protocols, on longer records.
 """
 
+import tempfile
+from pathlib import Path
+
 import pytest
 
+from cryod.model import load_model, save_model
 from hidden_effects import (
     DISTURBANCES, DURATIONS_S, MAGNITUDES, SLOW_DURATIONS_S, analysed, analysed_case, base_model, hidden_model,
     other_day, parameter_errors, within,
@@ -30,6 +34,9 @@ def _check_found(analysis, cause, truth):
         assert within(fitted, true), f"{name}: fitted {fitted}, true {true}"
     assert analysis.decision.gain.ratio > 1.0
     assert analysis.decision.gain.ratio == pytest.approx(analysis.scores[cause].gain.ratio)
+    with tempfile.TemporaryDirectory() as directory:          # the extended model survives its file
+        loaded = load_model(save_model(analysis.extended_model, Path(directory) / "extended.yaml"))
+    assert loaded.effect_names() == [cause]
 
 
 @pytest.mark.parametrize("cause, protocol", FAST_CASES)

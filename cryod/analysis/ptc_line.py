@@ -406,15 +406,16 @@ def fit_phase_track(track: PhaseTrack, duration_s: float) -> DriftTrackFit:
         rate_error = 2.0 * 3600.0 * math.sqrt(covariance[2, 2])
     except np.linalg.LinAlgError:
         rate_error = math.inf
-    best = (chi_quadratic, quadratic[1], PtcFrequencyDrift(rate_rad_s_per_hour=2.0 * 3600.0 * quadratic[2]))
+    best = (chi_quadratic, quadratic[1], PtcFrequencyDrift(rate_rad_s_per_hour=float(2.0 * 3600.0 * quadratic[2])))
     for period in np.geomspace(duration_s / 10.0, 4.0 * duration_s, 40):
         wander_phase = period / (2.0 * math.pi) * (1.0 - np.cos(2.0 * math.pi * t / period))
         solution, chi, _ = solve([np.ones_like(t), t, t ** 2, wander_phase])
         if solution[3] > 0.0 and chi < best[0]:
-            best = (chi, solution[1], PtcFrequencyDrift(2.0 * 3600.0 * solution[2], float(solution[3]), float(period)))
+            best = (chi, solution[1], PtcFrequencyDrift(float(2.0 * 3600.0 * solution[2]), float(solution[3]),
+                                                        float(period)))
     chi, offset, drift = best
     if drift.wander_amplitude_rad_s > 0.0 and not (chi_quadratic - chi > max(25.0, 0.2 * chi_quadratic)):
-        chi, offset, drift = chi_quadratic, quadratic[1], PtcFrequencyDrift(2.0 * 3600.0 * quadratic[2])
+        chi, offset, drift = chi_quadratic, quadratic[1], PtcFrequencyDrift(float(2.0 * 3600.0 * quadratic[2]))
     return DriftTrackFit(float(offset), drift, rate_error, chi_constant, chi)
 
 
@@ -428,6 +429,7 @@ def _fit_drift(elapsed_s, values, baseline, mask, omega, orders):
     with_wander = drift.wander_amplitude_rad_s > 0.0
 
     def unpack(x):
+        x = [float(value) for value in x]
         if with_wander:
             return x[0], PtcFrequencyDrift(x[1], x[2], x[3])
         return x[0], PtcFrequencyDrift(x[1])

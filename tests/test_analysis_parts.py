@@ -72,9 +72,10 @@ def test_segments_of_the_identification_protocol(reference_model):
     record = make_record(reference_model, "identification", duration_s=1900.0, seed=1)
     columns = record.columns
     segments = find_segments(columns["time_s"], columns["heater_W"], columns["setpoint_K"])
-    assert [s.kind for s in segments] == ["hold", "hold", "hold", "modulated", "closed loop", "hold", "hold",
-                                          "closed loop"]
-    assert segments[4].setpoint_K == pytest.approx(5.0)
+    assert [s.kind for s in segments] == ["hold", "hold", "hold", "modulated", "modulated", "closed loop", "hold",
+                                          "hold", "closed loop"]
+    assert segments[5].setpoint_K == pytest.approx(5.0)
+    assert segments[4].start_s == pytest.approx(segments[3].start_s + 120.0, abs=30.0)   # line, then 2.5 rad/s
     steps = find_steps(columns["time_s"], columns["heater_W"], segments)
     assert [(round(s.before_w, 3), round(s.after_w, 3)) for s in steps] == [(0.0, 0.01), (0.01, 0.03), (0.11, 0.14)]
 

@@ -125,21 +125,25 @@ def residual_spectrum(analysis: Analysis, path: Path) -> Path:
 
 
 def ptc_line(analysis: Analysis, path: Path) -> Path:
+    """Five line periods where the base model's residual at the line is largest; slow parts removed."""
     data = analysis.data
-    residual = np.where(data.valid, analysis.base_replay.flange_residual_K, 0.0)
     period = 2.0 * math.pi / analysis.base_line.angular_frequency_rad_s
     samples = _period_samples(analysis)
-    power = ndimage.uniform_filter1d(residual ** 2, 5 * samples, mode="nearest")
+    residual = np.where(data.valid, analysis.base_replay.flange_residual_K, 0.0)
+    at_line = residual - ndimage.uniform_filter1d(residual, samples, mode="nearest")
+    power = ndimage.uniform_filter1d(at_line ** 2, 5 * samples, mode="nearest")
     centre = int(np.argmax(power))
     window = (data.time_s >= data.time_s[centre] - 2.5 * period) & (data.time_s <= data.time_s[centre] + 2.5 * period)
+    slow = _smooth(data.flange_K, samples)[window]
     figure, axis = plt.subplots(figsize=(10, 4.5))
     t = data.time_s[window]
-    axis.plot(t, 1e3 * data.flange_K[window], "o", ms=3, color=COLOURS["measured"], label="T2 measured")
-    axis.plot(t, 1e3 * analysis.base_replay.flange_K[window], "-", color=COLOURS["base"], label="T2 base model")
+    axis.plot(t, 1e3 * (data.flange_K[window] - slow), "o", ms=3, color=COLOURS["measured"], label="T2 measured")
+    axis.plot(t, 1e3 * (analysis.base_replay.flange_K[window] - slow), "-", color=COLOURS["base"],
+              label="T2 base model")
     if analysis.cause in analysis.fits:
-        axis.plot(t, 1e3 * analysis.extended_replay.flange_K[window], "-", color=COLOURS["extended"],
+        axis.plot(t, 1e3 * (analysis.extended_replay.flange_K[window] - slow), "-", color=COLOURS["extended"],
                   label=f"T2 extended ({analysis.cause})")
-    axis.set_ylabel("T2 (mK)")
+    axis.set_ylabel("T2 less its one-period average (mK)")
     axis.set_xlabel("time (s)")
     twin = axis.twinx()
     twin.plot(t, data.ptc_stage_K[window], color="tab:cyan", lw=0.8, alpha=0.7, label="T5 measured")
@@ -163,7 +167,7 @@ def candidates(analysis: Analysis, path: Path) -> Path:
         axis.annotate(f"{sigma:.3g} sigma", (value, index), xytext=(4, -3), textcoords="offset points", fontsize=8)
     axis.set_xlabel("held-out improvement over the base model (noise-variance units, symlog)")
     axis.set_title(f"candidates (blue: named; counts from {CANDIDATE_SIGMA:g} sigma)")
-    axis.legend(loc="lower right", fontsize=8)
+    axis.legend(loc="upper left", fontsize=8)
     return _save(figure, path)
 
 

@@ -3,7 +3,8 @@
 * ``closed loop``: the setpoint column is set (one segment per setpoint, a
   jump of more than 10 mK starts a new one; a ramp stays one segment).
 * ``hold``: open loop with the heater constant for at least 5 s.
-* ``modulated``: open loop, the heater changing, for at least 5 s.
+* ``modulated``: open loop, the heater changing, for at least 5 s; split where
+  its dominant frequency changes (30 s windows).
 * a step: one hold followed directly by another at a different power.
 
 Examples
@@ -27,6 +28,8 @@ import numpy as np
 SHORTEST_SEGMENT_S = 5.0
 #: A setpoint jump larger than this starts a new closed-loop segment (K).
 SETPOINT_JUMP_K = 0.01
+#: Modulated stretches are split where the heater's dominant frequency changes by 15 % between windows of this (s).
+MODULATION_WINDOW_S = 30.0
 
 
 @dataclass(frozen=True)
@@ -126,7 +129,31 @@ def _open_segments(time_s, heater_w, start, stop, make) -> None:
         if kind == "hold":
             make("hold", first, last)
         elif stop_time - time_s[first] >= SHORTEST_SEGMENT_S:
-            make("modulated", first, last)
+            for piece_first, piece_last in _split_by_frequency(time_s, heater_w, first, last):
+                make("modulated", piece_first, piece_last)
+
+
+def _split_by_frequency(time_s, heater_w, first, last):
+    """Pieces of a modulated stretch with one dominant heater frequency each (windows of 30 s)."""
+    edges = np.searchsorted(time_s, np.arange(time_s[first], time_s[last - 1], MODULATION_WINDOW_S))
+    edges = np.unique(np.concatenate((edges[(edges > first) & (edges < last)], [first, last])))
+    frequencies = []
+    for start, stop in zip(edges[:-1], edges[1:]):
+        power = heater_w[start:stop] - np.mean(heater_w[start:stop])
+        if power.size < 8:
+            frequencies.append(np.nan)
+            continue
+        spectrum = np.abs(np.fft.rfft(power * np.hanning(power.size)))
+        spectrum[0] = 0.0
+        frequencies.append(float(np.argmax(spectrum)) / max(time_s[stop - 1] - time_s[start], 1e-9))
+    pieces, start = [], first
+    for index in range(1, len(frequencies)):
+        before, now = frequencies[index - 1], frequencies[index]
+        if np.isfinite(before) and np.isfinite(now) and abs(now - before) > 0.15 * max(before, now):
+            pieces.append((start, int(edges[index])))
+            start = int(edges[index])
+    pieces.append((start, last))
+    return pieces
 
 
 def find_steps(time_s, heater_w, segments: list[RecordSegment]) -> list[HeaterStep]:

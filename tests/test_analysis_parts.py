@@ -161,3 +161,14 @@ def test_decision_rules():
     partial = decide(loud, [_score("heater_nonlinearity", 0.5 * terms, terms, 2.0 * terms)])
     assert partial.cause == "unexplained" and "25.0 %" in partial.reason
     assert decide(loud, [_score("sensor_lag", -5.0, 100.0, 2.0 * terms)]).cause == "unexplained"
+
+
+def test_a_tie_goes_to_the_candidate_with_fewer_parameters():
+    terms = 40000
+    loud = BaseDiscrepancy(terms, 3.0 * terms, 2.0 * terms, 2.0 * terms / math.sqrt(2 * terms))
+    scores = [_score("link_dynamics", 1.99 * terms, 2.0 * terms, 2.0 * terms),
+              _score("sensor_lag", 1.99 * terms - 10.0, 2.0 * terms, 2.0 * terms)]
+    tied = decide(loud, scores, distinctness=lambda a, b: 16.0, parameter_counts={"link_dynamics": 2, "sensor_lag": 1})
+    assert tied.cause == "sensor_lag" and "cannot tell sensor_lag from link_dynamics" in tied.reason
+    apart = decide(loud, scores, distinctness=lambda a, b: 1.0, parameter_counts={"link_dynamics": 2, "sensor_lag": 1})
+    assert apart.cause == "link_dynamics"

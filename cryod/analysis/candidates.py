@@ -311,6 +311,12 @@ def fit_ptc_frequency_drift(context: FitContext) -> CandidateFit:
                         context.replayer.replay(base, line), line)
 
 
+#: Fitted parameters of each candidate (harmonics: amplitude and phase of the usual one or two orders).
+PARAMETER_COUNTS = {
+    "sensor_lag": 1, "link_dynamics": 2, "dead_time": 1, "heat_capacity_temperature": 1,
+    "heater_nonlinearity": 1, "ptc_harmonics": 2, "ptc_frequency_drift": 2,
+}
+
 FITTERS = {
     "sensor_lag": fit_sensor_lag,
     "link_dynamics": fit_link_dynamics,

@@ -24,6 +24,11 @@ The rules:
 3. With a discrepancy, the best candidate is named if it explains at least
    70 % of the excess (``Delta / E``), or leaves no discrepancy by rule 1.
    Otherwise, or when no candidate counts, the cause is ``unexplained``.
+4. When another counting candidate is worse than the best by less than 1.5
+   standard deviations of the difference between their two predictions
+   (``2 sqrt(D_ab)``), the record cannot tell them apart: the one with fewer
+   parameters is named, and the reason says so (a record with only the PTC
+   line cannot tell a lagging thermometer from a link with unit gain).
 
 The gain of a model is the rms of the noise-normalised held-out residuals,
 ``sqrt(W / n)``; the ratio is base over extended.
@@ -48,6 +53,7 @@ DISCREPANCY_FRACTION_OF_NOISE = 0.05
 CANDIDATE_SIGMA = 5.0
 CANDIDATE_MINIMUM_IMPROVEMENT = 25.0
 EXPLAINED_FRACTION = 0.7
+TIE_SIGMA = 1.5
 GAIN_METRIC = ("held-out rms of the T2 and T5 residuals, each divided by its measured noise rms "
                "(1.0 = noise only)")
 
@@ -162,11 +168,46 @@ def gain_between(base_sum_of_squares: float, extended_sum_of_squares: float, ter
     return Gain(GAIN_METRIC, base_rms, extended_rms, base_rms / extended_rms if extended_rms > 0 else math.inf)
 
 
-def decide(base: BaseDiscrepancy, scores: list[CandidateScore]) -> Decision:
-    """Apply the rules of this module."""
+def _tied_with(best: CandidateScore, counting: list[CandidateScore], distinctness) -> list[CandidateScore]:
+    """Candidates the held-out data cannot tell from the best: worse by less than 1.5 standard deviations."""
+    tied = []
+    for score in counting:
+        if score is best:
+            continue
+        spread = 2.0 * math.sqrt(max(distinctness(score.cause, best.cause), 0.0))
+        if best.improvement - score.improvement <= TIE_SIGMA * spread + 1.0:
+            tied.append(score)
+    return tied
+
+
+def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=None,
+           parameter_counts: dict | None = None) -> Decision:
+    """Apply the rules of this module.
+
+    Parameters
+    ----------
+    base : BaseDiscrepancy
+    scores : list of CandidateScore
+    distinctness : callable, optional
+        ``distinctness(cause_a, cause_b)``: held-out sum of squares of the
+        difference between two candidates' predictions (noise units); with it,
+        candidates the data cannot tell apart from the best are a tie.
+    parameter_counts : dict, optional
+        Number of fitted parameters per cause; a tie goes to the fewest.
+    """
     unchanged = gain_between(base.sum_of_squares, base.sum_of_squares, base.terms)
     counting = [score for score in scores if score.counts]
     best = max(counting, key=lambda score: score.improvement) if counting else None
+    tie_text = ""
+    if best is not None and distinctness is not None:
+        tied = _tied_with(best, counting, distinctness)
+        if tied:
+            counts = parameter_counts or {}
+            simplest = min([best] + tied, key=lambda score: (counts.get(score.cause, 1), -score.improvement))
+            others = ", ".join(score.cause for score in [best] + tied if score is not simplest)
+            tie_text = (f"; this record cannot tell {simplest.cause} from {others} (within {TIE_SIGMA:g} standard "
+                        f"deviations on the held-out data): {simplest.cause} is named as the one with fewest parameters")
+            best = simplest
     excess_text = (f"the base model's held-out excess is {base.excess:.4g} "
                    f"({base.significance:.1f} sigma, {100.0 * base.excess / base.terms:.2f} % of the noise power)")
     if not base.present:
@@ -183,7 +224,7 @@ def decide(base: BaseDiscrepancy, scores: list[CandidateScore]) -> Decision:
                           and remaining >= DISCREPANCY_FRACTION_OF_NOISE * base.terms)
     if best.explained_fraction >= EXPLAINED_FRACTION or leaves_nothing:
         reason = (f"{excess_text}; {best.cause} removes {100.0 * best.explained_fraction:.1f} % of it "
-                  f"({best.significance:.1f} sigma), the most of any candidate")
+                  f"({best.significance:.1f} sigma)" + (tie_text or ", the most of any candidate"))
         return Decision(best.cause, reason, best, base, best.gain)
     reason = (f"{excess_text}; the best candidate, {best.cause}, removes only "
               f"{100.0 * best.explained_fraction:.1f} % of it and leaves a discrepancy of "

@@ -22,7 +22,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from cryod.analysis.candidates import CANDIDATE_CAUSES, FITTERS, CandidateFit, FitContext
+from cryod.analysis.candidates import CANDIDATE_CAUSES, FITTERS, PARAMETER_COUNTS, CandidateFit, FitContext
 from cryod.analysis.decision import CandidateScore, Decision, base_discrepancy, decide, score_candidate
 from cryod.analysis.noise import white_noise_rms
 from cryod.analysis.ptc_line import PtcLine
@@ -127,7 +127,15 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
     base = base_discrepancy(context)
     for cause in causes:
         scores[cause] = score_candidate(context, fits[cause], base)
-    decision = decide(base, list(scores.values()))
+    mask = held_out_mask
+
+    def distinctness(first: str, second: str) -> float:
+        a, b = fits[first].replay, fits[second].replay
+        flange = (a.flange_K - b.flange_K)[mask] / noise[0]
+        stage = (a.ptc_stage_K - b.ptc_stage_K)[mask] / noise[1]
+        return float(flange @ flange + stage @ stage)
+
+    decision = decide(base, list(scores.values()), distinctness, PARAMETER_COUNTS)
     return Analysis(data, base_model, base_line, base_replay, noise, fits, scores, decision, context, timings)
 
 

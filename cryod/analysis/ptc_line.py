@@ -32,7 +32,6 @@ Examples
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -281,7 +280,7 @@ def estimate_ptc_line(elapsed_s, stage_signal_K, baseline_columns, *, mask=None,
         method="bounded", options={"xatol": 1e-7})
     omega = float(refined.x)
     fit = _fit_components(values, baseline, omega * elapsed_s, orders, mask)
-    frequency_error = _frequency_uncertainty(fit, elapsed_s[mask], values.size)
+    frequency_error = _frequency_uncertainty(fit, elapsed_s[mask])
     drift_model = None
     if drift:
         omega, drift_model = _fit_drift(elapsed_s, values, baseline, mask, omega, orders)
@@ -292,7 +291,7 @@ def estimate_ptc_line(elapsed_s, stage_signal_K, baseline_columns, *, mask=None,
     return PtcLine(omega, components, drift_model, frequency_error)
 
 
-def _frequency_uncertainty(fit: _LinearLineFit, elapsed_s: np.ndarray, count: int) -> float:
+def _frequency_uncertainty(fit: _LinearLineFit, elapsed_s: np.ndarray) -> float:
     """Standard error of a sinusoid's frequency: sqrt(12) sigma / (A T sqrt(N/2)) (white noise)."""
     amplitude = fit.components[0].amplitude_K
     if amplitude <= 0.0 or elapsed_s.size < 4:
@@ -449,8 +448,3 @@ def _fit_drift(elapsed_s, values, baseline, mask, omega, orders):
                                     max_nfev=60)
     frequency, model = unpack(result.x)
     return float(frequency), model
-
-
-def with_drift_removed(line: PtcLine) -> PtcLine:
-    """The same line without its drift (for a model that has none)."""
-    return dataclasses.replace(line, drift=None)

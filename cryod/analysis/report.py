@@ -64,7 +64,8 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
         f"| sample interval | median {1e3 * data.sample_interval_s:.2f} ms, rms jitter {1e3 * np.std(intervals):.3f} ms |",
         f"| operating point (estimated) | T2_0 = {point.flange_temperature_K:.5f} K, "
         f"T5_0 = {point.ptc_stage_temperature_K:.5f} K |",
-        f"| PTC line in T5 | {line.angular_frequency_rad_s:.5f} rad/s, {1e3 * line.fundamental.amplitude_K:.3f} mK, "
+        f"| PTC line in T5 | {line.angular_frequency_rad_s:.5f} +- {line.frequency_uncertainty_rad_s:.1e} rad/s, "
+        f"{1e3 * line.fundamental.amplitude_K:.3f} mK, "
         f"phase {line.fundamental.phase_rad:.3f} rad at the first sample |",
         f"| measured noise | T2 {1e6 * analysis.noise_rms_K[0]:.2f} uK rms, T5 {1e6 * analysis.noise_rms_K[1]:.1f} uK rms |",
         f"| heater | limit {_number(data.heater_limit_w)} W; at 0 W {100 * at_zero:.1f} % of samples, "

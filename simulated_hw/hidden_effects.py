@@ -28,7 +28,8 @@ MAGNITUDES = {
     "sensor_lag": [
         ({"sensor_lag": SensorLag(0.03)}, {"flange_thermometer_time_constant_s": 0.03}),
         ({"sensor_lag": SensorLag(0.3)}, {"flange_thermometer_time_constant_s": 0.3}),
-        ({"sensor_lag": SensorLag(2.0)}, {"flange_thermometer_time_constant_s": 2.0}),
+        ({"sensor_lag": SensorLag(1.0, 0.4)},
+         {"flange_thermometer_time_constant_s": 1.0, "ptc_stage_thermometer_time_constant_s": 0.4}),
     ],
     "link_dynamics": [
         ({"link_dynamics": LinkDynamics(0.03, 0.9)}, {"time_constant_s": 0.03, "gain_factor": 0.9}),

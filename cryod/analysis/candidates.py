@@ -10,7 +10,8 @@ is fitted:
 cause                        parameters and fit
 ===========================  ===================================================================
 sensor_lag                   flange thermometer time constant: grid (10 ms to 20 s, log) then
-                             bounded Brent
+                             bounded Brent; the PTC-stage thermometer's follows from it and the
+                             phase of the line (:func:`fit_sensor_lag`)
 link_dynamics                gain factor and time constant: the PTC path to T2 is linear in the
                              complex factor F = g / (1 + j omega tau) at the line, so F is a
                              linear least-squares coefficient; a lead (tau < 0), which the
@@ -36,7 +37,7 @@ from __future__ import annotations
 import cmath
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import optimize
@@ -69,6 +70,7 @@ class FitContext:
     noise_rms_K: tuple[float, float]
     fit_mask: np.ndarray
     held_out_mask: np.ndarray
+    line_factor: complex | None = None
 
     def fit_chi_square(self, replay: Replay) -> float:
         """Weighted sum of squares of both thermometers on the fit samples."""
@@ -102,6 +104,8 @@ class CandidateFit:
         The measured line the replay used.
     note : str
         How the fit went, in words.
+    parameter_count : int
+        Parameters actually fitted (decides a tie between candidates).
     """
 
     cause: str
@@ -110,7 +114,7 @@ class CandidateFit:
     replay: Replay
     line: PtcLine
     note: str = ""
-    scores: dict = field(default_factory=dict)
+    parameter_count: int = 1
 
 
 def _scalar_search(objective, grid, bounds, tolerance):
@@ -151,16 +155,34 @@ class _CachedObjective:
 # the candidates
 # ---------------------------------------------------------------------------
 def fit_sensor_lag(context: FitContext) -> CandidateFit:
-    """First-order lag of the flange thermometer on every T2 path."""
+    """First-order lag of the flange thermometer on every T2 path, and of the PTC-stage one on T5.
+
+    The flange thermometer's time constant tau2 is searched (grid, then
+    Brent). The stage thermometer's tau5 follows from it: T2's line over T5's
+    is multiplied by (1 + j w tau5) / (1 + j w tau2), so the phase of the
+    line's measured factor (:func:`line_factor`) fixes
+    ``tau5 = tan(arg F + atan(w tau2)) / w`` (0 when that is negative): a
+    thermometer pair lagging alike leaves the line alone and shows only in the
+    heater's paths.
+    """
+    factor = line_factor(context)
+    omega = context.base_line.angular_frequency_rad_s
+
+    def stage_tau(tau):
+        angle = cmath.phase(factor) + math.atan(omega * tau)
+        return float(min(max(math.tan(angle) / omega, 0.0), 30.0)) if 0.0 < angle < math.pi / 2 else 0.0
+
     def model(tau):
-        if tau <= 0.0:
+        if tau <= 0.0 and stage_tau(0.0) <= 0.0:
             return context.base_model
-        return context.base_model.with_effects(sensor_lag=SensorLag(tau))
+        return context.base_model.with_effects(sensor_lag=SensorLag(max(tau, 1e-9), stage_tau(max(tau, 0.0))))
 
     objective = _CachedObjective(context, model, context.base_line)
     tau = _scalar_search(objective, np.geomspace(0.01, 20.0, 15), (0.0, 30.0), 1e-6)
-    return CandidateFit("sensor_lag", {"flange_thermometer_time_constant_s": tau}, model(tau),
-                        objective.replay(tau), context.base_line)
+    stage = stage_tau(tau)
+    return CandidateFit("sensor_lag", {"flange_thermometer_time_constant_s": tau,
+                                       "ptc_stage_thermometer_time_constant_s": stage},
+                        model(tau), objective.replay(tau), context.base_line, parameter_count=1 + (stage > 0.0))
 
 
 def fit_dead_time(context: FitContext) -> CandidateFit:
@@ -243,17 +265,31 @@ def first_order_link(value: complex, angular_frequency_rad_s: float) -> Transfer
     return TransferFunction((numerator.imag / angular_frequency_rad_s, numerator.real), (tau, 1.0))
 
 
+def line_factor(context: FitContext) -> complex:
+    """Complex factor F on the base model's PTC path to T2 that fits the record's line best.
+
+    T2's line is linear in F (``Re(F Z(t))``, Z the base model's response to
+    the measured line), so F is a linear least-squares coefficient, fitted on
+    the fit blocks jointly with the nuisance parameters. Computed once per
+    analysis.
+    """
+    if context.line_factor is None:
+        data, base = context.data, context.base_model
+        aligned = context.base_line.applied_to(base)
+        response = _ptc_fundamental_on_flange(aligned, data.elapsed_s)
+        zeros = np.zeros((data.time_s.size, 2))
+        simulated = context.replayer.simulate(aligned)
+        linear = context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K,
+                                                   shared_columns=(np.column_stack([response.real, -response.imag]),
+                                                                   zeros))
+        context.line_factor = complex(1.0 + linear.shared_coefficients[0], linear.shared_coefficients[1])
+    return context.line_factor
+
+
 def fit_link_dynamics(context: FitContext) -> CandidateFit:
     """PTC-to-flange path: complex factor at the line by linear least squares, then its physical form."""
-    data, base = context.data, context.base_model
-    aligned = context.base_line.applied_to(base)
-    response = _ptc_fundamental_on_flange(aligned, data.elapsed_s)
-    zeros = np.zeros((data.time_s.size, 2))
-    base_simulation = context.replayer.simulate(aligned)
-    linear = context.replayer.replay_simulated(aligned, base_simulation.flange_K, base_simulation.ptc_stage_K,
-                                               shared_columns=(np.column_stack([response.real, -response.imag]),
-                                                               zeros))
-    factor = complex(1.0 + linear.shared_coefficients[0], linear.shared_coefficients[1])
+    base = context.base_model
+    factor = line_factor(context)
     omega = context.base_line.angular_frequency_rad_s
     note = ""
     inverse = 1.0 / factor if factor != 0 else complex(math.inf)
@@ -279,7 +315,7 @@ def fit_link_dynamics(context: FitContext) -> CandidateFit:
         note = ("the measured line leads the model's by {:.3f} rad: no lag g/(tau s + 1) gives that, so the "
                 "PTC-to-flange link itself is refitted".format(cmath.phase(factor)))
     return CandidateFit("link_dynamics", parameters, model, context.replayer.replay(model, context.base_line),
-                        context.base_line, note)
+                        context.base_line, note, parameter_count=2)
 
 
 def fit_ptc_harmonics(context: FitContext) -> CandidateFit:
@@ -296,7 +332,7 @@ def fit_ptc_harmonics(context: FitContext) -> CandidateFit:
         parameters[f"order_{component.order}_phase_rad"] = component.phase_rad
     note = "" if parameters else "no harmonic of T5 above 5 standard errors"
     return CandidateFit("ptc_harmonics", parameters, line.shape_for(base), context.replayer.replay(base, line),
-                        line, note)
+                        line, note, parameter_count=max(2 * (len(line.components) - 1), 1))
 
 
 def fit_ptc_frequency_drift(context: FitContext) -> CandidateFit:
@@ -308,14 +344,9 @@ def fit_ptc_frequency_drift(context: FitContext) -> CandidateFit:
     parameters = dataclasses.asdict(drift)
     parameters["angular_frequency_at_start_rad_s"] = line.angular_frequency_rad_s
     return CandidateFit("ptc_frequency_drift", parameters, base.with_effects(ptc_frequency_drift=drift),
-                        context.replayer.replay(base, line), line)
+                        context.replayer.replay(base, line), line,
+                        parameter_count=2 + 2 * (drift.wander_amplitude_rad_s > 0.0))
 
-
-#: Fitted parameters of each candidate (harmonics: amplitude and phase of the usual one or two orders).
-PARAMETER_COUNTS = {
-    "sensor_lag": 1, "link_dynamics": 2, "dead_time": 1, "heat_capacity_temperature": 1,
-    "heater_nonlinearity": 1, "ptc_harmonics": 2, "ptc_frequency_drift": 2,
-}
 
 FITTERS = {
     "sensor_lag": fit_sensor_lag,

@@ -27,8 +27,11 @@ The rules:
 4. When another counting candidate is worse than the best by less than 1.5
    standard deviations of the difference between their two predictions
    (``2 sqrt(D_ab)``), the record cannot tell them apart: the one with fewer
-   parameters is named, and the reason says so (a record with only the PTC
-   line cannot tell a lagging thermometer from a link with unit gain).
+   parameters is named (at equal numbers, the earlier in
+   :data:`TIE_PREFERENCE`), and the reason says so. A record with only the PTC
+   line cannot tell a lagging flange thermometer from a link of unit gain
+   (one parameter against two: ``sensor_lag``), nor a pair of thermometers
+   lagging differently from a link (two against two: ``link_dynamics``).
 
 The gain of a model is the rms of the noise-normalised held-out residuals,
 ``sqrt(W / n)``; the ratio is base over extended.
@@ -168,6 +171,16 @@ def gain_between(base_sum_of_squares: float, extended_sum_of_squares: float, ter
     return Gain(GAIN_METRIC, base_rms, extended_rms, base_rms / extended_rms if extended_rms > 0 else math.inf)
 
 
+#: At equal numbers of parameters, a tie goes to the cause earlier in this list: a link that differs
+#: is more common than two thermometers lagging differently, and so on.
+TIE_PREFERENCE = ("link_dynamics", "sensor_lag", "dead_time", "heater_nonlinearity", "heat_capacity_temperature",
+                  "ptc_harmonics", "ptc_frequency_drift")
+
+
+def _preference(cause: str) -> int:
+    return TIE_PREFERENCE.index(cause) if cause in TIE_PREFERENCE else len(TIE_PREFERENCE)
+
+
 def _tied_with(best: CandidateScore, counting: list[CandidateScore], distinctness) -> list[CandidateScore]:
     """Candidates the held-out data cannot tell from the best: worse by less than 1.5 standard deviations."""
     tied = []
@@ -203,10 +216,11 @@ def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=Non
         tied = _tied_with(best, counting, distinctness)
         if tied:
             counts = parameter_counts or {}
-            simplest = min([best] + tied, key=lambda score: (counts.get(score.cause, 1), -score.improvement))
+            simplest = min([best] + tied, key=lambda score: (counts.get(score.cause, 1), _preference(score.cause)))
             others = ", ".join(score.cause for score in [best] + tied if score is not simplest)
             tie_text = (f"; this record cannot tell {simplest.cause} from {others} (within {TIE_SIGMA:g} standard "
-                        f"deviations on the held-out data): {simplest.cause} is named as the one with fewest parameters")
+                        f"deviations on the held-out data): {simplest.cause} is named, with the fewest parameters "
+                        "or, at equal numbers, the more common cause")
             best = simplest
     excess_text = (f"the base model's held-out excess is {base.excess:.4g} "
                    f"({base.significance:.1f} sigma, {100.0 * base.excess / base.terms:.2f} % of the noise power)")

@@ -22,7 +22,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from cryod.analysis.candidates import CANDIDATE_CAUSES, FITTERS, PARAMETER_COUNTS, CandidateFit, FitContext
+from cryod.analysis.candidates import CANDIDATE_CAUSES, FITTERS, CandidateFit, FitContext
 from cryod.analysis.decision import CandidateScore, Decision, base_discrepancy, decide, score_candidate
 from cryod.analysis.noise import white_noise_rms
 from cryod.analysis.ptc_line import PtcLine
@@ -135,7 +135,8 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
         stage = (a.ptc_stage_K - b.ptc_stage_K)[mask] / noise[1]
         return float(flange @ flange + stage @ stage)
 
-    decision = decide(base, list(scores.values()), distinctness, PARAMETER_COUNTS)
+    decision = decide(base, list(scores.values()), distinctness,
+                      {cause: fit.parameter_count for cause, fit in fits.items()})
     return Analysis(data, base_model, base_line, base_replay, noise, fits, scores, decision, context, timings)
 
 

@@ -32,6 +32,7 @@ Examples
 
 from __future__ import annotations
 
+import cmath
 import math
 from dataclasses import dataclass
 
@@ -102,13 +103,23 @@ class PtcLine:
         """``model`` with its PTC source (and drift) replaced by this measured line.
 
         The heat capacity C of the source, which only scales the model's own
-        PTC-to-flange path, is kept.
+        PTC-to-flange path, is kept. When the model's PTC-stage thermometer
+        lags (``sensor_lag.ptc_stage_thermometer_time_constant_s``), the line
+        measured in T5 is what that thermometer shows: the source is the line
+        before the lag, each order k larger by ``|1 + j k omega tau|`` and
+        earlier by ``atan(k omega tau)``.
         """
-        harmonics = tuple(PtcHarmonic(c.order, c.amplitude_K, c.phase_rad) for c in self.components[1:])
+        lag = model.effects.sensor_lag
+        tau = lag.ptc_stage_thermometer_time_constant_s if lag is not None else 0.0
+        sources = []
+        for c in self.components:
+            before_lag = complex(1.0, c.order * self.angular_frequency_rad_s * tau)
+            sources.append((c.order, c.amplitude_K * abs(before_lag), wrap_phase(c.phase_rad + cmath.phase(before_lag))))
+        harmonics = tuple(PtcHarmonic(order, amplitude, phase) for order, amplitude, phase in sources[1:])
         changed = model.with_ptc(
             angular_frequency_rad_s=self.angular_frequency_rad_s,
-            ptc_stage_amplitude_K=self.fundamental.amplitude_K,
-            phase_rad=self.fundamental.phase_rad,
+            ptc_stage_amplitude_K=sources[0][1],
+            phase_rad=sources[0][2],
             harmonics=harmonics,
         )
         return changed.with_effects(ptc_frequency_drift=self.drift)

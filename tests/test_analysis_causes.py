@@ -122,3 +122,23 @@ def test_record_cut_in_the_middle_of_a_transient(cause):
         assert analysis.cause == "none", analysis.decision.reason
     else:
         _check_found(analysis, cause, truth)
+
+
+def test_rows_without_a_reading_are_left_out():
+    """1 % of T2 readings and 0.5 % of T5 readings missing (empty fields): the cause is still found."""
+    import numpy as np
+
+    from cryod.analysis.pipeline import analyze
+    from cryod.analysis.record_data import RecordData
+    from cryod.record import Record
+    from simulated_hw.protocols import make_record
+
+    model, truth = hidden_model("dead_time", 1, variant=3)
+    record = make_record(model, "pi_only", duration_s=900.0, seed=10)
+    columns = dict(record.columns)
+    generator = np.random.default_rng(0)
+    columns["T2_K"] = np.where(generator.random(columns["T2_K"].size) < 0.01, np.nan, columns["T2_K"])
+    columns["T5_K"] = np.where(generator.random(columns["T5_K"].size) < 0.005, np.nan, columns["T5_K"])
+    data = RecordData.from_record(Record(record.metadata, columns, source="gaps"))
+    assert any("left out" in note for note in data.notes)
+    _check_found(analyze(data, base_model()), "dead_time", truth)

@@ -70,7 +70,7 @@ class FitContext:
     noise_rms_K: tuple[float, float]
     fit_mask: np.ndarray
     held_out_mask: np.ndarray
-    line_factor: complex | None = None
+    base_line_factor: tuple | None = None
 
     def fit_chi_square(self, replay: Replay) -> float:
         """Weighted sum of squares of both thermometers on the fit samples."""
@@ -132,18 +132,21 @@ def _scalar_search(objective, grid, bounds, tolerance):
 
 
 class _CachedObjective:
-    """Chi-square of a one-parameter family of models, remembering each replay."""
+    """Chi-square of a one-parameter family of models, remembering each replay.
 
-    def __init__(self, context: FitContext, make_model, line: PtcLine):
+    ``replay_for(value)`` makes the replay (default: the family's model
+    replayed with ``line``).
+    """
+
+    def __init__(self, context: FitContext, make_model, line: PtcLine, replay_for=None):
         self.context = context
-        self.make_model = make_model
-        self.line = line
+        self.replay_for = replay_for or (lambda value: context.replayer.replay(make_model(value), line))
         self.replays: dict[float, Replay] = {}
 
     def __call__(self, value: float) -> float:
         value = float(value)
         if value not in self.replays:
-            self.replays[value] = self.context.replayer.replay(self.make_model(value), self.line)
+            self.replays[value] = self.replay_for(value)
         return self.context.fit_chi_square(self.replays[value])
 
     def replay(self, value: float) -> Replay:
@@ -158,31 +161,36 @@ def fit_sensor_lag(context: FitContext) -> CandidateFit:
     """First-order lag of the flange thermometer on every T2 path, and of the PTC-stage one on T5.
 
     The flange thermometer's time constant tau2 is searched (grid, then
-    Brent). The stage thermometer's tau5 follows from it: T2's line over T5's
-    is multiplied by (1 + j w tau5) / (1 + j w tau2), so the phase of the
-    line's measured factor (:func:`line_factor`) fixes
-    ``tau5 = tan(arg F + atan(w tau2)) / w`` (0 when that is negative): a
-    thermometer pair lagging alike leaves the line alone and shows only in the
-    heater's paths.
+    Brent). For each tau2 the stage thermometer's tau5 follows: the line
+    measured in T5 is the source lagged by tau5, so with the flange lag alone
+    the model's line on T2 is off by exactly the factor F = 1 + j w tau5;
+    F is a linear least-squares coefficient (:func:`line_factor`), and
+    ``tau5 = tan(arg F) / w`` (0 when negative). A pair of thermometers lagging
+    alike leaves the line alone and shows only in the heater's paths.
     """
-    factor = line_factor(context)
     omega = context.base_line.angular_frequency_rad_s
+    stage_taus: dict[float, float] = {}
 
-    def stage_tau(tau):
-        angle = cmath.phase(factor) + math.atan(omega * tau)
-        return float(min(max(math.tan(angle) / omega, 0.0), 30.0)) if 0.0 < angle < math.pi / 2 else 0.0
-
-    def model(tau):
-        if tau <= 0.0 and stage_tau(0.0) <= 0.0:
+    def model(tau, stage=0.0):
+        if tau <= 0.0 and stage <= 0.0:
             return context.base_model
-        return context.base_model.with_effects(sensor_lag=SensorLag(max(tau, 1e-9), stage_tau(max(tau, 0.0))))
+        return context.base_model.with_effects(sensor_lag=SensorLag(max(tau, 1e-9), stage))
 
-    objective = _CachedObjective(context, model, context.base_line)
+    def replay_at(tau):
+        flange_only = model(tau)
+        factor, replay = line_factor(context, flange_only)
+        angle = cmath.phase(factor)
+        stage = float(min(math.tan(angle) / omega, 30.0)) if 0.0 < angle < math.pi / 2 else 0.0
+        stage_taus[tau] = stage
+        return replay if stage == 0.0 else context.replayer.replay(model(tau, stage), context.base_line)
+
+    objective = _CachedObjective(context, model, context.base_line, replay_at)
     tau = _scalar_search(objective, np.geomspace(0.01, 20.0, 15), (0.0, 30.0), 1e-6)
-    stage = stage_tau(tau)
+    best = objective.replay(tau)
+    stage = stage_taus[float(tau)]
     return CandidateFit("sensor_lag", {"flange_thermometer_time_constant_s": tau,
                                        "ptc_stage_thermometer_time_constant_s": stage},
-                        model(tau), objective.replay(tau), context.base_line, parameter_count=1 + (stage > 0.0))
+                        model(tau, stage), best, context.base_line, parameter_count=1 + (stage > 0.0))
 
 
 def fit_dead_time(context: FitContext) -> CandidateFit:
@@ -265,31 +273,35 @@ def first_order_link(value: complex, angular_frequency_rad_s: float) -> Transfer
     return TransferFunction((numerator.imag / angular_frequency_rad_s, numerator.real), (tau, 1.0))
 
 
-def line_factor(context: FitContext) -> complex:
-    """Complex factor F on the base model's PTC path to T2 that fits the record's line best.
+def line_factor(context: FitContext, model: CryostatModel | None = None) -> tuple[complex, Replay]:
+    """Complex factor F on a model's PTC path to T2 that fits the record's line best, and that replay.
 
-    T2's line is linear in F (``Re(F Z(t))``, Z the base model's response to
-    the measured line), so F is a linear least-squares coefficient, fitted on
-    the fit blocks jointly with the nuisance parameters. Computed once per
-    analysis.
+    T2's line is linear in F (``Re(F Z(t))``, Z the model's response to the
+    measured line's fundamental), so F is a linear least-squares coefficient,
+    fitted on the fit blocks jointly with the nuisance parameters. The replay
+    returned is the model's own (F = 1). For the base model (``model`` None)
+    it is computed once per analysis.
     """
-    if context.line_factor is None:
-        data, base = context.data, context.base_model
-        aligned = context.base_line.applied_to(base)
-        response = _ptc_fundamental_on_flange(aligned, data.elapsed_s)
-        zeros = np.zeros((data.time_s.size, 2))
-        simulated = context.replayer.simulate(aligned)
-        linear = context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K,
-                                                   shared_columns=(np.column_stack([response.real, -response.imag]),
-                                                                   zeros))
-        context.line_factor = complex(1.0 + linear.shared_coefficients[0], linear.shared_coefficients[1])
-    return context.line_factor
+    if model is None and context.base_line_factor is not None:
+        return context.base_line_factor
+    data = context.data
+    aligned = context.base_line.applied_to(model if model is not None else context.base_model)
+    response = _ptc_fundamental_on_flange(aligned, data.elapsed_s)
+    simulated = context.replayer.simulate(aligned)
+    linear = context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K,
+                                               shared_columns=(np.column_stack([response.real, -response.imag]),
+                                                               np.zeros((data.time_s.size, 2))))
+    found = (complex(1.0 + linear.shared_coefficients[0], linear.shared_coefficients[1]),
+             context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K))
+    if model is None:
+        context.base_line_factor = found
+    return found
 
 
 def fit_link_dynamics(context: FitContext) -> CandidateFit:
     """PTC-to-flange path: complex factor at the line by linear least squares, then its physical form."""
     base = context.base_model
-    factor = line_factor(context)
+    factor, _ = line_factor(context)
     omega = context.base_line.angular_frequency_rad_s
     note = ""
     inverse = 1.0 / factor if factor != 0 else complex(math.inf)

@@ -51,6 +51,10 @@ from cryod.model import (
 from cryod.transfer_function import TransferFunction, TransferFunctionError
 from simulated_hw.plant import PtcDrive, PtcPath, flange_transfer_functions
 
+#: A PTC-stage thermometer lag shifting the line by less than this (rad) is taken as none: 1e-4 rad of a
+#: 1.7 mK line (0.17 uK) is below any record's resolution.
+STAGE_LAG_SMALLEST_PHASE_RAD = 1e-4
+
 #: Causes in the order they are tried.
 CANDIDATE_CAUSES = (
     "sensor_lag", "link_dynamics", "dead_time", "heat_capacity_temperature",
@@ -165,7 +169,7 @@ def fit_sensor_lag(context: FitContext) -> CandidateFit:
     measured in T5 is the source lagged by tau5, so with the flange lag alone
     the model's line on T2 is off by exactly the factor F = 1 + j w tau5;
     F is a linear least-squares coefficient (:func:`line_factor`), and
-    ``tau5 = tan(arg F) / w`` (0 when negative). A pair of thermometers lagging
+    ``tau5 = tan(arg F) / w`` (0 below 1e-4 rad). A pair of thermometers lagging
     alike leaves the line alone and shows only in the heater's paths.
     """
     omega = context.base_line.angular_frequency_rad_s
@@ -180,7 +184,7 @@ def fit_sensor_lag(context: FitContext) -> CandidateFit:
         flange_only = model(tau)
         factor, replay = line_factor(context, flange_only)
         angle = cmath.phase(factor)
-        stage = float(min(math.tan(angle) / omega, 30.0)) if 0.0 < angle < math.pi / 2 else 0.0
+        stage = float(min(math.tan(angle) / omega, 30.0)) if STAGE_LAG_SMALLEST_PHASE_RAD < angle < math.pi / 2 else 0.0
         stage_taus[tau] = stage
         return replay if stage == 0.0 else context.replayer.replay(model(tau, stage), context.base_line)
 

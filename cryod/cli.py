@@ -14,6 +14,7 @@ configuration, a bad command line), the daemon's fault codes otherwise
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 from pathlib import Path
@@ -21,6 +22,12 @@ from pathlib import Path
 from cryod import __version__
 
 DEFAULT_CONFIG = Path("/etc/cryod/cryod.yaml")
+
+#: Model tools with a module of their own (``configure_parser(parser)``, ``run(args) -> int``).
+MODEL_TOOLS = (
+    ("analyze", "cryod.analysis.command", "what the simulation gets wrong on a record, the cause, the extended model"),
+    ("identify", "cryod.identification.command", "fit the model's transfer functions to measured records"),
+)
 
 
 def _positive(text: str) -> float:
@@ -92,6 +99,11 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--json", action="store_true", dest="ctl_json", help="print the raw JSON reply")
     ctl.add_argument("words", nargs="+", metavar="COMMAND",
                      help="status | setpoint K | ramp K_PER_MIN | heater-off | manual W")
+    for name, module, summary in MODEL_TOOLS:
+        tool = importlib.import_module(module)
+        sub = commands.add_parser(name, help=summary)
+        tool.configure_parser(sub)
+        sub.set_defaults(handler=tool.run)
     return parser
 
 

@@ -460,7 +460,7 @@ def _plain(value):
     if isinstance(value, (list, tuple)):
         return [_plain(item) for item in value]
     if isinstance(value, float):
-        return float(repr(value))
+        return float(repr(float(value)))      # numpy floats too: their repr is not a YAML number
     return value
 
 

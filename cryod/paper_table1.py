@@ -62,3 +62,40 @@ def open_loop_ptc_stage_K(time_s):
     time_s = np.asarray(time_s, dtype=float)
     phase = LINE_ANGULAR_FREQUENCY_RAD_S * time_s + PTC_STAGE_LINE_PHASE_RAD
     return OPEN_LOOP_PTC_STAGE_MEAN_K + PTC_STAGE_LINE_AMPLITUDE_K * np.sin(phase)
+
+
+def regenerated_record(duration_s: float = 1800.0, step_time_s: float = 300.0, sample_interval_s: float = 0.08,
+                       flange_noise_rms_K: float = 20e-6, ptc_stage_noise_rms_K: float = 0.3e-3,
+                       seed: int = 0) -> dict:
+    """A cryod-log record regenerated from Table 1: the 8.8 mW step with the measured PTC line on top.
+
+    The step response rows and the sinusoidal rows of Table 1 are superposed (the
+    line's mean levels are those of the step rows), sampled every
+    ``sample_interval_s`` and given white noise of the cryod model's default
+    size. The heater is 0 W before ``step_time_s`` and 8.8 mW after.
+
+    Returns
+    -------
+    dict
+        Columns for :func:`cryod.record.write_record`.
+
+    Examples
+    --------
+    >>> record = regenerated_record(duration_s=600.0, seed=1)
+    >>> round(float(record["heater_W"][-1]), 4), len(record["T2_K"])
+    (0.0088, 7500)
+    """
+    time_s = np.arange(0.0, duration_s, sample_interval_s)
+    after = time_s - step_time_s
+    generator = np.random.default_rng(seed)
+    flange = (np.where(after >= 0.0, flange_step_response_K(after), FLANGE_START_K)
+              + open_loop_flange_K(time_s) - OPEN_LOOP_FLANGE_MEAN_K)
+    stage = (np.where(after >= 0.0, ptc_stage_step_response_K(after), PTC_STAGE_START_K)
+             + open_loop_ptc_stage_K(time_s) - OPEN_LOOP_PTC_STAGE_MEAN_K)
+    return {
+        "time_s": time_s,
+        "T2_K": flange + generator.normal(0.0, flange_noise_rms_K, time_s.size),
+        "T5_K": stage + generator.normal(0.0, ptc_stage_noise_rms_K, time_s.size),
+        "heater_W": np.where(time_s >= step_time_s, STEP_POWER_W, 0.0),
+        "setpoint_K": np.full(time_s.size, np.nan),
+    }

@@ -68,7 +68,9 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
                 gains: PiGains, heater_max_w: float, period_s: float = 0.08,
                 ramp_K_per_min: float = 0.0, seed: int | None = 0, noise: bool = True,
                 initial_heater_power_w: float = 0.0,
-                current_output_resistance_ohm: float | None = None) -> ClosedLoopRun:
+                current_output_resistance_ohm: float | None = None,
+                unrecorded_heat_w: Callable[[float], float] | None = None,
+                timing_jitter_s: float = 0.0) -> ClosedLoopRun:
     """Run a program of segments on the simulated cryostat.
 
     Parameters
@@ -96,6 +98,10 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
         gains are then in A/K and A/(K s), the output is held within
         0..sqrt(heater_max_w / R) A and the power is R I**2 (cryod's own PI
         outputs power; this is for comparing with controllers that do not).
+    unrecorded_heat_w : callable, optional
+        Extra heat (W) reaching the heater's paths at time t (s) that the
+        record does not show: a disturbance (a heat leak) for testing the
+        analysis. The recorded ``heater_w`` stays the commanded power.
 
     Returns
     -------
@@ -121,8 +127,9 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
     noise_stage = model.sensor_noise.ptc_stage_thermometer_rms_K if noise else 0.0
     out = {name: np.empty(ticks) for name in ("t", "T2", "T5", "P", "sp", "p", "i")}
     starts = [s.start_s for s in segments]
+    lateness = generator.uniform(0.0, timing_jitter_s, ticks) if timing_jitter_s > 0.0 else np.zeros(ticks)
     for tick in range(ticks):
-        now = tick * period_s
+        now = tick * period_s + float(lateness[tick])
         plant.advance_to(now)
         flange, stage = plant.temperatures()
         flange += noise_flange * generator.standard_normal()
@@ -147,7 +154,7 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
                 raise ValueError(f"programmed heater power {power} W at {now:.2f} s is outside 0..{heater_max_w} W")
             controller.set_manual(to_output(power))
             setpoint = np.nan
-        plant.set_heater_power(power, now)
+        plant.set_heater_power(power + (unrecorded_heat_w(now) if unrecorded_heat_w else 0.0), now)
         for name, value in zip(out, (now, flange, stage, power, setpoint,
                                       controller.proportional_w if not controller.is_manual else np.nan,
                                       controller.integral_w if not controller.is_manual else np.nan)):

@@ -146,16 +146,24 @@ class HeaterPath:
 
 
 def _linear_recurrence(a: np.ndarray, b: np.ndarray, initial):
-    """z[0] = initial, z[k+1] = a[k] z[k] + b[k]; returns z[0..n]."""
-    a_list = a.tolist()
-    b_list = b.tolist()
-    z = initial
-    out = [z]
-    append = out.append
-    for a_k, b_k in zip(a_list, b_list):
-        z = a_k * z + b_k
-        append(z)
-    return np.asarray(out)
+    """z[0] = initial, z[k+1] = a[k] z[k] + b[k]; returns z[0..n].
+
+    A parallel prefix scan (Hillis-Steele) over the affine maps
+    ``z -> a z + b``: log2(n) whole-array passes instead of a Python loop over
+    the samples. Products of the decay factors only shrink (|a| <= 1), so
+    nothing overflows; the result agrees with the sequential loop to rounding.
+    """
+    dtype = np.result_type(a, b, np.asarray(initial))
+    factor = np.empty(a.size + 1, dtype=dtype)
+    offset = np.empty(a.size + 1, dtype=dtype)
+    factor[0], offset[0] = 0.0, initial
+    factor[1:], offset[1:] = a, b
+    span = 1
+    while span < factor.size:
+        offset[span:] = factor[span:] * offset[:-span] + offset[span:]
+        factor[span:] = factor[span:] * factor[:-span]
+        span *= 2
+    return offset
 
 
 # ---------------------------------------------------------------------------
@@ -278,13 +286,17 @@ class PtcPath:
         rotor, frequency = self.drive.rotor(elapsed_s)
         return self.value_at(rotor, frequency, time_scale)
 
-    def values(self, elapsed_s: np.ndarray) -> np.ndarray:
-        """Output at many instants (K), time constants unscaled."""
+    def values(self, elapsed_s: np.ndarray, time_scale=1.0) -> np.ndarray:
+        """Output at many instants (K).
+
+        ``time_scale`` multiplies the path's time constants: a float, or one
+        factor per instant (heat-capacity effect).
+        """
         phase, frequency = self.drive.phase_and_frequency(np.asarray(elapsed_s, dtype=float))
         if self.drive.drift is None:
             frequency = float(self.drive.base_angular_frequency)
         total = np.zeros_like(phase)
-        for component, phasor in zip(self.drive.components, self.output_phasors(frequency)):
+        for component, phasor in zip(self.drive.components, self.output_phasors(frequency, time_scale)):
             total += np.real(phasor * np.exp(1j * (component.order * phase + component.phase_rad)))
         return total
 
@@ -393,8 +405,16 @@ class CryostatPlant:
         """Factor on the flange time constants now (1 without the heat-capacity effect)."""
         if self.heat_capacity is None:
             return 1.0
-        temperature = self.model.operating_point.flange_temperature_K + self.flange_heater.output()
-        ratio = max(temperature, 1e-3) / self.heat_capacity.reference_temperature_K
+        return float(self.time_scale_at(self.flange_heater.output()))
+
+    def time_scale_at(self, flange_heater_output_K):
+        """Factor on the flange time constants for heater-path outputs of the flange (K).
+
+        Scalar or array in, the same out; ``(T / T_ref) ** exponent`` with
+        ``T = T2_0 + output``. Requires the heat-capacity effect.
+        """
+        temperature = self.model.operating_point.flange_temperature_K + np.asarray(flange_heater_output_K)
+        ratio = np.maximum(temperature, 1e-3) / self.heat_capacity.reference_temperature_K
         return ratio ** self.heat_capacity.exponent
 
     def advance_to(self, time_s: float) -> None:
@@ -495,10 +515,7 @@ def simulate(model: CryostatModel, time_s, heater_power_w, *, initial_heater_pow
     if initial_heater_power_w is None:
         initial_heater_power_w = float(heater_power_w[0]) if heater_power_w.size else 0.0
     plant = CryostatPlant(model, float(time_s[0]) if time_s.size else 0.0, initial_heater_power_w)
-    if model.effects.heat_capacity_temperature is not None:
-        flange, stage = _simulate_stepwise(plant, time_s, heater_power_w)
-    else:
-        flange, stage = _simulate_linear(plant, time_s, heater_power_w)
+    flange, stage = _simulate_whole(plant, time_s, heater_power_w)
     if noise:
         generator = np.random.default_rng(seed)
         flange = flange + generator.normal(0.0, model.sensor_noise.flange_thermometer_rms_K, flange.size)
@@ -506,37 +523,69 @@ def simulate(model: CryostatModel, time_s, heater_power_w, *, initial_heater_pow
     return SimulatedRecord(time_s=time_s, flange_K=flange, ptc_stage_K=stage)
 
 
-def _simulate_stepwise(plant: CryostatPlant, time_s: np.ndarray, heater_power_w: np.ndarray):
-    flange = np.empty(time_s.size)
-    stage = np.empty(time_s.size)
-    for k, (instant, power) in enumerate(zip(time_s.tolist(), heater_power_w.tolist())):
-        plant.advance_to(instant)
-        flange[k], stage[k] = plant.temperatures()
-        plant.set_heater_power(power, instant)
-    return flange, stage
+#: Time-scale iteration of the heat-capacity effect: stop when no factor moves more than this.
+TIME_SCALE_TOLERANCE = 1e-13
+TIME_SCALE_MAX_ITERATIONS = 60
 
 
-def _simulate_linear(plant: CryostatPlant, time_s: np.ndarray, heater_power_w: np.ndarray):
-    """Vectorised: the same exact hold as the stepping plant, over all intervals at once."""
+def _simulate_whole(plant: CryostatPlant, time_s: np.ndarray, heater_power_w: np.ndarray):
+    """Vectorised: the same exact hold as the stepping plant, over all intervals at once.
+
+    With the heat-capacity effect the flange path's time constants depend on
+    its own output. The factor of each held interval is taken at the
+    interval's start, as the stepping plant does; the whole sequence of
+    factors is found as the fixed point of "run the path with these factors,
+    recompute the factors from its output", which converges in a few passes
+    because the factor changes slowly with temperature.
+    """
     point = plant.model.operating_point
     delivered = heater_power_w if plant.nonlinearity is None \
         else plant.nonlinearity.delivered_power_w(heater_power_w)
-    before = plant.flange_heater.input
     durations = np.diff(time_s)
     # PTC stage: input changes at the sample instants.
     stage_heater = plant.stage_heater.run(durations, delivered[:-1])
     # Flange: input changes at the sample instants plus the dead time.
-    dead = plant.dead_time_s
-    if dead > 0.0:
-        change_times = time_s + dead
-        grid = np.union1d(time_s, change_times[change_times < time_s[-1]])
-        index = np.searchsorted(change_times, grid, side="right") - 1
-        inputs = np.where(index >= 0, delivered[np.clip(index, 0, None)], before)
+    grid, inputs = _flange_input_grid(plant, time_s, delivered)
+    if plant.heat_capacity is None:
         outputs = plant.flange_heater.run(np.diff(grid), inputs[:-1])
-        flange_heater = outputs[np.searchsorted(grid, time_s)]
     else:
-        flange_heater = plant.flange_heater.run(durations, delivered[:-1])
+        outputs = _run_time_scaled(plant, grid, inputs)
+    flange_heater = outputs[np.searchsorted(grid, time_s)] if grid.size != time_s.size else outputs
     elapsed = time_s - plant.start_time_s
-    flange = point.flange_temperature_K + flange_heater + plant.flange_ptc.values(elapsed)
+    scale = 1.0 if plant.heat_capacity is None else plant.time_scale_at(flange_heater)
+    flange = point.flange_temperature_K + flange_heater + plant.flange_ptc.values(elapsed, scale)
     stage = point.ptc_stage_temperature_K + stage_heater + plant.stage_ptc.values(elapsed)
     return flange, stage
+
+
+def _flange_input_grid(plant: CryostatPlant, time_s: np.ndarray, delivered: np.ndarray):
+    """Instants at which the flange path's input changes (sample instants, delayed changes) and
+    the input held from each of them."""
+    dead = plant.dead_time_s
+    if dead <= 0.0:
+        return time_s, delivered
+    before = plant.flange_heater.input
+    change_times = time_s + dead
+    grid = np.union1d(time_s, change_times[change_times < time_s[-1]])
+    index = np.searchsorted(change_times, grid, side="right") - 1
+    inputs = np.where(index >= 0, delivered[np.clip(index, 0, None)], before)
+    return grid, inputs
+
+
+def _run_time_scaled(plant: CryostatPlant, grid: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+    """Flange heater path at the grid instants, time constants scaled per interval (fixed point)."""
+    path = plant.flange_heater
+    state, held = list(path.state), path.input
+    previous = np.concatenate(([held], inputs[:-2]))      # input in effect just before each interval
+    durations = np.diff(grid)
+    scale = np.ones(durations.size)
+    for _ in range(TIME_SCALE_MAX_ITERATIONS):
+        path.state, path.input = list(state), held
+        outputs = path.run(durations / scale, inputs[:-1])
+        starts = outputs[:-1] + path.direct * (inputs[:-1] - previous)   # output as each interval begins
+        updated = plant.time_scale_at(starts)
+        change = float(np.max(np.abs(updated - scale))) if updated.size else 0.0
+        scale = updated
+        if change <= TIME_SCALE_TOLERANCE:
+            break
+    return outputs

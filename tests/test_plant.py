@@ -93,6 +93,9 @@ EFFECTS = {
     "heat_capacity_temperature": {"heat_capacity_temperature": HeatCapacityTemperature(1.5, 4.23)},
     "heater_nonlinearity": {"heater_nonlinearity": HeaterNonlinearity(0.5)},
     "ptc_frequency_drift": {"ptc_frequency_drift": PtcFrequencyDrift(0.05, 0.002, 300.0)},
+    "heat capacity with dead time and sensor lag": {
+        "heat_capacity_temperature": HeatCapacityTemperature(-2.0, 4.5), "dead_time": DeadTime(0.53),
+        "sensor_lag": SensorLag(0.2), "heater_nonlinearity": HeaterNonlinearity(-0.4)},
 }
 
 

@@ -15,7 +15,7 @@ from drivers.transports import InProcessTransport, VisaTransport
 from simulated_hw.bench import SimulatedBench
 from simulated_hw.scpi_server import ScpiServer
 
-from conftest import HEATER_RESISTANCE_OHM
+from tests.instruments.conftest import HEATER_RESISTANCE_OHM
 
 DRIVERS = {"6221": Keithley6221, "2400": Keithley2400}
 

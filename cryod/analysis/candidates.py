@@ -1,0 +1,375 @@
+"""The candidate causes: each one an extension of the model, fitted to the record.
+
+Every candidate is the base model plus one effect of :mod:`cryod.model`, with
+its parameters fitted on the *fit* blocks of the record by the same replay
+(:mod:`cryod.analysis.replay`) and the same weighted least squares: the sum of
+squared residuals of T2 and T5, each divided by its measured noise. How each
+is fitted:
+
+===========================  ===================================================================
+cause                        parameters and fit
+===========================  ===================================================================
+sensor_lag                   flange thermometer time constant: grid (10 ms to 20 s, log) then
+                             bounded Brent; the PTC-stage thermometer's follows from it and the
+                             phase of the line (:func:`fit_sensor_lag`)
+link_dynamics                gain factor and time constant: the PTC path to T2 is linear in the
+                             complex factor F = g / (1 + j omega tau) at the line, so F is a
+                             linear least-squares coefficient; a lead (tau < 0), which the
+                             effect cannot express, refits the link itself as g' / (tau' s + 1)
+dead_time                    heater-to-flange delay: grid (0.05 s steps to 2 s, then log to 60 s)
+                             then bounded Brent (heater content at the line makes the cost
+                             ripple with a 0.58 s period)
+heat_capacity_temperature    exponent n of (T / T_ref)^n, T_ref the base model's T2_0: grid
+                             then bounded Brent
+heater_nonlinearity          quadratic coefficient k: the delivered power P + k P^2 makes every
+                             heater path linear in k, so k is a linear least-squares coefficient
+                             (response of both thermometers to P^2)
+ptc_harmonics                harmonics of T5 up to order 5 (aliased ones too), kept if above 5
+                             standard errors (linear fit of T5)
+ptc_frequency_drift          rate (and wander) from T5's phase track, refined on T5
+===========================  ===================================================================
+
+The score of each is on the held-out blocks (:mod:`cryod.analysis.decision`).
+"""
+
+from __future__ import annotations
+
+import cmath
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize
+
+from cryod.analysis.ptc_line import PtcLine, measurable_orders
+from cryod.analysis.record_data import RecordData
+from cryod.analysis.replay import Replay, Replayer
+from cryod.model import (
+    CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, SensorLag,
+)
+from cryod.transfer_function import TransferFunction, TransferFunctionError
+from simulated_hw.plant import PtcDrive, PtcPath, flange_transfer_functions
+
+#: A PTC-stage thermometer lag shifting the line by less than this (rad) is taken as none: 1e-4 rad of a
+#: 1.7 mK line (0.17 uK) is below any record's resolution.
+STAGE_LAG_SMALLEST_PHASE_RAD = 1e-4
+
+#: Causes in the order they are tried.
+CANDIDATE_CAUSES = (
+    "sensor_lag", "link_dynamics", "dead_time", "heat_capacity_temperature",
+    "heater_nonlinearity", "ptc_harmonics", "ptc_frequency_drift",
+)
+
+
+@dataclass
+class FitContext:
+    """What every candidate fit needs: the record, its replay machinery, the base model's replay."""
+
+    data: RecordData
+    replayer: Replayer
+    base_model: CryostatModel
+    base_line: PtcLine
+    base_replay: Replay
+    noise_rms_K: tuple[float, float]
+    fit_mask: np.ndarray
+    held_out_mask: np.ndarray
+    base_line_factor: tuple | None = None
+
+    def fit_chi_square(self, replay: Replay) -> float:
+        """Weighted sum of squares of both thermometers on the fit samples."""
+        return sum(self.chi_square(replay, self.fit_mask))
+
+    def chi_square(self, replay: Replay, mask: np.ndarray) -> tuple[float, float]:
+        """(T2, T5) sums of squared residuals over ``mask``, each in units of its noise variance."""
+        flange = replay.flange_residual_K[mask] / self.noise_rms_K[0]
+        stage = replay.ptc_stage_residual_K[mask] / self.noise_rms_K[1]
+        return float(flange @ flange), float(stage @ stage)
+
+    def estimated_model(self, model: CryostatModel) -> CryostatModel:
+        """``model`` at the record's estimated operating point (what the heat-capacity effect needs)."""
+        return dataclasses.replace(model, operating_point=self.base_replay.operating_point)
+
+
+@dataclass
+class CandidateFit:
+    """One candidate cause fitted to the record.
+
+    Attributes
+    ----------
+    cause : str
+    parameters : dict
+        Fitted parameters, names with units.
+    extended_model : CryostatModel
+        The base model plus the fitted effect (what is written to the model file).
+    replay : Replay
+        The record replayed with it.
+    line : PtcLine
+        The measured line the replay used.
+    note : str
+        How the fit went, in words.
+    parameter_count : int
+        Parameters actually fitted (decides a tie between candidates).
+    """
+
+    cause: str
+    parameters: dict
+    extended_model: CryostatModel
+    replay: Replay
+    line: PtcLine
+    note: str = ""
+    parameter_count: int = 1
+
+
+def _scalar_search(objective, grid, bounds, tolerance):
+    """Minimise a 1-D cost: the best of a grid, then bounded Brent between its neighbours."""
+    grid = np.asarray(grid, dtype=float)
+    values = np.array([objective(x) for x in grid])
+    best = int(np.argmin(values))
+    low = grid[best - 1] if best > 0 else bounds[0]
+    high = grid[best + 1] if best < grid.size - 1 else bounds[1]
+    result = optimize.minimize_scalar(objective, bounds=(low, high), method="bounded",
+                                      options={"xatol": tolerance, "maxiter": 40})
+    if result.fun <= values[best]:
+        return float(result.x)
+    return float(grid[best])
+
+
+class _CachedObjective:
+    """Chi-square of a one-parameter family of models, remembering each replay.
+
+    ``replay_for(value)`` makes the replay (default: the family's model
+    replayed with ``line``).
+    """
+
+    def __init__(self, context: FitContext, make_model, line: PtcLine, replay_for=None):
+        self.context = context
+        self.replay_for = replay_for or (lambda value: context.replayer.replay(make_model(value), line))
+        self.replays: dict[float, Replay] = {}
+
+    def __call__(self, value: float) -> float:
+        value = float(value)
+        if value not in self.replays:
+            self.replays[value] = self.replay_for(value)
+        return self.context.fit_chi_square(self.replays[value])
+
+    def replay(self, value: float) -> Replay:
+        self(value)
+        return self.replays[float(value)]
+
+
+# ---------------------------------------------------------------------------
+# the candidates
+# ---------------------------------------------------------------------------
+def fit_sensor_lag(context: FitContext) -> CandidateFit:
+    """First-order lag of the flange thermometer on every T2 path, and of the PTC-stage one on T5.
+
+    The flange thermometer's time constant tau2 is searched (grid, then
+    Brent). For each tau2 the stage thermometer's tau5 follows: the line
+    measured in T5 is the source lagged by tau5, so with the flange lag alone
+    the model's line on T2 is off by exactly the factor F = 1 + j w tau5;
+    F is a linear least-squares coefficient (:func:`line_factor`), and
+    ``tau5 = tan(arg F) / w`` (0 below 1e-4 rad). A pair of thermometers lagging
+    alike leaves the line alone and shows only in the heater's paths.
+    """
+    omega = context.base_line.angular_frequency_rad_s
+    stage_taus: dict[float, float] = {}
+
+    def model(tau, stage=0.0):
+        if tau <= 0.0 and stage <= 0.0:
+            return context.base_model
+        return context.base_model.with_effects(sensor_lag=SensorLag(max(tau, 1e-9), stage))
+
+    def replay_at(tau):
+        flange_only = model(tau)
+        factor, replay = line_factor(context, flange_only)
+        angle = cmath.phase(factor)
+        stage = float(min(math.tan(angle) / omega, 30.0)) if STAGE_LAG_SMALLEST_PHASE_RAD < angle < math.pi / 2 else 0.0
+        stage_taus[tau] = stage
+        return replay if stage == 0.0 else context.replayer.replay(model(tau, stage), context.base_line)
+
+    objective = _CachedObjective(context, model, context.base_line, replay_at)
+    tau = _scalar_search(objective, np.geomspace(0.01, 20.0, 15), (0.0, 30.0), 1e-6)
+    best = objective.replay(tau)
+    stage = stage_taus[float(tau)]
+    return CandidateFit("sensor_lag", {"flange_thermometer_time_constant_s": tau,
+                                       "ptc_stage_thermometer_time_constant_s": stage},
+                        model(tau, stage), best, context.base_line, parameter_count=1 + (stage > 0.0))
+
+
+def fit_dead_time(context: FitContext) -> CandidateFit:
+    """Pure delay between the heater and the flange thermometer."""
+    longest = float(min(60.0, max(context.data.duration_s / 10.0, 2.5)))
+
+    def model(delay):
+        return context.base_model.with_effects(dead_time=DeadTime(max(delay, 0.0)))
+
+    grid = np.concatenate([np.arange(0.05, 2.0, 0.1), np.geomspace(2.0, longest, 10)])
+    objective = _CachedObjective(context, model, context.base_line)
+    delay = _scalar_search(objective, grid, (0.0, longest), 1e-5)
+    return CandidateFit("dead_time", {"heater_to_flange_s": delay}, model(delay), objective.replay(delay),
+                        context.base_line)
+
+
+def fit_heat_capacity_temperature(context: FitContext) -> CandidateFit:
+    """Flange time constants scaling as (T / T_ref)^n, T_ref the base model's zero-heater T2."""
+    reference = context.base_model.operating_point.flange_temperature_K
+    at_record = context.estimated_model(context.base_model)
+
+    def model(exponent, base=at_record):
+        if exponent == 0.0:
+            return base
+        return base.with_effects(heat_capacity_temperature=HeatCapacityTemperature(exponent, reference))
+
+    objective = _CachedObjective(context, model, context.base_line)
+    exponent = _scalar_search(objective, [-4.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 4.0], (-6.0, 6.0), 1e-5)
+    return CandidateFit("heat_capacity_temperature",
+                        {"exponent": exponent, "reference_temperature_K": reference},
+                        model(exponent, context.base_model), objective.replay(exponent), context.base_line)
+
+
+def fit_heater_nonlinearity(context: FitContext) -> CandidateFit:
+    """Delivered power P + k P^2: k from the linear response of both thermometers to P^2."""
+    replayer, data = context.replayer, context.data
+    quiet = context.base_line.applied_to(context.base_model).with_ptc(ptc_stage_amplitude_K=0.0, harmonics=()) \
+        .with_effects(ptc_frequency_drift=None, heater_nonlinearity=None)
+    present = context.base_model.effects.heater_nonlinearity
+    already = present.quadratic_coefficient_per_W if present is not None else 0.0
+    settled = replayer.initial_heater_power_w if replayer.initial_heater_power_w is not None else data.heater_w[0]
+    squared = replayer.simulate(quiet, data.heater_w ** 2, settled ** 2)
+    point = quiet.operating_point
+    columns = (squared.flange_K - point.flange_temperature_K, squared.ptc_stage_K - point.ptc_stage_temperature_K)
+    base_simulation = replayer.simulate(context.base_line.applied_to(context.base_model))
+    linear = replayer.replay_simulated(context.base_line.applied_to(context.base_model), base_simulation.flange_K,
+                                       base_simulation.ptc_stage_K, shared_columns=columns)
+    found = already + float(linear.shared_coefficients[0])
+    coefficient = float(np.clip(found, -1.0, 10.0))
+    model = context.base_model.with_effects(heater_nonlinearity=HeaterNonlinearity(coefficient))
+    note = "" if coefficient == found else f"least squares gave {found:.4g} /W, held to the model's range -1..10 /W"
+    return CandidateFit("heater_nonlinearity", {"quadratic_coefficient_per_W": coefficient}, model,
+                        replayer.replay(model, context.base_line), context.base_line, note)
+
+
+def _ptc_fundamental_on_flange(model: CryostatModel, elapsed_s: np.ndarray) -> np.ndarray:
+    """Complex T2 response to the PTC fundamental, Z(t): T2's line is Re(Z) (K)."""
+    drive = PtcDrive(model)
+    path = PtcPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
+    phase, frequency = drive.phase_and_frequency(elapsed_s)
+    component = drive.components[0]
+    phasor = path.output_phasors(frequency)[0]
+    return phasor * np.exp(1j * (phase + component.phase_rad))
+
+
+def first_order_link(value: complex, angular_frequency_rad_s: float) -> TransferFunction:
+    """A link g / (tau s + 1) with the given complex gain at one frequency, or the nearest proper form.
+
+    A phase in (-pi/2, 0] is a first-order lag. A lead (positive phase) needs a
+    zero: (n1 s + n0) / (tau s + 1) with tau = 0.1 / omega, the numerator fixed
+    by the value.
+    """
+    phase = cmath.phase(value)
+    if -math.pi / 2 < phase <= 0.0:
+        tau = math.tan(-phase) / angular_frequency_rad_s
+        return TransferFunction((abs(value) * math.hypot(1.0, angular_frequency_rad_s * tau),),
+                                (tau, 1.0) if tau > 0 else (1.0,))
+    tau = 0.1 / angular_frequency_rad_s
+    numerator = value * complex(1.0, angular_frequency_rad_s * tau)
+    return TransferFunction((numerator.imag / angular_frequency_rad_s, numerator.real), (tau, 1.0))
+
+
+def line_factor(context: FitContext, model: CryostatModel | None = None) -> tuple[complex, Replay]:
+    """Complex factor F on a model's PTC path to T2 that fits the record's line best, and that replay.
+
+    T2's line is linear in F (``Re(F Z(t))``, Z the model's response to the
+    measured line's fundamental), so F is a linear least-squares coefficient,
+    fitted on the fit blocks jointly with the nuisance parameters. The replay
+    returned is the model's own (F = 1). For the base model (``model`` None)
+    it is computed once per analysis.
+    """
+    if model is None and context.base_line_factor is not None:
+        return context.base_line_factor
+    data = context.data
+    aligned = context.base_line.applied_to(model if model is not None else context.base_model)
+    response = _ptc_fundamental_on_flange(aligned, data.elapsed_s)
+    simulated = context.replayer.simulate(aligned)
+    linear = context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K,
+                                               shared_columns=(np.column_stack([response.real, -response.imag]),
+                                                               np.zeros((data.time_s.size, 2))))
+    found = (complex(1.0 + linear.shared_coefficients[0], linear.shared_coefficients[1]),
+             context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K))
+    if model is None:
+        context.base_line_factor = found
+    return found
+
+
+def fit_link_dynamics(context: FitContext) -> CandidateFit:
+    """PTC-to-flange path: complex factor at the line by linear least squares, then its physical form."""
+    base = context.base_model
+    factor, _ = line_factor(context)
+    omega = context.base_line.angular_frequency_rad_s
+    note = ""
+    inverse = 1.0 / factor if factor != 0 else complex(math.inf)
+    tau = inverse.imag / (omega * inverse.real) if inverse.real > 0 else -1.0
+    if base.effects.link_dynamics is None and inverse.real > 0 and tau >= 0.0:
+        gain = 1.0 / inverse.real
+        model = base.with_effects(link_dynamics=LinkDynamics(tau, gain))
+        parameters = {"time_constant_s": tau, "gain_factor": gain}
+    else:
+        link_at_line = factor * base.ptc_to_flange.frequency_response(omega)
+        if base.effects.link_dynamics is not None:
+            extra = TransferFunction.first_order_lag(base.effects.link_dynamics.time_constant_s,
+                                                     base.effects.link_dynamics.gain_factor)
+            link_at_line *= extra.frequency_response(omega)
+        try:
+            link = first_order_link(link_at_line, omega)
+        except TransferFunctionError:
+            link = base.ptc_to_flange
+        model = dataclasses.replace(base, ptc_to_flange=link).with_effects(link_dynamics=None)
+        parameters = {"ptc_to_flange_numerator": list(link.numerator),
+                      "ptc_to_flange_denominator": list(link.denominator),
+                      "factor_at_line_gain": abs(factor), "factor_at_line_phase_rad": cmath.phase(factor)}
+        note = ("the measured line leads the model's by {:.3f} rad: no lag g/(tau s + 1) gives that, so the "
+                "PTC-to-flange link itself is refitted".format(cmath.phase(factor)))
+    return CandidateFit("link_dynamics", parameters, model, context.replayer.replay(model, context.base_line),
+                        context.base_line, note, parameter_count=2)
+
+
+def fit_ptc_harmonics(context: FitContext) -> CandidateFit:
+    """Harmonics of the stage oscillation measured in T5: every order the sampling can tell apart, up to 5."""
+    base = context.base_model
+    orders = measurable_orders(context.base_line.angular_frequency_rad_s, context.data.sample_interval_s)
+    orders = tuple(sorted(set(orders) | set(context.base_line.orders)))
+    line = context.replayer.stage_line(base, orders=orders, drift=base.effects.ptc_frequency_drift is not None,
+                                       angular_frequency_rad_s=context.base_line.angular_frequency_rad_s,
+                                       significant_only=True)
+    parameters = {}
+    for component in line.components[1:]:
+        parameters[f"order_{component.order}_amplitude_K"] = component.amplitude_K
+        parameters[f"order_{component.order}_phase_rad"] = component.phase_rad
+    note = "" if parameters else "no harmonic of T5 above 5 standard errors"
+    return CandidateFit("ptc_harmonics", parameters, line.shape_for(base), context.replayer.replay(base, line),
+                        line, note, parameter_count=max(2 * (len(line.components) - 1), 1))
+
+
+def fit_ptc_frequency_drift(context: FitContext) -> CandidateFit:
+    """The cooler's frequency changing over the record, from T5's phase."""
+    base = context.base_model
+    line = context.replayer.stage_line(base, orders=context.base_line.orders, drift=True,
+                                       angular_frequency_rad_s=context.base_line.angular_frequency_rad_s)
+    drift = line.drift
+    parameters = dataclasses.asdict(drift)
+    parameters["angular_frequency_at_start_rad_s"] = line.angular_frequency_rad_s
+    return CandidateFit("ptc_frequency_drift", parameters, base.with_effects(ptc_frequency_drift=drift),
+                        context.replayer.replay(base, line), line,
+                        parameter_count=2 + 2 * (drift.wander_amplitude_rad_s > 0.0))
+
+
+FITTERS = {
+    "sensor_lag": fit_sensor_lag,
+    "link_dynamics": fit_link_dynamics,
+    "dead_time": fit_dead_time,
+    "heat_capacity_temperature": fit_heat_capacity_temperature,
+    "heater_nonlinearity": fit_heater_nonlinearity,
+    "ptc_harmonics": fit_ptc_harmonics,
+    "ptc_frequency_drift": fit_ptc_frequency_drift,
+}

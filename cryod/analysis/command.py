@@ -1,0 +1,118 @@
+"""``cryod analyze RECORD [--model MODEL] [--out DIR] [--json]``.
+
+Writes into DIR (default ``<record name>-analysis`` next to the working
+directory): ``report.md``, the figures, ``extended-model.yaml`` (always
+loadable by :func:`cryod.model.load_model`: the base model plus the fitted
+effect, or the base model unchanged when the cause is ``none`` or
+``unexplained``) and ``analysis.json`` (the same object ``--json`` prints).
+
+Exit status: 0 done; 2 the record or the model cannot be used (the message
+names the file, the line and what is wrong); 1 the analysis itself failed.
+The record is only read, never changed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+from cryod.analysis.discrepancies import find_discrepancies
+from cryod.analysis.pipeline import analyze
+from cryod.analysis.record_data import RecordData
+from cryod.analysis.report import write_report
+from cryod.analysis.segments import find_segments
+from cryod.analysis.summary import json_summary, model_header
+from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
+from cryod.record import RecordFormatError, read_record
+from cryod.yaml_source import FileFormatError
+
+EXTENDED_MODEL_NAME = "extended-model.yaml"
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Arguments of ``cryod analyze``."""
+    parser.description = ("Replay a measured record (cryod-log v1) through the model, show what the simulation "
+                          "gets wrong, name the cause, write the extended model and measure its gain on held-out "
+                          "data.")
+    parser.add_argument("record", help="the record to analyse (cryod-log v1 CSV)")
+    parser.add_argument("--model", default=str(DEFAULT_MODEL_PATH),
+                        help="base model file (default: the shipped model)")
+    parser.add_argument("--out", default=None,
+                        help="directory for the report, figures and extended model (default: <record>-analysis)")
+    parser.add_argument("--json", action="store_true", help="print the result as one JSON object on stdout")
+    parser.add_argument("--no-figures", action="store_true", help="skip the figures (faster)")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the analysis; returns the exit status."""
+    started = time.perf_counter()
+    record_path = Path(args.record)
+    try:
+        record = read_record(record_path)
+        model = load_model(args.model)
+        data = RecordData.from_record(record)
+    except (RecordFormatError, FileFormatError) as error:
+        print(f"cryod analyze: {error}", file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else Path(f"{record_path.stem}-analysis")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        print(f"cryod analyze: cannot create the output directory {out}: {error}", file=sys.stderr)
+        return 2
+    try:
+        summary = analyse_and_write(data, model, record_path, Path(args.model), out, figures=not args.no_figures,
+                                    started=started)
+    except (ValueError, ArithmeticError, OSError) as error:
+        print(f"cryod analyze: the analysis of {record_path} failed: {error}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        gain = summary["gain"]
+        print(f"cause: {summary['cause']}")
+        print(f"gain: {gain['ratio']:.4g} ({gain['metric']})")
+        print(f"extended model: {summary['extended_model']}")
+        print(f"report: {out / 'report.md'}")
+    return 0
+
+
+def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Path, *, figures: bool = True,
+                      started: float | None = None) -> dict:
+    """Analyse and write everything into ``out``; returns the JSON summary."""
+    started = time.perf_counter() if started is None else started
+    analysis = analyze(data, model)
+    moment = time.perf_counter()
+    segments = find_segments(data.time_s, data.heater_w, data.setpoint_K)
+    frequency = analysis.base_line.angular_frequency_rad_s
+    discrepancies = find_discrepancies(data, model, analysis.base_replay, analysis.noise_rms_K, frequency, segments)
+    extended = []
+    if analysis.cause in analysis.fits:
+        extended = find_discrepancies(data, analysis.extended_model, analysis.extended_replay, analysis.noise_rms_K,
+                                      frequency, segments)
+    analysis.timings_s["discrepancies"] = time.perf_counter() - moment
+    model_path_out = out / EXTENDED_MODEL_NAME
+    extended_model = analysis.extended_model
+    if analysis.cause in analysis.fits:
+        base_name = model.name or "model"
+        extended_model = dataclasses.replace(
+            extended_model, name=f"{base_name} + {analysis.cause}",
+            description=f"{model.description} Extended by cryod analyze with {analysis.cause} fitted to "
+                        f"{record_path.name}.".strip())
+    save_model(extended_model, model_path_out, header=model_header(analysis, record_path, model_path))
+    made = {}
+    if figures:
+        moment = time.perf_counter()
+        from cryod.analysis.figures import make_figures      # matplotlib only when figures are wanted
+        made = make_figures(analysis, segments, out)
+        analysis.timings_s["figures"] = time.perf_counter() - moment
+    analysis.timings_s["total"] = time.perf_counter() - started
+    write_report(analysis, discrepancies, extended, segments, made, model_path_out, out)
+    summary = json_summary(analysis, discrepancies, model_path_out)
+    (out / "analysis.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+    return summary

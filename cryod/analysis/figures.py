@@ -1,0 +1,242 @@
+"""The figures of an analysis (PNG, matplotlib with the Agg backend).
+
+* ``overview.png``: T2 measured and replayed (base and extended model), the
+  residuals, the heater; segments shaded. Smoothed over one line period so the
+  slow behaviour is visible; the line itself is in ``ptc_line.png``.
+* ``residual_spectrum.png``: spectra of the T2 and T5 residuals of both
+  models, with the measured noise floor and the line's harmonics.
+* ``ptc_line.png``: a few line periods of T2, measured and replayed, where the
+  base model misses the line most.
+* ``candidates.png``: each candidate's held-out improvement and significance.
+* ``steps.png``: T2 around each heater step, measured and replayed.
+* ``correlation.png``: the T2 residual's autocorrelation and cross-correlation
+  with the heater, against the bands of white noise.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
+import numpy as np  # noqa: E402
+from scipy import ndimage, signal  # noqa: E402
+
+from cryod.analysis.decision import CANDIDATE_SIGMA  # noqa: E402
+from cryod.analysis.discrepancies import (  # noqa: E402
+    CROSS_CORRELATION_LAGS, WHITENESS_LAGS, autocorrelation_at, cross_correlation_at,
+)
+from cryod.analysis.pipeline import Analysis  # noqa: E402
+from cryod.analysis.segments import find_steps  # noqa: E402
+
+#: Most points drawn per curve.
+MOST_POINTS = 4000
+COLOURS = {"measured": "black", "base": "tab:red", "extended": "tab:blue"}
+SEGMENT_COLOURS = {"closed loop": "tab:green", "hold": "tab:gray", "modulated": "tab:orange"}
+
+
+def _save(figure, path: Path) -> Path:
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
+
+
+def _thin(*arrays):
+    step = max(1, arrays[0].size // MOST_POINTS)
+    return [array[::step] for array in arrays]
+
+
+def _period_samples(analysis: Analysis) -> int:
+    return max(1, int(round(2.0 * math.pi / analysis.base_line.angular_frequency_rad_s
+                            / analysis.data.sample_interval_s)))
+
+
+def _smooth(values: np.ndarray, samples: int) -> np.ndarray:
+    filled = np.where(np.isfinite(values), values, np.nanmean(values))
+    return ndimage.uniform_filter1d(filled, samples, mode="nearest")
+
+
+def _shade_segments(axis, analysis: Analysis, segments) -> None:
+    for segment in segments:
+        axis.axvspan(segment.start_s, segment.stop_s, color=SEGMENT_COLOURS[segment.kind], alpha=0.08, lw=0)
+
+
+def overview(analysis: Analysis, segments, path: Path) -> Path:
+    data = analysis.data
+    samples = _period_samples(analysis)
+    base, extended = analysis.base_replay, analysis.extended_replay
+    figure, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True, gridspec_kw={"height_ratios": [2, 2, 1]})
+    t = data.time_s
+    curves = [("measured", data.flange_K), ("base", base.flange_K)]
+    if analysis.cause in analysis.fits:
+        curves.append(("extended", extended.flange_K))
+    for name, values in curves:
+        axes[0].plot(*_thin(t, _smooth(values, samples)), color=COLOURS[name], lw=1.0,
+                     label={"measured": "measured", "base": "base model", "extended": f"extended ({analysis.cause})"}[name])
+    axes[0].set_ylabel("T2 (K), line averaged out")
+    axes[0].legend(loc="best", fontsize=8)
+    for name, replay in (("base", base), ("extended", extended)):
+        if name == "extended" and analysis.cause not in analysis.fits:
+            continue
+        axes[1].plot(*_thin(t, 1e3 * _smooth(replay.flange_residual_K, samples)), color=COLOURS[name], lw=0.8,
+                     label=f"{'base' if name == 'base' else 'extended'} model: measured - replayed")
+    noise = 1e3 * analysis.noise_rms_K[0] / math.sqrt(samples)
+    axes[1].axhspan(-3 * noise, 3 * noise, color="k", alpha=0.1, label="+-3 x noise (smoothed)")
+    axes[1].set_ylabel("T2 residual (mK)")
+    axes[1].legend(loc="best", fontsize=8)
+    axes[2].plot(*_thin(t, 1e3 * data.heater_w), color="tab:purple", lw=0.8)
+    axes[2].set_ylabel("heater (mW)")
+    axes[2].set_xlabel("time (s)")
+    for axis in axes:
+        _shade_segments(axis, analysis, segments)
+    axes[0].set_title(f"{Path(data.source).name}: cause {analysis.cause}")
+    return _save(figure, path)
+
+
+def residual_spectrum(analysis: Analysis, path: Path) -> Path:
+    data = analysis.data
+    sampling = 1.0 / data.sample_interval_s
+    figure, axes = plt.subplots(2, 1, figsize=(10, 7.5), sharex=True)
+    for axis, name, noise, base_values, extended_values in (
+            (axes[0], "T2", analysis.noise_rms_K[0], analysis.base_replay.flange_residual_K,
+             analysis.extended_replay.flange_residual_K),
+            (axes[1], "T5", analysis.noise_rms_K[1], analysis.base_replay.ptc_stage_residual_K,
+             analysis.extended_replay.ptc_stage_residual_K)):
+        for label, values, colour in (("base model", base_values, COLOURS["base"]),
+                                      (f"extended ({analysis.cause})", extended_values, COLOURS["extended"])):
+            if label.startswith("extended") and analysis.cause not in analysis.fits:
+                continue
+            values = values[data.valid]
+            frequency, density = signal.welch(values - values.mean(), fs=sampling,
+                                              nperseg=int(min(4096, max(256, values.size // 8))))
+            axis.loglog(frequency[1:], np.sqrt(density[1:]), color=colour, lw=0.8, label=label)
+        axis.axhline(noise * math.sqrt(2.0 / sampling), color="k", ls="--", lw=0.8, label="measured white noise")
+        for order in range(1, 4):
+            axis.axvline(order * analysis.base_line.angular_frequency_rad_s / (2.0 * math.pi), color="tab:gray",
+                         ls=":", lw=0.8)
+        axis.set_ylabel(f"{name} residual (K/sqrt(Hz))")
+        axis.legend(loc="best", fontsize=8)
+    axes[1].set_xlabel("frequency (Hz); dotted: PTC line and harmonics")
+    return _save(figure, path)
+
+
+def ptc_line(analysis: Analysis, path: Path) -> Path:
+    """Five line periods where the base model's residual at the line is largest; slow parts removed."""
+    data = analysis.data
+    period = 2.0 * math.pi / analysis.base_line.angular_frequency_rad_s
+    samples = _period_samples(analysis)
+    residual = np.where(data.valid, analysis.base_replay.flange_residual_K, 0.0)
+    at_line = residual - ndimage.uniform_filter1d(residual, samples, mode="nearest")
+    power = ndimage.uniform_filter1d(at_line ** 2, 5 * samples, mode="nearest")
+    centre = int(np.argmax(power))
+    window = (data.time_s >= data.time_s[centre] - 2.5 * period) & (data.time_s <= data.time_s[centre] + 2.5 * period)
+    slow = _smooth(data.flange_K, samples)[window]
+    figure, axis = plt.subplots(figsize=(10, 4.5))
+    t = data.time_s[window]
+    axis.plot(t, 1e3 * (data.flange_K[window] - slow), "o", ms=3, color=COLOURS["measured"], label="T2 measured")
+    axis.plot(t, 1e3 * (analysis.base_replay.flange_K[window] - slow), "-", color=COLOURS["base"],
+              label="T2 base model")
+    if analysis.cause in analysis.fits:
+        axis.plot(t, 1e3 * (analysis.extended_replay.flange_K[window] - slow), "-", color=COLOURS["extended"],
+                  label=f"T2 extended ({analysis.cause})")
+    axis.set_ylabel("T2 less its one-period average (mK)")
+    axis.set_xlabel("time (s)")
+    twin = axis.twinx()
+    twin.plot(t, data.ptc_stage_K[window], color="tab:cyan", lw=0.8, alpha=0.7, label="T5 measured")
+    twin.set_ylabel("T5 (K)", color="tab:cyan")
+    axis.legend(loc="upper left", fontsize=8)
+    axis.set_title("PTC line where the base model misses it most")
+    return _save(figure, path)
+
+
+def candidates(analysis: Analysis, path: Path) -> Path:
+    names = list(analysis.scores)
+    improvement = [analysis.scores[name].improvement for name in names]
+    significance = [analysis.scores[name].significance for name in names]
+    figure, axis = plt.subplots(figsize=(10, 4.5))
+    colours = ["tab:blue" if name == analysis.cause else "tab:gray" for name in names]
+    axis.barh(names, improvement, color=colours)
+    axis.set_xscale("symlog", linthresh=25.0)
+    axis.axvline(analysis.decision.base.excess, color="tab:red", ls="--", lw=1.0,
+                 label="base model's held-out excess over noise")
+    for index, (value, sigma) in enumerate(zip(improvement, significance)):
+        axis.annotate(f"{sigma:.3g} sigma", (value, index), xytext=(4, -3), textcoords="offset points", fontsize=8)
+    axis.set_xlabel("held-out improvement over the base model (noise-variance units, symlog)")
+    axis.set_title(f"candidates (blue: named; counts from {CANDIDATE_SIGMA:g} sigma)")
+    axis.legend(loc="upper left", fontsize=8)
+    return _save(figure, path)
+
+
+def steps(analysis: Analysis, segments, path: Path) -> Path | None:
+    data = analysis.data
+    found = find_steps(data.time_s, data.heater_w, segments)
+    if not found:
+        return None
+    samples = _period_samples(analysis)
+    columns = min(len(found), 3)
+    rows = int(math.ceil(len(found) / columns))
+    figure, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.4 * rows), squeeze=False)
+    for axis, step in zip(axes.flat, found):
+        window = slice(max(step.before.start_index, step.index - 60 * samples), step.after.stop_index)
+        t = data.time_s[window] - step.time_s
+        axis.plot(t, 1e3 * _smooth(data.flange_K, samples)[window], color=COLOURS["measured"], lw=1.0,
+                  label="measured")
+        axis.plot(t, 1e3 * _smooth(analysis.base_replay.flange_K, samples)[window], color=COLOURS["base"], lw=0.9,
+                  label="base")
+        if analysis.cause in analysis.fits:
+            axis.plot(t, 1e3 * _smooth(analysis.extended_replay.flange_K, samples)[window],
+                      color=COLOURS["extended"], lw=0.9, ls="--", label="extended")
+        axis.set_title(f"{1e3 * step.before_w:.1f} -> {1e3 * step.after_w:.1f} mW at {step.time_s:.0f} s", fontsize=9)
+        axis.set_xlabel("time after the step (s)")
+        axis.set_ylabel("T2 (mK)")
+    for axis in list(axes.flat)[len(found):]:
+        axis.set_visible(False)
+    axes.flat[0].legend(fontsize=8)
+    return _save(figure, path)
+
+
+def correlation(analysis: Analysis, path: Path) -> Path:
+    data = analysis.data
+    valid = data.valid
+    figure, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for name, replay, colour in (("base", analysis.base_replay, COLOURS["base"]),
+                                 ("extended", analysis.extended_replay, COLOURS["extended"])):
+        if name == "extended" and analysis.cause not in analysis.fits:
+            continue
+        residual = replay.flange_residual_K[valid] - np.mean(replay.flange_residual_K[valid])
+        heater = data.heater_w[valid] - np.mean(data.heater_w[valid])
+        axes[0].plot(WHITENESS_LAGS, autocorrelation_at(residual, WHITENESS_LAGS), "o-", color=colour, ms=3,
+                     label=f"{name} model")
+        cross = cross_correlation_at(residual, heater, CROSS_CORRELATION_LAGS)
+        if cross is not None:
+            axes[1].semilogx(np.asarray(CROSS_CORRELATION_LAGS[:cross.size]) + 0.5, cross, "o-", color=colour, ms=3,
+                             label=f"{name} model")
+    band = 3.0 / math.sqrt(max(np.count_nonzero(valid), 1))
+    for axis in axes:
+        axis.axhspan(-band, band, color="k", alpha=0.1, label="+-3/sqrt(N): white noise")
+        axis.legend(fontsize=8)
+    axes[0].set_xlabel("lag (samples)")
+    axes[0].set_ylabel("T2 residual autocorrelation")
+    axes[1].set_xlabel("lag (samples, + 0.5)")
+    axes[1].set_ylabel("correlation with the heater")
+    return _save(figure, path)
+
+
+def make_figures(analysis: Analysis, segments, directory: Path) -> dict[str, Path]:
+    """All figures into ``directory``; returns {name: path} of those made."""
+    directory = Path(directory)
+    made = {
+        "overview": overview(analysis, segments, directory / "overview.png"),
+        "residual_spectrum": residual_spectrum(analysis, directory / "residual_spectrum.png"),
+        "ptc_line": ptc_line(analysis, directory / "ptc_line.png"),
+        "candidates": candidates(analysis, directory / "candidates.png"),
+        "correlation": correlation(analysis, directory / "correlation.png"),
+    }
+    step_figure = steps(analysis, segments, directory / "steps.png")
+    if step_figure is not None:
+        made["steps"] = step_figure
+    return made

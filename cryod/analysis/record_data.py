@@ -1,0 +1,175 @@
+"""A cryod-log record in the form the analysis uses, and its split into fit and held-out blocks.
+
+The analysis fits on some of the samples and judges on the others. The record
+is cut into blocks of equal length (a twentieth of it, between 10 s and 120 s),
+alternately *fit* and *held out*: every kind of segment (holds, steps,
+modulation, PI) lands in both, and the simulation still runs over the whole
+record, because the heater is an input known everywhere. Only the comparison
+with the measured temperatures is split.
+
+Examples
+--------
+>>> import numpy as np
+>>> time_s = np.arange(0.0, 1200.0, 0.08)
+>>> fit = fit_block_mask(time_s)
+>>> round(float(fit.mean()), 2), bool(fit[0]), bool(fit[-1])
+(0.5, True, False)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cryod.record import Record, RecordFormatError
+
+#: Shortest record the analysis accepts (s) and fewest samples.
+MINIMUM_DURATION_S = 120.0
+MINIMUM_SAMPLES = 500
+#: Fit/held-out blocks: this fraction of the record, within these bounds (s).
+BLOCK_FRACTION = 1.0 / 20.0
+BLOCK_BOUNDS_S = (10.0, 120.0)
+
+#: Metadata keys that may state the heater's resistance (ohm), current limit (A), power limit (W).
+RESISTANCE_KEYS = ("heater_resistance_ohm", "heater_resistance", "heater_resistance_Ohm")
+CURRENT_LIMIT_KEYS = ("heater_current_limit_A", "heater_max_current_A", "heater_current_max_A",
+                      "heater_current_limit")
+POWER_LIMIT_KEYS = ("heater_max_W", "heater_limit_W", "heater_power_limit_W", "heater_max_power_W")
+
+
+@dataclass(frozen=True)
+class RecordData:
+    """The columns the analysis needs, checked.
+
+    Attributes
+    ----------
+    time_s : numpy.ndarray
+        Sample instants (s).
+    flange_K, ptc_stage_K : numpy.ndarray
+        T2 and T5 (K); NaN where a reading is missing.
+    heater_w : numpy.ndarray
+        Heater power applied from each sample to the next (W).
+    setpoint_K : numpy.ndarray
+        NaN where the loop is open.
+    heater_limit_w : float or None
+        Heater power limit from the metadata (R I_max^2, or stated), if given.
+    source : str
+    notes : list of str
+        What was noticed while reading (limits found, rows left out).
+    """
+
+    time_s: np.ndarray
+    flange_K: np.ndarray
+    ptc_stage_K: np.ndarray
+    heater_w: np.ndarray
+    setpoint_K: np.ndarray
+    heater_limit_w: float | None = None
+    source: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def elapsed_s(self) -> np.ndarray:
+        """Seconds since the first sample (the simulator's PTC phase reference)."""
+        return self.time_s - self.time_s[0]
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.time_s[-1] - self.time_s[0])
+
+    @property
+    def sample_interval_s(self) -> float:
+        """Median interval between samples (s)."""
+        return float(np.median(np.diff(self.time_s)))
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Samples with both temperatures present."""
+        return np.isfinite(self.flange_K) & np.isfinite(self.ptc_stage_K)
+
+    @property
+    def closed_loop(self) -> np.ndarray:
+        return np.isfinite(self.setpoint_K)
+
+    @classmethod
+    def from_record(cls, record: Record) -> "RecordData":
+        """Check a record for analysis.
+
+        Raises
+        ------
+        cryod.record.RecordFormatError
+            Naming the record and what is wrong: too short, a heater value
+            missing or negative, no temperatures.
+        """
+        source = record.source or "<record>"
+        time_s = np.asarray(record.time_s, dtype=float)
+        heater = np.asarray(record.heater_w, dtype=float)
+        notes: list[str] = list(record.warnings)
+        if time_s.size < MINIMUM_SAMPLES or time_s[-1] - time_s[0] < MINIMUM_DURATION_S:
+            raise RecordFormatError(source, None, f"too short to analyse: {time_s.size} samples over "
+                                    f"{time_s[-1] - time_s[0] if time_s.size else 0.0:.1f} s (need at least "
+                                    f"{MINIMUM_SAMPLES} samples and {MINIMUM_DURATION_S:.0f} s)")
+        if not np.all(np.isfinite(heater)):
+            row = int(np.flatnonzero(~np.isfinite(heater))[0])
+            raise RecordFormatError(source, None, f"column 'heater_W' is empty or not finite at data row {row + 1} "
+                                    f"(t = {time_s[row]:.3f} s): the heater is the model's input and must be known")
+        if np.any(heater < 0.0):
+            row = int(np.flatnonzero(heater < 0.0)[0])
+            raise RecordFormatError(source, None, f"column 'heater_W' is negative at data row {row + 1} "
+                                    f"(t = {time_s[row]:.3f} s, {heater[row]} W): a heater cannot cool")
+        flange = np.asarray(record.flange_K, dtype=float)
+        stage = np.asarray(record.ptc_stage_K, dtype=float)
+        valid = np.isfinite(flange) & np.isfinite(stage)
+        if np.count_nonzero(valid) < MINIMUM_SAMPLES:
+            raise RecordFormatError(source, None, "too few rows with both 'T2_K' and 'T5_K' present")
+        if not valid.all():
+            notes.append(f"{np.count_nonzero(~valid)} rows without T2 or T5 are left out of every comparison")
+        limit = heater_limit_from_metadata(record)
+        if limit is not None:
+            notes.append(f"heater limit {limit:.4g} W from the record's metadata")
+        return cls(time_s, flange, stage, heater, np.asarray(record.setpoint_K, dtype=float), limit, source, notes)
+
+
+def heater_limit_from_metadata(record: Record) -> float | None:
+    """Heater power limit (W): stated, or resistance times current limit squared; None if not given."""
+    def first(keys):
+        for key in keys:
+            if key in record.metadata:
+                try:
+                    return record.metadata_number(key)
+                except RecordFormatError:
+                    return None
+        return None
+
+    stated = first(POWER_LIMIT_KEYS)
+    if stated is not None and stated > 0.0:
+        return float(stated)
+    resistance, current = first(RESISTANCE_KEYS), first(CURRENT_LIMIT_KEYS)
+    if resistance and current and resistance > 0.0 and current > 0.0:
+        return float(resistance * current ** 2)
+    return None
+
+
+def block_length_s(duration_s: float) -> float:
+    """Length of the fit / held-out blocks for a record of this duration (s)."""
+    low, high = BLOCK_BOUNDS_S
+    return float(min(max(duration_s * BLOCK_FRACTION, low), high))
+
+
+def fit_block_mask(time_s) -> np.ndarray:
+    """True on the fit blocks (the first, third, ...), False on the held-out ones."""
+    time_s = np.asarray(time_s, dtype=float)
+    length = block_length_s(float(time_s[-1] - time_s[0]))
+    block = np.floor((time_s - time_s[0]) / length).astype(int)
+    return block % 2 == 0
+
+
+def saturation_fraction(heater_w: np.ndarray, limit_w: float | None) -> tuple[float, float]:
+    """Fractions of samples with the heater at 0 W and at its limit (the limit part is 0 if unknown)."""
+    at_zero = float(np.mean(heater_w <= 0.0))
+    at_limit = float(np.mean(heater_w >= limit_w * (1.0 - 1e-6))) if limit_w else 0.0
+    return at_zero, at_limit
+
+
+__all__ = ["RecordData", "fit_block_mask", "block_length_s", "heater_limit_from_metadata",
+           "saturation_fraction"]

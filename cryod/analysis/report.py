@@ -1,0 +1,123 @@
+"""The short Markdown report of an analysis (``report.md`` in ``--out``)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from cryod.analysis.decision import (
+    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, DISCREPANCY_FRACTION_OF_NOISE, DISCREPANCY_SIGMA,
+    EXPLAINED_FRACTION,
+)
+from cryod.analysis.discrepancies import Discrepancy
+from cryod.analysis.pipeline import Analysis
+from cryod.analysis.record_data import block_length_s, saturation_fraction
+from cryod.analysis.summary import format_parameters
+
+#: Discrepancies listed: those above this many standard errors, at most this many.
+LISTED_SIGNIFICANCE = 3.0
+LISTED_MOST = 25
+
+
+def _number(value: float) -> str:
+    if value is None or not math.isfinite(value):
+        return "-"
+    return f"{value:.4g}"
+
+
+def _discrepancy_table(rows: list[Discrepancy]) -> list[str]:
+    lines = ["| quantity | model | measured | significance (sigma) |", "|---|---|---|---|"]
+    for row in rows:
+        lines.append(f"| {row.quantity} | {_number(row.model)} | {_number(row.measured)} | {_number(row.significance)} |")
+    return lines
+
+
+def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_discrepancies: list[Discrepancy],
+                 segments, figures: dict[str, Path], model_path: Path, directory: Path) -> Path:
+    """Write ``report.md`` into ``directory``; figure links are relative to it."""
+    data, decision = analysis.data, analysis.decision
+    line = analysis.base_line
+    point = analysis.base_replay.operating_point
+    at_zero, at_limit = saturation_fraction(data.heater_w, data.heater_limit_w)
+    intervals = np.diff(data.time_s)
+    lines = [
+        f"# Analysis of `{Path(data.source).name}`",
+        "",
+        f"**Cause: `{analysis.cause}`.** {decision.reason[0].upper() + decision.reason[1:]}.",
+        "",
+        f"**Gain: {decision.gain.ratio:.4g}** ({decision.gain.metric}: base model {decision.gain.base:.4g}, "
+        f"extended model {decision.gain.extended:.4g}). Fit and held-out data: alternate blocks of "
+        f"{block_length_s(data.duration_s):.0f} s; every parameter is fitted on the first, third, ... block and "
+        "judged on the others.",
+        "",
+        f"**Extended model:** `{model_path.name}` (base model `{analysis.base_model.name or analysis.base_model.source}`"
+        + (f" plus {analysis.cause}: {format_parameters(analysis.fits[analysis.cause].parameters)})."
+           if analysis.cause in analysis.fits else ", unchanged: no effect is added)."),
+        "",
+        "## The record",
+        "",
+        "| | |",
+        "|---|---|",
+        f"| duration | {data.duration_s:.1f} s, {data.time_s.size} samples |",
+        f"| sample interval | median {1e3 * data.sample_interval_s:.2f} ms, rms jitter {1e3 * np.std(intervals):.3f} ms |",
+        f"| operating point (estimated) | T2_0 = {point.flange_temperature_K:.5f} K, "
+        f"T5_0 = {point.ptc_stage_temperature_K:.5f} K |",
+        f"| PTC line in T5 | {line.angular_frequency_rad_s:.5f} +- {line.frequency_uncertainty_rad_s:.1e} rad/s, "
+        f"{1e3 * line.fundamental.amplitude_K:.3f} mK, "
+        f"phase {line.fundamental.phase_rad:.3f} rad at the first sample |",
+        f"| measured noise | T2 {1e6 * analysis.noise_rms_K[0]:.2f} uK rms, T5 {1e6 * analysis.noise_rms_K[1]:.1f} uK rms |",
+        f"| heater | limit {_number(data.heater_limit_w)} W; at 0 W {100 * at_zero:.1f} % of samples, "
+        f"at the limit {100 * at_limit:.1f} % |",
+    ]
+    for note in data.notes:
+        lines.append(f"| note | {note} |")
+    lines += ["", "Segments:", "", "| kind | from (s) | to (s) | mean heater (mW) | setpoint (K) |", "|---|---|---|---|---|"]
+    for segment in segments:
+        setpoint = f"{segment.setpoint_K:.4f}" if math.isfinite(segment.setpoint_K) else "-"
+        lines.append(f"| {segment.kind} | {segment.start_s:.1f} | {segment.stop_s:.1f} | "
+                     f"{1e3 * segment.mean_heater_w:.3f} | {setpoint} |")
+    listed = [d for d in discrepancies if d.significance >= LISTED_SIGNIFICANCE][:LISTED_MOST]
+    lines += ["", "## What the base model gets wrong", "",
+              f"Quantities whose model and measured values differ by {LISTED_SIGNIFICANCE:g} standard errors or more "
+              f"({len(listed)} of {len(discrepancies)} computed; all are in the JSON output), most significant first:",
+              ""]
+    lines += _discrepancy_table(listed) if listed else ["None: the base model agrees with the record within the noise."]
+    lines += ["", "## Candidates", "",
+              f"Each cause fitted on the fit blocks and judged on the held-out ones. A candidate counts from "
+              f"{CANDIDATE_SIGMA:g} sigma and an improvement of {CANDIDATE_MINIMUM_IMPROVEMENT:g}; the record shows a "
+              f"discrepancy when the base model's held-out excess is above {DISCREPANCY_SIGMA:g} sigma and "
+              f"{100 * DISCREPANCY_FRACTION_OF_NOISE:g} % of the noise power; a cause is named when it removes "
+              f"{100 * EXPLAINED_FRACTION:g} % of that excess or leaves none. Base model's held-out excess: "
+              f"{decision.base.excess:.4g} over {decision.base.terms} terms ({decision.base.significance:.1f} sigma).",
+              "",
+              "| cause | fitted parameters | held-out improvement | significance (sigma) | explained | gain | note |",
+              "|---|---|---|---|---|---|---|"]
+    for cause, score in sorted(analysis.scores.items(), key=lambda item: -item[1].improvement):
+        fit = analysis.fits[cause]
+        mark = f"**{cause}**" if cause == analysis.cause else cause
+        lines.append(f"| {mark} | {format_parameters(fit.parameters)} | {score.improvement:.4g} | "
+                     f"{score.significance:.3g} | {100 * score.explained_fraction:.1f} % | {score.gain.ratio:.4g} | "
+                     f"{fit.note} |")
+    if analysis.cause in analysis.fits:
+        remaining = [d for d in extended_discrepancies if d.significance >= LISTED_SIGNIFICANCE][:10]
+        lines += ["", "## What the extended model still gets wrong", ""]
+        lines += _discrepancy_table(remaining) if remaining else ["Nothing above 3 standard errors."]
+    lines += ["", "## Figures", ""]
+    captions = {
+        "overview": "T2 measured and replayed, residuals and heater (line averaged out; segments shaded)",
+        "residual_spectrum": "spectra of the residuals, with the measured noise floor",
+        "ptc_line": "the PTC line where the base model misses it most",
+        "candidates": "held-out improvement of each candidate",
+        "steps": "T2 after each heater step",
+        "correlation": "T2 residual: autocorrelation and cross-correlation with the heater",
+    }
+    for name, path in figures.items():
+        lines += [f"![{captions[name]}]({path.name})", "", f"*{captions[name]}.*", ""]
+    lines += ["## Timing", "", "| step | wall time (s) |", "|---|---|"]
+    for step, seconds in analysis.timings_s.items():
+        lines.append(f"| {step} | {seconds:.2f} |")
+    path = Path(directory) / "report.md"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path

@@ -1,0 +1,1 @@
+"""Identification of the cryostat model from measured records (``cryod identify``)."""

@@ -1,0 +1,96 @@
+"""Effects hidden in simulated records, for testing and benchmarking ``cryod analyze``.
+
+Each cause has three magnitudes (small, realistic, large) with the parameter
+values the analysis must find; :data:`DISTURBANCES` are changes outside the
+cause list (the analysis must say ``unexplained``). :func:`other_day` gives the
+same cryostat on another day (its own PTC phase, and for odd variants its own
+operating point and line), so a test cannot lean on the model's own values.
+
+Examples
+--------
+>>> from cryod.model import load_model
+>>> model, truth = hidden_model(load_model(), "dead_time", 1)
+>>> model.effects.dead_time.heater_to_flange_s, truth
+(1.5, {'heater_to_flange_s': 1.5})
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from cryod.model import (
+    CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, OperatingPoint,
+    PtcFrequencyDrift, PtcHarmonic, SensorLag,
+)
+
+#: Per cause: (what to put in the model, {fitted parameter: true value}) for three magnitudes.
+MAGNITUDES = {
+    "sensor_lag": [
+        ({"sensor_lag": SensorLag(0.03)}, {"flange_thermometer_time_constant_s": 0.03}),
+        ({"sensor_lag": SensorLag(0.3)}, {"flange_thermometer_time_constant_s": 0.3}),
+        ({"sensor_lag": SensorLag(1.0, 0.4)},
+         {"flange_thermometer_time_constant_s": 1.0, "ptc_stage_thermometer_time_constant_s": 0.4}),
+    ],
+    "link_dynamics": [
+        ({"link_dynamics": LinkDynamics(0.03, 0.9)}, {"time_constant_s": 0.03, "gain_factor": 0.9}),
+        ({"link_dynamics": LinkDynamics(0.15, 0.8)}, {"time_constant_s": 0.15, "gain_factor": 0.8}),
+        ({"link_dynamics": LinkDynamics(0.6, 1.3)}, {"time_constant_s": 0.6, "gain_factor": 1.3}),
+    ],
+    "dead_time": [
+        ({"dead_time": DeadTime(0.2)}, {"heater_to_flange_s": 0.2}),
+        ({"dead_time": DeadTime(1.5)}, {"heater_to_flange_s": 1.5}),
+        ({"dead_time": DeadTime(8.0)}, {"heater_to_flange_s": 8.0}),
+    ],
+    "heat_capacity_temperature": [
+        ({"heat_capacity_temperature": HeatCapacityTemperature(-2.0, 4.23)}, {"exponent": -2.0}),
+        ({"heat_capacity_temperature": HeatCapacityTemperature(1.0, 4.23)}, {"exponent": 1.0}),
+        ({"heat_capacity_temperature": HeatCapacityTemperature(3.0, 4.23)}, {"exponent": 3.0}),
+    ],
+    "heater_nonlinearity": [
+        ({"heater_nonlinearity": HeaterNonlinearity(-0.5)}, {"quadratic_coefficient_per_W": -0.5}),
+        ({"heater_nonlinearity": HeaterNonlinearity(0.8)}, {"quadratic_coefficient_per_W": 0.8}),
+        ({"heater_nonlinearity": HeaterNonlinearity(3.0)}, {"quadratic_coefficient_per_W": 3.0}),
+    ],
+    "ptc_harmonics": [
+        ({"harmonics": (PtcHarmonic(2, 0.002, 1.0),)}, {"order_2_amplitude_K": 0.002}),
+        ({"harmonics": (PtcHarmonic(2, 0.010, 0.4), PtcHarmonic(3, 0.005, -1.0))},
+         {"order_2_amplitude_K": 0.010, "order_3_amplitude_K": 0.005}),
+        ({"harmonics": (PtcHarmonic(3, 0.025, 2.5),)}, {"order_3_amplitude_K": 0.025}),
+    ],
+    "ptc_frequency_drift": [
+        ({"ptc_frequency_drift": PtcFrequencyDrift(0.003)}, {"rate_rad_s_per_hour": 0.003}),
+        ({"ptc_frequency_drift": PtcFrequencyDrift(-0.03)}, {"rate_rad_s_per_hour": -0.03}),
+        ({"ptc_frequency_drift": PtcFrequencyDrift(0.0, 0.002, 700.0)},
+         {"wander_amplitude_rad_s": 0.002, "wander_period_s": 700.0}),
+    ],
+}
+
+#: Disturbances outside the cause list: (make_record keyword arguments), built per record length.
+DISTURBANCES = {
+    "heat leak step": lambda duration: {"unrecorded_heat_w": lambda t: 0.002 if t > 0.45 * duration else 0.0},
+    "slow heat load drift": lambda duration: {"unrecorded_heat_w": lambda t: 0.004 * t / duration},
+    "thermometer drift": lambda duration: {"flange_offset_K": lambda t: 1e-3 * t / duration},
+}
+
+
+def other_day(model: CryostatModel, variant: int) -> CryostatModel:
+    """The same cryostat another day: PTC phase always, operating point and line for odd variants."""
+    model = model.with_ptc(phase_rad=-2.8 + 1.3 * variant)
+    if variant % 2:
+        model = dataclasses.replace(model, operating_point=OperatingPoint(4.205, 3.318))
+        model = model.with_ptc(angular_frequency_rad_s=10.71, ptc_stage_amplitude_K=0.112)
+    return model
+
+
+def hidden_model(model: CryostatModel, cause: str, magnitude: int, variant: int = 0):
+    """(model with the effect, truth) for a cause and a magnitude index (0, 1, 2), on day ``variant``."""
+    changes, truth = MAGNITUDES[cause][magnitude]
+    model = other_day(model, variant)
+    if "harmonics" in changes:
+        return model.with_ptc(harmonics=changes["harmonics"]), truth
+    return model.with_effects(**changes), truth
+
+
+def within(fitted, true, relative: float = 0.2) -> bool:
+    """Fitted value within ``relative`` of the true one."""
+    return fitted is not None and abs(fitted - true) <= relative * abs(true)

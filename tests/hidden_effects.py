@@ -1,0 +1,46 @@
+"""Analyses of records with hidden effects, cached for the tests (catalog: simulated_hw.hidden_effects)."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+from cryod.analysis.pipeline import Analysis, analyze
+from cryod.analysis.record_data import RecordData
+from cryod.model import load_model
+from cryod.record import Record
+from simulated_hw import hidden_effects
+from simulated_hw.hidden_effects import DISTURBANCES, MAGNITUDES, other_day, within  # noqa: F401
+from simulated_hw.protocols import make_record
+
+from tests.conftest import CONFIG
+
+DURATIONS_S = {"identification": 1200.0, "pi_only": 900.0}
+SLOW_DURATIONS_S = {"identification": 3600.0, "pi_only": 1800.0}
+
+
+def base_model():
+    return load_model(CONFIG / "model.yaml")
+
+
+def hidden_model(cause: str, magnitude: int, variant: int = 0):
+    return hidden_effects.hidden_model(base_model(), cause, magnitude, variant)
+
+
+def analysed(model, protocol: str, duration_s: float, seed: int, **disturbance) -> Analysis:
+    record = make_record(model, protocol, duration_s=duration_s, seed=seed, **disturbance)
+    data = RecordData.from_record(Record(record.metadata, record.columns, source=f"{protocol} record"))
+    return analyze(data, base_model())
+
+
+@lru_cache(maxsize=None)
+def analysed_case(cause: str, magnitude: int, protocol: str, duration_s: float, seed: int = 1) -> Analysis:
+    if cause == "none":
+        return analysed(other_day(base_model(), magnitude), protocol, duration_s, seed)
+    model, _ = hidden_model(cause, magnitude, variant=magnitude + seed)
+    return analysed(model, protocol, duration_s, seed)
+
+
+def parameter_errors(analysis: Analysis, cause: str, truth: dict) -> dict:
+    """{parameter: (fitted, true)} for the truth's parameters, from the named cause's fit."""
+    fitted = analysis.fits[cause].parameters
+    return {name: (fitted.get(name), true) for name, true in truth.items()}

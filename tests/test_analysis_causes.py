@@ -1,0 +1,144 @@
+"""The analysis finds effects hidden in simulated records: the cause, its parameters within 20 %, a gain above 1.
+
+Default run: one realistic magnitude of each cause, each in one protocol, plus
+clean records and disturbances outside the list. ``pytest -m slow``: every
+cause x both protocols x three magnitudes, clean records and every
+disturbance in both protocols, on longer records.
+"""
+
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from cryod.model import load_model, save_model
+from tests.hidden_effects import (
+    DISTURBANCES, DURATIONS_S, MAGNITUDES, SLOW_DURATIONS_S, analysed, analysed_case, base_model, hidden_model,
+    other_day, parameter_errors, within,
+)
+
+FAST_CASES = [
+    ("sensor_lag", "identification"),
+    ("link_dynamics", "pi_only"),
+    ("dead_time", "identification"),
+    ("heat_capacity_temperature", "pi_only"),
+    ("heater_nonlinearity", "identification"),
+    ("ptc_harmonics", "pi_only"),
+    ("ptc_frequency_drift", "identification"),
+]
+
+
+def _check_found(analysis, cause, truth):
+    assert analysis.cause == cause, analysis.decision.reason
+    for name, (fitted, true) in parameter_errors(analysis, cause, truth).items():
+        assert within(fitted, true), f"{name}: fitted {fitted}, true {true}"
+    assert analysis.decision.gain.ratio > 1.0
+    assert analysis.decision.gain.ratio == pytest.approx(analysis.scores[cause].gain.ratio)
+    with tempfile.TemporaryDirectory() as directory:          # the extended model survives its file
+        loaded = load_model(save_model(analysis.extended_model, Path(directory) / "extended.yaml"))
+    assert loaded.effect_names() == [cause]
+
+
+@pytest.mark.parametrize("cause, protocol", FAST_CASES)
+def test_hidden_effect_is_found(cause, protocol):
+    analysis = analysed_case(cause, 1, protocol, DURATIONS_S[protocol])
+    _check_found(analysis, cause, MAGNITUDES[cause][1][1])
+
+
+@pytest.mark.parametrize("protocol", ["identification", "pi_only"])
+def test_clean_record_gives_none(protocol):
+    analysis = analysed_case("none", 1, protocol, DURATIONS_S[protocol])
+    assert analysis.cause == "none", analysis.decision.reason
+    assert analysis.decision.gain.ratio == 1.0
+    assert analysis.extended_model is analysis.base_model
+
+
+@pytest.mark.parametrize("disturbance, protocol", [("heat leak step", "pi_only"),
+                                                   ("thermometer drift", "identification")])
+def test_disturbance_outside_the_list_is_unexplained(disturbance, protocol):
+    duration = DURATIONS_S[protocol]
+    analysis = analysed(other_day(base_model(), 2), protocol, duration, 3, **DISTURBANCES[disturbance](duration))
+    assert analysis.cause == "unexplained", analysis.decision.reason
+    assert analysis.decision.base.present
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("magnitude", [0, 1, 2])
+@pytest.mark.parametrize("protocol", ["identification", "pi_only"])
+@pytest.mark.parametrize("cause", sorted(MAGNITUDES))
+def test_every_cause_protocol_and_magnitude(cause, protocol, magnitude):
+    analysis = analysed_case(cause, magnitude, protocol, SLOW_DURATIONS_S[protocol], seed=2)
+    _check_found(analysis, cause, MAGNITUDES[cause][magnitude][1])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("variant", [0, 1, 2])
+@pytest.mark.parametrize("protocol", ["identification", "pi_only"])
+def test_clean_records_of_other_days_give_none(protocol, variant):
+    analysis = analysed_case("none", variant, protocol, SLOW_DURATIONS_S[protocol], seed=4)
+    assert analysis.cause == "none", analysis.decision.reason
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("protocol", ["identification", "pi_only"])
+@pytest.mark.parametrize("disturbance", sorted(DISTURBANCES))
+def test_every_disturbance_is_unexplained(disturbance, protocol):
+    duration = SLOW_DURATIONS_S[protocol]
+    analysis = analysed(other_day(base_model(), 1), protocol, duration, 5, **DISTURBANCES[disturbance](duration))
+    assert analysis.cause == "unexplained", analysis.decision.reason
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cause", sorted(MAGNITUDES))
+def test_effects_with_sampling_jitter_and_another_period(cause):
+    """10 Hz loop with up to 20 ms trigger lateness, another day's operating point and line."""
+    from cryod.analysis.record_data import RecordData
+    from cryod.analysis.pipeline import analyze
+    from cryod.record import Record
+    from simulated_hw.protocols import make_record
+
+    model, truth = hidden_model(cause, 1, variant=1)
+    record = make_record(model, "identification", duration_s=2400.0, seed=6, period_s=0.1, timing_jitter_s=0.02)
+    analysis = analyze(RecordData.from_record(Record(record.metadata, record.columns, source="jittered")),
+                       base_model())
+    _check_found(analysis, cause, truth)
+
+
+@pytest.mark.parametrize("cause", ["none", "heater_nonlinearity"])
+def test_record_cut_in_the_middle_of_a_transient(cause):
+    """A record cut from a longer log 30 s after a heater step: the start is not a settled state."""
+    from cryod.analysis.pipeline import analyze
+    from cryod.analysis.record_data import RecordData
+    from cryod.record import Record
+    from simulated_hw.protocols import make_record
+
+    model, truth = (other_day(base_model(), 0), {}) if cause == "none" else hidden_model(cause, 1)
+    record = make_record(model, "identification", duration_s=1500.0, seed=9)
+    start = record.columns["time_s"] >= 270.0          # the 10 mW step is at 237 s
+    columns = {name: values[start] for name, values in record.columns.items()}
+    columns["time_s"] = columns["time_s"] - columns["time_s"][0]
+    analysis = analyze(RecordData.from_record(Record(record.metadata, columns, source="cut")), base_model())
+    if cause == "none":
+        assert analysis.cause == "none", analysis.decision.reason
+    else:
+        _check_found(analysis, cause, truth)
+
+
+def test_rows_without_a_reading_are_left_out():
+    """1 % of T2 readings and 0.5 % of T5 readings missing (empty fields): the cause is still found."""
+    import numpy as np
+
+    from cryod.analysis.pipeline import analyze
+    from cryod.analysis.record_data import RecordData
+    from cryod.record import Record
+    from simulated_hw.protocols import make_record
+
+    model, truth = hidden_model("dead_time", 1, variant=3)
+    record = make_record(model, "pi_only", duration_s=900.0, seed=10)
+    columns = dict(record.columns)
+    generator = np.random.default_rng(0)
+    columns["T2_K"] = np.where(generator.random(columns["T2_K"].size) < 0.01, np.nan, columns["T2_K"])
+    columns["T5_K"] = np.where(generator.random(columns["T5_K"].size) < 0.005, np.nan, columns["T5_K"])
+    data = RecordData.from_record(Record(record.metadata, columns, source="gaps"))
+    assert any("left out" in note for note in data.notes)
+    _check_found(analyze(data, base_model()), "dead_time", truth)

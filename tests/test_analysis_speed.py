@@ -1,0 +1,23 @@
+"""A one-hour record at 12.5 Hz is analysed, all candidates included, in at most 30 s."""
+
+import time
+
+import pytest
+
+from cryod import cli
+from cryod.model import HeatCapacityTemperature
+from cryod.record import write_record
+from simulated_hw.protocols import make_record
+
+
+@pytest.mark.slow
+def test_one_hour_record_in_30_seconds(reference_model, tmp_path, capsys):
+    model = reference_model.with_effects(heat_capacity_temperature=HeatCapacityTemperature(1.0, 4.23))
+    record = make_record(model, "identification", duration_s=3600.0, seed=1)
+    path = write_record(tmp_path / "hour.csv", record.columns, record.metadata)
+    assert len(record.columns["time_s"]) == 45000
+    started = time.perf_counter()
+    status = cli.main(["analyze", str(path), "--out", str(tmp_path / "out"), "--json"])
+    elapsed = time.perf_counter() - started
+    assert status == 0 and '"cause": "heat_capacity_temperature"' in capsys.readouterr().out
+    assert elapsed <= 30.0

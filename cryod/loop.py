@@ -235,11 +235,11 @@ class ControlLoop:
         self.mode_after_holding = STATE_CLOSED if control.setpoint_K is not None else STATE_OFF
         self.manual_power_w = 0.0
         self.heater_w = 0.0
+        self.last_fault: Fault | None = None
         self.status = Status(state=STATE_HOLDING, setpoint_K=None, target_K=control.setpoint_K,
                              ramp_K_per_min=control.ramp_K_per_min)
         self.commands: queue.SimpleQueue[Command] = queue.SimpleQueue()
         self.exit_code: int | None = None
-        self.last_fault: Fault | None = None
         self._stop_reason: str | None = None
         self._valid_in_a_row = 0
         self._recovering_since: float | None = None
@@ -373,12 +373,30 @@ class ControlLoop:
         row.setdefault("state", self.state)
         row.setdefault("heater_W", self.heater_w)
         self.emit_row(row)
-        self.status = Status(
-            time_s=row["time_s"], state=self.state, flange_K=flange_K, ptc_stage_K=stage_K,
-            heater_w=self.heater_w, setpoint_K=self.ramp.setpoint_K if self.state == STATE_CLOSED else None,
-            target_K=self.ramp.target_K if self.state == STATE_CLOSED else None,
-            ramp_K_per_min=self.ramp.rate_K_per_min,
-            last_fault=str(self.last_fault) if self.last_fault else None, loop_timing=self.timing)
+        closed = self.state == STATE_CLOSED
+        # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
+        self._latest = (row["time_s"], self.state, flange_K, stage_K, self.heater_w,
+                        self.ramp.setpoint_K if closed else None, self.ramp.target_K if closed else None,
+                        self.ramp.rate_K_per_min, self.last_fault)
+        self._status = None
+
+    @property
+    def status(self) -> Status:
+        """The loop as of its last tick (built when asked, from the tick's snapshot)."""
+        status = self._status
+        if status is None:
+            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault = self._latest
+            status = Status(time_s=time_s, state=state, flange_K=flange_K, ptc_stage_K=stage_K, heater_w=heater_w,
+                            setpoint_K=setpoint_K, target_K=target_K, ramp_K_per_min=rate,
+                            last_fault=str(fault) if fault else None, loop_timing=self.timing)
+            self._status = status
+        return status
+
+    @status.setter
+    def status(self, status: Status) -> None:
+        self._status = status
+        self._latest = (status.time_s, status.state, status.flange_K, status.ptc_stage_K, status.heater_w,
+                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault)
 
     # -- start-up and recovery ----------------------------------------------------
     def _count_valid(self, in_range: bool, measurement: Measurement, flange_K: float, stage_K: float,

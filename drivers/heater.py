@@ -22,11 +22,9 @@ come on (interlock, output enable) is :class:`~drivers.errors.HeaterRefused`.
 from __future__ import annotations
 
 import abc
-import contextlib
 import math
 import numbers
 from dataclasses import dataclass
-from typing import Iterator
 
 from cryod.clock import Clock
 from drivers.errors import ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterRefused, InstrumentError
@@ -156,18 +154,12 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
                             f"({self.max_power_w * 1e3:.4g} mW at {self.heater_resistance_ohm:g} ohm)")
 
     # -- safety --------------------------------------------------------------------------
-    @contextlib.contextmanager
-    def safe_on_fault(self) -> Iterator[None]:
-        """Any failure inside: output to 0 A and off (best effort), error queue attached, re-raised."""
-        try:
-            yield
-        except HeaterLimitRefused:
-            raise
-        except BaseException as error:
-            self._force_off()
-            if isinstance(error, InstrumentError):
-                self.examine_fault(error)
-            raise
+    def safe_on_fault(self) -> "_SafeOnFault":
+        """Any failure inside: output to 0 A and off (best effort), error queue attached, re-raised.
+
+        (A plain class rather than a generator context manager: it wraps every heater setting.)
+        """
+        return _SafeOnFault(self)
 
     def _force_off(self) -> None:
         """0 A and output off whatever happened; a dropped connection is reopened once for it."""
@@ -306,3 +298,23 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
     @abc.abstractmethod
     def measure_output(self) -> HeaterReadback:
         """Read the output back."""
+
+
+class _SafeOnFault:
+    """Context of :meth:`HeaterSupply.safe_on_fault`."""
+
+    __slots__ = ("supply",)
+
+    def __init__(self, supply: HeaterSupply):
+        self.supply = supply
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, kind, error, traceback) -> bool:
+        if error is None or isinstance(error, HeaterLimitRefused):
+            return False
+        self.supply._force_off()
+        if isinstance(error, InstrumentError):
+            self.supply.examine_fault(error)
+        return False

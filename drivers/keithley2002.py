@@ -288,7 +288,7 @@ class Keithley2002(ScpiInstrument):
         self._timing_key: tuple | None = None
         self._timing: ReadingTiming | None = None
         self._layout_key: tuple | None = None          # reading-string layout, kept until elements change
-        self._layout: list[DataElement] = []
+        self._layout: tuple = ()
         self.last_reading_number: int | None = None
         #: Trigger time of the reading at which the DMM was last seen to take its NORMal autozero.
         self.last_autozero_trigger_s: float | None = None
@@ -454,41 +454,40 @@ class Keithley2002(ScpiInstrument):
 
     def parse_reading(self, reply: str) -> DmmReading:
         """A reading string with the configured elements; overflow and garbage are typed errors."""
-        fields = [field.strip() for field in reply.split(",")]
+        fields = reply.split(",")
         if self._layout_key != self.elements:
-            self._layout = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
-                                        DataElement.CHANNEL) if e in self.elements]
+            order = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
+                                 DataElement.CHANNEL) if e in self.elements]
+            self._layout = (order, *(order.index(e) if e in order else None
+                                     for e in (DataElement.READING, DataElement.TIMESTAMP,
+                                               DataElement.READING_NUMBER)))
             self._layout_key = self.elements
-        order = self._layout
+        order, reading_at, timestamp_at, number_at = self._layout
         if len(fields) != len(order):
             raise BadReply(self.label, f"expected {len(order)} elements "
                                        f"({', '.join(e.value for e in order)}), got {len(fields)}", reply=reply)
-        values = dict(zip(order, fields))
-        resistance, status = None, None
-        if DataElement.READING in values:
-            match = _READING_FIELD.match(values[DataElement.READING])
-            if not match:
-                raise BadReply(self.label, "reading is not a number", reply=reply)
-            resistance = float(match.group(1))
-            status = match.group(2).upper() if match.group(2) else None
-            if status == "O" or abs(resistance) >= OVERFLOW_MARKER or not math.isfinite(resistance):
-                raise OverflowReading(self.label, "overflow: resistance above the range "
-                                                  "(open sensor lead or wrong range)", reply=reply)
-        number_field = values.get(DataElement.READING_NUMBER)
+        if reading_at is None:
+            raise BadReply(self.label, "the READing element is not configured", reply=reply)
+        match = _READING_FIELD.match(fields[reading_at].strip())
+        if not match:
+            raise BadReply(self.label, "reading is not a number", reply=reply)
+        resistance = float(match.group(1))
+        status = match.group(2).upper() if match.group(2) else None
+        if status == "O" or abs(resistance) >= OVERFLOW_MARKER or not math.isfinite(resistance):
+            raise OverflowReading(self.label, "overflow: resistance above the range "
+                                              "(open sensor lead or wrong range)", reply=reply)
         reading_number = None
-        if number_field is not None:
-            match = _INTEGER_FIELD.match(number_field)
+        if number_at is not None:
+            match = _INTEGER_FIELD.match(fields[number_at].strip())
             if not match:
                 raise BadReply(self.label, "reading number is not an integer", reply=reply)
             reading_number = int(match.group(1))
         timestamp = None
-        if DataElement.TIMESTAMP in values:
-            match = _DECIMAL_FIELD.match(values[DataElement.TIMESTAMP])
+        if timestamp_at is not None:
+            match = _DECIMAL_FIELD.match(fields[timestamp_at].strip())
             if not match:
                 raise BadReply(self.label, "time stamp is not a number", reply=reply)
             timestamp = float(match.group(1))
-        if resistance is None:
-            raise BadReply(self.label, "the READing element is not configured", reply=reply)
         return DmmReading(resistance, reading_number, status, timestamp, reply)
 
     def shutdown(self) -> None:

@@ -36,11 +36,10 @@ ValueError: meter (recorder): nplc = 20 PLC refused: allowed 0.01 to 10 PLC
 
 from __future__ import annotations
 
-import contextlib
 import math
 import re
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Iterator, Mapping
+from typing import Any, Callable, ClassVar, Mapping
 
 from cryod.clock import Clock
 from drivers.errors import (BadReply, ConnectionLost, IdentityMismatch, InstrumentError,
@@ -313,12 +312,30 @@ class ScpiInstrument:
             pass
         return error
 
-    @contextlib.contextmanager
-    def reporting_faults(self) -> Iterator[None]:
-        """Around driver operations: a fault leaves with the instrument's error queue attached."""
-        try:
-            yield
-        except InstrumentReportedError:
-            raise
-        except InstrumentError as error:
-            raise self.examine_fault(error)
+    def reporting_faults(self) -> "_ReportingFaults":
+        """Around driver operations: a fault leaves with the instrument's error queue attached.
+
+        (A plain class rather than a generator context manager: it wraps every
+        operation of every cycle.)
+        """
+        return _ReportingFaults(self)
+
+
+class _ReportingFaults:
+    """Context of :meth:`ScpiInstrument.reporting_faults`."""
+
+    __slots__ = ("instrument",)
+
+    def __init__(self, instrument: ScpiInstrument):
+        self.instrument = instrument
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, kind, error, traceback) -> bool:
+        if error is None or isinstance(error, InstrumentReportedError) or not isinstance(error, InstrumentError):
+            return False
+        examined = self.instrument.examine_fault(error)
+        if examined is not error:
+            raise examined from error
+        return False

@@ -299,11 +299,15 @@ class CommandTable:
     def __init__(self) -> None:
         self._commands: list[_Command] = []
         self._found: dict[tuple[tuple[str, ...], bool], Handler | None] = {}
+        self._by_header: dict[str, tuple[Handler, bool]] = {}   # exact absolute header text -> handler
+        self._paths: dict[str, list[str] | None] = {}
 
     def add(self, pattern: str, *, write: Handler | None = None, query: Handler | None = None) -> None:
         """Register a header; ``write`` for the command form, ``query`` for ``HEADER?``."""
         self._commands.append(_Command(parse_pattern(pattern), write, query))
         self._found.clear()
+        self._by_header.clear()
+        self._paths.clear()
 
     def _find(self, parts: list[str], is_query: bool) -> Handler:
         key = (tuple(part.upper() for part in parts), is_query)
@@ -329,6 +333,18 @@ class CommandTable:
                 if not unit:
                     continue
                 header, _, parameter_text = unit.partition(" ")
+                if header[:1] in ":*" and header in self._by_header:     # an absolute header seen before
+                    handler, is_query = self._by_header[header]
+                    path = self._paths[header]
+                    if path is not None:         # common (*) commands leave the path as it was
+                        previous_path = path
+                    arguments = ([a.strip() for a in _split_outside_quotes(parameter_text, ",")]
+                                 if parameter_text.strip() else [])
+                    reply = handler(arguments)
+                    if is_query and reply is not None:
+                        replies.append(reply)
+                    continue
+                full_header = header
                 is_query = header.endswith("?")
                 header = header[:-1] if is_query else header
                 if header.startswith("*"):
@@ -343,7 +359,11 @@ class CommandTable:
                     raise scpi_error(SYNTAX_ERROR)
                 arguments = ([a.strip() for a in _split_outside_quotes(parameter_text, ",")]
                              if parameter_text.strip() else [])
-                reply = self._find(parts, is_query)(arguments)
+                handler = self._find(parts, is_query)
+                if absolute:                     # the same text always means the same command
+                    self._by_header[full_header] = (handler, is_query)
+                    self._paths[full_header] = None if header.startswith("*") else previous_path
+                reply = handler(arguments)
                 if is_query and reply is not None:
                     replies.append(reply)
         except ScpiError as error:

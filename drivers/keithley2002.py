@@ -50,6 +50,10 @@ from dataclasses import dataclass
 from cryod.clock import Clock
 from drivers.errors import BadReply, InstrumentError, InstrumentTimeout, OverflowReading
 from drivers.keithley2002_timing import NORMAL_AUTOZERO_INTERVAL_S, ReadingTiming
+
+#: How much earlier the lower bound of a learned reading time moves after a fetch that got the reading
+#: at once (s): small against the 2 ms poll, so a drift of the mains phase is followed.
+LINE_SYNC_LEARNING_STEP_S = 0.00025
 from drivers.scpi import (Control, ScpiInstrument, count_or_infinite, integer, number, on_off, one_of,
                           parse_bool, parse_count, parse_token)
 from drivers.transports.base import Transport
@@ -292,6 +296,9 @@ class Keithley2002(ScpiInstrument):
         self.last_reading_number: int | None = None
         #: Trigger time of the reading at which the DMM was last seen to take its NORMal autozero.
         self.last_autozero_trigger_s: float | None = None
+        #: Bounds (s after the trigger) of when the last reading was ready, for readings without (False)
+        #: and with (True) an autozero.
+        self._learned_delay_s: dict[bool, tuple[float, float]] = {}
         if check_identity:
             with self.reporting_faults():
                 self.check_identity()
@@ -328,6 +335,7 @@ class Keithley2002(ScpiInstrument):
         self.settings = settings
         self.elements = tuple(elements)
         self.last_reading_number = None
+        self._learned_delay_s.clear()          # new settings, new timing
 
     def configure_trigger(self, source: TriggerSource, *, delay_s: float = 0.0,
                           link_input_line: int = 2, link_output_line: int = 1) -> None:
@@ -417,40 +425,82 @@ class Keithley2002(ScpiInstrument):
     def fetch_new_reading(self, trigger_time_s: float, *, timeout_s: float | None = None) -> DmmReading:
         """The reading of the trigger at ``trigger_time_s``, waiting on the clock until it is there.
 
-        Waits until the earliest time the reading can exist (``earliest_reading_delay_s``
-        after the trigger, plus ``fetch_margin_s``, plus ``first_reading_margin_s`` for
-        the first reading after configuration), then fetches. A reading whose number
-        has not advanced is the previous one (a NORMal autozero or the line-sync wait
-        delayed the new one): it is fetched again every ``fetch_poll_interval_s`` until
-        ``timeout_s`` (default: the transport's timeout) after the latest time the
-        reading could take, then :class:`~drivers.errors.InstrumentTimeout`.
+        The first ``:FETCh?`` goes out at the earliest time the reading can exist
+        (``earliest_reading_delay_s`` after the trigger plus ``fetch_margin_s``; plus
+        ``first_reading_margin_s`` for the first reading after configuration), or
+        later when the DMM's own timing is known to delay it:
+
+        * a NORMal autozero falls due every 200 ms: the trigger at which a reading
+          came one integration late is remembered, and the next reading due for a
+          zero is expected one integration later;
+        * with line sync the integration waits for the next mains zero crossing,
+          a phase the driver cannot know but which changes slowly: each reading's
+          delay is remembered (for readings with and without a zero apart) and the
+          next first fetch goes one poll interval before it, so a slow drift is
+          followed without polling every time.
+
+        A reading whose number has not advanced is the previous one: it is
+        fetched again every ``fetch_poll_interval_s`` until ``timeout_s`` (default:
+        the transport's timeout) after the latest time the reading could take,
+        then :class:`~drivers.errors.InstrumentTimeout`.
         """
         timing = self.timing
-        first = trigger_time_s + timing.earliest_delay_s + self.fetch_margin_s
+        earliest = trigger_time_s + timing.earliest_delay_s + self.fetch_margin_s
         normal_autozero = timing.autozero and not timing.autozero_synchronous
         zero_expected = (normal_autozero and self.last_autozero_trigger_s is not None
                          and trigger_time_s - self.last_autozero_trigger_s >= NORMAL_AUTOZERO_INTERVAL_S)
-        if zero_expected:               # the zero delays this reading by one integration: don't poll for it
-            first += timing.integration_time_s
-        if self.last_reading_number is None:
+        first = earliest + (timing.integration_time_s if zero_expected else 0.0)
+        learned = self._learned_delay_s.get(zero_expected)
+        if timing.line_sync and learned is not None:
+            low, high = learned
+            first = max(first, trigger_time_s + 0.5 * (low + high))
+        first_after_configuration = self.last_reading_number is None
+        if first_after_configuration:
             first += self.first_reading_margin_s
         limit = (trigger_time_s + self.reading_delay_s + self.fetch_margin_s
                  + (self.transport.timeout_s if timeout_s is None else timeout_s))
         self.clock.sleep_until(first)
+        last_miss_s = None
         with self.reporting_faults():
             while True:
                 reading = self.parse_reading(self.query(":FETCh?"))
                 if reading.reading_number is None or reading.reading_number != self.last_reading_number:
                     self.last_reading_number = reading.reading_number
-                    late = self.clock.now() - trigger_time_s - timing.earliest_delay_s
-                    if normal_autozero and (zero_expected or late > 0.5 * timing.integration_time_s):
-                        self.last_autozero_trigger_s = trigger_time_s
+                    if not first_after_configuration:     # its first fetch was late on purpose
+                        self._learn_timing(trigger_time_s, earliest, zero_expected, normal_autozero, timing,
+                                           last_miss_s)
                     return reading
+                last_miss_s = self.clock.now()
                 if self.clock.now() >= limit:
                     raise InstrumentTimeout(self.label, f"no new reading (number {reading.reading_number} "
                                                         f"again) {self.clock.now() - trigger_time_s:.3f} s "
                                                         f"after the trigger", reply=reading.reply)
                 self.clock.sleep_until(self.clock.now() + self.fetch_poll_interval_s)
+
+    def _learn_timing(self, trigger_time_s: float, earliest: float, zero_expected: bool, normal_autozero: bool,
+                      timing: ReadingTiming, last_miss_s: float | None) -> None:
+        """After a reading came: was there an autozero, and when was it ready.
+
+        The reading was ready after the last fetch that missed it and no later
+        than the one that got it: those bounds (relative to the trigger) are
+        kept, and the next first fetch goes between them (a bisection from
+        reading to reading). A first fetch that got it at once lowers the lower
+        bound a little, so that a phase drifting earlier is found again.
+        """
+        now = self.clock.now()
+        typical = self._learned_delay_s.get(False)
+        plain_ready = trigger_time_s + typical[1] if typical is not None else earliest
+        zero_seen = normal_autozero and (zero_expected or now - plain_ready > 0.5 * timing.integration_time_s)
+        if zero_seen:
+            self.last_autozero_trigger_s = trigger_time_s
+        high = now - trigger_time_s
+        if last_miss_s is not None:
+            low = last_miss_s - trigger_time_s
+        else:
+            previous = self._learned_delay_s.get(zero_seen)
+            low = min(previous[0], high) if previous is not None else high - self.fetch_poll_interval_s
+            low -= LINE_SYNC_LEARNING_STEP_S
+        self._learned_delay_s[zero_seen] = (low, high)
 
     def parse_reading(self, reply: str) -> DmmReading:
         """A reading string with the configured elements; overflow and garbage are typed errors."""

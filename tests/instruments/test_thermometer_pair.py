@@ -182,3 +182,46 @@ def test_pair_through_prologix_group_trigger(real_time_bench):
     assert controller.group_triggers == [(16, 17)]
     assert reading.skew_s == 0.0
     assert bench.flange_dmm._readings[-1].timestamp_s == bench.ptc_stage_dmm._readings[-1].timestamp_s
+
+
+def test_driver_learns_the_line_sync_and_autozero_delays():
+    """With line sync the integration waits for a mains zero crossing the driver cannot know:
+    it learns the delay instead of polling every 2 ms through it, reading after reading."""
+    from cryod.clock import VirtualClock
+    from drivers.keithley2002 import FourWireSettings, Keithley2002
+    from drivers.pair_triggers import GpibGroupTrigger
+    from drivers.thermometer_pair import ThermometerPair
+    from simulated_hw.bench import SimulatedBench
+
+    clock = VirtualClock(start_s=0.0137)          # triggers 13.7 ms after a zero crossing: a 6.3 ms wait
+    bench = SimulatedBench(clock, seed=2)
+    links = bench.in_process_transports()
+    dmms = [Keithley2002(link, clock, name) for link, name in ((links.flange_dmm, "flange"),
+                                                               (links.ptc_stage_dmm, "stage"))]
+    for dmm in dmms:
+        dmm.configure_four_wire_resistance(FourWireSettings(range_ohm=20e3, nplc=1, line_sync=True))
+    pair = ThermometerPair(*dmms, GpibGroupTrigger(bench.gpib_interface, [links.flange_dmm, links.ptc_stage_dmm],
+                                                   clock), clock)
+    fetches = []
+    original = links.flange_dmm.query
+
+    def counting(command):
+        if command == ":FETCh?":
+            fetches.append(clock.now())
+        return original(command)
+
+    links.flange_dmm.query = counting
+    delays = []
+    for tick in range(300):
+        trigger = 0.0137 + tick * 0.08
+        clock.sleep_until(trigger)
+        reading = pair.measure()
+        delays.append(reading.fetched_time_s - reading.trigger_time_s)
+    assert len(fetches) / 300 < 1.6                          # polling every 2 ms would be about 4 per reading
+    plain = [d for d in delays[20:] if d < 0.04]
+    zeroed = [d for d in delays[20:] if d >= 0.04]
+    # a NORMal autozero falls due 200 ms after the last: every third reading at 80 ms
+    assert len(zeroed) == pytest.approx(280 / 3, abs=2)
+    ready = 0.0063 + 0.022                                    # sync wait, then the reading
+    assert max(plain) < ready + 0.0005 + 0.002                # at most one poll late
+    assert max(zeroed) < ready + 0.020 + 0.0005 + 0.002       # one integration more for the zero

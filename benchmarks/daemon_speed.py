@@ -1,6 +1,6 @@
 """The daemon's two performance targets (issue: the daemon), measured through its own command line.
 
-Run: PYTHONPATH=. python3 benchmarks/daemon_speed.py [--realtime-s 600] [--max-s 3600] [--skip-realtime]
+Run: PYTHONPATH=. python3 benchmarks/daemon_speed.py [--realtime-s 600] [--max-s 3600] [--repeat 5] [--skip-realtime]
 
 * --speed max: one simulated hour (45,000 ticks of the full daemon: drivers, simulated
   instruments in process, loop, data log) on virtual time; target <= 10 s wall time.
@@ -8,7 +8,9 @@ Run: PYTHONPATH=. python3 benchmarks/daemon_speed.py [--realtime-s 600] [--max-s
   10 minutes; target 0 overruns, p99 lateness <= 2 ms, CPU <= 10 % of one core.
 
 Each run is a separate `cryod --simulate ... --json` process; the numbers are from its summary
-(CPU is the process's user + system time over its wall time).
+(CPU is the process's user + system time over its wall time). This virtual machine's speed varies
+by up to 30 % from run to run for the same code, so the --speed max run is repeated and the best
+and the median are reported.
 """
 
 from __future__ import annotations
@@ -45,17 +47,22 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--realtime-s", type=float, default=600.0)
     parser.add_argument("--max-s", type=float, default=3600.0)
+    parser.add_argument("--repeat", type=int, default=5, help="runs of the --speed max hour")
     parser.add_argument("--skip-realtime", action="store_true")
     args = parser.parse_args()
     print(f"python {platform.python_version()}, {os.cpu_count()} cores, load average "
           f"{os.getloadavg()[0]:.2f} at start")
-    fast = run("--speed", "max", "--duration", str(args.max_s))
-    print(f"\n--speed max, {args.max_s:g} simulated s ({fast['ticks']} ticks, in process):")
-    print(f"| wall time of the loop (s) | whole process incl. start-up (s) | simulated s per wall s "
-          f"| CPU (% of one core) |")
-    print("|---|---|---|---|")
-    print(f"| {fast['wall_s']:.2f} | {fast['process_wall_s']:.2f} | {args.max_s / fast['wall_s']:.0f} "
-          f"| {fast['cpu_percent_of_one_core']:.0f} |")
+    runs = sorted((run("--speed", "max", "--duration", str(args.max_s)) for _ in range(args.repeat)),
+                  key=lambda summary: summary["wall_s"])
+    best, median = runs[0], runs[len(runs) // 2]
+    print(f"\n--speed max, {args.max_s:g} simulated s ({best['ticks']} ticks, in process), {args.repeat} runs:")
+    print("| | wall time of the daemon run (s) | whole process incl. start-up (s) | simulated s per wall s "
+          "| CPU (% of one core) |")
+    print("|---|---|---|---|---|")
+    for name, summary in (("best", best), ("median", median)):
+        print(f"| {name} | {summary['wall_s']:.2f} | {summary['process_wall_s']:.2f} "
+              f"| {args.max_s / summary['wall_s']:.0f} | {summary['cpu_percent_of_one_core']:.0f} |")
+    print("all runs (s): " + ", ".join(f"{summary['wall_s']:.2f}" for summary in runs))
     if args.skip_realtime:
         return
     real = run("--duration", str(args.realtime_s))

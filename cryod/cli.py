@@ -99,15 +99,22 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--json", action="store_true", dest="ctl_json", help="print the raw JSON reply")
     ctl.add_argument("words", nargs="+", metavar="COMMAND",
                      help="status | setpoint K | ramp K_PER_MIN | heater-off | manual W")
-    for name, module, summary in MODEL_TOOLS:
-        tool = importlib.import_module(module)
-        sub = commands.add_parser(name, help=summary)
-        tool.configure_parser(sub)
-        sub.set_defaults(handler=tool.run)
+    for name, _, summary in MODEL_TOOLS:      # listed here, loaded only when used (see main)
+        commands.add_parser(name, help=summary, add_help=False)
     return parser
 
 
+def _run_model_tool(name: str, argv: list[str]) -> int:
+    """``cryod analyze ...`` / ``cryod identify ...``: the tool's module parses its own arguments."""
+    module = importlib.import_module(dict((n, m) for n, m, _ in MODEL_TOOLS)[name])
+    parser = module.configure_parser(argparse.ArgumentParser(prog=f"cryod {name}"))
+    return module.run(parser.parse_args(argv))
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in {name for name, _, _ in MODEL_TOOLS}:
+        return _run_model_tool(argv[0], argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.simulate and args.command:
@@ -120,8 +127,6 @@ def main(argv: list[str] | None = None) -> int:
         return _run_service(args)
     if args.command == "ctl":
         return _ctl(args)
-    if args.command is not None and hasattr(args, "handler"):
-        return args.handler(args)
     parser.print_help(sys.stderr)
     return 2
 

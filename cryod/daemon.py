@@ -39,7 +39,8 @@ log = logging.getLogger("cryod.daemon")
 
 UNITS = ("time_s: s since the record start, at the trigger instant (monotonic clock); T2_K, T5_K: K; "
          "heater_W: W, applied from this row until the next; setpoint_K: K, empty when the loop is open; "
-         "T2_ohm, T5_ohm: ohm; trigger_skew_ms, lateness_ms: ms; pi_proportional_W, pi_integral_W: W; "
+         "T2_ohm, T5_ohm: ohm; trigger_skew_ms, lateness_ms, cycle_ms (tick start to row): ms; "
+         "pi_proportional_W, pi_integral_W: W; "
          "state: loop state")
 
 

@@ -34,7 +34,7 @@ log = logging.getLogger("cryod.loop")
 
 #: Columns of every row, in order (the first five are the cryod-log v1 contract).
 ROW_COLUMNS = ("time_s", "T2_K", "T5_K", "heater_W", "setpoint_K", "T2_ohm", "T5_ohm", "trigger_skew_ms",
-               "lateness_ms", "pi_proportional_W", "pi_integral_W", "state")
+               "lateness_ms", "cycle_ms", "pi_proportional_W", "pi_integral_W", "state")
 
 STATE_HOLDING = "holding"          # start-up: heater off until readings are valid and in range
 STATE_CLOSED = "closed"            # regulating to the setpoint
@@ -245,6 +245,7 @@ class ControlLoop:
         self._recovering_since: float | None = None
         self._last_reconnect_s = -math.inf
         self._last_trigger_s: float | None = None
+        self._tick_start_s = 0.0
         self._gc = LoopGarbageCollector()
 
     # -- from other threads ---------------------------------------------------
@@ -289,6 +290,7 @@ class ControlLoop:
                                                         f"the next deadline (last: {missed} period(s) late)"))
                 if manage_gc and self.exit_code is None:
                     self._gc.collect_if_time(deadline - self.clock.now())
+                    self.timing.gc_longest_s = self._gc.longest_s
         except BaseException as error:     # the heater must be off whatever happened
             self._heater_off_or_die()
             self._stop(1, Fault("exception", f"{type(error).__name__}: {error}"))
@@ -300,7 +302,7 @@ class ControlLoop:
 
     # -- one tick -----------------------------------------------------------------
     def _tick(self, deadline: float) -> None:
-        tick_start = self.clock.now()
+        tick_start = self._tick_start_s = self.clock.now()
         self.timing.record_tick(tick_start - deadline)
         self._apply_commands()
         if self._stop_reason is not None:
@@ -372,6 +374,7 @@ class ControlLoop:
     def _finish_row(self, row: dict, flange_K: float, stage_K: float) -> None:
         row.setdefault("state", self.state)
         row.setdefault("heater_W", self.heater_w)
+        row["cycle_ms"] = (self.clock.now() - self._tick_start_s) * 1e3
         self.emit_row(row)
         closed = self.state == STATE_CLOSED
         # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
@@ -449,7 +452,7 @@ class ControlLoop:
         self.last_fault = fault
         self._valid_in_a_row = 0
         if row is not None:
-            row.update(heater_W=0.0, state=f"fault:{fault.cause}")
+            row.update(heater_W=0.0, state=f"fault:{fault.cause}", cycle_ms=(self.clock.now() - self._tick_start_s) * 1e3)
             self.emit_row(row)
         if self.state in (STATE_RECOVERING, STATE_HOLDING) and fault.recoverable:
             self._publish_fault_state(self.state)

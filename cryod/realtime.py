@@ -10,6 +10,7 @@ import ctypes
 import ctypes.util
 import gc
 import os
+import time
 
 MCL_CURRENT = 1
 MCL_FUTURE = 2
@@ -53,6 +54,7 @@ class LoopGarbageCollector:
         self.full_every = full_every
         self._calls = 0
         self._was_enabled = gc.isenabled()
+        self.longest_s = 0.0          # longest collection so far (real time)
 
     def start(self) -> None:
         gc.collect()
@@ -70,4 +72,6 @@ class LoopGarbageCollector:
             return
         self._calls += 1
         generation = 2 if self._calls % self.full_every == 0 else (1 if self._calls % 50 == 0 else 0)
+        started = time.perf_counter()
         gc.collect(generation)
+        self.longest_s = max(self.longest_s, time.perf_counter() - started)

@@ -244,6 +244,7 @@ def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: floa
         "lateness_ms_p50": timing.get("lateness_ms_p50"),
         "lateness_ms_p99": timing.get("lateness_ms_p99"),
         "lateness_ms_max": timing.get("lateness_ms_max"),
+        "gc_ms_max": timing.get("gc_ms_max"),
         "wall_s": round(result.wall_s, 3),
         "cpu_s": round(cpu_s, 3),
         "cpu_percent_of_one_core": round(100.0 * cpu_s / result.wall_s, 2) if result.wall_s > 0 else None,

@@ -35,6 +35,7 @@ class LoopTiming:
         self.missed_deadlines = 0
         self.overrun_streak = 0
         self.lateness_max_s = 0.0
+        self.gc_longest_s = 0.0
 
     def record_tick(self, lateness_s: float) -> None:
         """One tick started ``lateness_s`` after its deadline."""
@@ -77,4 +78,5 @@ class LoopTiming:
             "lateness_ms_p50": round(self.percentile_s(0.50) * 1e3, 3),
             "lateness_ms_p99": round(self.percentile_s(0.99) * 1e3, 3),
             "lateness_ms_max": round(self.lateness_max_s * 1e3, 3),
+            "gc_ms_max": round(self.gc_longest_s * 1e3, 3),
         }

@@ -25,6 +25,10 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
+from cryod.record import read_record
+
 REPOSITORY = Path(__file__).resolve().parent.parent
 
 
@@ -36,33 +40,47 @@ def run(*arguments: str) -> dict:
              "--socket", f"{folder}/c.sock", *arguments],
             capture_output=True, text=True, cwd=REPOSITORY, env=dict(os.environ, PYTHONPATH=str(REPOSITORY)))
         elapsed = time.perf_counter() - started
-    if result.returncode != 0:
-        raise SystemExit(f"cryod failed ({result.returncode}): {result.stderr[-2000:]}")
-    summary = json.loads(result.stdout)
-    summary["process_wall_s"] = elapsed
+        if result.returncode != 0:
+            raise SystemExit(f"cryod failed ({result.returncode}): {result.stderr[-2000:]}")
+        summary = json.loads(result.stdout)
+        summary["process_wall_s"] = elapsed
+        summary["cycle_ms"] = cycle_statistics(summary["log_paths"])
     return summary
+
+
+def cycle_statistics(log_paths: list[str]) -> dict:
+    """Median, p99 and maximum of the ``cycle_ms`` column (tick start to data row) of a daemon's logs,
+    and the overrun events with the time of the row they precede."""
+    records = [read_record(path) for path in log_paths]
+    cycles = np.concatenate([record.columns["cycle_ms"] for record in records])
+    cycles = cycles[np.isfinite(cycles)]
+    overruns = [f"t = {record.time_s[min(index, len(record) - 1)]:.1f} s: {text}"
+                for record in records for index, text in record.events if text.startswith("overrun:")]
+    return {"p50": float(np.median(cycles)), "p99": float(np.percentile(cycles, 99)),
+            "max": float(cycles.max()), "overruns": overruns}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--realtime-s", type=float, default=600.0)
     parser.add_argument("--max-s", type=float, default=3600.0)
-    parser.add_argument("--repeat", type=int, default=5, help="runs of the --speed max hour")
+    parser.add_argument("--repeat", type=int, default=5, help="runs of the --speed max hour (0: none)")
     parser.add_argument("--skip-realtime", action="store_true")
     args = parser.parse_args()
     print(f"python {platform.python_version()}, {os.cpu_count()} cores, load average "
           f"{os.getloadavg()[0]:.2f} at start")
-    runs = sorted((run("--speed", "max", "--duration", str(args.max_s)) for _ in range(args.repeat)),
-                  key=lambda summary: summary["wall_s"])
-    best, median = runs[0], runs[len(runs) // 2]
-    print(f"\n--speed max, {args.max_s:g} simulated s ({best['ticks']} ticks, in process), {args.repeat} runs:")
-    print("| | wall time of the daemon run (s) | whole process incl. start-up (s) | simulated s per wall s "
-          "| CPU (% of one core) |")
-    print("|---|---|---|---|---|")
-    for name, summary in (("best", best), ("median", median)):
-        print(f"| {name} | {summary['wall_s']:.2f} | {summary['process_wall_s']:.2f} "
-              f"| {args.max_s / summary['wall_s']:.0f} | {summary['cpu_percent_of_one_core']:.0f} |")
-    print("all runs (s): " + ", ".join(f"{summary['wall_s']:.2f}" for summary in runs))
+    if args.repeat > 0:
+        runs = sorted((run("--speed", "max", "--duration", str(args.max_s)) for _ in range(args.repeat)),
+                      key=lambda summary: summary["wall_s"])
+        best, median = runs[0], runs[len(runs) // 2]
+        print(f"\n--speed max, {args.max_s:g} simulated s ({best['ticks']} ticks, in process), {args.repeat} runs:")
+        print("| | wall time of the daemon run (s) | whole process incl. start-up (s) | simulated s per wall s "
+              "| CPU (% of one core) |")
+        print("|---|---|---|---|---|")
+        for name, summary in (("best", best), ("median", median)):
+            print(f"| {name} | {summary['wall_s']:.2f} | {summary['process_wall_s']:.2f} "
+                  f"| {args.max_s / summary['wall_s']:.0f} | {summary['cpu_percent_of_one_core']:.0f} |")
+        print("all runs (s): " + ", ".join(f"{summary['wall_s']:.2f}" for summary in runs))
     if args.skip_realtime:
         return
     real = run("--duration", str(args.realtime_s))
@@ -71,6 +89,12 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|")
     print(f"| {real['ticks']} | {real['overruns']} | {real['lateness_ms_p50']} | {real['lateness_ms_p99']} "
           f"| {real['lateness_ms_max']} | {real['cpu_percent_of_one_core']:.1f} | {real['trigger']} |")
+    cycle = real["cycle_ms"]
+    print(f"\ncycle (tick start to data row, column cycle_ms): median {cycle['p50']:.1f} ms, "
+          f"p99 {cycle['p99']:.1f} ms, max {cycle['max']:.1f} ms; longest garbage collection "
+          f"{real['gc_ms_max']} ms")
+    for event in cycle["overruns"]:
+        print("  " + event)
     print(f"\nregulation over the last 300 s of the real-time run: line {real['ptc_line_amplitude_K'] * 1e3:.3f} mK, "
           f"rms {real['rms_K'] * 1e3:.3f} mK, mean error {real['mean_error_K'] * 1e6:.1f} uK")
 

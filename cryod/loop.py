@@ -283,6 +283,10 @@ class ControlLoop:
                 now = self.clock.now()
                 missed = int((now - deadline) // self.period_s) if now > deadline + self.period_s else 0
                 self.timing.record_cycle_end(missed)
+                if missed:
+                    self._event(f"overrun: cycle ended {(now - deadline) * 1e3:.1f} ms after its deadline "
+                                f"(started {(self._tick_start_s - deadline) * 1e3:.1f} ms late); "
+                                f"{missed} deadline(s) skipped")
                 deadline += (missed + 1) * self.period_s
                 if missed and self.timing.overrun_streak >= self.config.loop.overrun_streak_limit \
                         and self.exit_code is None:

@@ -63,6 +63,10 @@ def test_overrun_skips_to_next_deadline_and_a_streak_stops_with_heater_off(refer
     steps = np.diff(times)
     assert steps.min() >= 0.08 - 1e-9                       # never a burst to catch up
     assert np.isclose(steps, 0.24).sum() >= 1               # skipped two deadlines after the long cycle
+    overruns = [event for event in events if event.startswith("overrun:")]
+    assert overruns[0].endswith("2 deadline(s) skipped")
+    assert 200.0 < float(overruns[0].split("cycle ended ")[1].split(" ms")[0]) < 240.0   # the 0.2 s delay + reading
+    assert len(overruns) == loop.timing.summary()["overruns"]
     assert code == 5 and loop.last_fault.cause == "overrun_streak"
     assert loop.timing.summary()["overruns"] >= 5
     assert cryostat.heater_power_w == 0.0

@@ -65,7 +65,10 @@ def test_analyze_writes_report_figures_model_and_json(dead_time_record, tmp_path
     status, out, err = _analyze(capsys, dead_time_record, "--model", result["extended_model"], "--out",
                                 tmp_path / "again", "--json", "--no-figures")
     assert status == 0 and json.loads(out)["cause"] == "none", err
-    assert cli.main(["--simulate", "--sim-model", result["extended_model"], "--duration", "8", "--json"]) == 0
+    assert cli.main(["--simulate", "--sim-model", result["extended_model"], "--duration", "8", "--speed", "max",
+                     "--data-dir", str(tmp_path / "data"), "--socket", str(tmp_path / "c.sock"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["ticks"] == 100 and summary["log_path"].startswith(str(tmp_path))
 
 
 def test_missing_column_is_refused_with_its_name(tmp_path, capsys):

@@ -27,7 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
+from cryod.model import load_model
 from cryod.record import read_record
+from plant_speed import PERIOD_S, STEPS, best_of, heater_program, run_stepping   # this folder
 
 REPOSITORY = Path(__file__).resolve().parent.parent
 
@@ -60,6 +62,17 @@ def cycle_statistics(log_paths: list[str]) -> dict:
             "max": float(cycles.max()), "overruns": overruns}
 
 
+def reference_s(repeat: int = 3) -> float:
+    """This machine's speed now: the plant stepped through one hour in Python (plant_speed.py), best of ``repeat``.
+
+    It is interpreter-bound work like the daemon's, so the ratio of the two compares runs made on
+    different days, when this virtual machine's speed differs."""
+    model = load_model()
+    times = np.arange(STEPS) * PERIOD_S
+    powers = heater_program(times)
+    return best_of(repeat, lambda: run_stepping(model, times, powers))[0]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--realtime-s", type=float, default=600.0)
@@ -70,6 +83,7 @@ def main() -> None:
     print(f"python {platform.python_version()}, {os.cpu_count()} cores, load average "
           f"{os.getloadavg()[0]:.2f} at start")
     if args.repeat > 0:
+        reference = reference_s()
         runs = sorted((run("--speed", "max", "--duration", str(args.max_s)) for _ in range(args.repeat)),
                       key=lambda summary: summary["wall_s"])
         best, median = runs[0], runs[len(runs) // 2]
@@ -81,6 +95,9 @@ def main() -> None:
             print(f"| {name} | {summary['wall_s']:.2f} | {summary['process_wall_s']:.2f} "
                   f"| {args.max_s / summary['wall_s']:.0f} | {summary['cpu_percent_of_one_core']:.0f} |")
         print("all runs (s): " + ", ".join(f"{summary['wall_s']:.2f}" for summary in runs))
+        print(f"machine reference (CryostatPlant stepped through the hour, best of 3): {reference:.3f} s; "
+              f"daemon best / reference: {best['wall_s'] / reference:.1f}, median / reference: "
+              f"{median['wall_s'] / reference:.1f}")
     if args.skip_realtime:
         return
     real = run("--duration", str(args.realtime_s))

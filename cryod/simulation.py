@@ -209,12 +209,10 @@ def run_simulation(args) -> int:
         result = daemon.run(args.duration)
     except Exception as error:
         logging.getLogger("cryod").critical("simulation stopped: %s: %s", type(error).__name__, error)
-        logging_service.stop()
         print(f"cryod: {type(error).__name__}: {error}", file=sys.stderr)
         return 1
     finally:
-        if logging_service is not None:
-            logging_service.stop()
+        logging_service.stop()
     summary = summarize(result, collector, model.ptc.angular_frequency_rad_s, _cpu_seconds() - cpu_start)
     summary["trigger"] = opener.trigger_note
     if args.json:

@@ -90,3 +90,13 @@ def test_sim_model_changes_the_cryostat_but_not_the_controller(tmp_path, capsys)
     summary = json.loads(capsys.readouterr().out)
     assert summary["ptc_line_amplitude_K"] < 0.7e-3                   # 1.78 mK / |1 + j 3.25|
     assert read_record(summary["log_path"]).metadata["simulated_model"] == str(path)
+
+
+def test_simulation_that_fails_exits_1_with_the_reason(tmp_path, capsys, monkeypatch):
+    import cryod.simulation
+
+    def broken_run(self, duration_s=None):
+        raise RuntimeError("instrument opener broke")
+    monkeypatch.setattr(cryod.simulation.Daemon, "run", broken_run)
+    assert main(simulate_args(tmp_path, "--duration", "1")) == 1
+    assert "RuntimeError: instrument opener broke" in capsys.readouterr().err

@@ -58,14 +58,20 @@ class ServiceLogging:
         self._queue_handler = logging.handlers.QueueHandler(self._queue)
         self.level = level
         self._logger = logging.getLogger("cryod")
+        self._running = False
 
     def start(self) -> None:
         self._logger.addHandler(self._queue_handler)
         self._logger.setLevel(self.level)
         self._logger.propagate = False
         self._listener.start()
+        self._running = True
 
     def stop(self) -> None:
+        """Write what is queued and detach; a second call does nothing."""
+        if not self._running:
+            return
+        self._running = False
         self._listener.stop()
         self._logger.removeHandler(self._queue_handler)
         self._logger.propagate = True

@@ -41,6 +41,11 @@ def _utc_text(wall_s: float) -> str:
     return dt.datetime.fromtimestamp(wall_s, dt.timezone.utc).isoformat(timespec="milliseconds")
 
 
+def _event_line(text: str) -> str:
+    """An event as one comment line (a text of several lines joined, so no line escapes the ``#``)."""
+    return f"# event: {' '.join(text.splitlines())}\n"
+
+
 class DataLog:
     """Writes rows and events to daily cryod-log files.
 
@@ -157,7 +162,7 @@ class DataLog:
         if self._stream is None:
             self._pending_events.append(text)
             return
-        self._stream.write(f"# event: {' '.join(text.splitlines())}\n")
+        self._stream.write(_event_line(text))
         self._dirty = True
 
     def _open(self, day: str, origin_s: float) -> None:
@@ -169,7 +174,7 @@ class DataLog:
         header = {"record_start_utc": _utc_text(self.monotonic_to_wall(origin_s)), **self.metadata}
         self._stream.write(format_header(header, self.columns))
         for text in self._pending_events:
-            self._stream.write(f"# event: {text}\n")
+            self._stream.write(_event_line(text))
         self._pending_events.clear()
         self._stream.flush()
         self._sync()

@@ -28,6 +28,7 @@ def test_data_log_writes_contract_files_and_never_overwrites(tmp_path):
     log_a = DataLog(tmp_path, ROW_COLUMNS, {"site": "test"}, lambda t: wall_start + t, 0.08, 0.5)
     log_a.start()
     log_a.put("started")
+    log_a.put("fault: exception: RuntimeError: first line\nsecond line")   # queued before the first file opens
     for row in rows(0.08, 100):
         log_a.put(row)
     log_a.stop()
@@ -44,6 +45,7 @@ def test_data_log_writes_contract_files_and_never_overwrites(tmp_path):
     assert first.read_text().splitlines()[0] == "# cryod-log v1"
     assert read_record(second).time_s[0] == pytest.approx(0.08)     # each file counts from its own start
     assert any("started" in line for line in first.read_text().splitlines()[:5])
+    assert record.events[1] == (0, "event: fault: exception: RuntimeError: first line second line")
 
 
 def test_data_log_rotates_at_utc_midnight(tmp_path):

@@ -98,8 +98,7 @@ class DriverInstruments:
         for dmm in self.pair.dmms:
             dmm.configure_four_wire_resistance(self.dmm_settings)
         self.pair.prepare()
-        self.heater.configure_source()
-        self.heater.output_is_on = False
+        self.heater.configure()
 
     def close(self) -> None:
         """Heater output off first, then everything else (each step best effort)."""

@@ -125,7 +125,16 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         with self.safe_on_fault():
             if check_identity:
                 self.check_identity()
-            self.configure_source()
+            self.configure()
+
+    def configure(self) -> None:
+        """Configure the supply (:meth:`configure_source`: output off, 0 A) and record that state.
+
+        Called at connect and again after a reconnect, when the supply may have been reset.
+        """
+        self.configure_source()
+        self.output_is_on = False
+        self.current_a = 0.0
 
     # -- limits ------------------------------------------------------------------------
     @property

@@ -54,6 +54,17 @@ def test_power_reaches_the_cryostat_at_the_instant_of_the_write(supply, clock):
     assert bench.cryostat.true_temperatures()[0] > flange_before_K + 0.01
 
 
+def test_configure_again_leaves_supply_and_driver_off_then_output_returns_on_demand(supply):
+    bench, heater = supply            # what a reconnect does after the supply may have been reset
+    heater.set_power_w(0.08)
+    heater.configure()
+    assert_off(bench)
+    assert heater.current_a == 0.0 and not heater.output_is_on
+    heater.set_power_w(0.05)          # the output is switched on again, not assumed on
+    assert bench.heater_supply.output_on
+    assert bench.cryostat.heater_power_w == pytest.approx(0.05, rel=1e-5)
+
+
 def test_read_back(supply):
     bench, heater = supply
     heater.set_power_w(0.08)

@@ -20,7 +20,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from cryod.yaml_source import FileFormatError, Section
+from cryod.yaml_source import FileFormatError, Section, read_text_file
 
 CONFIG_FORMAT = "cryod-config v1"
 EXAMPLE_CONFIG_PATH = Path(__file__).resolve().parent / "data" / "cryod.yaml"
@@ -204,10 +204,8 @@ def load_config(path: str | Path) -> DaemonConfig:
         the message names the file, the line and the key.
     """
     path = Path(path)
-    top = Section.from_file(path)
-    base = path.resolve().parent
-    config = _config_from_section(top, base)
-    text = path.read_text(encoding="utf-8")
+    text = read_text_file(path)            # read once: the recorded text is the text that was parsed
+    config = _config_from_section(Section.from_text(text, str(path)), path.resolve().parent)
     return dataclasses.replace(config, source=str(path), text=text)
 
 

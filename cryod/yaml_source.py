@@ -101,6 +101,17 @@ def _parse(text: str, source: str) -> Any:
 _MISSING = object()
 
 
+def read_text_file(path: str | Path) -> str:
+    """The text of a UTF-8 file; a missing or unreadable file is a :class:`FileFormatError`."""
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileFormatError(str(path), None, "", "file not found") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise FileFormatError(str(path), None, "", f"cannot read: {error}") from None
+
+
 class Section:
     """One YAML mapping being validated.
 
@@ -135,14 +146,7 @@ class Section:
     @classmethod
     def from_file(cls, path: str | Path) -> "Section":
         """Read and parse a YAML file; a missing or unreadable file is a FileFormatError."""
-        path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise FileFormatError(str(path), None, "", "file not found") from None
-        except (OSError, UnicodeDecodeError) as error:
-            raise FileFormatError(str(path), None, "", f"cannot read: {error}") from None
-        return cls.from_text(text, str(path))
+        return cls.from_text(read_text_file(path), str(path))
 
     # -- locations and errors -------------------------------------------
     def key_path(self, key: str) -> str:

@@ -26,7 +26,7 @@ from typing import Callable, Protocol
 from cryod.config import DaemonConfig
 from cryod.control.pi import PiController, PiGains, SetpointRamp
 from cryod.realtime import LoopGarbageCollector
-from cryod.safety import EXIT_INSTRUMENTS_LOST, EXIT_OK, Fault, ReadingChecks, fault_from_instrument_error
+from cryod.safety import EXIT_EXCEPTION, EXIT_INSTRUMENTS_LOST, EXIT_OK, Fault, ReadingChecks, fault_from_instrument_error
 from cryod.timing import LoopTiming
 from drivers.errors import InstrumentError
 
@@ -297,7 +297,7 @@ class ControlLoop:
                     self.timing.gc_longest_s = self._gc.longest_s
         except BaseException as error:     # the heater must be off whatever happened
             self._heater_off_or_die()
-            self._stop(1, Fault("exception", f"{type(error).__name__}: {error}"))
+            self._stop(EXIT_EXCEPTION, Fault("exception", f"{type(error).__name__}: {error}"))
             raise
         finally:
             if manage_gc:
@@ -345,8 +345,7 @@ class ControlLoop:
             return
         dt = self.period_s if self._last_trigger_s is None else measurement.trigger_time_s - self._last_trigger_s
         self._last_trigger_s = measurement.trigger_time_s
-        power = self._heater_power(TickInputs(measurement.trigger_time_s, dt, flange_K, stage_K,
-                                              self.ramp.setpoint_K), row)
+        power = self._heater_power(measurement.trigger_time_s, dt, flange_K, stage_K, row)
         try:
             self.instruments.set_heater_power(power)
         except InstrumentError as error:
@@ -357,15 +356,15 @@ class ControlLoop:
         self._finish_row(row, flange_K, stage_K)
         self.watchdog()
 
-    def _heater_power(self, tick: TickInputs, row: dict) -> float:
+    def _heater_power(self, time_s: float, dt_s: float, flange_K: float, stage_K: float, row: dict) -> float:
         if self.state == STATE_MANUAL:
             row["state"] = STATE_MANUAL
             return self.manual_power_w
         if self.state == STATE_OFF:
             row["state"] = STATE_OFF
             return 0.0
-        setpoint = self.ramp.advance(tick.dt_s)
-        tick = TickInputs(tick.time_s, tick.dt_s, tick.flange_K, tick.ptc_stage_K, setpoint)
+        setpoint = self.ramp.advance(dt_s)
+        tick = TickInputs(time_s, dt_s, flange_K, stage_K, setpoint)
         requested = sum(term.update(tick) for term in self.terms)
         applied = min(max(requested, 0.0), self.config.heater.max_power_w)
         for term in self.terms:
@@ -418,11 +417,9 @@ class ControlLoop:
             resume_to = self.mode_after_holding
             self.state = resume_to
             self._recovering_since = None
-            if resume_to == STATE_CLOSED:
-                tick = TickInputs(measurement.trigger_time_s, self.period_s, flange_K, stage_K,
-                                  self.ramp.setpoint_K)
-                if previous == STATE_HOLDING:
-                    self._close_loop(tick, present_power_w=0.0)
+            if resume_to == STATE_CLOSED and previous == STATE_HOLDING:
+                self._close_loop(TickInputs(measurement.trigger_time_s, self.period_s, flange_K, stage_K,
+                                            self.ramp.setpoint_K), present_power_w=0.0)
             self._event(f"resumed: {waiting_for} valid readings after {previous}; state {resume_to}")
         self._finish_row(row, flange_K, stage_K)
 
@@ -482,7 +479,7 @@ class ControlLoop:
             self.last_fault = fault
             self._event(f"fault: {fault}")
             log.critical("%s", fault)
-            self.exit_code = 6
+            self.exit_code = fault.exit_code
 
     def _stop(self, exit_code: int, fault: Fault | None) -> None:
         self._heater_off_or_die()

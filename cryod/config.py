@@ -47,12 +47,6 @@ class InstrumentAddress:
     prologix_host: str | None = None       # host of a GPIB-ETHERNET adapter
     gpib_address: int | None = None
 
-    def describe(self) -> str:
-        if self.resource:
-            return self.resource
-        where = self.prologix_port or f"{self.prologix_host}:1234"
-        return f"Prologix {where}, GPIB address {self.gpib_address}"
-
 
 @dataclass(frozen=True)
 class DmmSettings:
@@ -166,11 +160,12 @@ class DaemonConfig:
     source: str = ""
     text: str = ""
 
-    #: Sections that can change on reload (SIGHUP); others need a restart.
-    RELOADABLE = ("control", "safety", "loop.overrun_streak_limit")
-
     def restart_needed_for(self, new: "DaemonConfig") -> list[str]:
-        """Keys that differ in ``new`` but cannot be changed on a running daemon."""
+        """Keys that differ in ``new`` but cannot be changed on a running daemon.
+
+        The sections ``control`` and ``safety`` and ``loop.overrun_streak_limit`` change on
+        reload (SIGHUP); everything else needs a restart.
+        """
         changed = []
         for field in dataclasses.fields(self):
             name = field.name

@@ -11,7 +11,6 @@ listener run beside it and talk to the loop through queues and snapshots.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import platform
 import signal
@@ -235,11 +234,6 @@ def config_or_exit(path: str | Path, stderr) -> DaemonConfig | None:
     except FileFormatError as error:
         print(f"cryod: configuration not usable, nothing was started: {error}", file=stderr)
         return None
-
-
-def with_overrides(config: DaemonConfig, **sections) -> DaemonConfig:
-    """A copy of the configuration with whole sections replaced."""
-    return dataclasses.replace(config, **sections)
 
 
 __all__ = ["Daemon", "RunResult", "record_metadata", "config_or_exit", "EXIT_CONFIG"]

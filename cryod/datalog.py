@@ -82,7 +82,6 @@ class DataLog:
         self._last_fsync = 0.0
         self._dirty = False
         self.paths: list[Path] = []
-        self.rows_written = 0
         self.error: BaseException | None = None
         self._pending_events: list[str] = []     # events before the first file is open
 
@@ -104,10 +103,6 @@ class DataLog:
         self._queue.put(_STOP)
         self._thread.join(timeout_s)
         self._thread = None
-
-    @property
-    def current_path(self) -> Path | None:
-        return self.paths[-1] if self.paths else None
 
     # -- writer thread -------------------------------------------------------------
     def _run(self) -> None:
@@ -156,7 +151,6 @@ class DataLog:
         values["time_s"] = clock_time - self._origin_s
         self._stream.write(format_row(self.columns, values))
         self._dirty = True
-        self.rows_written += 1
 
     def _write_event(self, text: str) -> None:
         if self._stream is None:

@@ -127,13 +127,12 @@ def four_wire_settings(settings: DmmSettings) -> FourWireSettings:
 
 def assemble_instruments(config: DaemonConfig, clock, flange_transport: Transport, stage_transport: Transport,
                          heater_transport: Transport, make_trigger: Callable[[], PairTrigger],
-                         extra_transports: list[Transport] = (), on_close: Callable[[], None] | None = None
-                         ) -> DriverInstruments:
+                         on_close: Callable[[], None] | None = None) -> DriverInstruments:
     """Drivers on the given transports: identity checked, configured, heater output off.
 
     On any failure, what was opened is closed (heater off first) and the error re-raised.
     """
-    transports = [heater_transport, flange_transport, stage_transport, *extra_transports]
+    transports = [heater_transport, flange_transport, stage_transport]
     heater = None
     try:
         heater_config = config.heater

@@ -268,7 +268,6 @@ class ControlLoop:
             Exit code (0 after a requested stop or the end of ``duration_s``).
         """
         start = self.clock.now()
-        self.start_time_s = start
         end = start + duration_s if duration_s is not None else math.inf
         deadline = start + self.period_s
         if manage_gc:

@@ -116,7 +116,6 @@ class SimulatedInstrumentsOpener:
             line_frequency_hz=config.instruments.dmm.line_frequency_hz)
         mode = config.instruments.trigger
         timeout = config.instruments.timeout_s
-        extra: list = []
         if config.simulation.transport == "in-process":
             links = bench.in_process_transports(timeout_s=timeout)
             flange, stage, heater = links.flange_dmm, links.ptc_stage_dmm, links.heater_supply
@@ -158,7 +157,7 @@ class SimulatedInstrumentsOpener:
             return external_wire()
 
         try:
-            instruments = assemble_instruments(config, clock, flange, stage, heater, make_trigger, extra,
+            instruments = assemble_instruments(config, clock, flange, stage, heater, make_trigger,
                                                on_close=self._stack.close)
         except BaseException:
             self._stack.close()

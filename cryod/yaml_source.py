@@ -163,9 +163,6 @@ class Section:
             self.source, self.line_of(key), self.key_path(key) if key else self.path, reason
         )
 
-    def has(self, key: str) -> bool:
-        return key in self.data
-
     def _get(self, key: str, default: Any) -> Any:
         self._taken.add(key)
         if key in self.data:

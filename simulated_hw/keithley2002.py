@@ -50,7 +50,6 @@ from simulated_hw.scpi import (DATA_CORRUPT_OR_STALE, ILLEGAL_PARAMETER_VALUE, I
 #: 4-wire ranges of the 2002 (ohm); each reads up to 105 % of full scale.
 FOUR_WIRE_RANGES_OHM = (20.0, 200.0, 2e3, 2e4, 2e5, 2e6)
 OVERRANGE_FACTOR = 1.05
-OVERFLOW_READING = 9.9e37
 #: Instants this close count as equal (rounding of sums of times).
 TIME_TOLERANCE_S = 1e-9
 
@@ -73,7 +72,6 @@ class _Reading:
     overflow: bool
     number: int
     timestamp_s: float
-    ready_time_s: float
 
 
 @dataclass
@@ -394,8 +392,7 @@ class Keithley2002Emulator(EmulatedInstrument):
         overflow = value > full_scale or self.overflow_readings > 0
         if self.overflow_readings > 0:
             self.overflow_readings -= 1
-        self._readings = [_Reading(value, overflow, self._reading_counter, action.trigger_time_s,
-                                   action.ready_time_s)]
+        self._readings = [_Reading(value, overflow, self._reading_counter, action.trigger_time_s)]
         self._reading_counter += 1
         self._pending = None
         self._actions_done += 1

@@ -431,7 +431,7 @@ class CryostatPlant:
         duration = time_s - self.time_s
         if duration <= 0.0:
             return
-        self.flange_heater.hold(duration, self.time_scale() if self.heat_capacity is not None else 1.0)
+        self.flange_heater.hold(duration, self.time_scale())
         self.stage_heater.hold(duration)
         self.time_s = time_s
 
@@ -440,8 +440,9 @@ class CryostatPlant:
         """(T2, T5) in K at the current instant, noise-free."""
         point = self.model.operating_point
         rotor, frequency = self.drive.rotor(self.time_s - self.start_time_s)
-        scale = self.time_scale() if self.heat_capacity is not None else 1.0
-        flange = point.flange_temperature_K + self.flange_heater.output() + self.flange_ptc.value_at(rotor, frequency, scale)
+        heater = self.flange_heater.output()
+        scale = 1.0 if self.heat_capacity is None else float(self.time_scale_at(heater))
+        flange = point.flange_temperature_K + heater + self.flange_ptc.value_at(rotor, frequency, scale)
         stage = point.ptc_stage_temperature_K + self.stage_heater.output() + self.stage_ptc.value_at(rotor, frequency)
         return flange, stage
 

@@ -259,14 +259,6 @@ class ScpiInstrument:
             raise BadReply(self.label, f"{what}: reply to {command} is not finite", reply=reply)
         return value
 
-    def query_bool(self, command: str, what: str) -> bool:
-        """A ``1``/``0`` reply; :class:`BadReply` naming ``what`` otherwise."""
-        reply = self.query(command)
-        try:
-            return parse_bool(reply)
-        except ValueError:
-            raise BadReply(self.label, f"{what}: reply to {command} is not 1 or 0", reply=reply) from None
-
     # -- identity and errors ------------------------------------------------------------
     def check_identity(self) -> Identity:
         """Ask ``*IDN?``; :class:`IdentityMismatch` unless it is the expected model."""
@@ -302,15 +294,14 @@ class ScpiInstrument:
             raise InstrumentReportedError(self.label, f"instrument reported errors after {after}",
                                           error_queue=entries)
 
-    def examine_fault(self, error: InstrumentError) -> InstrumentError:
+    def examine_fault(self, error: InstrumentError) -> None:
         """Attach what the error queue holds to ``error`` (best effort; the link may be down)."""
         if isinstance(error, ConnectionLost) or error.error_queue:
-            return error
+            return
         try:
             error.error_queue = self.read_error_queue()
         except InstrumentError:
             pass
-        return error
 
     def reporting_faults(self) -> "_ReportingFaults":
         """Around driver operations: a fault leaves with the instrument's error queue attached.
@@ -335,7 +326,5 @@ class _ReportingFaults:
     def __exit__(self, kind, error, traceback) -> bool:
         if error is None or isinstance(error, InstrumentReportedError) or not isinstance(error, InstrumentError):
             return False
-        examined = self.instrument.examine_fault(error)
-        if examined is not error:
-            raise examined from error
+        self.instrument.examine_fault(error)
         return False

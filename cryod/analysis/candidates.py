@@ -46,7 +46,7 @@ from cryod.analysis.ptc_line import PtcLine, measurable_orders
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replay, Replayer
 from cryod.model import (
-    CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, SensorLag,
+    EFFECT_NAMES, CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, SensorLag,
 )
 from cryod.transfer_function import TransferFunction, TransferFunctionError
 from simulated_hw.plant import PtcDrive, PtcPath, flange_transfer_functions
@@ -55,11 +55,8 @@ from simulated_hw.plant import PtcDrive, PtcPath, flange_transfer_functions
 #: 1.7 mK line (0.17 uK) is below any record's resolution.
 STAGE_LAG_SMALLEST_PHASE_RAD = 1e-4
 
-#: Causes in the order they are tried.
-CANDIDATE_CAUSES = (
-    "sensor_lag", "link_dynamics", "dead_time", "heat_capacity_temperature",
-    "heater_nonlinearity", "ptc_harmonics", "ptc_frequency_drift",
-)
+#: Causes in the order they are tried: the model file's optional effects.
+CANDIDATE_CAUSES = EFFECT_NAMES
 
 
 @dataclass

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
+from cryod.analysis.candidates import CANDIDATE_CAUSES
 from cryod.analysis.pipeline import Analysis
 
 #: The cause vocabulary of ``cryod analyze`` (DESIGN.md 4.3).
-CAUSES = ("none", "sensor_lag", "link_dynamics", "dead_time", "heat_capacity_temperature",
-          "heater_nonlinearity", "ptc_harmonics", "ptc_frequency_drift", "unexplained")
+CAUSES = ("none", *CANDIDATE_CAUSES, "unexplained")
 
 
 def plain(value):

@@ -211,7 +211,6 @@ def identify(records: list[RecordData], base: CryostatModel, harmonics: bool = T
         start = result.x
         residuals = problem.split_residuals(np.exp(result.x))
         problem.noise_rms_K = _measured_noise(prepared, residuals)
-    residuals = problem.split_residuals(np.exp(result.x))
     return _assemble(prepared, problem, np.exp(result.x), residuals, base)
 
 

@@ -25,9 +25,9 @@ Examples
 >>> from cryod.model import load_model
 >>> model = load_model()
 >>> elapsed = np.array([0.0, 10.0, 1000.0])
->>> flange, stage = initial_state_response(model, elapsed)
->>> round(float(flange[0]), 3), round(float(stage[0]), 3)     # K per W, at the first sample
-(6.818, 2.77)
+>>> stage = stage_release_response(model, elapsed)
+>>> round(float(stage[0]), 3), round(float(stage[-1]), 4)     # K per W, at the first sample and after 1000 s
+(2.77, 0.0017)
 """
 
 from __future__ import annotations
@@ -43,13 +43,13 @@ from cryod.transfer_function import TransferFunction
 from simulated_hw.plant import flange_transfer_functions, simulate, stage_transfer_functions
 
 
-def _release_response(transfer_function: TransferFunction, elapsed_s: np.ndarray, delay_s: float = 0.0) -> np.ndarray:
+def _release_response(transfer_function: TransferFunction, elapsed_s: np.ndarray) -> np.ndarray:
     """Output (per W) of a path settled at 1 W above what it gets from t = 0 on."""
     form = transfer_function.modal_form()
-    shifted = np.clip(elapsed_s - delay_s, 0.0, None)
+    elapsed_s = np.clip(elapsed_s, 0.0, None)
     response = np.zeros(elapsed_s.size)
     for pole, residue in zip(form.poles, form.residues):
-        response += np.real(-residue / pole * np.exp(pole * shifted))
+        response += np.real(-residue / pole * np.exp(pole * elapsed_s))
     return response
 
 
@@ -71,16 +71,13 @@ def flange_mode_columns(model: CryostatModel, elapsed_s, sample_interval_s: floa
     return np.column_stack(columns) if columns else np.zeros((elapsed_s.size, 0))
 
 
-def initial_state_response(model: CryostatModel, elapsed_s) -> tuple[np.ndarray, np.ndarray]:
-    """(T2, T5) response in K per W of delivered power to a different settled power before the record.
+def stage_release_response(model: CryostatModel, elapsed_s) -> np.ndarray:
+    """T5 response in K per W of delivered power to a different settled power before the record.
 
-    The flange response waits out the model's dead time, if any.
+    (T2's initial state is fitted mode by mode instead: :func:`flange_mode_columns`.)
     """
-    elapsed_s = np.asarray(elapsed_s, dtype=float)
-    flange_heater, _ = flange_transfer_functions(model)
     stage_heater, _ = stage_transfer_functions(model)
-    delay = model.effects.dead_time.heater_to_flange_s if model.effects.dead_time else 0.0
-    return _release_response(flange_heater, elapsed_s, delay), _release_response(stage_heater, elapsed_s)
+    return _release_response(stage_heater, np.asarray(elapsed_s, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -148,7 +145,7 @@ class Replayer:
         data = self.data
         quiet = model.with_ptc(ptc_stage_amplitude_K=0.0, harmonics=()).with_effects(ptc_frequency_drift=None)
         heater_part = self.simulate(quiet).ptc_stage_K - quiet.operating_point.ptc_stage_temperature_K
-        _, release = initial_state_response(model, data.elapsed_s)
+        release = stage_release_response(model, data.elapsed_s)
         valid = data.valid
         baseline = np.column_stack([np.ones(valid.sum()), release[valid]])
         return estimate_ptc_line(
@@ -193,7 +190,7 @@ class Replayer:
                          shared_columns=None) -> Replay:
         """Fit the nuisance parameters to a simulation already made."""
         data = self.data
-        _, stage_release = initial_state_response(aligned, data.elapsed_s)
+        stage_release = stage_release_response(aligned, data.elapsed_s)
         modes = flange_mode_columns(aligned, data.elapsed_s, data.sample_interval_s)
         count = data.time_s.size
         flange_columns = 1 + modes.shape[1]                 # offset, mode amplitudes

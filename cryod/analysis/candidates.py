@@ -71,7 +71,6 @@ class FitContext:
     noise_rms_K: tuple[float, float]
     fit_mask: np.ndarray
     held_out_mask: np.ndarray
-    base_line_factor: tuple | None = None
 
     def fit_chi_square(self, replay: Replay) -> float:
         """Weighted sum of squares of both thermometers on the fit samples."""
@@ -280,11 +279,8 @@ def line_factor(context: FitContext, model: CryostatModel | None = None) -> tupl
     T2's line is linear in F (``Re(F Z(t))``, Z the model's response to the
     measured line's fundamental), so F is a linear least-squares coefficient,
     fitted on the fit blocks jointly with the nuisance parameters. The replay
-    returned is the model's own (F = 1). For the base model (``model`` None)
-    it is computed once per analysis.
+    returned is the model's own (F = 1); ``model`` None: the base model.
     """
-    if model is None and context.base_line_factor is not None:
-        return context.base_line_factor
     data = context.data
     aligned = context.base_line.applied_to(model if model is not None else context.base_model)
     response = _ptc_fundamental_on_flange(aligned, data.elapsed_s)
@@ -292,11 +288,8 @@ def line_factor(context: FitContext, model: CryostatModel | None = None) -> tupl
     linear = context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K,
                                                shared_columns=(np.column_stack([response.real, -response.imag]),
                                                                np.zeros((data.time_s.size, 2))))
-    found = (complex(1.0 + linear.shared_coefficients[0], linear.shared_coefficients[1]),
-             context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K))
-    if model is None:
-        context.base_line_factor = found
-    return found
+    return (complex(1.0 + linear.shared_coefficients[0], linear.shared_coefficients[1]),
+            context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K))
 
 
 def fit_link_dynamics(context: FitContext) -> CandidateFit:

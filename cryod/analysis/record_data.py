@@ -87,10 +87,6 @@ class RecordData:
         """Samples with both temperatures present."""
         return np.isfinite(self.flange_K) & np.isfinite(self.ptc_stage_K)
 
-    @property
-    def closed_loop(self) -> np.ndarray:
-        return np.isfinite(self.setpoint_K)
-
     @classmethod
     def from_record(cls, record: Record) -> "RecordData":
         """Check a record for analysis.

@@ -129,7 +129,6 @@ class Replayer:
         self.data = data
         self.fit_mask = np.asarray(fit_mask, dtype=bool) & data.valid
         self.noise_rms_K = noise_rms_K
-        self.simulations = 0
         #: Heater power the cryostat had settled at before the first sample (W); None: the first sample's.
         self.initial_heater_power_w: float | None = None
 
@@ -160,7 +159,6 @@ class Replayer:
         By default driven by the record's heater, settled at
         :attr:`initial_heater_power_w` before the first sample.
         """
-        self.simulations += 1
         if heater_power_w is None:
             heater_power_w, initial_heater_power_w = self.data.heater_w, self.initial_heater_power_w
         return simulate(model, self.data.time_s, heater_power_w, initial_heater_power_w=initial_heater_power_w)

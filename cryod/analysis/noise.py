@@ -24,6 +24,8 @@ import math
 import numpy as np
 from scipy import signal
 
+from cryod.analysis.ptc_line import aliased_angular_frequency
+
 #: Below this frequency (Hz) the residual holds slow misfit, not noise.
 LOWEST_NOISE_FREQUENCY_HZ = 0.05
 #: Half-width (Hz) of the band left out around each harmonic of the line.
@@ -61,9 +63,8 @@ def white_noise_rms(residual, sample_interval_s: float, line_angular_frequency_r
     keep = frequency >= max(LOWEST_NOISE_FREQUENCY_HZ, 3.0 * sampling_hz / segment)
     keep &= frequency < 0.5 * sampling_hz * 0.98
     if line_angular_frequency_rad_s:
-        line_hz = line_angular_frequency_rad_s / (2.0 * math.pi)
         for order in range(1, EXCLUDED_ORDERS + 1):
-            alias = abs((order * line_hz + 0.5 * sampling_hz) % sampling_hz - 0.5 * sampling_hz)
+            alias = aliased_angular_frequency(order * line_angular_frequency_rad_s, sample_interval_s) / (2.0 * math.pi)
             keep &= np.abs(frequency - alias) > max(LINE_EXCLUSION_HZ, 2.0 * sampling_hz / segment)
     if np.count_nonzero(keep) < 5:
         keep = frequency > 0

@@ -1,10 +1,19 @@
-"""What every simulated instrument shares: IEEE 488.2 common commands, the error queue, faults.
+"""What every simulated instrument shares: IEEE 488.2 common commands, status model, faults.
 
 A subclass registers its own SCPI headers on ``self.commands`` and gets, from
-here, ``*IDN?``, ``*RST``, ``*CLS``, ``*OPC?``, ``*TRG``, ``:SYSTem:ERRor?``,
-``:STATus:QUEue?``, the bus actions a controller performs without a command
+here, the common commands the three Keithley manuals define (``*IDN?``,
+``*RST``, ``*CLS``, ``*ESE``, ``*ESE?``, ``*ESR?``, ``*SRE``, ``*SRE?``,
+``*STB?``, ``*OPC``, ``*OPC?``, ``*WAI``, ``*TRG``, ``*TST?``), the status
+model of :mod:`simulated_hw.status` with its SCPI commands
+(``:STATus:OPERation|QUEStionable|MEASurement[:EVENt]?``, ``:CONDition?``,
+``:ENABle``, ``:STATus:PRESet``, ``:STATus:QUEue[:NEXT]?``,
+``:STATus:QUEue:CLEar``, ``:SYSTem:ERRor[:NEXT]?``, ``:SYSTem:CLEar``,
+``:SYSTem:PRESet``), the bus actions a controller performs without a command
 (group execute trigger, selected device clear) and the faults of section 6
-of issue 3 (no reply, garbage reply, dropped connection).
+of issue 3 (no reply, garbage reply, dropped connection). A subclass drives
+the condition registers by overriding :attr:`EmulatedInstrument.operation_condition`,
+:attr:`~EmulatedInstrument.questionable_condition` and
+:attr:`~EmulatedInstrument.measurement_condition`.
 
 Thread safety: the TCP server calls :meth:`EmulatedInstrument.handle` from
 its connection threads; every entry point takes the instrument's lock.
@@ -22,8 +31,9 @@ import threading
 from dataclasses import dataclass
 
 from cryod.clock import Clock
-from simulated_hw.scpi import (CommandTable, ErrorQueue, TRIGGER_IGNORED, parse_boolean,
-                               single_argument)
+from simulated_hw.scpi import (CommandTable, ErrorQueue, PARAMETER_NOT_ALLOWED, TRIGGER_IGNORED,
+                               parse_boolean, parse_number, scpi_error, single_argument)
+from simulated_hw.status import REGISTER_MASK, StatusModel
 
 
 @dataclass
@@ -61,7 +71,10 @@ class EmulatedInstrument:
     def __init__(self, clock: Clock, identity: str):
         self.clock = clock
         self.identity = identity
-        self.errors = ErrorQueue()
+        self.status = StatusModel(operation=lambda: self.operation_condition,
+                                  questionable=lambda: self.questionable_condition,
+                                  measurement=lambda: self.measurement_condition)
+        self.errors = self.status.errors
         self.faults = CommunicationFaults()
         self.commands = CommandTable()
         self._lock = threading.RLock()
@@ -98,7 +111,9 @@ class EmulatedInstrument:
         """Execute one program message; its reply, or None when there is nothing to send."""
         with self._lock:
             self.update()
+            self.status.sample()
             reply = self.commands.execute(message, self.errors)
+            self.status.sample()
             if reply is None or self.faults.silent:
                 return None
             if self.faults.garbage_replies > 0:
@@ -132,18 +147,66 @@ class EmulatedInstrument:
         """React to GET or ``*TRG`` (at ``time_s``, default now); the default ignores it with -211."""
         self.errors.push(*TRIGGER_IGNORED)
 
-    # -- common commands -------------------------------------------------------
+    @property
+    def operation_condition(self) -> int:
+        """The operation condition register (``:STATus:OPERation:CONDition?``); 0 here."""
+        return 0
+
+    @property
+    def questionable_condition(self) -> int:
+        """The questionable condition register; 0 here (no questionable state is simulated)."""
+        return 0
+
+    @property
+    def measurement_condition(self) -> int:
+        """The measurement condition register; 0 here."""
+        return 0
+
+    # -- common commands and the status model --------------------------------------
     def _register_common_commands(self) -> None:
         add = self.commands.add
+        status = self.status
         add("*IDN", query=lambda args: self.identity)
-        add("*RST", write=lambda args: self.reset())
-        add("*CLS", write=lambda args: self.errors.clear())
-        add("*OPC", write=lambda args: None, query=lambda args: "1")
-        add("*WAI", write=lambda args: None)
-        add("*TRG", write=lambda args: self.bus_trigger())
+        add("*RST", write=self._no_parameter(self.reset))
+        add("*CLS", write=self._no_parameter(status.clear))
+        add("*ESE", write=lambda args: setattr(status, "event_status_enable", _register_value(args, 255)),
+            query=lambda args: f"{status.event_status_enable:d}")
+        add("*ESR", query=lambda args: f"{status.read_event_status():d}")
+        add("*SRE", write=lambda args: setattr(status, "service_request_enable", _register_value(args, 255) & ~64),
+            query=lambda args: f"{status.service_request_enable:d}")
+        add("*STB", query=lambda args: f"{status.status_byte(self.commands.pending_replies > 0):d}")
+        add("*OPC", write=self._no_parameter(status.operation_complete), query=lambda args: "1")
+        add("*WAI", write=self._no_parameter(lambda: None))
+        add("*TRG", write=self._no_parameter(self.bus_trigger))
+        add("*TST", query=lambda args: "0")
         add(":SYSTem:ERRor[:NEXT]", query=lambda args: ErrorQueue.format(self.errors.pop()))
+        add(":SYSTem:CLEar", write=self._no_parameter(self.errors.clear))
+        add(":SYSTem:PRESet", write=self._no_parameter(self.reset))
         add(":STATus:QUEue[:NEXT]", query=lambda args: ErrorQueue.format(self.errors.pop()))
-        add(":SYSTem:PRESet", write=lambda args: self.reset())
+        add(":STATus:QUEue:CLEar", write=self._no_parameter(self.errors.clear))
+        add(":STATus:PRESet", write=self._no_parameter(status.preset))
+        for name, register in status.registers.items():
+            node = {"OPERATION": ":STATus:OPERation", "QUESTIONABLE": ":STATus:QUEStionable",
+                    "MEASUREMENT": ":STATus:MEASurement"}[name]
+            add(node + "[:EVENt]", query=lambda args, r=register: f"{r.read_event():d}")
+            add(node + ":CONDition", query=lambda args, r=register: f"{r.condition:d}")
+            add(node + ":ENABle", write=lambda args, r=register: setattr(r, "enable", _register_value(args, 65535)
+                                                                         & REGISTER_MASK),
+                query=lambda args, r=register: f"{r.enable:d}")
+
+    @staticmethod
+    def _no_parameter(action):
+        """A write handler for a command without parameters (``-108`` if one is given)."""
+        def write(arguments: list[str]) -> None:
+            if arguments:
+                raise scpi_error(PARAMETER_NOT_ALLOWED)
+            action()
+        return write
+
+
+def _register_value(arguments: list[str], maximum: int) -> int:
+    """A register mask ``<NRf>``, 0 to ``maximum``, rounded to an integer."""
+    return int(round(parse_number(arguments, 0, maximum)))
 
 
 def on_off(value: bool) -> str:

@@ -7,8 +7,15 @@ heater driver uses (table in ``docs/instruments.md``):
 * ``[:SOURce[1]]:CURRent:RANGe <n>`` (2 nA to 100 mA ranges) and ``:RANGe:AUTO <b>``;
 * ``[:SOURce[1]]:CURRent:COMPliance <n>``: 0.1 to 105 V (specifications, "VOLTAGE LIMIT");
 * ``:OUTPut[:STATe] <b>``, ``[:SOURce[1]]:CLEar[:IMMediate]`` (output off);
-* ``:STATus:MEASurement:CONDition?``: bit B1 interlock asserted, B3 compliance
-  (section 11, Figure 11-6 "Measurement event status").
+* ``:OUTPut:LTEarth <b>`` (output low connected to earth, else floating) and
+  ``:OUTPut:ISHield OLOW|GUARd`` (inner shield of the triax output), both
+  state only: the simulated heater has no earth path;
+* ``[:SOURce[1]]:DELay <n>``: 1e-3 to 999999.999 s, the source delay of
+  the trigger model (stored; the DC output here takes no trigger model);
+* the measurement condition register (``:STATus:MEASurement:CONDition?``
+  and its event and enable registers, shared in :mod:`simulated_hw.status`):
+  bit B1 interlock asserted, B3 compliance (section 11, Figure 11-6
+  "Measurement event status").
 
 A refused output (interlock open) leaves the output off with the interlock
 bit clear; the manual gives no error-queue number for it, so none is queued.
@@ -19,13 +26,18 @@ from __future__ import annotations
 from simulated_hw.current_source import EmulatedCurrentSource
 from simulated_hw.cryostat import SimulatedCryostat
 from simulated_hw.instrument import boolean_setting, on_off
-from simulated_hw.scpi import parse_boolean, parse_number
+from simulated_hw.scpi import parse_boolean, parse_choice, parse_number, short_form
 
 #: Source ranges of the 622x (A).
 CURRENT_RANGES_A = (2e-9, 20e-9, 200e-9, 2e-6, 20e-6, 200e-6, 2e-3, 20e-3, 100e-3)
 MAXIMUM_CURRENT_A = 0.105
 INTERLOCK_ASSERTED_BIT = 1 << 1
 COMPLIANCE_BIT = 1 << 3
+#: Source delay limits (s); ``*RST`` sets the shortest.
+MINIMUM_SOURCE_DELAY_S = 1e-3
+MAXIMUM_SOURCE_DELAY_S = 999999.999
+#: Where the triax inner shield goes: output low, or guard.
+SHIELDS = ("OLOW", "GUARd")
 
 
 class Keithley6221Emulator(EmulatedCurrentSource):
@@ -51,7 +63,13 @@ class Keithley6221Emulator(EmulatedCurrentSource):
         add(":OUTPut[:STATe]", write=lambda args: self.turn_output(parse_boolean(args)),
             query=lambda args: on_off(self.output_on))
         add("[:SOURce[1]]:CLEar[:IMMediate]", write=lambda args: self.turn_output(False))
-        add(":STATus:MEASurement:CONDition", query=lambda args: str(self.measurement_condition))
+        write, query = boolean_setting(self, "low_to_earth")
+        add(":OUTPut:LTEarth", write=write, query=query)
+        add(":OUTPut:ISHield", write=lambda args: setattr(self, "inner_shield", parse_choice(args, SHIELDS)),
+            query=lambda args: short_form(next(s for s in SHIELDS if s.upper() == self.inner_shield)))
+        add("[:SOURce[1]]:DELay", write=lambda args: setattr(self, "source_delay_s", parse_number(
+            args, MINIMUM_SOURCE_DELAY_S, MAXIMUM_SOURCE_DELAY_S, default=MINIMUM_SOURCE_DELAY_S)),
+            query=lambda args: f"{self.source_delay_s:.6E}")
 
     def reset(self) -> None:
         self.output_on = False
@@ -59,6 +77,9 @@ class Keithley6221Emulator(EmulatedCurrentSource):
         self.compliance_v = 10.0
         self.range_a = 2e-3
         self.autorange = False
+        self.low_to_earth = False
+        self.inner_shield = "OLOW"
+        self.source_delay_s = MINIMUM_SOURCE_DELAY_S
         self.apply_to_heater()
 
     def _set_range(self, args: list[str]) -> None:

@@ -18,6 +18,14 @@ Model 2400 Series User's Manual, Appendix B; Model 622x Reference Manual,
 Appendix B): a header the instrument does not know is ``-113,"Undefined
 header"``.
 
+An error inside a program message ends it, as the three manuals' "command
+execution rules" state in the same words (2002 User's Manual p. 3-27, rule
+6; 2400 User's Manual section 14, "Command execution rules"; 6220/6221
+Reference Manual p. 10-17): commands execute in order, an invalid command
+is not executed and goes to the error queue, the valid commands before it
+are executed (their replies are sent) and the commands after it are
+ignored (their queries send nothing).
+
 Examples
 --------
 >>> commands = CommandTable()
@@ -36,6 +44,8 @@ True
 ((-222, 'Parameter data out of range'), (0, 'No error'))
 >>> commands.execute(":FRES:NPLX?", errors) is None, errors.pop()
 (True, (-113, 'Undefined header'))
+>>> commands.execute(":FRES:NPLC?;:FRES:NPLX 3;:FRES:NPLC 4;:FRES:NPLC?", errors), state["nplc"]
+('2', 2.0)
 """
 
 from __future__ import annotations
@@ -301,6 +311,8 @@ class CommandTable:
         self._found: dict[tuple[tuple[str, ...], bool], Handler | None] = {}
         self._by_header: dict[str, tuple[Handler, bool]] = {}   # exact absolute header text -> handler
         self._paths: dict[str, list[str] | None] = {}
+        #: Replies of the message being executed that are waiting to be sent (IEEE 488.2 MAV).
+        self.pending_replies = 0
 
     def add(self, pattern: str, *, write: Handler | None = None, query: Handler | None = None) -> None:
         """Register a header; ``write`` for the command form, ``query`` for ``HEADER?``."""
@@ -323,10 +335,12 @@ class CommandTable:
     def execute(self, message: str, errors: ErrorQueue) -> str | None:
         """Run one program message; replies of its queries joined by ``;`` (None: no query).
 
-        The first error ends the message (the rest is not executed) and goes to ``errors``.
+        The first error goes to ``errors`` and ends the message: the units after it are
+        not executed (the manuals' command execution rules, module docstring).
         """
         replies: list[str] = []
         previous_path: list[str] = []
+        self.pending_replies = 0
         try:
             for unit in _split_outside_quotes(message.strip(), ";"):
                 unit = unit.strip()
@@ -343,6 +357,7 @@ class CommandTable:
                     reply = handler(arguments)
                     if is_query and reply is not None:
                         replies.append(reply)
+                        self.pending_replies = len(replies)
                     continue
                 full_header = header
                 is_query = header.endswith("?")
@@ -366,7 +381,7 @@ class CommandTable:
                 reply = handler(arguments)
                 if is_query and reply is not None:
                     replies.append(reply)
+                    self.pending_replies = len(replies)
         except ScpiError as error:
             errors.push(error.code, error.message)
-            return ";".join(replies) if replies else None
         return ";".join(replies) if replies else None

@@ -168,18 +168,15 @@ class Keithley2400Emulator(EmulatedCurrentSource):
         add = self.commands.add
         add(":SOURce[1]:FUNCtion[:MODE]", write=self._set_source_function,
             query=lambda args: self.source_function[:4])
-        for function, unit_limit, ranges in (("CURRent", 1.05, CURRENT_RANGES_A),
-                                             ("VOLTage", 210.0, VOLTAGE_RANGES_V)):
+        for function, limit, ranges, level, source_range, autorange in (
+                ("CURRent", 1.05, CURRENT_RANGES_A, "current_setpoint_a", "current_range_a",
+                 "current_source_autorange"),
+                ("VOLTage", 210.0, VOLTAGE_RANGES_V, "voltage_setpoint_v", "voltage_source_range_v",
+                 "voltage_source_autorange")):
             node = f":SOURce[1]:{function}"
-            is_current = function == "CURRent"
-            level = "current_setpoint_a" if is_current else "voltage_setpoint_v"
-            source_range = "current_range_a" if is_current else "voltage_source_range_v"
-            autorange = "current_source_autorange" if is_current else "voltage_source_autorange"
             add(node + ":MODE", write=lambda args: parse_choice(args, ("FIXed",)), query=lambda args: "FIX")
-            add(node + ":RANGe[:UPPer]", write=self._range_setter(source_range, autorange, ranges, unit_limit),
-                query=lambda args, a=source_range: f"{getattr(self, a):.6E}")
-            self._add_boolean(node + ":RANGe:AUTO", autorange)
-            self._add_number(node + "[:LEVel][:IMMediate][:AMPLitude]", level, -unit_limit, unit_limit, 0.0,
+            self._add_range(node, source_range, autorange, ranges, limit)
+            self._add_number(node + "[:LEVel][:IMMediate][:AMPLitude]", level, -limit, limit, 0.0,
                              after=self.apply_to_heater)
         self._add_number(":SOURce[1]:DELay", "source_delay_s", 0.0, MAXIMUM_SOURCE_DELAY_S, 0.0,
                          after=lambda: setattr(self, "source_delay_auto", False))
@@ -196,28 +193,30 @@ class Keithley2400Emulator(EmulatedCurrentSource):
         add("[:SENSe[1]]:FUNCtion:OFF", write=self._sense_functions_off)
         add("[:SENSe[1]]:FUNCtion:OFF:ALL", write=lambda args: setattr(self, "sense_functions", ()))
         self._add_boolean("[:SENSe[1]]:FUNCtion:CONCurrent", "concurrent")
-        for function, unit_limit, ranges in (("VOLTage", 210.0, VOLTAGE_RANGES_V),
-                                             ("CURRent", 1.05, CURRENT_RANGES_A)):
+        for function, limit, ranges, protection, default_protection, sense_range, autorange in (
+                ("VOLTage", 210.0, VOLTAGE_RANGES_V, "compliance_v", DEFAULT_VOLTAGE_PROTECTION_V,
+                 "voltage_range_v", "voltage_autorange"),
+                ("CURRent", 1.05, CURRENT_RANGES_A, "current_compliance_a", DEFAULT_CURRENT_PROTECTION_A,
+                 "current_sense_range_a", "current_autorange")):
             node = f"[:SENSe[1]]:{function}[:DC]"
-            is_voltage = function == "VOLTage"
-            protection = "compliance_v" if is_voltage else "current_compliance_a"
-            sense_range = "voltage_range_v" if is_voltage else "current_sense_range_a"
-            autorange = "voltage_autorange" if is_voltage else "current_autorange"
-            self._add_number(node + ":PROTection[:LEVel]", protection, -unit_limit, unit_limit,
-                             DEFAULT_VOLTAGE_PROTECTION_V if is_voltage else DEFAULT_CURRENT_PROTECTION_A,
+            self._add_number(node + ":PROTection[:LEVel]", protection, -limit, limit, default_protection,
                              after=self._protection_set)
-            add(node + ":PROTection:TRIPped", query=lambda args, v=is_voltage: on_off(
+            # tripped: the output is limited by this function's protection
+            limits_voltage = function == "VOLTage"
+            add(node + ":PROTection:TRIPped", query=lambda args, v=limits_voltage: on_off(
                 self.in_compliance and self.sourcing_voltage != v))
-            add(node + ":RANGe[:UPPer]", write=self._range_setter(sense_range, autorange, ranges, unit_limit),
-                query=lambda args, a=sense_range: f"{getattr(self, a):.6E}")
-            self._add_boolean(node + ":RANGe:AUTO", autorange)
+            self._add_range(node, sense_range, autorange, ranges, limit)
             self._add_number(node + ":NPLCycles", "nplc", 0.01, 10.0, 1.0)
 
-    def _range_setter(self, attribute: str, autorange: str, ranges: tuple[float, ...], limit: float):
+    def _add_range(self, node: str, attribute: str, autorange: str, ranges: tuple[float, ...],
+                   limit: float) -> None:
+        """``<node>:RANGe[:UPPer]`` (the lowest range holding the value; autorange off) and ``:RANGe:AUTO``."""
         def write(args: list[str]) -> None:
             setattr(self, attribute, _lowest_range(ranges, parse_number(args, -limit, limit, default=ranges[-1])))
             setattr(self, autorange, False)
-        return write
+        self.commands.add(node + ":RANGe[:UPPer]", write=write,
+                          query=lambda args: f"{getattr(self, attribute):.6E}")
+        self._add_boolean(node + ":RANGe:AUTO", autorange)
 
     def _protection_set(self) -> None:
         self.compliance_v = abs(self.compliance_v)

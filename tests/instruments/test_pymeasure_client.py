@@ -64,6 +64,16 @@ def event_status(client) -> int:
     return int(client.ask("*ESR?"))
 
 
+def source_current_after_reset(meter, current_a, compliance_v, *, measure_voltage=False):
+    """Through PyMeasure's 2400 API: reset, source ``current_a`` with ``compliance_v``."""
+    meter.reset()
+    meter.source_mode = "current"
+    meter.source_current = current_a
+    meter.compliance_voltage = compliance_v
+    if measure_voltage:
+        meter.write(":SENSe:FUNCtion 'VOLTage'")  # concurrent with the current of *RST
+
+
 @pytest.fixture
 def no_ramp_pauses(monkeypatch):
     """PyMeasure's 2400 ramps pause 20 ms per step with ``time.sleep``: count the pauses instead."""
@@ -182,11 +192,8 @@ def test_2400_identity_reset_and_clean_error_queue(served):
 
 def test_2400_sources_current_and_measures(served):
     bench, meter = served(Keithley2400, supply="2400")
-    meter.reset()
-    meter.source_mode = "current"
+    source_current_after_reset(meter, 0.02, 5)
     meter.source_current_range = 0.1
-    meter.source_current = 0.02
-    meter.compliance_voltage = 5
     meter.voltage_range_auto_enabled = False
     assert (meter.source_current, meter.compliance_voltage) == (0.02, 5.0)
     assert meter.voltage_range_auto_enabled is False
@@ -196,7 +203,7 @@ def test_2400_sources_current_and_measures(served):
     voltage, current, resistance, time_s, status = meter.values(":READ?")
     assert voltage == 9.91e37                     # after *RST only the current is measured
     assert current == pytest.approx(0.02)
-    meter.write(":SENSe:FUNCtion 'VOLTage'")      # concurrent: voltage as well
+    meter.write(":SENSe:FUNCtion 'VOLTage'")      # concurrent with the current
     voltage, current, resistance, time_s, status = meter.values(":READ?")
     assert (voltage, current, resistance) == (pytest.approx(1.0), pytest.approx(0.02), 9.91e37)
     assert int(status) & (1 << 15) and not int(status) & (1 << 3)   # sourcing current, not in compliance
@@ -210,11 +217,7 @@ def test_2400_sources_current_and_measures(served):
 
 def test_2400_compliance(served):
     bench, meter = served(Keithley2400, supply="2400")
-    meter.reset()
-    meter.source_mode = "current"
-    meter.compliance_voltage = 5
-    meter.source_current = 0.2                    # 10 V needed
-    meter.write(":SENSe:FUNCtion 'VOLTage'")
+    source_current_after_reset(meter, 0.2, 5, measure_voltage=True)   # 10 V needed
     meter.enable_source()
     voltage, current, _, _, status = meter.values(":READ?")
     assert voltage == pytest.approx(5.0)          # the compliance limit
@@ -257,9 +260,7 @@ def test_2400_errors_and_event_status(served):
 
 def test_2400_shutdown_ramps_to_zero_and_turns_the_output_off(served, no_ramp_pauses):
     bench, meter = served(Keithley2400, supply="2400")
-    meter.reset()
-    meter.source_mode = "current"
-    meter.source_current = 0.05
+    source_current_after_reset(meter, 0.05, 21)
     meter.enable_source()
     assert heater_power_w(bench, meter) == pytest.approx(0.05 ** 2 * HEATER_RESISTANCE_OHM)
     meter.shutdown()                              # ramp_to_current(0), :ABOR, OUTPUT 0

@@ -3,7 +3,7 @@
 Run: PYTHONPATH=. python3 benchmarks/analysis_causes.py [--magnitude 0|1|2|all]
 
 Records: the identification protocol (one hour) and the PI-only protocol
-(30 min) of simulated_hw.protocols, on another day's cryostat
+(30 min) of simulated_hw.measurement_programs, on another day's cryostat
 (simulated_hw.hidden_effects.other_day), seed 2; then clean records and the
 disturbances outside the cause list. Printed as a Markdown table.
 """
@@ -17,9 +17,9 @@ from pathlib import Path
 from cryod.analysis.pipeline import analyze
 from cryod.analysis.record_data import RecordData
 from cryod.model import load_model
-from cryod.record import Record
+from cryod.records.record import Record
 from simulated_hw.hidden_effects import DISTURBANCES, MAGNITUDES, hidden_model, other_day, within
-from simulated_hw.protocols import make_record
+from simulated_hw.measurement_programs import make_record
 
 ROOT = Path(__file__).resolve().parent.parent
 DURATIONS_S = {"identification": 3600.0, "pi_only": 1800.0}

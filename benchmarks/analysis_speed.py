@@ -25,8 +25,8 @@ from cryod.model import (
     DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, PtcFrequencyDrift, PtcHarmonic, SensorLag,
     load_model,
 )
-from cryod.record import write_record
-from simulated_hw.protocols import make_record
+from cryod.records.record import write_record
+from simulated_hw.measurement_programs import make_record
 
 ROOT = Path(__file__).resolve().parent.parent
 

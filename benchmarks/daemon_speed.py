@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from cryod.model import load_model
-from cryod.record import read_record
+from cryod.records.record import read_record
 from plant_speed import PERIOD_S, STEPS, best_of, heater_program, run_stepping   # this folder
 
 REPOSITORY = Path(__file__).resolve().parent.parent

@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 from cryod import __version__
+from cryod.service.commands import COMMANDS, socket_usage
 
 DEFAULT_CONFIG = Path("/etc/cryod/cryod.yaml")
 
@@ -97,8 +98,10 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--config", type=Path, default=DEFAULT_CONFIG, dest="ctl_config",
                      help=f"take the socket path from this configuration (default {DEFAULT_CONFIG})")
     ctl.add_argument("--json", action="store_true", dest="ctl_json", help="print the raw JSON reply")
-    ctl.add_argument("words", nargs="+", metavar="COMMAND",
-                     help="status | setpoint K | ramp K_PER_MIN | heater-off | manual W")
+    ctl.add_argument("words", nargs="+", metavar="COMMAND", help=socket_usage())
+    ctl.epilog = "commands:\n" + "\n".join(f"  {spec.usage:<20} {spec.help}" for spec in COMMANDS.values()
+                                            if spec.from_socket)
+    ctl.formatter_class = argparse.RawDescriptionHelpFormatter
     for name, _, summary in MODEL_TOOLS:      # listed here, loaded only when used (see main)
         commands.add_parser(name, help=summary, add_help=False)
     return parser
@@ -120,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.simulate and args.command:
         parser.error("--simulate runs the daemon itself; do not combine it with a command")
     if args.simulate:
-        from cryod.simulation import run_simulation
+        from cryod.service.simulation import run_simulation
 
         return run_simulation(args)
     if args.command == "run":
@@ -132,9 +135,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run_service(args) -> int:
-    from cryod.daemon import Daemon, config_or_exit
-    from cryod.hardware import open_instruments, check_calibrations
-    from cryod.clock import MonotonicClock
+    from cryod.service.daemon import Daemon, config_or_exit
+    from cryod.service.instruments import open_instruments, check_calibrations
+    from cryod.service.clock import MonotonicClock
     from cryod.service.logs import ServiceLogging
 
     config = config_or_exit(args.run_config, sys.stderr)
@@ -164,7 +167,7 @@ def _ctl(args) -> int:
 
     path = args.ctl_socket
     if path is None:
-        from cryod.daemon import config_or_exit
+        from cryod.service.daemon import config_or_exit
 
         config = config_or_exit(args.ctl_config, sys.stderr)
         if config is None:

@@ -20,6 +20,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
+from cryod.control.terms import term_settings_from
 from cryod.yaml_source import FileFormatError, Section, read_text_file
 
 CONFIG_FORMAT = "cryod-config v1"
@@ -28,6 +29,8 @@ EXAMPLE_CONFIG_PATH = Path(__file__).resolve().parent / "data" / "cryod.yaml"
 TRIGGER_MODES = ("gpib-group", "prologix", "external", "sequential")
 HEATER_MODELS = ("keithley6221", "keithley2400")
 SIMULATION_TRANSPORTS = ("tcp", "in-process")
+#: Keys of the control section that moved into control.pi.
+MOVED_TO_PI = ("proportional_W_per_K", "integral_W_per_K_s")
 
 
 @dataclass(frozen=True)
@@ -105,13 +108,25 @@ class HeaterConfig:
 
 @dataclass(frozen=True)
 class ControlConfig:
+    """The ``control`` section: setpoint, ramp, their limits, and each control term's own section.
+
+    Attributes
+    ----------
+    terms : tuple of (str, settings)
+        Each control term's name and validated settings, from its section
+        (``control.pi``, ...), in the order of :data:`cryod.control.terms.TERM_TYPES`.
+    """
+
     setpoint_K: float | None
     ramp_K_per_min: float
-    proportional_W_per_K: float
-    integral_W_per_K_s: float
     setpoint_min_K: float
     setpoint_max_K: float
     max_ramp_K_per_min: float
+    terms: tuple = ()
+
+    def term(self, name: str):
+        """The settings of the control term ``name``."""
+        return dict(self.terms)[name]
 
 
 @dataclass(frozen=True)
@@ -385,14 +400,16 @@ def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
     if setpoint is not None and not setpoint_min <= setpoint <= setpoint_max:
         raise section.error("setpoint_K", f"{setpoint:g} K is outside {setpoint_min:g}..{setpoint_max:g} K "
                                           f"(control.setpoint_min_K, control.setpoint_max_K)")
+    for moved in MOVED_TO_PI:
+        if moved in section.data:
+            raise section.error(moved, f"the PI gains have a section of their own: give it as control.pi.{moved}")
     control = ControlConfig(
         setpoint_K=setpoint,
         ramp_K_per_min=section.number("ramp_K_per_min", 0.0, minimum=0.0, maximum=max_ramp),
-        proportional_W_per_K=section.number("proportional_W_per_K", minimum=0.0, maximum=1000.0),
-        integral_W_per_K_s=section.number("integral_W_per_K_s", minimum=0.0, maximum=1000.0),
         setpoint_min_K=setpoint_min,
         setpoint_max_K=setpoint_max,
         max_ramp_K_per_min=max_ramp,
+        terms=term_settings_from(section),
     )
     section.finish()
     return control

@@ -77,7 +77,7 @@ def regenerated_record(duration_s: float = 1800.0, step_time_s: float = 300.0, s
     Returns
     -------
     dict
-        Columns for :func:`cryod.record.write_record`.
+        Columns for :func:`cryod.records.record.write_record`.
 
     Examples
     --------

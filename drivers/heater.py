@@ -26,7 +26,7 @@ import math
 import numbers
 from dataclasses import dataclass
 
-from cryod.clock import Clock
+from drivers.clock import Clock
 from drivers.errors import ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterRefused, InstrumentError
 from drivers.scpi import Control, ScpiInstrument, on_off, parse_bool
 from drivers.transports.base import Transport

@@ -22,7 +22,7 @@ read after configuration and attached to any fault.
 Examples
 --------
 >>> import math
->>> from cryod.clock import VirtualClock
+>>> from cryod.service.clock import VirtualClock
 >>> from cryod.model import load_model
 >>> from drivers.transports import InProcessTransport
 >>> from simulated_hw.cryostat import SimulatedCryostat
@@ -47,7 +47,7 @@ import math
 import re
 from dataclasses import dataclass
 
-from cryod.clock import Clock
+from drivers.clock import Clock
 from drivers.errors import BadReply, InstrumentError, InstrumentTimeout, OverflowReading
 from drivers.keithley2002_timing import NORMAL_AUTOZERO_INTERVAL_S, ReadingTiming
 

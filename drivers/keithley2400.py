@@ -11,7 +11,7 @@ line is reported by the 2400 as ``+802,"OUTPUT blocked by output enable"``.
 
 Examples
 --------
->>> from cryod.clock import VirtualClock
+>>> from cryod.service.clock import VirtualClock
 >>> from simulated_hw.bench import SimulatedBench
 >>> clock = VirtualClock()
 >>> bench = SimulatedBench(clock, supply="2400", heater_resistance_ohm=50.0)
@@ -25,7 +25,7 @@ Examples
 
 from __future__ import annotations
 
-from cryod.clock import Clock
+from drivers.clock import Clock
 from drivers.errors import BadReply, HeaterRefused
 from drivers.heater import HeaterReadback, HeaterSupply
 from drivers.scpi import Control, number, on_off, one_of, parse_bool, parse_token

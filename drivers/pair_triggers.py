@@ -25,7 +25,7 @@ from typing import Any, Protocol, Sequence
 
 from pyvisa.errors import VisaIOError
 
-from cryod.clock import Clock
+from drivers.clock import Clock
 from drivers.errors import ConnectionLost
 from drivers.keithley2002 import TriggerSource
 from drivers.transports.base import Transport

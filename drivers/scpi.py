@@ -14,7 +14,7 @@ and nothing is sent.
 
 Examples
 --------
->>> from cryod.clock import VirtualClock
+>>> from cryod.service.clock import VirtualClock
 >>> class Recorder:
 ...     name = "recorder"
 ...     def __init__(self): self.sent = []
@@ -41,7 +41,7 @@ import re
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Mapping
 
-from cryod.clock import Clock
+from drivers.clock import Clock
 from drivers.errors import (BadReply, ConnectionLost, IdentityMismatch, InstrumentError,
                             InstrumentReportedError, QueueEntry)
 from drivers.transports.base import Transport

@@ -15,7 +15,7 @@ caller's (cryod.thermometry's) job.
 
 Examples
 --------
->>> from cryod.clock import VirtualClock
+>>> from cryod.service.clock import VirtualClock
 >>> from drivers.keithley2002 import FourWireSettings, Keithley2002
 >>> from drivers.pair_triggers import HardwareTrigger
 >>> from drivers.trigger_lines import SerialControlLine
@@ -38,7 +38,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from cryod.clock import Clock
+from drivers.clock import Clock
 from drivers.keithley2002 import Keithley2002
 from drivers.pair_triggers import PairTrigger
 

@@ -22,7 +22,7 @@ the tests.
 
 Examples
 --------
->>> from cryod.clock import VirtualClock
+>>> from cryod.service.clock import VirtualClock
 >>> class Port:
 ...     def __init__(self): self.levels = []
 ...     rts = property(lambda self: self.levels[-1], lambda self, level: self.levels.append(level))
@@ -36,7 +36,7 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
-from cryod.clock import Clock
+from drivers.clock import Clock
 from drivers.errors import ConnectionLost
 
 

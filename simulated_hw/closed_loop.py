@@ -1,10 +1,11 @@
-"""The simulated cryostat under PI control or a programmed heater, without instruments.
+"""The simulated cryostat under the regulator or a programmed heater, without instruments.
 
 For control studies (docs/control.md) and for making test records: each
-80 ms period the flange thermometer is read (with sensor noise), the heater
-power is chosen (a programmed power, or the PI controller with its setpoint
-ramp) and held until the next period. The daemon runs the same controller
-against simulated instruments; this is the fast path for many runs.
+80 ms period the thermometers are read (with sensor noise), the heater power
+is chosen (a programmed power, or the regulator of :mod:`cryod.control.regulator`,
+the daemon's own control law, with its setpoint ramp) and held until the next
+period. The daemon runs the same regulator against simulated instruments; this
+is the fast path for many runs.
 
 Examples
 --------
@@ -23,8 +24,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from cryod.control.pi import PiController, PiGains, SetpointRamp
+from cryod.config import ControlConfig
+from cryod.control.pi import PiGains
+from cryod.control.regulator import HeaterCurrentOutput, HeaterPowerOutput, Regulator, RegulatorMode
 from cryod.model import CryostatModel
+from cryod.records.columns import REQUIRED
 from simulated_hw.plant import CryostatPlant
 
 
@@ -54,14 +58,12 @@ class ClosedLoopRun:
     ptc_stage_K: np.ndarray
     heater_w: np.ndarray
     setpoint_K: np.ndarray          # NaN where the loop is open
-    proportional_w: np.ndarray
-    integral_w: np.ndarray
+    control: dict                   # the control terms' columns by name (NaN where the loop is open)
 
     def columns(self) -> dict:
-        """Columns for :func:`cryod.record.write_record`."""
-        return {"time_s": self.time_s, "T2_K": self.flange_K, "T5_K": self.ptc_stage_K,
-                "heater_W": self.heater_w, "setpoint_K": self.setpoint_K,
-                "pi_proportional_W": self.proportional_w, "pi_integral_W": self.integral_w}
+        """Columns for :func:`cryod.records.record.write_record`."""
+        required = (self.time_s, self.flange_K, self.ptc_stage_K, self.heater_w, self.setpoint_K)
+        return {**{column.name: values for column, values in zip(REQUIRED, required)}, **self.control}
 
 
 def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: float, *,
@@ -70,7 +72,7 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
                 initial_heater_power_w: float = 0.0,
                 current_output_resistance_ohm: float | None = None,
                 unrecorded_heat_w: Callable[[float], float] | None = None,
-                timing_jitter_s: float = 0.0) -> ClosedLoopRun:
+                timing_jitter_s: float = 0.0, more_terms: tuple = ()) -> ClosedLoopRun:
     """Run a program of segments on the simulated cryostat.
 
     Parameters
@@ -81,6 +83,7 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
     duration_s : float
         Length of the run (s).
     gains : PiGains
+        Settings of the ``pi`` term.
     heater_max_w : float
         Heater power limit, R * I_max**2 (W).
     period_s : float
@@ -90,7 +93,7 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
     seed : int, optional
         Sensor-noise seed.
     noise : bool
-        Add sensor noise to what the controller sees and what is recorded.
+        Add sensor noise to what the regulator sees and what is recorded.
     initial_heater_power_w : float
         Power the cryostat has settled at before the start.
     current_output_resistance_ohm : float, optional
@@ -102,6 +105,10 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
         Extra heat (W) reaching the heater's paths at time t (s) that the
         record does not show: a disturbance (a heat leak) for testing the
         analysis. The recorded ``heater_w`` stays the commanded power.
+    timing_jitter_s : float
+        Largest lateness of a reading after its period's start (s, uniform).
+    more_terms : tuple of (name, settings)
+        Control terms besides ``pi`` (names of :data:`cryod.control.terms.TERM_TYPES`).
 
     Returns
     -------
@@ -110,22 +117,17 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
     segments = sorted(segments, key=lambda s: s.start_s)
     ticks = int(round(duration_s / period_s))
     plant = CryostatPlant(model, 0.0, initial_heater_power_w)
-    resistance = current_output_resistance_ohm
-    output_max = heater_max_w if resistance is None else float(np.sqrt(heater_max_w / resistance))
-
-    def to_power(output: float) -> float:
-        return output if resistance is None else resistance * output * output
-
-    def to_output(power: float) -> float:
-        return power if resistance is None else float(np.sqrt(power / resistance))
-
-    controller = PiController(gains, 0.0, output_max)
-    controller.set_manual(to_output(min(initial_heater_power_w, heater_max_w)))
-    ramp = SetpointRamp(model.operating_point.flange_temperature_K, ramp_K_per_min)
+    output = HeaterPowerOutput(heater_max_w) if current_output_resistance_ohm is None \
+        else HeaterCurrentOutput(current_output_resistance_ohm, heater_max_w)
+    control = ControlConfig(setpoint_K=None, ramp_K_per_min=ramp_K_per_min, setpoint_min_K=0.0,
+                            setpoint_max_K=np.inf, max_ramp_K_per_min=np.inf, terms=(("pi", gains), *more_terms))
+    regulator = Regulator(control, output)
+    power = min(initial_heater_power_w, heater_max_w)
     generator = np.random.default_rng(seed)
     noise_flange = model.sensor_noise.flange_thermometer_rms_K if noise else 0.0
     noise_stage = model.sensor_noise.ptc_stage_thermometer_rms_K if noise else 0.0
-    out = {name: np.empty(ticks) for name in ("t", "T2", "T5", "P", "sp", "p", "i")}
+    recorded = np.empty((5, ticks))
+    control_columns = {column.name: np.full(ticks, np.nan) for column in regulator.columns}
     starts = [s.start_s for s in segments]
     lateness = generator.uniform(0.0, timing_jitter_s, ticks) if timing_jitter_s > 0.0 else np.zeros(ticks)
     for tick in range(ticks):
@@ -137,26 +139,19 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
         index = int(np.searchsorted(starts, now + 1e-9, side="right")) - 1
         segment = segments[max(index, 0)]
         if segment.setpoint_K is not None:
-            ramp.target_K = segment.setpoint_K
-            if controller.is_manual:
-                # bumpless against the present temperature; the setpoint step then acts through Kp
-                ramp.setpoint_K = flange if ramp_K_per_min > 0.0 else segment.setpoint_K
-                controller.set_automatic(flange, flange)
-            setpoint = ramp.advance(period_s)
-            requested = controller.update(flange, setpoint, period_s)
-            output = min(max(requested, 0.0), output_max)
-            controller.limit(requested, output)
-            power = to_power(output)
+            regulator.ramp.target_K = segment.setpoint_K
+            if regulator.mode is not RegulatorMode.CLOSED:
+                regulator.close_loop(now, flange, stage, present_power_w=power)
         else:
             program = segment.heater_power_w
-            power = float(program(now) if callable(program) else program)
-            if not 0.0 <= power <= heater_max_w:
-                raise ValueError(f"programmed heater power {power} W at {now:.2f} s is outside 0..{heater_max_w} W")
-            controller.set_manual(to_output(power))
-            setpoint = np.nan
+            try:
+                regulator.set_manual(float(program(now) if callable(program) else program))
+            except ValueError as error:
+                raise ValueError(f"programmed {error} at {now:.2f} s") from None
+        step = regulator.step(now, period_s, flange, stage)
+        power = step.power_w
         plant.set_heater_power(power + (unrecorded_heat_w(now) if unrecorded_heat_w else 0.0), now)
-        for name, value in zip(out, (now, flange, stage, power, setpoint,
-                                      controller.proportional_w if not controller.is_manual else np.nan,
-                                      controller.integral_w if not controller.is_manual else np.nan)):
-            out[name][tick] = value
-    return ClosedLoopRun(out["t"], out["T2"], out["T5"], out["P"], out["sp"], out["p"], out["i"])
+        recorded[:, tick] = now, flange, stage, power, step.setpoint_K
+        for name, value in step.columns.items():
+            control_columns[name][tick] = value
+    return ClosedLoopRun(*recorded, control_columns)

@@ -7,7 +7,7 @@ is taken or the heater is written.
 
 Examples
 --------
->>> from cryod.clock import VirtualClock
+>>> from cryod.service.clock import VirtualClock
 >>> from cryod.model import load_model
 >>> clock = VirtualClock()
 >>> cryostat = SimulatedCryostat(load_model(), clock, seed=1)
@@ -23,7 +23,7 @@ import threading
 
 import numpy as np
 
-from cryod.clock import Clock
+from cryod.service.clock import Clock
 from cryod.model import CryostatModel
 from simulated_hw.plant import CryostatPlant
 
@@ -36,7 +36,7 @@ class SimulatedCryostat:
     model : CryostatModel
         The physics (``config/model.yaml`` or an extended model).
     clock : Clock
-        Source of "now"; a :class:`cryod.clock.VirtualClock` in tests.
+        Source of "now"; a :class:`cryod.service.clock.VirtualClock` in tests.
     seed : int, optional
         Seed of the sensor-noise generator (reproducible runs).
     noise : bool

@@ -7,10 +7,10 @@ from functools import lru_cache
 from cryod.analysis.pipeline import Analysis, analyze
 from cryod.analysis.record_data import RecordData
 from cryod.model import load_model
-from cryod.record import Record
+from cryod.records.record import Record
 from simulated_hw import hidden_effects
 from simulated_hw.hidden_effects import DISTURBANCES, MAGNITUDES, other_day, within  # noqa: F401
-from simulated_hw.protocols import make_record
+from simulated_hw.measurement_programs import make_record
 
 from tests.conftest import CONFIG
 

@@ -6,7 +6,7 @@ test_daemon_faults.py; this double only lets loop tests script faults exactly.
 
 from __future__ import annotations
 
-from cryod.loop import Measurement
+from drivers.thermometer_pair import PairReading
 
 
 class DirectInstruments:
@@ -28,7 +28,7 @@ class DirectInstruments:
         self.reconnects = 0
         self.closed = False
 
-    def measure(self) -> Measurement:
+    def measure(self) -> PairReading:
         call = self.measurements
         self.measurements += 1
         trigger = self.clock.now()
@@ -39,7 +39,7 @@ class DirectInstruments:
         flange_ohm = float(self.flange_curve.resistance_ohm(flange_K))
         stage_ohm = float(self.ptc_stage_curve.resistance_ohm(stage_K))
         flange_ohm, stage_ohm = self.resistance_override.get(call, (flange_ohm, stage_ohm))
-        return Measurement(trigger, 0.0, flange_ohm, stage_ohm)
+        return PairReading(trigger, 0.0, flange_ohm, stage_ohm, self.clock.now())
 
     def set_heater_power(self, power_w: float) -> None:
         call = self.heater_writes

@@ -94,8 +94,8 @@ def test_effects_with_sampling_jitter_and_another_period(cause):
     """10 Hz loop with up to 20 ms trigger lateness, another day's operating point and line."""
     from cryod.analysis.record_data import RecordData
     from cryod.analysis.pipeline import analyze
-    from cryod.record import Record
-    from simulated_hw.protocols import make_record
+    from cryod.records.record import Record
+    from simulated_hw.measurement_programs import make_record
 
     model, truth = hidden_model(cause, 1, variant=1)
     record = make_record(model, "identification", duration_s=2400.0, seed=6, period_s=0.1, timing_jitter_s=0.02)
@@ -109,8 +109,8 @@ def test_record_cut_in_the_middle_of_a_transient(cause):
     """A record cut from a longer log 30 s after a heater step: the start is not a settled state."""
     from cryod.analysis.pipeline import analyze
     from cryod.analysis.record_data import RecordData
-    from cryod.record import Record
-    from simulated_hw.protocols import make_record
+    from cryod.records.record import Record
+    from simulated_hw.measurement_programs import make_record
 
     model, truth = (other_day(base_model(), 0), {}) if cause == "none" else hidden_model(cause, 1)
     record = make_record(model, "identification", duration_s=1500.0, seed=9)
@@ -130,8 +130,8 @@ def test_rows_without_a_reading_are_left_out():
 
     from cryod.analysis.pipeline import analyze
     from cryod.analysis.record_data import RecordData
-    from cryod.record import Record
-    from simulated_hw.protocols import make_record
+    from cryod.records.record import Record
+    from simulated_hw.measurement_programs import make_record
 
     model, truth = hidden_model("dead_time", 1, variant=3)
     record = make_record(model, "pi_only", duration_s=900.0, seed=10)

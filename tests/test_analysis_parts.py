@@ -13,9 +13,9 @@ from cryod.analysis.record_data import RecordData, fit_block_mask, heater_limit_
 from cryod.analysis.replay import Replayer
 from cryod.analysis.segments import find_segments, find_steps
 from cryod.model import PtcFrequencyDrift
-from cryod.record import Record, RecordFormatError
+from cryod.records.record import Record, RecordFormatError
 from simulated_hw.plant import simulate
-from simulated_hw.protocols import make_record
+from simulated_hw.measurement_programs import make_record
 
 
 def _record(columns, metadata=None, source="test"):

@@ -6,8 +6,8 @@ import pytest
 
 from cryod import cli
 from cryod.model import HeatCapacityTemperature
-from cryod.record import write_record
-from simulated_hw.protocols import make_record
+from cryod.records.record import write_record
+from simulated_hw.measurement_programs import make_record
 
 
 @pytest.mark.slow

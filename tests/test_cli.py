@@ -7,7 +7,7 @@ import sys
 import pytest
 
 from cryod.cli import main
-from cryod.record import read_record
+from cryod.records.record import read_record
 from tests.conftest import CONFIG, REPOSITORY
 
 CONTRACT_KEYS = {"duration_s", "ticks", "overruns", "lateness_ms_p50", "lateness_ms_p99", "lateness_ms_max",
@@ -93,10 +93,10 @@ def test_sim_model_changes_the_cryostat_but_not_the_controller(tmp_path, capsys)
 
 
 def test_simulation_that_fails_exits_1_with_the_reason(tmp_path, capsys, monkeypatch):
-    import cryod.simulation
+    import cryod.service.simulation
 
     def broken_run(self, duration_s=None):
         raise RuntimeError("instrument opener broke")
-    monkeypatch.setattr(cryod.simulation.Daemon, "run", broken_run)
+    monkeypatch.setattr(cryod.service.simulation.Daemon, "run", broken_run)
     assert main(simulate_args(tmp_path, "--duration", "1")) == 1
     assert "RuntimeError: instrument opener broke" in capsys.readouterr().err

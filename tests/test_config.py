@@ -7,6 +7,7 @@ import sys
 import pytest
 
 from cryod.config import load_config
+from cryod.control.pi import PiGains
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG, REPOSITORY
 
@@ -47,6 +48,11 @@ def test_example_config_is_valid_and_complete():
      "cannot drive"),
     ('  mode: "0660"', '  mode: "rw-rw----"', "control_socket.mode", "octal"),
     ("  lock_memory: true", "  lock_memory: yes please", "loop.lock_memory", "true or false"),
+    ("    proportional_W_per_K: 10.0", "    proportional_W_per_K: -1", "control.pi.proportional_W_per_K", "at least 0"),
+    ("    integral_W_per_K_s: 0.2 ", "    integral_W_per_K_s: 0.2\n    derivative: 1 ", "control.pi.derivative",
+     "unknown key"),
+    ("  max_ramp_K_per_min: 10.0", "  max_ramp_K_per_min: 10.0\n  proportional_W_per_K: 10.0",
+     "control.proportional_W_per_K", "give it as control.pi.proportional_W_per_K"),
 ])
 def test_errors_name_file_line_and_key(tmp_path, old, new, key, reason):
     path, text = written(tmp_path, old, new)
@@ -70,7 +76,7 @@ def test_missing_section_is_named(tmp_path):
 
 def test_restart_needed_for_lists_sections_that_cannot_reload():
     config = load_config(CONFIG / "cryod.yaml")
-    gains = dataclasses.replace(config, control=dataclasses.replace(config.control, proportional_W_per_K=1.0))
+    gains = dataclasses.replace(config, control=dataclasses.replace(config.control, terms=(("pi", PiGains(1.0, 0.2)),)))
     assert config.restart_needed_for(gains) == []
     moved = dataclasses.replace(config, heater=dataclasses.replace(config.heater, resistance_ohm=25.0))
     assert config.restart_needed_for(moved) == ["heater"]
@@ -83,3 +89,13 @@ def test_bad_config_stops_run_before_any_instrument(tmp_path):
     assert result.returncode == 2
     assert "nothing was started" in result.stderr and "heater.resistance_ohm" in result.stderr
     assert f"{path}:" in result.stderr
+
+
+def test_a_control_term_section_that_is_required_is_named(tmp_path):
+    start = EXAMPLE.index("  pi:")
+    end = EXAMPLE.index("safety:")
+    path = tmp_path / "cryod.yaml"
+    path.write_text(EXAMPLE.replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/")
+                    .replace(EXAMPLE[start:end], "\n"))
+    with pytest.raises(FileFormatError, match="control.pi: missing required key"):
+        load_config(path)

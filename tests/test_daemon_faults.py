@@ -12,13 +12,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from cryod.clock import VirtualClock
+from cryod.service.clock import VirtualClock
 from cryod.config import load_config
-from cryod.daemon import Daemon
+from cryod.service.daemon import Daemon
 from cryod.model import load_model
-from cryod.record import read_record
+from cryod.records.record import read_record
+from cryod.records.columns import Row
 from cryod.service.notify import SystemdNotifier
-from cryod.simulation import SimulatedInstrumentsOpener
+from cryod.service.simulation import SimulatedInstrumentsOpener
 from tests.conftest import CONFIG
 
 
@@ -45,7 +46,7 @@ class FaultDrill:
         self.heater_at_fault = []
 
     def tap(self, item):
-        if not isinstance(item, dict):
+        if not isinstance(item, Row):
             return
         self.rows.append(item)
         action = self.actions.pop(len(self.rows) - 1, None)

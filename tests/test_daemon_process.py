@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from cryod.record import read_record
+from cryod.records.record import read_record
 from cryod.service.control_socket import send_command
 from tests.conftest import CONFIG, REPOSITORY
 
@@ -141,8 +141,8 @@ def test_service_behaviour_of_a_real_process(daemon):
     assert "reload refused, keeping the running configuration" in stderr and "proportional_W_per_K" in stderr
     record = read_record(sorted(run.data.glob("cryod-*.csv"))[0])
     events = " | ".join(text for _, text in record.events)
-    assert "command reload: configuration reloaded" in events
-    assert "command setpoint refused" in events
+    assert "command: reload accepted: configuration reloaded" in events
+    assert "command: setpoint refused: setpoint 50 K refused" in events
     assert "stop: stop_requested: SIGTERM received" in events
     assert record.heater_w[-1] == 0.0 or record.columns["state"][-1] != "closed"
     assert record.metadata["simulation_transport"] == "tcp"

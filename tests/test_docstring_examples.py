@@ -7,7 +7,7 @@ import pytest
 
 MODULES = [
     "cryod.analysis.ptc_line", "cryod.analysis.noise", "cryod.analysis.record_data", "cryod.analysis.replay",
-    "cryod.analysis.segments", "cryod.analysis.decision", "cryod.paper_table1", "simulated_hw.protocols",
+    "cryod.analysis.segments", "cryod.analysis.decision", "cryod.paper_table1", "simulated_hw.measurement_programs",
     "simulated_hw.hidden_effects",
 ]
 

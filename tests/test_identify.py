@@ -9,8 +9,8 @@ from cryod import cli
 from cryod.analysis.record_data import RecordData
 from cryod.identification.fit import IdentificationError, identify
 from cryod.model import load_model
-from cryod.record import Record, write_record
-from simulated_hw.protocols import make_record
+from cryod.records.record import Record, write_record
+from simulated_hw.measurement_programs import make_record
 
 from tests.conftest import CONFIG
 

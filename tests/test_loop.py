@@ -5,9 +5,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from cryod.clock import VirtualClock
+from cryod.service.clock import VirtualClock
 from cryod.config import load_config
-from cryod.loop import ROW_COLUMNS, Command, ControlLoop
+from cryod.control.pi import PiGains
+from cryod.records.columns import Row
+from cryod.service.commands import Command
+from cryod.service.loop import ControlLoop
 from cryod.thermometry import load_calibration
 from drivers.errors import ConnectionLost, HeaterCompliance, InstrumentTimeout, OverflowReading
 from simulated_hw.cryostat import SimulatedCryostat
@@ -32,7 +35,7 @@ def make_loop(reference_model, curves, config, **instrument_options):
     instruments = DirectInstruments(cryostat, *curves, clock, **instrument_options)
     rows, events = [], []
     loop = ControlLoop(config, instruments, *curves, clock,
-                       emit_row=lambda item: (events if isinstance(item, str) else rows).append(item))
+                       emit=lambda item: (rows if isinstance(item, Row) else events).append(item))
     return loop, instruments, cryostat, rows, events
 
 
@@ -40,18 +43,19 @@ def test_regulates_to_setpoint_with_contract_columns(reference_model, curves, ba
     loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
     assert loop.run(duration_s=900.0, manage_gc=False) == 0
     assert len(rows) == pytest.approx(900 / 0.08, abs=1)
-    assert set(rows[-1]) <= set(ROW_COLUMNS) and {"time_s", "T2_K", "T5_K", "heater_W", "setpoint_K"} <= set(rows[-1])
-    times = np.array([row["time_s"] for row in rows])
+    assert loop.schema.names[:5] == ("time_s", "T2_K", "T5_K", "heater_W", "setpoint_K")
+    assert set(rows[-1].control) == {"pi_proportional_W", "pi_integral_W"} <= set(loop.schema.names)
+    times = np.array([row.time_s for row in rows])
     np.testing.assert_allclose(np.diff(times), 0.08, atol=1e-9)   # absolute deadlines, no drift
-    late = [row for row in rows if row["time_s"] > 600.0]
-    flange = np.array([row["T2_K"] for row in late])
+    late = [row for row in rows if row.time_s > 600.0]
+    flange = np.array([row.T2_K for row in late])
     assert np.mean(flange) == pytest.approx(5.0, abs=3e-4)
-    heater = np.array([row["heater_W"] for row in rows])
+    heater = np.array([row.heater_W for row in rows])
     assert heater.min() >= 0.0 and heater.max() <= base_config.heater.max_power_w
     # the first valid_readings_to_resume ticks hold the heater off
-    assert [row["state"] for row in rows[:5]] == ["holding"] * 5 and rows[5]["state"].startswith("closed")
+    assert [row.state for row in rows[:5]] == ["holding"] * 5 and rows[5].state.startswith("closed")
     assert instruments.cryostat.heater_power_w == 0.0          # heater off at the end of the run
-    assert any("resumed" in event for event in events)
+    assert any("resumed" in event.text for event in events)
 
 
 def test_overrun_skips_to_next_deadline_and_a_streak_stops_with_heater_off(reference_model, curves, base_config):
@@ -59,11 +63,11 @@ def test_overrun_skips_to_next_deadline_and_a_streak_stops_with_heater_off(refer
     instruments.measure_delays = {100: 0.2, 101: 0.05}                      # one cycle 2.9 periods long
     instruments.measure_delays.update({300 + k: 0.1 for k in range(10)})   # then a streak
     code = loop.run(duration_s=60.0, manage_gc=False)
-    times = np.array([row["time_s"] for row in rows])
+    times = np.array([row.time_s for row in rows])
     steps = np.diff(times)
     assert steps.min() >= 0.08 - 1e-9                       # never a burst to catch up
     assert np.isclose(steps, 0.24).sum() >= 1               # skipped two deadlines after the long cycle
-    overruns = [event for event in events if event.startswith("overrun:")]
+    overruns = [event.text for event in events if event.kind == "overrun"]
     assert overruns[0].endswith("2 deadline(s) skipped")
     assert 200.0 < float(overruns[0].split("cycle ended ")[1].split(" ms")[0]) < 240.0   # the 0.2 s delay + reading
     assert len(overruns) == loop.timing.summary()["overruns"]
@@ -82,16 +86,16 @@ def test_transient_fault_heater_off_at_once_then_resume_after_valid_readings(ref
     loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
     instruments.measure_faults = {2000: error, 2001: error, 2002: error}
     assert loop.run(duration_s=200.0, manage_gc=False) == 0
-    fault_rows = [i for i, row in enumerate(rows) if row["state"] == f"fault:{cause}"]
+    fault_rows = [i for i, row in enumerate(rows) if row.state == f"fault:{cause}"]
     assert len(fault_rows) == 3 and fault_rows[0] == 2000
-    assert all(rows[i]["heater_W"] == 0.0 for i in fault_rows)
+    assert all(rows[i].heater_W == 0.0 for i in fault_rows)
     # heater written to 0 W in the tick that found the fault
-    fault_time = rows[2000]["time_s"]
+    fault_time = rows[2000].time_s
     assert any(t >= fault_time and t < fault_time + 0.08 and p == 0.0 for t, p in instruments.heater_log)
     after = rows[2003:2003 + 5]
-    assert all(row["state"] == "recovering" and row["heater_W"] == 0.0 for row in after)
-    assert rows[2008]["state"].startswith("closed") and rows[2008]["heater_W"] > 0.0
-    assert any(event.startswith("fault: " + cause) for event in events)
+    assert all(row.state == "recovering" and row.heater_W == 0.0 for row in after)
+    assert rows[2008].state.startswith("closed") and rows[2008].heater_W > 0.0
+    assert any(event.text.startswith("fault: " + cause) for event in events)
     if cause in ("instrument_timeout", "connection_lost"):
         assert instruments.reconnects >= 1
 
@@ -111,7 +115,7 @@ def test_over_temperature_exits_3_with_heater_off(reference_model, curves, base_
     loop.submit(Command("manual", 0.3))                     # heat open loop until the limit trips
     assert loop.run(duration_s=600.0, manage_gc=False) == 3
     assert loop.last_fault.cause == "over_temperature" and "T2" in loop.last_fault.message
-    assert rows[-1]["heater_W"] == 0.0 and rows[-1]["T2_K"] > 4.6
+    assert rows[-1].heater_W == 0.0 and rows[-1].T2_K > 4.6
     assert cryostat.heater_power_w == 0.0
 
 
@@ -120,7 +124,7 @@ def test_sensor_out_of_calibration_and_stale_readings(reference_model, curves, b
     instruments.resistance_override = {500: (1.0, 3000.0)}                        # 1 ohm: far outside the curve
     instruments.resistance_override.update({1000 + k: (2800.0, 3000.0) for k in range(5)})   # frozen DMM
     assert loop.run(duration_s=120.0, manage_gc=False) == 0
-    states = [row["state"] for row in rows]
+    states = [row.state for row in rows]
     assert states[500] == "fault:sensor_out_of_calibration"
     assert states[1004] == "fault:sensor_stale"
     assert states[-1].startswith("closed")
@@ -176,31 +180,32 @@ def test_commands_are_checked_against_limits(reference_model, curves, base_confi
     assert not answers[101].ok and "max_ramp" in answers[101].message
     assert not answers[102].ok and "0..0.5 W" in answers[102].message
     assert answers[103].ok and answers[104].ok
-    ramping = [row["setpoint_K"] for row in rows[200:300]]
+    ramping = [row.setpoint_K for row in rows[200:300]]
     assert np.all(np.diff(ramping) > 0) and np.diff(ramping)[0] == pytest.approx(1.0 / 60 * 0.08)
-    assert rows[3001]["state"] == "off" and rows[3001]["heater_W"] == 0.0
-    assert rows[3501]["state"] == "manual" and rows[3501]["heater_W"] == 0.05
-    assert rows[4001]["state"].startswith("closed")
+    assert rows[3001].state == "off" and rows[3001].heater_W == 0.0
+    assert rows[3501].state == "manual" and rows[3501].heater_W == 0.05
+    assert rows[4001].state.startswith("closed")
     # bumpless: closing the loop from 50 mW manual continues from 50 mW
-    assert rows[4001]["heater_W"] == pytest.approx(0.05, abs=0.01)
+    assert rows[4001].heater_W == pytest.approx(0.05, abs=0.01)
 
 
 def test_reload_is_bumpless_and_refuses_restart_only_changes(quiet_reference_model, curves, base_config):
     """Doubling the gains while the error is large must not step the heater (PTC line off)."""
     loop, instruments, cryostat, rows, events = make_loop(quiet_reference_model, curves, base_config)
     control = base_config.control
+    gains = control.term("pi")
     new_gains = dataclasses.replace(base_config, control=dataclasses.replace(
-        control, proportional_W_per_K=2 * control.proportional_W_per_K,
-        integral_W_per_K_s=2 * control.integral_W_per_K_s), source="new.yaml")
+        control, terms=(("pi", PiGains(2 * gains.proportional_w_per_K, 2 * gains.integral_w_per_K_s)),)),
+        source="new.yaml")
     moved_dmm = dataclasses.replace(base_config, instruments=dataclasses.replace(
         base_config.instruments, timeout_s=2.0), source="new.yaml")
     answers = {}
 
     def measure_and_reload():
         # reload with the output well inside its limits and a large error, where a bump cannot be clipped
-        last = rows[-1] if rows else {}
-        if "gains" not in answers and last.get("state") == "closed" and last["heater_W"] < 0.3 \
-                and last["setpoint_K"] - last["T2_K"] > 0.008:
+        last = rows[-1] if rows else None
+        if "gains" not in answers and last is not None and last.state == "closed" and last.heater_W < 0.3 \
+                and last.setpoint_K - last.T2_K > 0.008:
             answers["gains"] = loop.submit(Command("reload", new_gains))
             answers["at"] = len(rows) + 1            # this tick makes row len(rows); the next applies it
         elif "gains" in answers and "dmm" not in answers:
@@ -209,11 +214,12 @@ def test_reload_is_bumpless_and_refuses_restart_only_changes(quiet_reference_mod
 
     instruments.measure = measure_and_reload
     loop.run(duration_s=100.0, manage_gc=False)
-    assert answers["gains"].ok and loop.pi.gains.proportional_w_per_K == 2 * control.proportional_W_per_K
+    doubled = PiGains(2 * gains.proportional_w_per_K, 2 * gains.integral_w_per_K_s)
+    assert answers["gains"].ok and loop.regulator.terms[0].controller.gains == doubled
     assert not answers["dmm"].ok and "instruments" in answers["dmm"].message and "restart" in answers["dmm"].message
     at = answers["at"]
-    assert rows[at]["state"] == "closed" and rows[at]["setpoint_K"] - rows[at]["T2_K"] > 0.007
-    before, after = rows[at - 1]["heater_W"], rows[at]["heater_W"]
+    assert rows[at].state == "closed" and rows[at].setpoint_K - rows[at].T2_K > 0.007
+    before, after = rows[at - 1].heater_W, rows[at].heater_W
     # a non-bumpless change would add Kp_old * error > 0.07 W, unclipped (0.3 + 0.07 < 0.5 W);
     # the normal tick-to-tick change here is Kp times about 1 mK
     assert abs(after - before) < 0.03
@@ -234,5 +240,5 @@ def test_recovery_returns_to_the_mode_that_was_running(reference_model, curves, 
     instruments.measure = measure
     instruments.measure_faults = {500: InstrumentTimeout("flange DMM", "no reply")}
     assert loop.run(duration_s=60.0, manage_gc=False) == 0
-    assert rows[499]["state"] == state and rows[500]["state"] == "fault:instrument_timeout"
-    assert rows[-1]["state"] == state and rows[-1]["heater_W"] == heater
+    assert rows[499].state == state and rows[500].state == "fault:instrument_timeout"
+    assert rows[-1].state == state and rows[-1].heater_W == heater

@@ -3,8 +3,16 @@ import math
 import numpy as np
 import pytest
 
-from cryod.control.pi import PiController, PiGains, SetpointRamp
+from cryod.config import ControlConfig
+from cryod.control.pi import PiController, PiGains
+from cryod.control.ramp import SetpointRamp
+from cryod.control.regulator import HeaterPowerOutput, Regulator
 from simulated_hw.closed_loop import Segment, run_program
+
+
+def control_section(gains: PiGains, setpoint_K: float | None = None) -> ControlConfig:
+    return ControlConfig(setpoint_K=setpoint_K, ramp_K_per_min=0.0, setpoint_min_K=1.0, setpoint_max_K=20.0,
+                         max_ramp_K_per_min=10.0, terms=(("pi", gains),))
 
 
 def test_proportional_and_integral_parts():
@@ -26,10 +34,15 @@ def test_anti_windup_stops_integrating_into_a_held_limit():
 
 
 def test_gain_change_and_auto_manual_transfer_are_bumpless():
+    regulator = Regulator(control_section(PiGains(1.0, 0.1), setpoint_K=5.0), HeaterPowerOutput(1.0))
+    regulator.set_manual(0.3)
+    assert regulator.step(0.0, 0.08, 4.0, 3.3).power_w == 0.3
+    # closing the loop continues from the 0.3 W that was applied; the setpoint step acts through Kp
+    regulator.close_loop(0.08, flange_K=4.9, ptc_stage_K=3.3, present_power_w=0.3)
+    assert regulator.terms[0].controller.output_w == pytest.approx(0.3)
+    assert regulator.step(0.16, 0.08, 4.9, 3.3).power_w == pytest.approx(0.3 + 1.0 * 0.1 + 0.1 * 0.1 * 0.08)
     pi = PiController(PiGains(1.0, 0.1), 0.0, 1.0)
-    pi.set_manual(0.3)
-    assert pi.update(4.0, 5.0, 0.08) == 0.3
-    pi.set_automatic(measured_K=4.9, setpoint_K=5.0)
+    pi.set_automatic(measured_K=4.9, setpoint_K=5.0, present_power_w=0.3)
     assert pi.output_w == pytest.approx(0.3)
     first = pi.update(4.9, 5.0, 0.08)
     assert first == pytest.approx(0.3 + 0.1 * 0.1 * 0.08)
@@ -41,7 +54,7 @@ def test_refuses_bad_gains_and_manual_power_outside_range():
     with pytest.raises(ValueError, match="proportional"):
         PiGains(-1.0, 0.1)
     with pytest.raises(ValueError, match="outside"):
-        PiController(PiGains(1.0, 0.1), 0.0, 0.5).set_manual(0.6)
+        Regulator(control_section(PiGains(1.0, 0.1)), HeaterPowerOutput(0.5)).set_manual(0.6)
 
 
 def test_setpoint_ramp_rate():

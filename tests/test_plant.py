@@ -7,8 +7,8 @@ import pytest
 from scipy import signal
 from scipy.integrate import simpson
 
-from cryod.clock import VirtualClock
-from cryod.line_fit import fit_line, wrap_phase
+from cryod.service.clock import VirtualClock
+from cryod.analysis.line_fit import fit_line, wrap_phase
 from cryod.model import (
     DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, PtcFrequencyDrift, PtcHarmonic, SensorLag,
 )

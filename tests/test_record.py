@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from cryod.record import RecordFormatError, format_header, format_row, read_record, read_record_text, write_record
+from cryod.records.record import RecordFormatError, format_header, format_row, read_record, read_record_text, write_record
 
 HEADER = "# cryod-log v1\n# heater_resistance_ohm: 50.0 ohm\ntime_s,T2_K,T5_K,heater_W,setpoint_K,flags\n"
 

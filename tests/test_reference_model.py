@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from cryod import paper_table1 as table1
-from cryod.line_fit import fit_line, wrap_phase
+from cryod.analysis.line_fit import fit_line, wrap_phase
 from simulated_hw.plant import simulate
 
 PERIOD = 0.08

@@ -10,29 +10,33 @@ import time
 
 import pytest
 
-from cryod.datalog import DataLog
-from cryod.loop import ROW_COLUMNS, Command
-from cryod.record import read_record
-from cryod.service.control_socket import ControlSocketServer, parse_command, send_command
+from cryod.records.columns import REQUIRED, STATE, Event, Row, RowSchema
+from cryod.records.datalog import DataLog
+from cryod.records.record import read_record
+from cryod.service.commands import Command, parse_command
+from cryod.service.control_socket import ControlSocketServer, send_command
 from cryod.service.logs import JournalFormatter
 from cryod.service.notify import SystemdNotifier
 
 
+SCHEMA = RowSchema(REQUIRED + (STATE,))
+
+
 def rows(start, count, period=0.08):
-    return [{"time_s": start + k * period, "T2_K": 4.23 + 1e-6 * k, "T5_K": 3.34, "heater_W": 0.01,
-             "setpoint_K": 5.0 if k % 2 else None, "state": "closed"} for k in range(count)]
+    return [Row(time_s=start + k * period, lateness_ms=0.0, T2_K=4.23 + 1e-6 * k, T5_K=3.34, heater_W=0.01,
+                setpoint_K=5.0 if k % 2 else float("nan"), state="closed") for k in range(count)]
 
 
 def test_data_log_writes_contract_files_and_never_overwrites(tmp_path):
     wall_start = 1_795_000_000.0       # 2026-11-18 UTC, mid-day
-    log_a = DataLog(tmp_path, ROW_COLUMNS, {"site": "test"}, lambda t: wall_start + t, 0.08, 0.5)
+    log_a = DataLog(tmp_path, SCHEMA, {"site": "test"}, lambda t: wall_start + t, 0.08, 0.5)
     log_a.start()
-    log_a.put("started")
-    log_a.put("fault: exception: RuntimeError: first line\nsecond line")   # queued before the first file opens
+    log_a.put(Event("note", "started"))
+    log_a.put(Event("fault", "exception: RuntimeError: first line\nsecond line"))   # before the first file opens
     for row in rows(0.08, 100):
         log_a.put(row)
     log_a.stop()
-    log_b = DataLog(tmp_path, ROW_COLUMNS, {}, lambda t: wall_start + t, 0.08, 0.5)   # restart the same day
+    log_b = DataLog(tmp_path, SCHEMA, {}, lambda t: wall_start + t, 0.08, 0.5)   # restart the same day
     log_b.start()
     for row in rows(50.0, 10):
         log_b.put(row)
@@ -50,7 +54,7 @@ def test_data_log_writes_contract_files_and_never_overwrites(tmp_path):
 
 def test_data_log_rotates_at_utc_midnight(tmp_path):
     midnight = 1_795_046_400.0         # 2026-11-19 00:00:00 UTC
-    datalog = DataLog(tmp_path, ROW_COLUMNS, {}, lambda t: midnight - 4.0 + t, 0.08, 0.5)
+    datalog = DataLog(tmp_path, SCHEMA, {}, lambda t: midnight - 4.0 + t, 0.08, 0.5)
     datalog.start()
     for row in rows(0.08, 100):        # 8 s across midnight
         datalog.put(row)
@@ -65,7 +69,9 @@ def test_data_log_rotates_at_utc_midnight(tmp_path):
 def test_parse_command_refuses_malformed_input():
     assert parse_command("setpoint 5.0").value == 5.0
     for line, reason in [("", "empty"), ("warm", "unknown command"), ("setpoint", "takes 1 argument"),
-                         ("setpoint five", "not a number"), ("ramp nan", "finite"), ("heater-off now", "takes 0")]:
+                         ("setpoint five", "not a number"), ("ramp nan", "not a number"), ("ramp 1e999", "finite"),
+                         ("setpoint 1_5", "plain decimal"), ("setpoint \u0665", "not a number"),
+                         ("heater-off now", "takes 0"), ("reload", "unknown command")]:
         with pytest.raises(ValueError, match=reason):
             parse_command(line)
 
@@ -145,8 +151,8 @@ def test_notify_abstract_socket_and_absent_socket():
 
 def test_journald_priority_prefixes():
     formatter = JournalFormatter(prefix=True)
-    record = logging.LogRecord("cryod.loop", logging.CRITICAL, __file__, 1, "heater off: %s", ("over_temperature",), None)
-    assert formatter.format(record) == "<2>cryod.loop: heater off: over_temperature"
+    record = logging.LogRecord("cryod.service.loop", logging.CRITICAL, __file__, 1, "heater off: %s", ("over_temperature",), None)
+    assert formatter.format(record) == "<2>cryod.service.loop: heater off: over_temperature"
     record = logging.LogRecord("cryod", logging.WARNING, __file__, 1, "two\nlines", (), None)
     assert formatter.format(record) == "<4>cryod: two\n<4>lines"
     assert JournalFormatter(prefix=False).format(record) == "cryod: two\nlines"

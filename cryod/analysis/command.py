@@ -27,7 +27,7 @@ from cryod.analysis.report import write_report
 from cryod.analysis.segments import find_segments
 from cryod.analysis.summary import json_summary, model_header
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
-from cryod.record import RecordFormatError, read_record
+from cryod.records.record import RecordFormatError, read_record
 from cryod.yaml_source import FileFormatError
 
 EXTENDED_MODEL_NAME = "extended-model.yaml"

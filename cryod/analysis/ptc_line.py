@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage, optimize
 
-from cryod.line_fit import wrap_phase
+from cryod.analysis.line_fit import wrap_phase
 from cryod.model import CryostatModel, PtcFrequencyDrift, PtcHarmonic
 
 #: Search band of the cooler's fundamental (rad/s): 0.3 Hz up to the Nyquist frequency.

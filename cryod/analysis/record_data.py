@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cryod.record import Record, RecordFormatError
+from cryod.records.record import Record, RecordFormatError
 
 #: Shortest record the analysis accepts (s) and fewest samples.
 MINIMUM_DURATION_S = 120.0
@@ -93,7 +93,7 @@ class RecordData:
 
         Raises
         ------
-        cryod.record.RecordFormatError
+        cryod.records.record.RecordFormatError
             Naming the record and what is wrong: too short, a heater value
             missing or negative, no temperatures.
         """

@@ -1,13 +1,19 @@
-"""PI control of the flange temperature, output in heater power (W).
+"""PI control of the flange temperature, output in heater power (W): the ``pi`` control term.
 
 ``power = Kp * e + integral``, ``integral += Ki * e * dt``, with e = setpoint - T2
 in K, Kp in W/K and Ki in W/(K s). The controller is one term of the heater
-power; the loop adds the terms, holds the total within the heater's limits and
-tells every term what was applied (:meth:`PiController.limit`), so the integral
-does not wind up against a limit.
+power; the regulator (:mod:`cryod.control.regulator`) adds the terms, holds the
+total within the heater's limits and tells every term what was applied
+(:meth:`PiController.limit`), so the integral does not wind up against a limit.
 
-Bumpless by construction: changing gains, or going from manual (open-loop
-heater) to automatic, keeps the output where it was.
+Bumpless by construction: changing gains, or closing the loop from a heater
+power that was set by hand, keeps the output where it was.
+
+Configuration, section ``control.pi`` (reloadable)::
+
+    pi:
+      proportional_W_per_K: 10.0
+      integral_W_per_K_s: 0.2
 
 Examples
 --------
@@ -24,6 +30,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+from cryod.control.terms import TickInputs
+from cryod.records.columns import Column
+from cryod.yaml_source import Section
 
 
 @dataclass(frozen=True)
@@ -50,7 +60,7 @@ class PiGains:
 
 
 class PiController:
-    """PI with anti-windup, bumpless transfer and a manual mode.
+    """PI with anti-windup and bumpless transfer.
 
     Parameters
     ----------
@@ -69,23 +79,11 @@ class PiController:
         self.proportional_w = 0.0
         self.error_K = 0.0
         self.output_w = 0.0
-        self.manual_power_w: float | None = None
         self._last_increment_w = 0.0
 
-    # -- modes -------------------------------------------------------------
-    @property
-    def is_manual(self) -> bool:
-        return self.manual_power_w is not None
-
-    def set_manual(self, power_w: float) -> None:
-        """Open loop: the output is ``power_w`` until :meth:`set_automatic`."""
-        if not self.output_min_w <= power_w <= self.output_max_w:
-            raise ValueError(f"manual power {power_w} W outside {self.output_min_w}..{self.output_max_w} W")
-        self.manual_power_w = float(power_w)
-        self.output_w = float(power_w)
-
+    # -- transfers ---------------------------------------------------------
     def set_automatic(self, measured_K: float, setpoint_K: float, present_power_w: float | None = None) -> None:
-        """Close the loop without a bump: the next output continues from ``present_power_w``.
+        """Take over without a bump: the next output continues from ``present_power_w``.
 
         Parameters
         ----------
@@ -95,7 +93,6 @@ class PiController:
             The heater power from this term now (default: the last output).
         """
         power = self.output_w if present_power_w is None else float(present_power_w)
-        self.manual_power_w = None
         self.error_K = setpoint_K - measured_K
         self.proportional_w = self.gains.proportional_w_per_K * self.error_K
         self.integral_w = power - self.proportional_w
@@ -141,9 +138,6 @@ class PiController:
         dt_s : float
             Time since the previous update (s).
         """
-        if self.manual_power_w is not None:
-            self.output_w = self.manual_power_w
-            return self.output_w
         self.error_K = setpoint_K - measured_K
         self.proportional_w = self.gains.proportional_w_per_K * self.error_K
         previous = self.integral_w
@@ -165,8 +159,6 @@ class PiController:
         When the total was held at a limit and this cycle's integration pushed
         further into it, that integration is undone.
         """
-        if self.manual_power_w is not None:
-            return
         held_high = applied_w < requested_w and self._last_increment_w > 0.0
         held_low = applied_w > requested_w and self._last_increment_w < 0.0
         if held_high or held_low:
@@ -175,41 +167,46 @@ class PiController:
             self.output_w = self.proportional_w + self.integral_w
 
 
-class SetpointRamp:
-    """A setpoint that moves toward its target at a limited rate.
+class PiTerm:
+    """PI feedback on the flange temperature, as a control term (section ``control.pi``).
 
     Parameters
     ----------
-    setpoint_K : float
-        Starting setpoint.
-    rate_K_per_min : float
-        Ramp rate; 0 means jump at once.
-
-    Examples
-    --------
-    >>> ramp = SetpointRamp(4.5, rate_K_per_min=0.6)
-    >>> ramp.target_K = 5.0
-    >>> round(ramp.advance(30.0), 3)     # 30 s at 0.01 K/s
-    4.8
+    gains : PiGains
+    output_max : float
+        Upper limit of the regulator's output (W; A for a current-output study).
     """
 
-    def __init__(self, setpoint_K: float, rate_K_per_min: float = 0.0):
-        if rate_K_per_min < 0.0 or not math.isfinite(rate_K_per_min):
-            raise ValueError(f"ramp rate must be >= 0 K/min, got {rate_K_per_min}")
-        self.setpoint_K = float(setpoint_K)
-        self.target_K = float(setpoint_K)
-        self.rate_K_per_min = float(rate_K_per_min)
+    name = "pi"
+    required = True
+    columns = (Column("pi_proportional_W", "W", "PI proportional part, Kp * (setpoint - T2)"),
+               Column("pi_integral_W", "W", "PI integral part"))
 
-    @property
-    def ramping(self) -> bool:
-        return self.setpoint_K != self.target_K
+    def __init__(self, gains: PiGains, output_max: float):
+        self.controller = PiController(gains, 0.0, output_max)
 
-    def advance(self, dt_s: float) -> float:
-        """Move toward the target for ``dt_s`` seconds; returns the setpoint (K)."""
-        if self.rate_K_per_min == 0.0:
-            self.setpoint_K = self.target_K
-            return self.setpoint_K
-        step = self.rate_K_per_min / 60.0 * dt_s
-        difference = self.target_K - self.setpoint_K
-        self.setpoint_K = self.target_K if abs(difference) <= step else self.setpoint_K + math.copysign(step, difference)
-        return self.setpoint_K
+    @staticmethod
+    def settings_from(section: Section) -> PiGains:
+        """The gains from ``control.pi``."""
+        gains = PiGains(section.number("proportional_W_per_K", minimum=0.0, maximum=1000.0),
+                        section.number("integral_W_per_K_s", minimum=0.0, maximum=1000.0))
+        section.finish()
+        return gains
+
+    def reconfigure(self, gains: PiGains, output_max: float) -> None:
+        """New gains and output range, bumplessly."""
+        self.controller.set_output_limits(0.0, output_max)
+        self.controller.set_gains(gains)
+
+    def start(self, tick: TickInputs, present_output: float) -> None:
+        # bumpless against the present temperature; a setpoint step then acts through Kp as usual
+        self.controller.set_automatic(tick.flange_K, tick.flange_K, present_output)
+
+    def update(self, tick: TickInputs) -> float:
+        return self.controller.update(tick.flange_K, tick.setpoint_K, tick.dt_s)
+
+    def limit(self, requested: float, applied: float) -> None:
+        self.controller.limit(requested, applied)
+
+    def column_values(self) -> tuple[float, ...]:
+        return self.controller.proportional_w, self.controller.integral_w

@@ -22,7 +22,7 @@ from cryod.analysis.record_data import RecordData
 from cryod.analysis.summary import plain
 from cryod.identification.fit import Identification, IdentificationError, identify
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
-from cryod.record import RecordFormatError, read_record
+from cryod.records.record import RecordFormatError, read_record
 from cryod.yaml_source import FileFormatError
 
 

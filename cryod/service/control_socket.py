@@ -2,13 +2,10 @@
 
 A Unix stream socket; one command line in, one JSON line out::
 
-    status                  -> {"ok": true, "message": "...", "status": {...}}
-    setpoint 5.0            -> regulate to 5.0 K (within control.setpoint_min_K..max_K)
-    ramp 0.5                -> setpoint ramp 0.5 K/min (0 = steps; at most control.max_ramp_K_per_min)
-    heater-off              -> heater to 0 W, loop open, until a new setpoint
-    manual 0.02             -> open loop at 0.02 W (at most R * I_max^2)
+    status                  -> {"ok": true, "message": "status", "status": {...}}
+    setpoint 5.0            -> {"ok": true, "message": "setpoint 5 K", "status": {...}}
 
-A malformed command is refused here with the reason; the values are checked
+The commands are the table in :mod:`cryod.service.commands`. A malformed command is refused here with the reason; the values are checked
 against the configured limits by the loop itself, which refuses anything
 outside them. Commands reach the loop through its queue and take effect at
 the next tick boundary.
@@ -29,41 +26,11 @@ import threading
 from pathlib import Path
 from typing import Callable
 
-from cryod.loop import Command, wait_for
+from cryod.service.commands import Command, parse_command, wait_for
 
 log = logging.getLogger("cryod.control")
 
-#: command word -> (number of arguments, description for error messages)
-COMMANDS = {
-    "status": (0, "status"),
-    "setpoint": (1, "setpoint K"),
-    "ramp": (1, "ramp K_PER_MIN"),
-    "heater-off": (0, "heater-off"),
-    "manual": (1, "manual W"),
-}
 MAX_LINE = 256
-
-
-def parse_command(line: str) -> Command:
-    """Turn a command line into a :class:`cryod.loop.Command`, or raise ValueError with the reason."""
-    words = line.split()
-    if not words:
-        raise ValueError("empty command; commands: " + ", ".join(usage for _, usage in COMMANDS.values()))
-    name, arguments = words[0], words[1:]
-    if name not in COMMANDS:
-        raise ValueError(f"unknown command {name!r}; commands: " + ", ".join(u for _, u in COMMANDS.values()))
-    count, usage = COMMANDS[name]
-    if len(arguments) != count:
-        raise ValueError(f"'{name}' takes {count} argument(s): {usage}")
-    value = None
-    if count:
-        try:
-            value = float(arguments[0])
-        except ValueError:
-            raise ValueError(f"'{name}': {arguments[0]!r} is not a number ({usage})") from None
-        if not math.isfinite(value):
-            raise ValueError(f"'{name}': {arguments[0]!r} is not a finite number")
-    return Command(name, value)
 
 
 class ControlSocketServer:

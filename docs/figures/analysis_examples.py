@@ -39,8 +39,8 @@ from cryod.model import (  # noqa: E402
     DeadTime, HeatCapacityTemperature, HeaterNonlinearity, OperatingPoint, SensorLag, load_model,
 )
 from cryod.paper_table1 import regenerated_record  # noqa: E402
-from cryod.record import write_record  # noqa: E402
-from simulated_hw.protocols import make_record  # noqa: E402
+from cryod.records.record import write_record  # noqa: E402
+from simulated_hw.measurement_programs import make_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent

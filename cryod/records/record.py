@@ -35,17 +35,11 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-MAGIC = "# cryod-log v1"
-REQUIRED_COLUMNS = ("time_s", "T2_K", "T5_K", "heater_W", "setpoint_K")
+from cryod.records.columns import REQUIRED, format_field
 
-#: printf-style format of the known columns (others: repr of float, or text).
-COLUMN_FORMATS = {
-    "time_s": "{:.4f}",
-    "T2_K": "{:.7f}",
-    "T5_K": "{:.6f}",
-    "heater_W": "{:.6e}",
-    "setpoint_K": "{:.7f}",
-}
+MAGIC = "# cryod-log v1"
+#: Names of the columns every record has, first and in this order (declared in :mod:`cryod.records.columns`).
+REQUIRED_COLUMNS = tuple(column.name for column in REQUIRED)
 
 
 class RecordFormatError(ValueError):
@@ -267,23 +261,9 @@ def format_header(metadata: Mapping[str, object], columns: Iterable[str]) -> str
     return "\n".join(lines) + "\n"
 
 
-def format_value(column: str, value) -> str:
-    """One field: known columns in their fixed format; None and NaN as empty."""
-    if value is None:
-        return ""
-    if isinstance(value, str):
-        if "," in value or "\n" in value:
-            raise ValueError(f"column {column!r}: text may not contain ',' or a newline")
-        return value
-    value = float(value)
-    if math.isnan(value):
-        return ""
-    return COLUMN_FORMATS.get(column, "{!r}").format(value)
-
-
 def format_row(columns: Iterable[str], values: Mapping[str, object]) -> str:
     """One data line, newline-terminated."""
-    return ",".join(format_value(name, values.get(name)) for name in columns) + "\n"
+    return ",".join(format_field(name, values.get(name)) for name in columns) + "\n"
 
 
 def write_record(path: str | Path, columns: Mapping[str, Iterable], metadata: Mapping[str, object] | None = None) -> Path:

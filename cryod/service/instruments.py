@@ -15,7 +15,6 @@ import logging
 from typing import Callable
 
 from cryod.config import DaemonConfig, DmmSettings, InstrumentAddress
-from cryod.loop import Measurement
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError
 from drivers.errors import InstrumentError
@@ -25,13 +24,13 @@ from drivers.keithley2400 import Keithley2400
 from drivers.keithley6221 import Keithley6221
 from drivers.pair_triggers import (GpibGroupTrigger, HardwareTrigger, PairTrigger, PrologixGroupTrigger,
                                    SequentialTrigger)
-from drivers.thermometer_pair import ThermometerPair
+from drivers.thermometer_pair import PairReading, ThermometerPair
 from drivers.transports.base import Transport
 from drivers.transports.prologix import PrologixAdapter
 from drivers.transports.visa import VisaTransport, resource_manager
 from drivers.trigger_lines import SerialControlLine
 
-log = logging.getLogger("cryod.hardware")
+log = logging.getLogger("cryod.service.instruments")
 
 HEATER_DRIVERS = {"keithley6221": Keithley6221, "keithley2400": Keithley2400}
 
@@ -58,7 +57,7 @@ def check_calibrations(config: DaemonConfig) -> str | None:
 # the loop's view
 # ---------------------------------------------------------------------------
 class DriverInstruments:
-    """Two Keithley 2002s and a heater supply behind the loop's :class:`cryod.loop.Instruments` interface.
+    """Two Keithley 2002s and a heater supply behind the loop's :class:`cryod.service.loop.Instruments` interface.
 
     Parameters
     ----------
@@ -80,10 +79,8 @@ class DriverInstruments:
         self.transports = transports
         self.on_close = on_close
 
-    def measure(self) -> Measurement:
-        reading = self.pair.measure()
-        return Measurement(reading.trigger_time_s, reading.skew_s, reading.flange_resistance_ohm,
-                           reading.ptc_stage_resistance_ohm)
+    def measure(self) -> PairReading:
+        return self.pair.measure()
 
     def set_heater_power(self, power_w: float) -> None:
         self.heater.set_power_w(power_w)

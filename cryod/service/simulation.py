@@ -29,11 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
-from cryod.clock import MonotonicClock, ScaledClock, VirtualClock
+from cryod.service.clock import MonotonicClock, ScaledClock, VirtualClock
 from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config
-from cryod.daemon import Daemon, config_or_exit
-from cryod.hardware import assemble_instruments, check_calibrations, load_curves
-from cryod.metrics import regulation_metrics
+from cryod.service.daemon import Daemon, config_or_exit
+from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
+from cryod.records.columns import Event, Row
+from cryod.records.metrics import regulation_metrics
 from cryod.model import DEFAULT_MODEL_PATH, load_model
 from cryod.service.control_socket import finite_or_none
 from cryod.service.logs import ServiceLogging
@@ -59,10 +60,9 @@ class WindowCollector:
         self.rows = collections.deque(maxlen=int(window_s / period_s) + 2)
         self.window_s = window_s
 
-    def __call__(self, item) -> None:
-        if isinstance(item, dict):
-            self.rows.append((item["time_s"], item.get("T2_K", np.nan), item.get("T5_K", np.nan),
-                              item.get("setpoint_K", np.nan)))
+    def __call__(self, item: Row | Event) -> None:
+        if type(item) is Row:
+            self.rows.append((item.time_s, item.T2_K, item.T5_K, item.setpoint_K))
 
     def arrays(self) -> tuple[np.ndarray, ...]:
         if not self.rows:

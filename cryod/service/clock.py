@@ -1,4 +1,4 @@
-"""Injected time: a monotonic clock in service, a virtual one in simulation.
+"""Injected time: the monotonic clock in service, a scaled or virtual one in simulation.
 
 Everything that needs "now" or has to wait takes a clock, so an hour of
 cryostat runs in seconds on :class:`VirtualClock` and tests never sleep.
@@ -15,31 +15,8 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Protocol
 
-
-class Clock(Protocol):
-    """What the daemon and the simulated hardware need of time (seconds, monotonic)."""
-
-    def now(self) -> float:
-        """Current time in s; never goes backwards."""
-
-    def sleep_until(self, deadline_s: float) -> None:
-        """Return at (or just after) ``deadline_s``; at once if it has passed."""
-
-
-class MonotonicClock:
-    """The real monotonic clock (``time.monotonic``), for the service."""
-
-    is_virtual = False
-
-    def now(self) -> float:
-        return time.monotonic()
-
-    def sleep_until(self, deadline_s: float) -> None:
-        remaining = deadline_s - time.monotonic()
-        if remaining > 0.0:
-            time.sleep(remaining)
+from drivers.clock import Clock, MonotonicClock
 
 
 class ScaledClock:

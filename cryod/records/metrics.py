@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import optimize, signal
 
-from cryod.line_fit import fit_line
+from cryod.analysis.line_fit import fit_line
 
 LOW_FREQUENCY_HZ = 0.1
 

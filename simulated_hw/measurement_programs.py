@@ -11,7 +11,7 @@ Two kinds, as in the lab:
 
 :func:`make_record` runs a program on a model (with any hidden effect in it)
 and returns the cryod-log columns and metadata, ready for
-:func:`cryod.record.write_record`.
+:func:`cryod.records.record.write_record`.
 
 Examples
 --------
@@ -131,7 +131,7 @@ def make_record(model: CryostatModel, protocol: str, *, duration_s: float = 3600
     if flange_offset_K is not None:
         columns["T2_K"] = columns["T2_K"] + flange_offset_K(columns["time_s"])
     metadata = {
-        "source": "simulated_hw.protocols",
+        "source": "simulated_hw.measurement_programs",
         "protocol": protocol,
         "heater_resistance_ohm": f"{HEATER_RESISTANCE_OHM}",
         "heater_current_limit_A": f"{HEATER_CURRENT_LIMIT_A}",

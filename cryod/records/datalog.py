@@ -23,13 +23,14 @@ import queue
 import threading
 import time
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Mapping
 
-from cryod.record import format_header, format_row
+from cryod.records.columns import Event, Row, RowSchema
+from cryod.records.record import format_header
 
-log = logging.getLogger("cryod.datalog")
+log = logging.getLogger("cryod.records.datalog")
 
-_STOP = object()
+_STOP = object()          # queued by stop(): write what came before, then close
 #: Rows written per flush at most.
 MAX_BATCH = 1000
 #: After a batch of this many rows (the loop runs faster than real time), pause this long.
@@ -41,9 +42,9 @@ def _utc_text(wall_s: float) -> str:
     return dt.datetime.fromtimestamp(wall_s, dt.timezone.utc).isoformat(timespec="milliseconds")
 
 
-def _event_line(text: str) -> str:
+def _event_line(event: Event) -> str:
     """An event as one comment line (a text of several lines joined, so no line escapes the ``#``)."""
-    return f"# event: {' '.join(text.splitlines())}\n"
+    return f"# event: {' '.join(event.text.splitlines())}\n"
 
 
 class DataLog:
@@ -53,8 +54,8 @@ class DataLog:
     ----------
     directory : pathlib.Path
         Data directory (created if missing).
-    columns : sequence of str
-        Column names; the first five are the cryod-log v1 required columns.
+    schema : RowSchema
+        The columns and how rows fill them.
     metadata : mapping
         Header lines (config snapshot, versions, units...).
     monotonic_to_wall : callable
@@ -66,10 +67,10 @@ class DataLog:
         Longest time between fsyncs while rows arrive (at most 2 s).
     """
 
-    def __init__(self, directory: Path, columns: Sequence[str], metadata: Mapping[str, object],
+    def __init__(self, directory: Path, schema: RowSchema, metadata: Mapping[str, object],
                  monotonic_to_wall: Callable[[float], float], period_s: float, fsync_interval_s: float = 2.0):
         self.directory = Path(directory)
-        self.columns = list(columns)
+        self.schema = schema
         self.metadata = dict(metadata)
         self.monotonic_to_wall = monotonic_to_wall
         self.period_s = period_s
@@ -83,11 +84,11 @@ class DataLog:
         self._dirty = False
         self.paths: list[Path] = []
         self.error: BaseException | None = None
-        self._pending_events: list[str] = []     # events before the first file is open
+        self._pending_events: list[Event] = []   # events before the first file is open
 
     # -- producer side (any thread, never blocks) ------------------------------
-    def put(self, item) -> None:
-        """A row (dict with ``time_s`` in clock seconds) or an event (str)."""
+    def put(self, item: Row | Event) -> None:
+        """A row (``time_s`` in clock seconds) or an event, to be written in the order given."""
         self._queue.put(item)
 
     # -- lifetime -------------------------------------------------------------------
@@ -123,13 +124,16 @@ class DataLog:
                     except queue.Empty:
                         break
                 for item in batch:
-                    if item is _STOP:
-                        stopping = True
-                        break
-                    if isinstance(item, str):
-                        self._write_event(item)
-                    else:
-                        self._write_row(item)
+                    match item:
+                        case Row():
+                            self._write_row(item)
+                        case Event():
+                            self._write_event(item)
+                        case _ if item is _STOP:
+                            stopping = True
+                            break
+                        case _:
+                            raise TypeError(f"the data log takes rows and events, not {type(item).__name__}")
                 if self._stream is not None:
                     self._stream.flush()
                 self._sync_if_due()
@@ -141,22 +145,20 @@ class DataLog:
         finally:
             self._close()
 
-    def _write_row(self, row: Mapping[str, object]) -> None:
-        clock_time = float(row["time_s"])
+    def _write_row(self, row: Row) -> None:
+        clock_time = row.time_s
         wall = self.monotonic_to_wall(clock_time)
         day = dt.datetime.fromtimestamp(wall, dt.timezone.utc).strftime("%Y-%m-%d")
         if day != self._day:
             self._open(day, clock_time - self.period_s)
-        values = dict(row)
-        values["time_s"] = clock_time - self._origin_s
-        self._stream.write(format_row(self.columns, values))
+        self._stream.write(self.schema.format_row(row, origin_s=self._origin_s))
         self._dirty = True
 
-    def _write_event(self, text: str) -> None:
+    def _write_event(self, event: Event) -> None:
         if self._stream is None:
-            self._pending_events.append(text)
+            self._pending_events.append(event)
             return
-        self._stream.write(_event_line(text))
+        self._stream.write(_event_line(event))
         self._dirty = True
 
     def _open(self, day: str, origin_s: float) -> None:
@@ -166,9 +168,9 @@ class DataLog:
         self._day = day
         self._origin_s = origin_s
         header = {"record_start_utc": _utc_text(self.monotonic_to_wall(origin_s)), **self.metadata}
-        self._stream.write(format_header(header, self.columns))
-        for text in self._pending_events:
-            self._stream.write(_event_line(text))
+        self._stream.write(format_header(header, self.schema.names))
+        for event in self._pending_events:
+            self._stream.write(_event_line(event))
         self._pending_events.clear()
         self._stream.flush()
         self._sync()

@@ -24,24 +24,18 @@ from typing import Callable
 import numpy as np
 
 from cryod import __version__
-from cryod.clock import Clock
 from cryod.config import DaemonConfig, load_config
-from cryod.datalog import DataLog
-from cryod.loop import ROW_COLUMNS, Command, ControlLoop, Instruments, wait_for
-from cryod.realtime import lock_memory, set_realtime_priority
-from cryod.safety import EXIT_CONFIG
+from cryod.records.datalog import DataLog
+from cryod.records.columns import RowSchema
+from cryod.service.commands import Command, wait_for
+from cryod.service.loop import ControlLoop, Instruments, daemon_schema
+from cryod.service.realtime import lock_memory, set_realtime_priority
 from cryod.service.control_socket import ControlSocketServer
 from cryod.service.notify import SystemdNotifier
 from cryod.yaml_source import FileFormatError
+from drivers.clock import Clock
 
-log = logging.getLogger("cryod.daemon")
-
-UNITS = ("time_s: s since the record start, at the trigger instant (monotonic clock); T2_K, T5_K: K; "
-         "heater_W: W, applied from this row until the next; setpoint_K: K, empty when the loop is open; "
-         "T2_ohm, T5_ohm: ohm; trigger_skew_ms, lateness_ms, cycle_ms (tick start to row): ms; "
-         "pi_proportional_W, pi_integral_W: W; "
-         "state: loop state")
-
+log = logging.getLogger("cryod.service.daemon")
 
 @dataclass
 class RunResult:
@@ -53,14 +47,14 @@ class RunResult:
     wall_s: float
 
 
-def record_metadata(config: DaemonConfig, extra: dict | None = None) -> dict:
+def record_metadata(config: DaemonConfig, schema: RowSchema, extra: dict | None = None) -> dict:
     """Header lines of every data file: versions, units, heater, configuration snapshot."""
     metadata = {
         "cryod_version": __version__,
         "python_version": platform.python_version(),
         "numpy_version": np.__version__,
         "host": socket.gethostname(),
-        "units": UNITS,
+        "units": schema.units_text(),
         "loop_period_s": config.loop.period_s,
         "heater_resistance_ohm": config.heater.resistance_ohm,
         "heater_max_current_A": config.heater.max_current_A,
@@ -88,7 +82,7 @@ class Daemon:
     metadata : dict, optional
         Extra header lines for the data files (e.g. the simulated model).
     row_taps : list of callable, optional
-        Also receive every row (e.g. the --simulate metrics).
+        Also receive every row and event (e.g. the --simulate metrics).
     install_signal_handlers : bool
         SIGTERM/SIGINT stop, SIGHUP reloads (main thread only).
     reload_config : callable, optional
@@ -170,13 +164,14 @@ class Daemon:
             instruments, flange_curve, stage_curve = self.open_instruments(config, self.clock)
             clock_start = self.clock.now()
             wall_start = time.time()
-            self.datalog = DataLog(config.data.directory, ROW_COLUMNS, record_metadata(config, self.metadata),
+            schema = daemon_schema(config)
+            self.datalog = DataLog(config.data.directory, schema, record_metadata(config, schema, self.metadata),
                                    lambda t: wall_start + (t - clock_start), config.loop.period_s,
                                    config.data.fsync_interval_s)
             self.datalog.start()
             taps = [self.datalog.put, *self.row_taps]
             self.loop = ControlLoop(config, instruments, flange_curve, stage_curve, self.clock,
-                                    emit_row=taps[0] if len(taps) == 1 else _fan_out(taps),
+                                    emit=taps[0] if len(taps) == 1 else _fan_out(taps),
                                     watchdog=self.notifier.watchdog)
             control_socket = ControlSocketServer(config.control_socket.path, config.control_socket.mode,
                                                  config.control_socket.owner, config.control_socket.group,
@@ -236,4 +231,4 @@ def config_or_exit(path: str | Path, stderr) -> DaemonConfig | None:
         return None
 
 
-__all__ = ["Daemon", "RunResult", "record_metadata", "config_or_exit", "EXIT_CONFIG"]
+__all__ = ["Daemon", "RunResult", "record_metadata", "config_or_exit"]

@@ -1,0 +1,231 @@
+"""The regulator: one control law for the daemon's loop and for the offline closed-loop simulation.
+
+Each tick it turns the readings into the heater power for the coming period:
+
+1. in mode ``off`` the power is 0 W; in ``manual`` it is the power set by hand;
+2. in ``closed`` the setpoint ramp advances, every control term
+   (:mod:`cryod.control.terms`) gives its part, the sum is held within the
+   heater's range (0 to R * I_max**2: the heater can only heat and its current
+   is limited) and every term is told what was applied (anti-windup);
+3. closing the loop from any mode is bumpless: the terms continue from the
+   power that was applied.
+
+It knows neither instruments nor clocks: :class:`cryod.service.loop.ControlLoop`
+schedules it, handles faults and does the I/O;
+:func:`simulated_hw.closed_loop.run_program` drives it on the simulated cryostat.
+
+Examples
+--------
+>>> from cryod.config import EXAMPLE_CONFIG_PATH, load_config
+>>> config = load_config(EXAMPLE_CONFIG_PATH)
+>>> regulator = Regulator(config.control, HeaterPowerOutput(config.heater.max_power_w))
+>>> regulator.mode
+<RegulatorMode.CLOSED: 'closed'>
+>>> regulator.close_loop(0.0, flange_K=4.9, ptc_stage_K=3.3, present_power_w=0.0)
+>>> step = regulator.step(0.08, dt_s=0.08, flange_K=4.9, ptc_stage_K=3.3)
+>>> round(step.power_w, 4), step.setpoint_K, step.limited      # Kp * 0.1 K, plus 0.08 s of integral
+(1.0016, 5.0, False)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import TYPE_CHECKING
+
+from cryod.control.ramp import SetpointRamp
+from cryod.control.terms import ControlTerm, TickInputs, build_terms, term_columns
+
+if TYPE_CHECKING:
+    from cryod.config import ControlConfig
+
+
+class RegulatorMode(StrEnum):
+    """What sets the heater: the control terms, a power set by hand, or nothing."""
+
+    CLOSED = "closed"
+    MANUAL = "manual"
+    OFF = "off"
+
+
+class HeaterPowerOutput:
+    """The regulator's output is the heater power (W), 0 to ``max_power_w`` (cryod's own loop).
+
+    Parameters
+    ----------
+    max_power_w : float
+        R * I_max**2 (W).
+    """
+
+    unit = "W"
+
+    def __init__(self, max_power_w: float):
+        if not max_power_w > 0.0:
+            raise ValueError(f"the heater's maximum power must be > 0 W, got {max_power_w}")
+        self.max_power_w = float(max_power_w)
+        self.maximum = self.max_power_w
+
+    def power_w(self, output: float) -> float:
+        return output
+
+    def output_for(self, power_w: float) -> float:
+        return power_w
+
+
+class HeaterCurrentOutput:
+    """The output is the heater current (A), 0 to I_max; the power is R I**2.
+
+    For comparing with controllers whose output is a current (the gains are
+    then in A/K and A/(K s)); cryod's own loop outputs power.
+
+    Parameters
+    ----------
+    resistance_ohm : float
+    max_power_w : float
+        R * I_max**2 (W).
+    """
+
+    unit = "A"
+
+    def __init__(self, resistance_ohm: float, max_power_w: float):
+        if not (resistance_ohm > 0.0 and max_power_w > 0.0):
+            raise ValueError(f"need a heater resistance and maximum power > 0, got {resistance_ohm}, {max_power_w}")
+        self.resistance_ohm = float(resistance_ohm)
+        self.max_power_w = float(max_power_w)
+        self.maximum = math.sqrt(max_power_w / resistance_ohm)
+
+    def power_w(self, output: float) -> float:
+        return self.resistance_ohm * output * output
+
+    def output_for(self, power_w: float) -> float:
+        return math.sqrt(power_w / self.resistance_ohm)
+
+
+@dataclass(frozen=True, slots=True)
+class RegulatorStep:
+    """One tick's result.
+
+    Attributes
+    ----------
+    power_w : float
+        Heater power for the coming period (W).
+    setpoint_K : float
+        Setpoint after the ramp (K); NaN when the loop is open.
+    limited : bool
+        The terms asked for more than the heater's range allowed (or less than 0).
+    columns : dict of str to float
+        The control terms' record columns (empty when the loop is open).
+    """
+
+    power_w: float
+    setpoint_K: float
+    limited: bool
+    columns: dict
+
+
+class Regulator:
+    """The control terms, the setpoint ramp, the mode and the heater's range.
+
+    Parameters
+    ----------
+    control : ControlConfig
+        The ``control`` section: setpoint, ramp, and each term's settings.
+    output : HeaterPowerOutput or HeaterCurrentOutput
+        What the terms' outputs are and their range.
+    """
+
+    def __init__(self, control: "ControlConfig", output: HeaterPowerOutput | HeaterCurrentOutput):
+        self.output = output
+        self.control = control
+        self.terms: list[ControlTerm] = build_terms(control.terms, output.maximum)
+        self.columns = term_columns(control.terms)
+        self.ramp = SetpointRamp(control.setpoint_K or 0.0, control.ramp_K_per_min)
+        self.mode = RegulatorMode.CLOSED if control.setpoint_K is not None else RegulatorMode.OFF
+        self.manual_power_w = 0.0
+
+    # -- the cycle ---------------------------------------------------------------
+    def step(self, time_s: float, dt_s: float, flange_K: float, ptc_stage_K: float) -> RegulatorStep:
+        """The heater power for the coming period from this tick's readings.
+
+        Parameters
+        ----------
+        time_s : float
+            Clock time of the readings (s).
+        dt_s : float
+            Time since the previous readings (s).
+        flange_K, ptc_stage_K : float
+            T2 and T5 (K).
+        """
+        if self.mode is RegulatorMode.MANUAL:
+            return RegulatorStep(self.manual_power_w, math.nan, False, {})
+        if self.mode is RegulatorMode.OFF:
+            return RegulatorStep(0.0, math.nan, False, {})
+        setpoint = self.ramp.advance(dt_s)
+        tick = TickInputs(time_s, dt_s, flange_K, ptc_stage_K, setpoint)
+        requested = 0.0
+        for term in self.terms:
+            requested += term.update(tick)
+        applied = min(max(requested, 0.0), self.output.maximum)
+        columns = {}
+        for term in self.terms:
+            term.limit(requested, applied)
+            columns.update(zip((column.name for column in term.columns), term.column_values()))
+        return RegulatorStep(self.output.power_w(applied), setpoint, applied != requested, columns)
+
+    # -- modes -------------------------------------------------------------------------
+    def close_loop(self, time_s: float, flange_K: float, ptc_stage_K: float, present_power_w: float) -> None:
+        """Regulate from now on, continuing from ``present_power_w`` without a bump.
+
+        With a ramp the setpoint starts at the present temperature and ramps to
+        the target; without, it steps to the target and acts through the terms.
+        """
+        self.ramp.setpoint_K = flange_K if self.ramp.rate_K_per_min > 0.0 else self.ramp.target_K
+        tick = TickInputs(time_s, 0.0, flange_K, ptc_stage_K, self.ramp.setpoint_K)
+        present = self.output.output_for(present_power_w)
+        for term in self.terms:
+            term.start(tick, present)
+        self.mode = RegulatorMode.CLOSED
+
+    def set_manual(self, power_w: float) -> None:
+        """Open loop at ``power_w`` (W) until the loop is closed again; refused outside the heater's range."""
+        if not 0.0 <= power_w <= self.output.max_power_w:
+            raise ValueError(f"heater power {power_w:g} W refused: outside 0..{self.output.max_power_w:g} W "
+                             f"(R * I_max^2)")
+        self.manual_power_w = float(power_w)
+        self.mode = RegulatorMode.MANUAL
+
+    def switch_off(self) -> None:
+        """Heater at 0 W until the loop is closed again."""
+        self.manual_power_w = 0.0
+        self.mode = RegulatorMode.OFF
+
+    # -- configuration -------------------------------------------------------------------
+    def refusal(self, control: "ControlConfig") -> str | None:
+        """Why ``control`` cannot be applied now (a limit the running values would exceed), or None."""
+        rate, target = self._rate_and_target(control)
+        if rate > control.max_ramp_K_per_min:
+            return (f"the ramp in use, {rate:g} K/min, is above the new control.max_ramp_K_per_min "
+                    f"{control.max_ramp_K_per_min:g}")
+        if self.mode is RegulatorMode.CLOSED and not control.setpoint_min_K <= target <= control.setpoint_max_K:
+            return (f"the setpoint in use, {target:g} K, is outside the new limits "
+                    f"{control.setpoint_min_K:g}..{control.setpoint_max_K:g} K")
+        return None
+
+    def reconfigure(self, control: "ControlConfig") -> None:
+        """Apply a reloaded ``control`` section bumplessly (check :meth:`refusal` first).
+
+        A setpoint or ramp rate that the reload changed replaces the one in use;
+        one it left as it was keeps what commands set since.
+        """
+        self.ramp.rate_K_per_min, self.ramp.target_K = self._rate_and_target(control)
+        for term, (_, settings) in zip(self.terms, control.terms):
+            term.reconfigure(settings, self.output.maximum)
+        self.control = control
+
+    def _rate_and_target(self, control: "ControlConfig") -> tuple[float, float]:
+        previous = self.control
+        rate = control.ramp_K_per_min if control.ramp_K_per_min != previous.ramp_K_per_min \
+            else self.ramp.rate_K_per_min
+        changed = control.setpoint_K != previous.setpoint_K and control.setpoint_K is not None
+        return rate, control.setpoint_K if changed else self.ramp.target_K

@@ -1,0 +1,115 @@
+"""Control terms: the additive parts of the heater power, and the one place that builds them.
+
+A control term is a class with
+
+* ``name``: its name, also its configuration section under ``control:``;
+* ``required``: whether that section must be given;
+* ``columns``: the record columns it writes (:class:`cryod.records.columns.Column`);
+* ``settings_from(section)``: its validated settings from its section (a
+  static method; called with None when an optional section is absent);
+* ``__init__(settings, output_max)`` and ``reconfigure(settings, output_max)``
+  (a reload: bumpless);
+* ``start``, ``update``, ``limit``, ``column_values``: the cycle, below.
+
+A new term is one module with such a class and one line in :data:`TERM_TYPES`.
+The regulator (:mod:`cryod.control.regulator`) adds the terms' outputs, holds
+the sum within the heater's limits and tells every term what was applied.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol
+
+if TYPE_CHECKING:
+    from cryod.records.columns import Column
+    from cryod.yaml_source import Section
+
+
+@dataclass(frozen=True, slots=True)
+class TickInputs:
+    """What a control term sees each tick.
+
+    Attributes
+    ----------
+    time_s : float
+        Clock time of the readings (s).
+    dt_s : float
+        Time since the previous tick's readings (s).
+    flange_K, ptc_stage_K : float
+        T2 and T5 (K).
+    setpoint_K : float
+        Setpoint now, after the ramp (K).
+    """
+
+    time_s: float
+    dt_s: float
+    flange_K: float
+    ptc_stage_K: float
+    setpoint_K: float
+
+
+class ControlTerm(Protocol):
+    """One additive part of the regulator's output (W, or A for a current-output study)."""
+
+    name: str
+    required: bool
+    columns: tuple["Column", ...]
+
+    def reconfigure(self, settings: Any, output_max: float) -> None:
+        """New settings from a reload, without a bump in the output."""
+
+    def start(self, tick: TickInputs, present_output: float) -> None:
+        """The loop closes: continue from ``present_output`` without a bump."""
+
+    def update(self, tick: TickInputs) -> float:
+        """This term's output for the coming period."""
+
+    def limit(self, requested: float, applied: float) -> None:
+        """The total requested and what was applied after the heater limits (anti-windup)."""
+
+    def column_values(self) -> tuple[float, ...]:
+        """This tick's values of :attr:`columns`, in order."""
+
+
+#: Every control term: name -> its class, in the order their outputs are added and their columns
+#: written. One line per term.
+TERM_TYPES: dict[str, str] = {
+    "pi": "cryod.control.pi.PiTerm",
+}
+
+
+@functools.cache
+def term_type(name: str):
+    """The class of the term called ``name`` in :data:`TERM_TYPES`."""
+    module, _, attribute = TERM_TYPES[name].rpartition(".")
+    return getattr(importlib.import_module(module), attribute)
+
+
+def term_settings_from(control: "Section") -> tuple[tuple[str, Any], ...]:
+    """Each term's validated settings from its section under ``control:``.
+
+    Returns
+    -------
+    tuple of (name, settings)
+        In :data:`TERM_TYPES` order; optional terms without a section get
+        their defaults.
+    """
+    settings = []
+    for name in TERM_TYPES:
+        term = term_type(name)
+        section = control.section(name) if term.required else control.section(name, None)
+        settings.append((name, term.settings_from(section)))
+    return tuple(settings)
+
+
+def term_columns(settings: tuple[tuple[str, Any], ...]) -> tuple["Column", ...]:
+    """The record columns of the control terms for these settings, in order."""
+    return tuple(column for name, _ in settings for column in term_type(name).columns)
+
+
+def build_terms(settings: tuple[tuple[str, Any], ...], output_max: float) -> list[ControlTerm]:
+    """The control terms for these settings (from :func:`term_settings_from`)."""
+    return [term_type(name)(term_settings, output_max) for name, term_settings in settings]

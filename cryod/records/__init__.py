@@ -1,0 +1,1 @@
+"""Data records: the cryod-log v1 columns, reading and writing records, the data log, regulation metrics."""

@@ -1,0 +1,182 @@
+"""The columns of the daemon's records, each declared once: name, unit, format and meaning.
+
+The first five are the ``cryod-log v1`` contract (:data:`REQUIRED`); the loop
+adds its measurement and timing columns; each control term declares its own
+(:attr:`cryod.control.terms.ControlTerm.columns`). The data file's ``units``
+header line is generated from these declarations.
+
+Rows and events travel from the loop to the data log and the other listeners
+as typed objects, :class:`Row` and :class:`Event`.
+
+Examples
+--------
+>>> schema = RowSchema(REQUIRED + (STATE,))
+>>> schema.names
+('time_s', 'T2_K', 'T5_K', 'heater_W', 'setpoint_K', 'state')
+>>> schema.format_row(Row(time_s=0.08, lateness_ms=0.1, state="holding", T2_K=4.2306589, T5_K=3.256174,
+...                       heater_W=0.0))
+'0.0800,4.2306589,3.256174,0.000000e+00,,holding\\n'
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+
+@dataclass(frozen=True)
+class Column:
+    """One column of a record.
+
+    Attributes
+    ----------
+    name : str
+        Header name; ends with the unit (``_K``, ``_W``, ``_ohm``, ``_ms``, ``_s``) where it has one.
+    unit : str
+        Unit, or ``""`` for text.
+    description : str
+        What the value is, for the header's units line and the docs.
+    format : str, optional
+        ``str.format`` pattern; None writes a number's shortest exact form and text as it is.
+    """
+
+    name: str
+    unit: str
+    description: str
+    format: str | None = None
+
+    def formatted(self, value) -> str:
+        """The field text: None and NaN are empty; text may not contain ',' or a newline."""
+        if value is None:
+            return ""
+        if isinstance(value, str):
+            if "," in value or "\n" in value:
+                raise ValueError(f"column {self.name!r}: text may not contain ',' or a newline")
+            return value
+        value = float(value)
+        if math.isnan(value):
+            return ""
+        return self.format.format(value) if self.format else repr(value)
+
+    def describe(self) -> str:
+        """``name [unit]: description``."""
+        return f"{self.name} [{self.unit}]: {self.description}" if self.unit else f"{self.name}: {self.description}"
+
+
+# -- the cryod-log v1 contract -------------------------------------------------
+TIME = Column("time_s", "s", "since the record start, at the row's trigger instant (monotonic clock)", "{:.4f}")
+FLANGE_TEMPERATURE = Column("T2_K", "K", "flange (control) thermometer", "{:.7f}")
+PTC_STAGE_TEMPERATURE = Column("T5_K", "K", "PTC second-stage thermometer", "{:.6f}")
+HEATER_POWER = Column("heater_W", "W", "heater power applied from this row until the next", "{:.6e}")
+SETPOINT = Column("setpoint_K", "K", "control setpoint, empty when the loop is open", "{:.7f}")
+#: Columns every record has, first and in this order.
+REQUIRED = (TIME, FLANGE_TEMPERATURE, PTC_STAGE_TEMPERATURE, HEATER_POWER, SETPOINT)
+
+# -- what the loop adds ----------------------------------------------------------
+FLANGE_RESISTANCE = Column("T2_ohm", "ohm", "flange Cernox resistance")
+PTC_STAGE_RESISTANCE = Column("T5_ohm", "ohm", "PTC-stage Cernox resistance")
+TRIGGER_SKEW = Column("trigger_skew_ms", "ms", "PTC-stage trigger minus flange trigger (0: simultaneous)")
+LATENESS = Column("lateness_ms", "ms", "tick start after its deadline")
+CYCLE = Column("cycle_ms", "ms", "tick start to row")
+STATE = Column("state", "", "loop state: holding, closed, closed-limited (heater at a limit), manual, off, "
+                            "recovering, fault:<cause>")
+#: The loop's columns before the control terms' and after them.
+LOOP_MEASUREMENT = (FLANGE_RESISTANCE, PTC_STAGE_RESISTANCE, TRIGGER_SKEW, LATENESS, CYCLE)
+LOOP_END = (STATE,)
+
+_REQUIRED_BY_NAME = {column.name: column for column in REQUIRED}
+
+
+def format_field(name: str, value) -> str:
+    """A field of a column known only by name (records written by tools): required columns
+    in their fixed format, any other number in its shortest exact form."""
+    column = _REQUIRED_BY_NAME.get(name)
+    return (column or Column(name, "", "")).formatted(value)
+
+
+@dataclass(slots=True)
+class Row:
+    """One tick's row, as the loop hands it to the data log and the other listeners.
+
+    Numbers are NaN (written empty) where the tick did not get that far;
+    ``control`` holds the control terms' columns by name.
+    """
+
+    time_s: float
+    lateness_ms: float
+    state: str = ""
+    T2_K: float = math.nan
+    T5_K: float = math.nan
+    heater_W: float = math.nan
+    setpoint_K: float = math.nan
+    T2_ohm: float = math.nan
+    T5_ohm: float = math.nan
+    trigger_skew_ms: float = math.nan
+    cycle_ms: float = math.nan
+    control: dict[str, float] = field(default_factory=dict)
+
+    def value(self, name: str):
+        """The value of a column by name (NaN if this row has none)."""
+        if name in self.control:
+            return self.control[name]
+        return getattr(self, name, math.nan)
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """Something that happened, written to the data file as a ``# event: kind: message`` line.
+
+    Attributes
+    ----------
+    kind : str
+        ``fault``, ``stop``, ``resumed``, ``overrun``, ``command``, ``reload`` ...
+    message : str
+    """
+
+    kind: str
+    message: str
+
+    @property
+    def text(self) -> str:
+        return f"{self.kind}: {self.message}"
+
+    def __str__(self) -> str:
+        return self.text
+
+
+class RowSchema:
+    """The ordered columns of a data file and how a :class:`Row` fills them.
+
+    Parameters
+    ----------
+    columns : sequence of Column
+        Starting with :data:`REQUIRED`.
+    """
+
+    def __init__(self, columns: Sequence[Column]):
+        self.columns = tuple(columns)
+        self.names = tuple(column.name for column in self.columns)
+        if self.names[:len(REQUIRED)] != tuple(column.name for column in REQUIRED):
+            raise ValueError(f"the first columns must be {', '.join(column.name for column in REQUIRED)}")
+        if len(set(self.names)) != len(self.names):
+            raise ValueError(f"a column is declared twice in {', '.join(self.names)}")
+        row_fields = set(Row.__slots__)
+        self._after_time = [(column, column.name in row_fields) for column in self.columns[1:]]
+
+    def format_row(self, row: Row, origin_s: float = 0.0) -> str:
+        """One data line, newline-terminated, with ``time_s`` counted from ``origin_s``."""
+        control = row.control
+        fields = [TIME.formatted(row.time_s - origin_s)]
+        fields += [column.formatted(getattr(row, column.name) if on_row else control.get(column.name))
+                   for column, on_row in self._after_time]
+        return ",".join(fields) + "\n"
+
+    def units_text(self) -> str:
+        """The header's ``units`` line: every column's unit and meaning."""
+        return "; ".join(column.describe() for column in self.columns)
+
+
+def loop_schema(control_columns: Iterable[Column]) -> RowSchema:
+    """The daemon's columns: the contract, the loop's measurement and timing, the control terms', the state."""
+    return RowSchema(REQUIRED + LOOP_MEASUREMENT + tuple(control_columns) + LOOP_END)

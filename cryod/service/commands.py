@@ -1,0 +1,193 @@
+"""The operator's commands: one table with each command's arguments, parsing, checks, effect and help.
+
+The control socket parses a command line with :func:`parse_command`; the
+loop applies it at its next tick boundary with :func:`apply_command` (the
+configured limits are checked there, against the configuration in force);
+``cryod ctl --help`` lists :data:`COMMANDS`. A command is answered once
+applied or refused, with the reason.
+
+Examples
+--------
+>>> command = parse_command("setpoint 5.2")
+>>> command.name, command.value
+('setpoint', 5.2)
+>>> parse_command("setpoint 1_5")
+Traceback (most recent call last):
+...
+ValueError: 'setpoint': '1_5' is not a number (plain decimal digits only, e.g. 5.2 or 2.5e-3); usage: setpoint K
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import threading
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
+
+from cryod.control.regulator import RegulatorMode
+
+if TYPE_CHECKING:
+    from cryod.service.loop import ControlLoop
+
+#: A plain decimal number: optional sign, digits with an optional point, optional exponent (ASCII only).
+_PLAIN_NUMBER = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
+
+
+class CommandRefused(ValueError):
+    """A command the loop does not carry out, with the reason."""
+
+
+@dataclass
+class Command:
+    """A request to the loop, answered at the next tick boundary."""
+
+    name: str
+    value: object = None
+    done: threading.Event = field(default_factory=threading.Event)
+    ok: bool = False
+    message: str = ""
+
+    def answer(self, ok: bool, message: str) -> None:
+        self.ok, self.message = ok, message
+        self.done.set()
+
+
+def wait_for(command: Command, timeout_s: float = 5.0) -> Command:
+    """Block until the loop has answered ``command`` (or time out)."""
+    if not command.done.wait(timeout_s):
+        command.ok, command.message = False, f"no answer from the control loop within {timeout_s:g} s"
+    return command
+
+
+def plain_number(text: str) -> float:
+    """A plain decimal number (``5``, ``-0.5``, ``2.5e-3``), or ValueError."""
+    if not _PLAIN_NUMBER.fullmatch(text):
+        raise ValueError("not a number (plain decimal digits only, e.g. 5.2 or 2.5e-3)")
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError("not a finite number")
+    return value
+
+
+# -- what each command does to the loop ------------------------------------------------
+def _setpoint(loop: "ControlLoop", value: float) -> str:
+    control = loop.config.control
+    if not control.setpoint_min_K <= value <= control.setpoint_max_K:
+        raise CommandRefused(f"setpoint {value:g} K refused: outside {control.setpoint_min_K:g}.."
+                             f"{control.setpoint_max_K:g} K (control.setpoint_min_K/max_K)")
+    regulator = loop.regulator
+    regulator.ramp.target_K = value
+    if loop.state.waits_for_readings:
+        regulator.mode = RegulatorMode.CLOSED
+        return f"setpoint {value:g} K, applied once readings are valid"
+    if regulator.mode is not RegulatorMode.CLOSED:
+        loop.close_loop_now()
+    ramp = regulator.ramp.rate_K_per_min
+    return f"setpoint {value:g} K" + (f", ramping at {ramp:g} K/min" if ramp else "")
+
+
+def _ramp(loop: "ControlLoop", value: float) -> str:
+    limit = loop.config.control.max_ramp_K_per_min
+    if not 0.0 <= value <= limit:
+        raise CommandRefused(f"ramp {value:g} K/min refused: outside 0..{limit:g} K/min (control.max_ramp_K_per_min)")
+    loop.regulator.ramp.rate_K_per_min = value
+    return f"ramp {value:g} K/min"
+
+
+def _heater_off(loop: "ControlLoop", value: None) -> str:
+    loop.regulator.switch_off()
+    loop.follow_regulator()
+    return "heater off; give a setpoint to regulate again"
+
+
+def _manual(loop: "ControlLoop", value: float) -> str:
+    try:
+        loop.regulator.set_manual(value)
+    except ValueError as error:
+        raise CommandRefused(str(error)) from None
+    loop.follow_regulator()
+    return f"open loop, heater {value:g} W"
+
+
+def _reload(loop: "ControlLoop", value) -> str:
+    return loop.reload(value)
+
+
+@dataclass(frozen=True)
+class CommandSpec:
+    """One command.
+
+    Attributes
+    ----------
+    name : str
+    argument : str or None
+        The argument's name and unit in the help (``K``), or None for none.
+    help : str
+    apply : callable or None
+        ``apply(loop, value) -> message``, run on the loop thread; raises
+        :class:`CommandRefused`. None: answered by the socket itself (``status``).
+    from_socket : bool
+        Offered on the control socket (``reload`` comes from SIGHUP).
+    parse : callable
+        Argument text to value (ValueError when malformed).
+    """
+
+    name: str
+    argument: str | None
+    help: str
+    apply: Callable[["ControlLoop", object], str] | None
+    from_socket: bool = True
+    parse: Callable[[str], object] = plain_number
+
+    @property
+    def usage(self) -> str:
+        return f"{self.name} {self.argument}" if self.argument else self.name
+
+
+#: Every command, in the order of the help.
+COMMANDS: dict[str, CommandSpec] = {spec.name: spec for spec in (
+    CommandSpec("status", None, "the loop's state, temperatures, heater, setpoint and timing", None),
+    CommandSpec("setpoint", "K", "regulate to K (within control.setpoint_min_K..setpoint_max_K)", _setpoint),
+    CommandSpec("ramp", "K_PER_MIN", "setpoint ramp rate, 0 for steps (at most control.max_ramp_K_per_min)",
+                _ramp),
+    CommandSpec("heater-off", None, "heater to 0 W, loop open, until a new setpoint", _heater_off),
+    CommandSpec("manual", "W", "open loop at W (at most R * I_max^2)", _manual),
+    CommandSpec("reload", None, "apply a validated configuration (SIGHUP)", _reload, from_socket=False),
+)}
+
+
+def socket_usage() -> str:
+    """``status | setpoint K | ...``: the commands the socket takes."""
+    return " | ".join(spec.usage for spec in COMMANDS.values() if spec.from_socket)
+
+
+def parse_command(line: str) -> Command:
+    """Turn a control-socket line into a :class:`Command`, or raise ValueError with the reason."""
+    words = line.split()
+    spec = COMMANDS.get(words[0]) if words else None
+    if spec is None or not spec.from_socket:
+        what = "empty command" if not words else f"unknown command {words[0]!r}"
+        raise ValueError(f"{what}; commands: {socket_usage()}")
+    arguments = words[1:]
+    count = 1 if spec.argument else 0
+    if len(arguments) != count:
+        raise ValueError(f"'{spec.name}' takes {count} argument(s): {spec.usage}")
+    if not count:
+        return Command(spec.name)
+    try:
+        value = spec.parse(arguments[0])
+    except ValueError as error:
+        raise ValueError(f"'{spec.name}': {arguments[0]!r} is {error}; usage: {spec.usage}") from None
+    return Command(spec.name, value)
+
+
+def apply_command(loop: "ControlLoop", command: Command) -> tuple[bool, str]:
+    """Carry out ``command`` on the loop (loop thread, tick boundary): (accepted, message)."""
+    spec = COMMANDS.get(command.name)
+    if spec is None or spec.apply is None:
+        return False, f"unknown command {command.name!r}"
+    try:
+        return True, spec.apply(loop, command.value)
+    except (CommandRefused, ValueError, TypeError) as error:     # a malformed value from a caller in process
+        return False, str(error)

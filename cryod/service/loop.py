@@ -1,0 +1,432 @@
+"""The control loop: every period, trigger, read, convert, regulate, set the heater, hand over the row.
+
+The loop thread does only the cycle. Rows and events go to the data log
+through a queue; status goes out as an immutable snapshot that other threads
+read; commands (from the control socket, reloads) come in through a queue and
+are applied at a tick boundary (:mod:`cryod.service.commands`).
+
+Deadlines are absolute (``start + k * period``) on an injected clock. A cycle
+that ends after the next deadline is an overrun: the loop skips to the next
+deadline still ahead and never bursts to catch up.
+
+The heater power comes from the regulator (:mod:`cryod.control.regulator`):
+the control law lives there; the loop schedules it, checks every reading,
+handles faults (:mod:`cryod.service.faults`) and does the I/O.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+from dataclasses import dataclass, replace
+from typing import Callable, Protocol
+
+from cryod.config import DaemonConfig
+from cryod.control.regulator import HeaterPowerOutput, Regulator, RegulatorMode
+from cryod.control.terms import term_columns
+from cryod.records.columns import Event, Row, RowSchema, loop_schema
+from cryod.service.commands import Command, CommandRefused, apply_command
+from cryod.service.faults import ExitCode, Fault, FaultCause, ReadingChecks, fault_from_instrument_error
+from cryod.service.realtime import LoopGarbageCollector
+from cryod.service.states import LoopState
+from cryod.service.timing import LoopTiming
+from drivers.clock import Clock
+from drivers.errors import InstrumentError
+from drivers.thermometer_pair import PairReading
+
+log = logging.getLogger("cryod.loop")
+
+
+# ---------------------------------------------------------------------------
+# what the loop needs from the instruments
+# ---------------------------------------------------------------------------
+class Instruments(Protocol):
+    """The two DMMs and the heater supply, as the loop sees them."""
+
+    def measure(self) -> PairReading:
+        """Trigger both DMMs at the same instant and return their readings."""
+
+    def set_heater_power(self, power_w: float) -> None:
+        """Apply a heater power (W) within the configured limits."""
+
+    def heater_off(self) -> None:
+        """Heater output to 0 A."""
+
+    def reconnect(self) -> None:
+        """Reopen connections after a transient fault."""
+
+    def close(self) -> None:
+        """Heater off and release the instruments."""
+
+
+class TemperatureCurve(Protocol):
+    def temperature_K(self, resistance_ohm: float) -> float: ...
+
+
+def daemon_schema(config: DaemonConfig) -> RowSchema:
+    """The columns of the daemon's rows for this configuration (its control terms' columns included)."""
+    return loop_schema(term_columns(config.control.terms))
+
+
+# ---------------------------------------------------------------------------
+# status
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Status:
+    """A snapshot of the loop for the control socket and systemd STATUS."""
+
+    time_s: float = math.nan
+    state: LoopState = LoopState.HOLDING
+    flange_K: float = math.nan
+    ptc_stage_K: float = math.nan
+    heater_w: float = 0.0
+    setpoint_K: float | None = None
+    target_K: float | None = None
+    ramp_K_per_min: float = 0.0
+    last_fault: str | None = None
+    loop_timing: object = None      # LoopTiming, summarised when asked, not every tick
+
+    @property
+    def timing(self) -> dict:
+        return self.loop_timing.summary() if self.loop_timing is not None else {}
+
+    def as_dict(self) -> dict:
+        return {
+            "time_s": self.time_s, "state": str(self.state), "T2_K": self.flange_K, "T5_K": self.ptc_stage_K,
+            "heater_W": self.heater_w, "setpoint_K": self.setpoint_K, "target_K": self.target_K,
+            "ramp_K_per_min": self.ramp_K_per_min, "last_fault": self.last_fault, **self.timing,
+        }
+
+    def one_line(self) -> str:
+        """Short text for systemd STATUS=."""
+        setpoint = f"{self.setpoint_K:.4f} K" if self.setpoint_K is not None else "none"
+        text = (f"{self.state}: T2 {self.flange_K:.5f} K, setpoint {setpoint}, heater {self.heater_w * 1e3:.2f} mW, "
+                f"overruns {self.timing.get('overruns', 0)}")
+        if self.last_fault:
+            text += f"; last fault: {self.last_fault}"
+        return text
+
+
+# ---------------------------------------------------------------------------
+# the loop
+# ---------------------------------------------------------------------------
+class ControlLoop:
+    """The periodic cycle with its safety logic.
+
+    Parameters
+    ----------
+    config : DaemonConfig
+    instruments : Instruments
+    flange_curve, ptc_stage_curve : calibration curves (resistance to temperature)
+    clock : Clock
+    emit : callable
+        Receives each :class:`~cryod.records.columns.Row` (``time_s`` is the
+        clock time of the trigger) and each :class:`~cryod.records.columns.Event`,
+        in order; must not block.
+    watchdog : callable, optional
+        Called after every good cycle (systemd WATCHDOG=1, rate-limited by the callee).
+    """
+
+    def __init__(self, config: DaemonConfig, instruments: Instruments, flange_curve: TemperatureCurve,
+                 ptc_stage_curve: TemperatureCurve, clock: Clock, emit: Callable[[Row | Event], None],
+                 watchdog: Callable[[], None] | None = None):
+        self.config = config
+        self.instruments = instruments
+        self.flange_curve = flange_curve
+        self.ptc_stage_curve = ptc_stage_curve
+        self.clock = clock
+        self.emit = emit
+        self.watchdog = watchdog or (lambda: None)
+        self.period_s = config.loop.period_s
+        self.timing = LoopTiming(self.period_s)
+        self.regulator = Regulator(config.control, HeaterPowerOutput(config.heater.max_power_w))
+        #: The columns of this loop's rows.
+        self.schema = daemon_schema(config)
+        self.checks = ReadingChecks(config.safety.flange_max_K, config.safety.ptc_stage_max_K,
+                                    config.safety.max_repeated_readings)
+        self.state = LoopState.HOLDING
+        self.heater_w = 0.0
+        self.last_fault: Fault | None = None
+        self.status = Status(target_K=config.control.setpoint_K, ramp_K_per_min=config.control.ramp_K_per_min)
+        self.commands: queue.SimpleQueue[Command] = queue.SimpleQueue()
+        self.exit_code: int | None = None
+        self._stop_reason: str | None = None
+        self._valid_in_a_row = 0
+        self._recovering_since: float | None = None
+        self._last_reconnect_s = -math.inf
+        self._last_trigger_s: float | None = None
+        self._tick_start_s = 0.0
+        self._gc = LoopGarbageCollector()
+
+    # -- from other threads ---------------------------------------------------
+    def submit(self, command: Command) -> Command:
+        """Queue a command for the next tick boundary (thread-safe)."""
+        self.commands.put(command)
+        return command
+
+    def request_stop(self, reason: str) -> None:
+        """Stop at the next tick with the heater at 0 W (safe from a signal handler)."""
+        self._stop_reason = reason
+
+    # -- running ----------------------------------------------------------------
+    def run(self, duration_s: float | None = None, manage_gc: bool = True) -> int:
+        """Run until stopped, a fatal fault, or ``duration_s`` of clock time.
+
+        Returns
+        -------
+        int
+            Exit code (0 after a requested stop or the end of ``duration_s``).
+        """
+        start = self.clock.now()
+        end = start + duration_s if duration_s is not None else math.inf
+        deadline = start + self.period_s
+        if manage_gc:
+            self._gc.start()
+        try:
+            while self.exit_code is None:
+                if deadline > end + 1e-9:
+                    self._stop(ExitCode.OK, None)
+                    break
+                self.clock.sleep_until(deadline)
+                self._tick(deadline)
+                now = self.clock.now()
+                missed = int((now - deadline) // self.period_s) if now > deadline + self.period_s else 0
+                self.timing.record_cycle_end(missed)
+                if missed:
+                    self._event("overrun", f"cycle ended {(now - deadline) * 1e3:.1f} ms after its deadline "
+                                           f"(started {(self._tick_start_s - deadline) * 1e3:.1f} ms late); "
+                                           f"{missed} deadline(s) skipped")
+                deadline += (missed + 1) * self.period_s
+                if missed and self.timing.overrun_streak >= self.config.loop.overrun_streak_limit \
+                        and self.exit_code is None:
+                    self._fault(Fault(FaultCause.OVERRUN_STREAK,
+                                      f"{self.timing.overrun_streak} cycles in a row ended after "
+                                      f"the next deadline (last: {missed} period(s) late)"))
+                if manage_gc and self.exit_code is None:
+                    self._gc.collect_if_time(deadline - self.clock.now())
+                    self.timing.gc_longest_s = self._gc.longest_s
+        except BaseException as error:     # the heater must be off whatever happened
+            self._heater_off_or_die()
+            self._stop(ExitCode.EXCEPTION, Fault(FaultCause.EXCEPTION, f"{type(error).__name__}: {error}"))
+            raise
+        finally:
+            if manage_gc:
+                self._gc.stop()
+        return self.exit_code
+
+    # -- one tick -----------------------------------------------------------------
+    def _tick(self, deadline: float) -> None:
+        tick_start = self._tick_start_s = self.clock.now()
+        self.timing.record_tick(tick_start - deadline)
+        self._apply_commands()
+        if self._stop_reason is not None:
+            self._stop(ExitCode.OK, Fault(FaultCause.STOP_REQUESTED, self._stop_reason))
+            return
+        row = Row(time_s=tick_start, lateness_ms=(tick_start - deadline) * 1e3)
+        if self.state is LoopState.RECOVERING:
+            self._maybe_reconnect(tick_start)
+            if self.exit_code is not None:
+                return
+        try:
+            reading = self.instruments.measure()
+        except InstrumentError as error:
+            self._fault(fault_from_instrument_error(error), row)
+            return
+        row.time_s = reading.trigger_time_s
+        row.T2_ohm = reading.flange_resistance_ohm
+        row.T5_ohm = reading.ptc_stage_resistance_ohm
+        row.trigger_skew_ms = reading.skew_s * 1e3
+        fault = self.checks.check_resistances(reading.flange_resistance_ohm, reading.ptc_stage_resistance_ohm)
+        if fault is not None:
+            self._fault(fault, row)
+            return
+        try:
+            flange_K = float(self.flange_curve.temperature_K(reading.flange_resistance_ohm))
+            stage_K = float(self.ptc_stage_curve.temperature_K(reading.ptc_stage_resistance_ohm))
+        except ValueError as error:        # OutOfCalibrationRange is a ValueError
+            self._fault(Fault(FaultCause.SENSOR_OUT_OF_CALIBRATION, str(error)), row)
+            return
+        row.T2_K, row.T5_K = flange_K, stage_K
+        over = self.checks.check_temperatures(flange_K, stage_K)
+        if self.state.waits_for_readings:
+            self._count_valid(over is None, reading, row)
+            return
+        if over is not None:
+            self._fault(over, row)
+            return
+        dt = self.period_s if self._last_trigger_s is None else reading.trigger_time_s - self._last_trigger_s
+        self._last_trigger_s = reading.trigger_time_s
+        step = self.regulator.step(reading.trigger_time_s, dt, flange_K, stage_K)
+        try:
+            self.instruments.set_heater_power(step.power_w)
+        except InstrumentError as error:
+            self._fault(fault_from_instrument_error(error), row)
+            return
+        self.heater_w = row.heater_W = step.power_w
+        row.setpoint_K = step.setpoint_K
+        row.control = step.columns
+        row.state = "closed-limited" if step.limited else self.state
+        self._finish_row(row)
+        self.watchdog()
+
+    def _finish_row(self, row: Row) -> None:
+        row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
+        self.emit(row)
+        closed = self.state is LoopState.CLOSED
+        ramp = self.regulator.ramp
+        # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
+        self._latest = (row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
+                        ramp.setpoint_K if closed else None, ramp.target_K if closed else None,
+                        ramp.rate_K_per_min, self.last_fault)
+        self._status = None
+
+    @property
+    def status(self) -> Status:
+        """The loop as of its last tick (built when asked, from the tick's snapshot)."""
+        status = self._status
+        if status is None:
+            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault = self._latest
+            status = Status(time_s=time_s, state=state, flange_K=flange_K, ptc_stage_K=stage_K, heater_w=heater_w,
+                            setpoint_K=setpoint_K, target_K=target_K, ramp_K_per_min=rate,
+                            last_fault=str(fault) if fault else None, loop_timing=self.timing)
+            self._status = status
+        return status
+
+    @status.setter
+    def status(self, status: Status) -> None:
+        self._status = status
+        self._latest = (status.time_s, status.state, status.flange_K, status.ptc_stage_K, status.heater_w,
+                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault)
+
+    # -- start-up and recovery ----------------------------------------------------
+    def _count_valid(self, in_range: bool, reading: PairReading, row: Row) -> None:
+        """Holding or recovering: heater stays off until enough valid, in-range readings."""
+        self._valid_in_a_row = self._valid_in_a_row + 1 if in_range else 0
+        row.heater_W = 0.0
+        row.state = self.state
+        waiting_for = self.config.safety.valid_readings_to_resume
+        if self._valid_in_a_row >= waiting_for:
+            previous = self.state
+            self._last_trigger_s = reading.trigger_time_s
+            self.state = LoopState(self.regulator.mode)
+            self._recovering_since = None
+            if self.state is LoopState.CLOSED and previous is LoopState.HOLDING:
+                self.regulator.close_loop(reading.trigger_time_s, row.T2_K, row.T5_K, present_power_w=0.0)
+            self._event("resumed", f"{waiting_for} valid readings after {previous}; state {self.state}")
+        self._finish_row(row)
+
+    def close_loop_now(self) -> None:
+        """Regulate from the last readings on, continuing from the heater power now (a command)."""
+        status = self.status
+        self.regulator.close_loop(status.time_s, status.flange_K, status.ptc_stage_K, present_power_w=self.heater_w)
+        self.follow_regulator()
+
+    def follow_regulator(self) -> None:
+        """After a command changed the regulator's mode: the loop follows it, unless it is waiting
+        for valid readings (it takes the mode up when they come); heater-off acts at once."""
+        if not self.state.waits_for_readings:
+            self.state = LoopState(self.regulator.mode)
+        if self.regulator.mode is RegulatorMode.OFF:
+            self._heater_off_or_die()
+
+    def _maybe_reconnect(self, now: float) -> None:
+        if now - self._recovering_since > self.config.safety.recovery_timeout_s:
+            self._stop(ExitCode.INSTRUMENTS_LOST, Fault(self.last_fault.cause,
+                       f"not recovered within {self.config.safety.recovery_timeout_s:g} s: {self.last_fault.message}"))
+            return
+        if self.last_fault.cause.reconnect and now - self._last_reconnect_s >= 1.0:
+            self._last_reconnect_s = now
+            try:
+                self.instruments.reconnect()
+                self.checks.reset()
+            except InstrumentError as error:
+                log.warning("reconnect failed: %s", error)
+
+    # -- faults ---------------------------------------------------------------------
+    def _fault(self, fault: Fault, row: Row | None = None) -> None:
+        """Heater to 0 W now, record why, then recover or stop."""
+        self._heater_off_or_die()
+        self.last_fault = fault
+        self._valid_in_a_row = 0
+        if row is not None:
+            row.heater_W = 0.0
+            row.state = f"fault:{fault.cause}"
+            row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
+            self.emit(row)
+        if self.state.waits_for_readings and fault.recoverable:
+            self._publish_fault_state(self.state)
+            return
+        self._event("fault", str(fault))
+        if fault.recoverable:
+            log.warning("heater off: %s; recovering", fault)
+            self.state = LoopState.RECOVERING
+            self._recovering_since = self.clock.now()
+            self._last_reconnect_s = -math.inf
+            self._publish_fault_state(LoopState.RECOVERING)
+        else:
+            self._stop(fault.exit_code, fault)
+
+    def _heater_off_or_die(self) -> None:
+        self.heater_w = 0.0
+        try:
+            self.instruments.heater_off()
+        except InstrumentError as error:
+            fault = Fault(FaultCause.HEATER_FAULT, f"could not switch the heater off: {error}")
+            self.last_fault = fault
+            self._event("fault", str(fault))
+            log.critical("%s", fault)
+            self.exit_code = fault.exit_code
+
+    def _stop(self, exit_code: int, fault: Fault | None) -> None:
+        self._heater_off_or_die()
+        if self.exit_code is not None and self.exit_code != ExitCode.OK:
+            return
+        self.exit_code = exit_code
+        if fault is not None:
+            self.last_fault = fault
+            self._event("stop", str(fault))
+            level = logging.INFO if exit_code == ExitCode.OK else logging.CRITICAL
+            log.log(level, "heater off, stopping (exit %d): %s", exit_code, fault)
+        self.state = LoopState.STOPPED
+        self._publish_fault_state(LoopState.STOPPED)
+
+    def _publish_fault_state(self, state: LoopState) -> None:
+        self.status = replace(self.status, state=state, heater_w=0.0, loop_timing=self.timing,
+                              last_fault=str(self.last_fault) if self.last_fault else None)
+
+    def _event(self, kind: str, message: str) -> None:
+        self.emit(Event(kind, message))
+
+    # -- commands ----------------------------------------------------------------------
+    def _apply_commands(self) -> None:
+        while True:
+            try:
+                command = self.commands.get_nowait()
+            except queue.Empty:
+                return
+            ok, message = apply_command(self, command)
+            self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}")
+            command.answer(ok, message)
+
+    def reload(self, new: DaemonConfig) -> str:
+        """Apply a validated configuration at this tick boundary, bumplessly, or refuse it (the ``reload`` command).
+
+        Raises
+        ------
+        CommandRefused
+            Sections that need a restart changed, or the values in use would
+            break a new limit; the running configuration stays.
+        """
+        restart = self.config.restart_needed_for(new)
+        if restart:
+            raise CommandRefused(f"kept the running configuration: changes to {', '.join(restart)} need a restart "
+                                 f"(systemctl restart cryod)")
+        refusal = self.regulator.refusal(new.control)
+        if refusal:
+            raise CommandRefused(f"kept the running configuration: {refusal}")
+        self.regulator.reconfigure(new.control)
+        self.config = new
+        self.checks = ReadingChecks(new.safety.flange_max_K, new.safety.ptc_stage_max_K,
+                                    new.safety.max_repeated_readings)
+        return f"configuration reloaded from {new.source}"

@@ -22,6 +22,7 @@ class DirectInstruments:
         self.heater_faults: dict[int, BaseException] = {}
         self.measure_delays: dict[int, float] = {}
         self.resistance_override: dict[int, tuple[float, float]] = {}
+        self.heater_off_error: BaseException | None = None      # the supply out of reach: it keeps its current
         self.measurements = 0
         self.heater_writes = 0
         self.heater_log: list[tuple[float, float]] = []
@@ -50,6 +51,8 @@ class DirectInstruments:
         self.heater_log.append((self.clock.now(), power_w))
 
     def heater_off(self) -> None:
+        if self.heater_off_error is not None:
+            raise self.heater_off_error
         self.cryostat.set_heater_power(0.0)
         self.heater_log.append((self.clock.now(), 0.0))
 

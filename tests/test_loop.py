@@ -1,6 +1,7 @@
 """The control loop's scheduling, control, commands, reload and fault handling (virtual time)."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from cryod.records.columns import Row
 from cryod.service.commands import Command
 from cryod.service.loop import ControlLoop
 from cryod.thermometry import load_calibration
-from drivers.errors import ConnectionLost, HeaterCompliance, InstrumentTimeout, OverflowReading
+from drivers.errors import BadReply, ConnectionLost, HeaterCompliance, InstrumentTimeout, OverflowReading
 from simulated_hw.cryostat import SimulatedCryostat
 from tests.conftest import CONFIG
 from tests.loop_doubles import DirectInstruments
@@ -242,3 +243,72 @@ def test_recovery_returns_to_the_mode_that_was_running(reference_model, curves, 
     assert loop.run(duration_s=60.0, manage_gc=False) == 0
     assert rows[499].state == state and rows[500].state == "fault:instrument_timeout"
     assert rows[-1].state == state and rows[-1].heater_W == heater
+
+
+def test_a_fault_from_the_first_reading_is_logged_retried_and_bounded(reference_model, curves, base_config, caplog):
+    """A DMM that answers badly from the start: warning, reconnects, exit 4 after the recovery timeout."""
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    instruments.measure_faults = {k: BadReply("flange DMM", "garbage") for k in range(100000)}
+    with caplog.at_level("WARNING", logger="cryod.loop"):
+        assert loop.run(duration_s=200.0, manage_gc=False) == 4
+    assert any("bad_reply" in record.message and "recovering" in record.message for record in caplog.records)
+    assert [event.kind for event in events] == ["fault", "stop"]
+    assert "(exit 4)" in events[-1].text and "not recovered within 60 s" in events[-1].text
+    assert 55 <= instruments.reconnects <= 62                       # about once a second
+    assert rows[-1].time_s == pytest.approx(60.0, abs=1.0)
+    assert all(row.heater_W == 0.0 for row in rows) and cryostat.heater_power_w == 0.0
+
+
+def test_a_fault_from_the_first_reading_that_clears_closes_the_loop_from_0_W(reference_model, curves, base_config):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    instruments.measure_faults = {k: InstrumentTimeout("flange DMM", "no reply") for k in range(50)}
+    assert loop.run(duration_s=900.0, manage_gc=False) == 0
+    first_closed = next(i for i, row in enumerate(rows) if row.state.startswith("closed"))
+    assert first_closed == 55 and [row.state for row in rows[50:55]] == ["recovering"] * 5
+    # closed from the 0 W it held, bumplessly: no integral wound up over the start-up faults
+    assert rows[first_closed].control["pi_integral_W"] == pytest.approx(0.0, abs=1e-9)
+    assert any(event.kind == "fault" and "instrument_timeout" in event.text for event in events)
+    assert np.mean([row.T2_K for row in rows if row.time_s > 700.0]) == pytest.approx(5.0, abs=3e-4)
+
+
+def test_a_dead_bus_says_the_heater_state_is_unknown_and_keeps_the_heater_fault(reference_model, curves,
+                                                                                 base_config, caplog):
+    """Every connection drops, the supply's too: it keeps its last current; the record must not claim 0 W."""
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    original = instruments.measure
+
+    def measure():
+        if instruments.measurements >= 1000:
+            instruments.heater_off_error = ConnectionLost("heater supply", "socket closed")
+            raise ConnectionLost("flange DMM", "socket closed")
+        return original()
+
+    instruments.measure = measure
+    with caplog.at_level("WARNING", logger="cryod.loop"):
+        assert loop.run(duration_s=200.0, manage_gc=False) == 6
+    commanded = rows[999].heater_W
+    assert commanded > 0.0 and cryostat.heater_power_w == commanded         # still on: nothing claims otherwise
+    assert rows[-1].state == "fault:heater_fault" and np.isnan(rows[-1].heater_W)
+    fault = loop.last_fault
+    assert fault.cause == "heater_fault" and "UNKNOWN" in fault.message and "connection_lost" in fault.message
+    assert f"{commanded:.4g} W" in fault.message
+    assert events[-1].kind == "stop" and events[-1].text.endswith("(exit 6)")
+    assert not any("recovering" in record.message for record in caplog.records)
+    assert math.isnan(loop.status.heater_w) and "heater UNKNOWN" in loop.status.one_line()
+
+
+def test_a_fault_that_keeps_coming_back_backs_off_and_ends_at_the_recovery_timeout(reference_model, curves,
+                                                                                   base_config):
+    """A supply that times out on every setting: resuming must not restart the timeout, and must back off."""
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    instruments.heater_faults = {k: InstrumentTimeout("heater supply", "no reply to the compliance query")
+                                 for k in range(200, 100000)}
+    assert loop.run(duration_s=600.0, manage_gc=False) == 4
+    first_fault_time = next(row.time_s for row in rows if row.state.startswith("fault"))
+    assert rows[-1].time_s - first_fault_time == pytest.approx(60.0, abs=1.5)
+    resumes = [event for event in events if event.kind == "resumed" and "resume " in event.text]
+    assert 3 <= len(resumes) <= 7                  # 0.4, 0.8, 1.6, 3.2, 6.4, 12.8 ... s of valid readings
+    assert "(resumed" in loop.last_fault.message
+    heater_on = sum(1 for row in rows if row.time_s > first_fault_time and row.heater_W > 0.0)
+    assert heater_on == 0                           # every attempt failed before a power was confirmed
+    assert cryostat.heater_power_w == 0.0

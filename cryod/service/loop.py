@@ -80,7 +80,7 @@ class Status:
     state: LoopState = LoopState.HOLDING
     flange_K: float = math.nan
     ptc_stage_K: float = math.nan
-    heater_w: float = 0.0
+    heater_w: float = 0.0               # NaN: unknown (the supply could not be switched off)
     setpoint_K: float | None = None
     target_K: float | None = None
     ramp_K_per_min: float = 0.0
@@ -101,7 +101,8 @@ class Status:
     def one_line(self) -> str:
         """Short text for systemd STATUS=."""
         setpoint = f"{self.setpoint_K:.4f} K" if self.setpoint_K is not None else "none"
-        text = (f"{self.state}: T2 {self.flange_K:.5f} K, setpoint {setpoint}, heater {self.heater_w * 1e3:.2f} mW, "
+        heater = f"{self.heater_w * 1e3:.2f} mW" if math.isfinite(self.heater_w) else "UNKNOWN"
+        text = (f"{self.state}: T2 {self.flange_K:.5f} K, setpoint {setpoint}, heater {heater}, "
                 f"overruns {self.timing.get('overruns', 0)}")
         if self.last_fault:
             text += f"; last fault: {self.last_fault}"
@@ -146,14 +147,22 @@ class ControlLoop:
         self.checks = ReadingChecks(config.safety.flange_max_K, config.safety.ptc_stage_max_K,
                                     config.safety.max_repeated_readings)
         self.state = LoopState.HOLDING
-        self.heater_w = 0.0
+        self.heater_w = 0.0                 # applied now; NaN when the supply could not be switched off
+        self.last_commanded_w = 0.0         # the last power sent to the supply
         self.last_fault: Fault | None = None
         self.status = Status(target_K=config.control.setpoint_K, ramp_K_per_min=config.control.ramp_K_per_min)
         self.commands: queue.SimpleQueue[Command] = queue.SimpleQueue()
         self.exit_code: int | None = None
         self._stop_reason: str | None = None
         self._valid_in_a_row = 0
-        self._recovering_since: float | None = None
+        self._regulating = False            # the loop has left its start-up hold at least once
+        # a fault episode: from a first recoverable fault until the loop has run clean for
+        # safety.recovery_timeout_s; the recovery timeout counts from its start, and every resume
+        # within it doubles the valid readings the next resume needs (a fault that keeps coming back
+        # is not retried at full rate, and is not given a new timeout each time)
+        self._episode_start_s: float | None = None
+        self._resumes_in_episode = 0
+        self._resumed_at_s = -math.inf
         self._last_reconnect_s = -math.inf
         self._last_trigger_s: float | None = None
         self._tick_start_s = 0.0
@@ -186,7 +195,7 @@ class ControlLoop:
         try:
             while self.exit_code is None:
                 if deadline > end + 1e-9:
-                    self._stop(ExitCode.OK, None)
+                    self._stop(ExitCode.OK, None, f"end of the requested {duration_s:g} s")
                     break
                 self.clock.sleep_until(deadline)
                 self._tick(deadline)
@@ -207,7 +216,6 @@ class ControlLoop:
                     self._gc.collect_if_time(deadline - self.clock.now())
                     self.timing.gc_longest_s = self._gc.longest_s
         except BaseException as error:     # the heater must be off whatever happened
-            self._heater_off_or_die()
             self._stop(ExitCode.EXCEPTION, Fault(FaultCause.EXCEPTION, f"{type(error).__name__}: {error}"))
             raise
         finally:
@@ -258,6 +266,7 @@ class ControlLoop:
         dt = self.period_s if self._last_trigger_s is None else reading.trigger_time_s - self._last_trigger_s
         self._last_trigger_s = reading.trigger_time_s
         step = self.regulator.step(reading.trigger_time_s, dt, flange_K, stage_K)
+        self.last_commanded_w = step.power_w
         try:
             self.instruments.set_heater_power(step.power_w)
         except InstrumentError as error:
@@ -268,6 +277,10 @@ class ControlLoop:
         row.control = step.columns
         row.state = "closed-limited" if step.limited else self.state
         self._finish_row(row)
+        if self._episode_start_s is not None and reading.trigger_time_s - self._resumed_at_s \
+                >= self.config.safety.recovery_timeout_s:
+            self._episode_start_s = None         # ran clean long enough: the next fault is a new episode
+            self._resumes_in_episode = 0
         self.watchdog()
 
     def _finish_row(self, row: Row) -> None:
@@ -305,16 +318,30 @@ class ControlLoop:
         self._valid_in_a_row = self._valid_in_a_row + 1 if in_range else 0
         row.heater_W = 0.0
         row.state = self.state
-        waiting_for = self.config.safety.valid_readings_to_resume
+        waiting_for = self.readings_to_resume()
         if self._valid_in_a_row >= waiting_for:
             previous = self.state
             self._last_trigger_s = reading.trigger_time_s
             self.state = LoopState(self.regulator.mode)
-            self._recovering_since = None
-            if self.state is LoopState.CLOSED and previous is LoopState.HOLDING:
+            if self.state is LoopState.CLOSED and not self._regulating:
                 self.regulator.close_loop(reading.trigger_time_s, row.T2_K, row.T5_K, present_power_w=0.0)
-            self._event("resumed", f"{waiting_for} valid readings after {previous}; state {self.state}")
+            self._regulating = True
+            note = ""
+            if self._episode_start_s is not None:
+                self._resumes_in_episode += 1
+                self._resumed_at_s = reading.trigger_time_s
+                note = (f" (resume {self._resumes_in_episode} since the first fault "
+                        f"{reading.trigger_time_s - self._episode_start_s:.1f} s ago; "
+                        f"after another fault {self.readings_to_resume()} valid readings)")
+            self._event("resumed", f"{waiting_for} valid readings after {previous}; state {self.state}{note}")
         self._finish_row(row)
+
+    def readings_to_resume(self) -> int:
+        """Valid readings in a row the loop needs before it resumes: ``safety.valid_readings_to_resume``,
+        doubled for every resume since the fault episode began (at most a recovery timeout's worth)."""
+        safety = self.config.safety
+        most = max(safety.valid_readings_to_resume, int(safety.recovery_timeout_s / self.period_s))
+        return min(safety.valid_readings_to_resume * 2 ** self._resumes_in_episode, most)
 
     def close_loop_now(self) -> None:
         """Regulate from the last readings on, continuing from the heater power now (a command)."""
@@ -328,12 +355,16 @@ class ControlLoop:
         if not self.state.waits_for_readings:
             self.state = LoopState(self.regulator.mode)
         if self.regulator.mode is RegulatorMode.OFF:
-            self._heater_off_or_die()
+            failure = self._switch_heater_off()
+            if failure is not None:
+                self._stop(ExitCode.HEATER_FAULT, failure)
 
     def _maybe_reconnect(self, now: float) -> None:
-        if now - self._recovering_since > self.config.safety.recovery_timeout_s:
+        if now - self._episode_start_s > self.config.safety.recovery_timeout_s:
+            resumes = f" (resumed {self._resumes_in_episode} times in between)" if self._resumes_in_episode else ""
             self._stop(ExitCode.INSTRUMENTS_LOST, Fault(self.last_fault.cause,
-                       f"not recovered within {self.config.safety.recovery_timeout_s:g} s: {self.last_fault.message}"))
+                       f"not recovered within {self.config.safety.recovery_timeout_s:g} s{resumes}: "
+                       f"{self.last_fault.message}"))
             return
         if self.last_fault.cause.reconnect and now - self._last_reconnect_s >= 1.0:
             self._last_reconnect_s = now
@@ -346,53 +377,68 @@ class ControlLoop:
     # -- faults ---------------------------------------------------------------------
     def _fault(self, fault: Fault, row: Row | None = None) -> None:
         """Heater to 0 W now, record why, then recover or stop."""
-        self._heater_off_or_die()
-        self.last_fault = fault
+        off_failure = self._switch_heater_off()
+        if off_failure is not None:             # the supply keeps what it had: nothing else matters now
+            fault = Fault(FaultCause.HEATER_FAULT, f"{off_failure.message}; it happened on {fault}")
         self._valid_in_a_row = 0
         if row is not None:
-            row.heater_W = 0.0
+            row.heater_W = self.heater_w
             row.state = f"fault:{fault.cause}"
             row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
             self.emit(row)
-        if self.state.waits_for_readings and fault.recoverable:
+        if self.state is LoopState.RECOVERING and fault.recoverable:
+            self.last_fault = fault
             self._publish_fault_state(self.state)
             return
         self._event("fault", str(fault))
-        if fault.recoverable:
-            log.warning("heater off: %s; recovering", fault)
-            self.state = LoopState.RECOVERING
-            self._recovering_since = self.clock.now()
-            self._last_reconnect_s = -math.inf
-            self._publish_fault_state(LoopState.RECOVERING)
-        else:
+        if not fault.recoverable:
             self._stop(fault.exit_code, fault)
+            return
+        self.last_fault = fault
+        now = self.clock.now()
+        if self._episode_start_s is None:
+            self._episode_start_s = now
+        log.warning("heater off: %s; recovering (%.0f s left of safety.recovery_timeout_s)", fault,
+                    self.config.safety.recovery_timeout_s - (now - self._episode_start_s))
+        self.state = LoopState.RECOVERING
+        self._last_reconnect_s = -math.inf
+        self._publish_fault_state(LoopState.RECOVERING)
 
-    def _heater_off_or_die(self) -> None:
-        self.heater_w = 0.0
+    def _switch_heater_off(self) -> Fault | None:
+        """Heater output to 0 A; the heater fault when that failed (a supply out of reach keeps its last current)."""
         try:
             self.instruments.heater_off()
         except InstrumentError as error:
-            fault = Fault(FaultCause.HEATER_FAULT, f"could not switch the heater off: {error}")
-            self.last_fault = fault
-            self._event("fault", str(fault))
-            log.critical("%s", fault)
-            self.exit_code = fault.exit_code
+            self.heater_w = math.nan
+            return Fault(FaultCause.HEATER_FAULT,
+                         f"could not switch the heater off ({error}); its state is UNKNOWN: the supply may still "
+                         f"deliver the last commanded {self.last_commanded_w:.4g} W: check it at the supply")
+        self.heater_w = 0.0
+        return None
 
-    def _stop(self, exit_code: int, fault: Fault | None) -> None:
-        self._heater_off_or_die()
+    def _stop(self, exit_code: int, fault: Fault | None, reason: str = "") -> None:
+        """Heater off, then stop with ``exit_code`` because of ``fault`` (or for ``reason``, no fault).
+
+        The first fatal cause is kept: a stop after one changes nothing.
+        """
+        off_failure = self._switch_heater_off()
+        if off_failure is not None and exit_code != ExitCode.HEATER_FAULT:
+            exit_code, fault = ExitCode.HEATER_FAULT, Fault(
+                FaultCause.HEATER_FAULT, f"{off_failure.message}; on stopping after {fault or reason}")
         if self.exit_code is not None and self.exit_code != ExitCode.OK:
             return
         self.exit_code = exit_code
         if fault is not None:
             self.last_fault = fault
-            self._event("stop", str(fault))
-            level = logging.INFO if exit_code == ExitCode.OK else logging.CRITICAL
-            log.log(level, "heater off, stopping (exit %d): %s", exit_code, fault)
+        self._event("stop", f"{fault or reason} (exit {int(exit_code)})")
+        level = logging.INFO if exit_code == ExitCode.OK else logging.CRITICAL
+        log.log(level, "%s, stopping (exit %d): %s", "heater off" if off_failure is None else "heater UNKNOWN",
+                exit_code, fault or reason)
         self.state = LoopState.STOPPED
         self._publish_fault_state(LoopState.STOPPED)
 
     def _publish_fault_state(self, state: LoopState) -> None:
-        self.status = replace(self.status, state=state, heater_w=0.0, loop_timing=self.timing,
+        self.status = replace(self.status, state=state, heater_w=self.heater_w, loop_timing=self.timing,
                               last_fault=str(self.last_fault) if self.last_fault else None)
 
     def _event(self, kind: str, message: str) -> None:

@@ -24,8 +24,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from cryod.control.pi import PiController, PiGains, SetpointRamp
-from cryod.model import CryostatModel
-from simulated_hw.plant import CryostatPlant
+from cryod.model import CryostatModel, CryostatPlant
 
 
 @dataclass(frozen=True)

@@ -18,8 +18,8 @@ import time
 import numpy as np
 from scipy import linalg, signal
 
-from cryod.model import load_model
-from simulated_hw.plant import CryostatPlant, PtcDrive, simulate
+from cryod.model import CryostatPlant, load_model, simulate
+from cryod.model.ptc_path import PtcDrive
 
 PERIOD_S = 0.08
 STEPS = 45_000
@@ -53,7 +53,7 @@ def lsim_system(model):
 
 def run_lsim(system, model, times, powers):
     drive = PtcDrive(model)
-    phase, frequency = drive.phase_and_frequency(times)
+    phase, frequency = drive.cycle.phase_and_frequency(times)
     heat = sum(np.real(c.heat_phasor * frequency * np.exp(1j * (c.order * phase + c.phase_rad)))
                for c in drive.components)
     inputs = np.column_stack([powers, heat])

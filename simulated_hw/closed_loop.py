@@ -27,9 +27,8 @@ import numpy as np
 from cryod.config import ControlConfig
 from cryod.control.pi import PiGains
 from cryod.control.regulator import HeaterCurrentOutput, HeaterPowerOutput, Regulator, RegulatorMode
-from cryod.model import CryostatModel
+from cryod.model import CryostatModel, CryostatPlant
 from cryod.records.columns import REQUIRED
-from simulated_hw.plant import CryostatPlant
 
 
 @dataclass(frozen=True)

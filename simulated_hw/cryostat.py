@@ -1,6 +1,6 @@
 """The simulated cryostat on a clock: what the simulated instruments measure and heat.
 
-:class:`SimulatedCryostat` wraps :class:`simulated_hw.plant.CryostatPlant` with
+:class:`SimulatedCryostat` wraps :class:`cryod.model.dynamics.CryostatPlant` with
 an injected clock, seeded sensor noise and a lock (instrument emulators may
 serve from several threads). It advances the plant to "now" whenever a reading
 is taken or the heater is written.
@@ -23,9 +23,8 @@ import threading
 
 import numpy as np
 
-from cryod.service.clock import Clock
-from cryod.model import CryostatModel
-from simulated_hw.plant import CryostatPlant
+from cryod.model import CryostatModel, CryostatPlant
+from drivers.clock import Clock
 
 
 class SimulatedCryostat:

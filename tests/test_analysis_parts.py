@@ -12,9 +12,8 @@ from cryod.analysis.ptc_line import estimate_ptc_line, fit_phase_track, phase_tr
 from cryod.analysis.record_data import RecordData, fit_block_mask, heater_limit_from_metadata
 from cryod.analysis.replay import Replayer
 from cryod.analysis.segments import find_segments, find_steps
-from cryod.model import PtcFrequencyDrift
+from cryod.model import PtcFrequencyDrift, simulate
 from cryod.records.record import Record, RecordFormatError
-from simulated_hw.plant import simulate
 from simulated_hw.measurement_programs import make_record
 
 

@@ -6,6 +6,8 @@ import importlib
 import pytest
 
 MODULES = [
+    "cryod.model", "cryod.model.parameters", "cryod.model.model_file", "cryod.model.transfer_function",
+    "cryod.model.ptc_cycle", "cryod.model.heater_path", "cryod.model.ptc_path", "cryod.model.dynamics",
     "cryod.analysis.ptc_line", "cryod.analysis.noise", "cryod.analysis.record_data", "cryod.analysis.replay",
     "cryod.analysis.segments", "cryod.analysis.decision", "cryod.paper_table1", "simulated_hw.measurement_programs",
     "simulated_hw.hidden_effects",

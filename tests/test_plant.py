@@ -10,10 +10,10 @@ from scipy.integrate import simpson
 from cryod.service.clock import VirtualClock
 from cryod.analysis.line_fit import fit_line, wrap_phase
 from cryod.model import (
-    DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, PtcFrequencyDrift, PtcHarmonic, SensorLag,
+    CryostatPlant, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, PtcFrequencyDrift, PtcHarmonic,
+    SensorLag, simulate,
 )
 from simulated_hw.cryostat import SimulatedCryostat
-from simulated_hw.plant import CryostatPlant, simulate
 
 OMEGA = 10.83
 

@@ -5,7 +5,7 @@ import pytest
 
 from cryod import paper_table1 as table1
 from cryod.analysis.line_fit import fit_line, wrap_phase
-from simulated_hw.plant import simulate
+from cryod.model import simulate
 
 PERIOD = 0.08
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from cryod.transfer_function import TransferFunction, TransferFunctionError
+from cryod.model.transfer_function import TransferFunction, TransferFunctionError
 
 
 def test_gain_poles_and_time_constants():

@@ -48,8 +48,9 @@ from cryod.analysis.replay import Replay, Replayer
 from cryod.model import (
     EFFECT_NAMES, CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, SensorLag,
 )
-from cryod.transfer_function import TransferFunction, TransferFunctionError
-from simulated_hw.plant import PtcDrive, PtcPath, flange_transfer_functions
+from cryod.model.dynamics import flange_transfer_functions
+from cryod.model.ptc_path import PtcDrive, PtcPath
+from cryod.model.transfer_function import TransferFunction, TransferFunctionError
 
 #: A PTC-stage thermometer lag shifting the line by less than this (rad) is taken as none: 1e-4 rad of a
 #: 1.7 mK line (0.17 uK) is below any record's resolution.
@@ -250,7 +251,7 @@ def _ptc_fundamental_on_flange(model: CryostatModel, elapsed_s: np.ndarray) -> n
     """Complex T2 response to the PTC fundamental, Z(t): T2's line is Re(Z) (K)."""
     drive = PtcDrive(model)
     path = PtcPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
-    phase, frequency = drive.phase_and_frequency(elapsed_s)
+    phase, frequency = drive.cycle.phase_and_frequency(elapsed_s)
     component = drive.components[0]
     phasor = path.output_phasors(frequency)[0]
     return phasor * np.exp(1j * (phase + component.phase_rad))

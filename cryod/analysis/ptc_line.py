@@ -14,7 +14,8 @@ The fit is linear least squares of
     T5(t) - [G3 P](t) = baseline(t) + sum_k (s_k sin(k theta(t)) + c_k cos(k theta(t)))
 
 with ``theta(t) = omega0 (t - t0) + drift phase``, ``t0`` the record's first
-instant (the simulator's phase reference). The baseline columns (offset,
+instant (the simulator's phase reference), computed by the simulator's own
+:class:`cryod.model.ptc_cycle.PtcCycle`. The baseline columns (offset,
 initial-state response) come from the caller. The frequency is found from the
 spectrum and refined by :func:`scipy.optimize.minimize_scalar`; a drift by
 following the phase in short windows, then :func:`scipy.optimize.least_squares`
@@ -41,6 +42,7 @@ from scipy import ndimage, optimize
 
 from cryod.analysis.line_fit import wrap_phase
 from cryod.model import CryostatModel, PtcFrequencyDrift, PtcHarmonic
+from cryod.model.ptc_cycle import PtcCycle
 
 #: Search band of the cooler's fundamental (rad/s): 0.3 Hz up to the Nyquist frequency.
 LOWEST_LINE_ANGULAR_FREQUENCY = 2.0 * math.pi * 0.3
@@ -97,7 +99,7 @@ class PtcLine:
 
     def phase_rad(self, elapsed_s) -> np.ndarray:
         """Fundamental phase theta (rad) at ``elapsed_s`` after the record's first instant."""
-        return line_phase(elapsed_s, self.angular_frequency_rad_s, self.drift)
+        return PtcCycle(self.angular_frequency_rad_s, self.drift).phase_rad(np.asarray(elapsed_s, dtype=float))
 
     def applied_to(self, model: CryostatModel) -> CryostatModel:
         """``model`` with its PTC source (and drift) replaced by this measured line.
@@ -138,15 +140,6 @@ class PtcLine:
             for c in self.components[1:]
         )
         return model.with_ptc(harmonics=harmonics)
-
-
-def line_phase(elapsed_s, angular_frequency_rad_s: float, drift: PtcFrequencyDrift | None) -> np.ndarray:
-    """``omega0 t + drift phase(t)`` in rad, as the simulator's PTC drive computes it."""
-    elapsed_s = np.asarray(elapsed_s, dtype=float)
-    phase = angular_frequency_rad_s * elapsed_s
-    if drift is not None:
-        phase = phase + drift.phase_offset(elapsed_s)
-    return phase
 
 
 def aliased_angular_frequency(angular_frequency_rad_s: float, sample_interval_s: float) -> float:
@@ -295,7 +288,7 @@ def estimate_ptc_line(elapsed_s, stage_signal_K, baseline_columns, *, mask=None,
     drift_model = None
     if drift:
         omega, drift_model = _fit_drift(elapsed_s, values, baseline, mask, omega, orders)
-        fit = _fit_components(values, baseline, line_phase(elapsed_s, omega, drift_model), orders, mask)
+        fit = _fit_components(values, baseline, PtcCycle(omega, drift_model).phase_rad(elapsed_s), orders, mask)
     components = fit.components
     if significant_only:
         components = tuple(c for c in components if c.order == 1 or c.significance >= significance_threshold)
@@ -446,7 +439,8 @@ def _fit_drift(elapsed_s, values, baseline, mask, omega, orders):
 
     def residual(x):
         frequency, model = unpack(x)
-        return _fit_components(values, baseline, line_phase(elapsed_s, frequency, model), orders, mask).residual
+        return _fit_components(values, baseline, PtcCycle(frequency, model).phase_rad(elapsed_s), orders,
+                               mask).residual
 
     x0 = [omega0, drift.rate_rad_s_per_hour]
     lower, upper = [omega0 - 0.5, -np.inf], [omega0 + 0.5, np.inf]

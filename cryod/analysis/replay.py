@@ -1,6 +1,6 @@
 """Replay a record through a model: the simulated T2 and T5 for the record's own heater.
 
-The simulated cryostat (:func:`simulated_hw.plant.simulate`) is driven by the
+The simulated cryostat (:func:`cryod.model.dynamics.simulate`) is driven by the
 record's ``heater_W`` column, whatever the record holds (holds, steps,
 modulation, PI segments: in a PI record the heater is a feedback signal, but it
 is still the input that was applied). The cooler's line is the one measured in
@@ -39,8 +39,8 @@ import numpy as np
 from cryod.analysis.ptc_line import PtcLine, estimate_ptc_line
 from cryod.analysis.record_data import RecordData
 from cryod.model import CryostatModel, OperatingPoint
-from cryod.transfer_function import TransferFunction
-from simulated_hw.plant import flange_transfer_functions, simulate, stage_transfer_functions
+from cryod.model.dynamics import flange_transfer_functions, simulate, stage_transfer_functions
+from cryod.model.transfer_function import TransferFunction
 
 
 def _release_response(transfer_function: TransferFunction, elapsed_s: np.ndarray) -> np.ndarray:

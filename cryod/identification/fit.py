@@ -6,7 +6,7 @@ What is fitted, all records at once (they are taken to be from one cryostat):
   time constants by :func:`scipy.optimize.least_squares` (in log), the two
   residues by linear least squares inside each evaluation (variable
   projection); the response to the record's heater is the simulator's exact
-  zero-order hold (:class:`simulated_hw.plant.HeaterPath`);
+  zero-order hold (:class:`cryod.model.heater_path.HeaterPath`);
 * heater to T5, ``G3 = k3 / (tau_3 s + 1)``, the same way;
 * the PTC line's complex gain from T5 to T2 at the line, a linear
   coefficient: it gives ``G2 G_link`` at the line, hence the link
@@ -33,12 +33,12 @@ from scipy import optimize
 
 from cryod.analysis.candidates import first_order_link
 from cryod.analysis.noise import white_noise_rms
-from cryod.analysis.ptc_line import PtcLine, line_phase, measurable_orders
+from cryod.analysis.ptc_line import PtcLine, measurable_orders
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replayer
 from cryod.model import CryostatModel, OperatingPoint, SensorNoise
-from cryod.transfer_function import TransferFunction
-from simulated_hw.plant import HeaterPath
+from cryod.model.heater_path import HeaterPath
+from cryod.model.transfer_function import TransferFunction
 
 #: Time constants are searched within these bounds (s).
 TIME_CONSTANT_BOUNDS_S = (0.5, 20000.0)
@@ -93,7 +93,7 @@ def _prepare(data: RecordData, base: CryostatModel, harmonics: bool) -> _Prepare
     replayer = Replayer(data, np.ones(data.time_s.size, dtype=bool))
     orders = measurable_orders(base.ptc.angular_frequency_rad_s, data.sample_interval_s) if harmonics else (1,)
     line = replayer.stage_line(base, orders=orders, significant_only=True)
-    phase = line_phase(data.elapsed_s, line.angular_frequency_rad_s, line.drift)
+    phase = line.phase_rad(data.elapsed_s)
     oscillation = sum(c.amplitude_K * np.sin(c.order * phase + c.phase_rad) for c in line.components)
     fundamental = line.fundamental
     phasor = fundamental.amplitude_K * np.exp(1j * (phase + fundamental.phase_rad))

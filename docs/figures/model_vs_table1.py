@@ -15,8 +15,7 @@ import numpy as np
 
 from cryod import paper_table1 as table1
 from cryod.analysis.line_fit import fit_line, wrap_phase
-from cryod.model import load_model
-from simulated_hw.plant import simulate
+from cryod.model import load_model, simulate
 
 HERE = Path(__file__).resolve().parent
 CONFIG = HERE.parent.parent / "config"

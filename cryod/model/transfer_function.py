@@ -10,7 +10,7 @@ Examples
 >>> link = TransferFunction([1.0], [26.48, 1.0])
 >>> round(link.dc_gain, 3)
 1.0
->>> [round(tc, 2) for tc in link.time_constants_s]
+>>> [round(float(tc), 2) for tc in link.time_constants_s]
 [26.48]
 >>> round(abs(link.frequency_response(10.83)), 6)
 0.003487
@@ -138,10 +138,14 @@ class TransferFunction:
         Returns
         -------
         complex or numpy.ndarray
-            H evaluated at s = j omega.
+            H evaluated at s = j omega: a complex for a number, an array of the
+            input's shape for an array.
         """
+        if isinstance(angular_frequency_rad_s, (int, float)):
+            s = 1j * float(angular_frequency_rad_s)     # plain Python complex: fast for one frequency
+            return _polynomial_value(self.numerator, s) / _polynomial_value(self.denominator, s)
         s = 1j * np.asarray(angular_frequency_rad_s, dtype=float)
-        value = np.polyval(self.numerator, s) / np.polyval(self.denominator, s)
+        value = _polynomial_value(self.numerator, s) / _polynomial_value(self.denominator, s)
         return complex(value) if np.ndim(value) == 0 else value
 
     # -- algebra ------------------------------------------------------------
@@ -212,6 +216,14 @@ class TransferFunction:
         """Plain mapping for the model file."""
         return {"numerator": [float(c) for c in self.numerator],
                 "denominator": [float(c) for c in self.denominator]}
+
+
+def _polynomial_value(coefficients: tuple[float, ...], s):
+    """Polynomial in descending powers at s (Horner), for a complex number or a complex array alike."""
+    value = 0.0
+    for coefficient in coefficients:
+        value = value * s + coefficient
+    return value
 
 
 def _separate_repeated(poles: np.ndarray) -> np.ndarray:

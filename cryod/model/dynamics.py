@@ -1,15 +1,13 @@
-"""The simulated cryostat's physics: noise-free T2 and T5 from a model and the heater history.
+"""The cryostat's dynamics: noise-free T2 and T5 from a model and the heater history.
 
-Two kinds of path make up the plant (equations in ``docs/model.md``):
+How the parts combine (equations in ``docs/model.md``):
 
-* heater paths (G2*G1 to the flange thermometer, G3 to the PTC stage) are
-  linear systems driven by a heater power held constant between writes. They
-  are kept in modal form, ``z_i' = lambda_i z_i + u``, and advanced with the
-  exact zero-order-hold solution ``z_i(t+h) = a z_i(t) + (a - 1)/lambda_i * u``,
-  ``a = exp(lambda_i h)``, for any step length h: writes may come at any instant.
-* the PTC paths carry the cooler's steady oscillation. Its response is the
-  frequency response evaluated at each harmonic, ``Re(H(j k omega) Q_k exp(j theta_k(t)))``,
-  computed at the exact instant asked for, so it never aliases.
+* the heater paths (G2*G1 to the flange thermometer, G3 to the PTC stage),
+  each a :class:`~cryod.model.heater_path.HeaterPath`: exact for a heater
+  power held between writes at any instants;
+* the PTC paths (G2*G_link to the flange thermometer, the T5 oscillation to
+  its thermometer), each a :class:`~cryod.model.ptc_path.PtcPath`: the
+  cooler's steady oscillation evaluated at the exact instant asked for.
 
 Effects of the model are applied as physics: delivered heater power
 (nonlinearity), a delay queue (dead time), an extra lag on the readings
@@ -17,300 +15,30 @@ Effects of the model are applied as physics: delivered heater power
 scaled with the flange temperature (heat capacity), harmonics and frequency
 drift of the cooler.
 
+:class:`CryostatPlant` steps through time, an instant at a time (the
+simulated cryostat on a clock, the closed-loop studies); :func:`simulate`
+computes a whole record at once (analysis, identification, figures).
+
 Examples
 --------
 >>> from cryod.model import load_model
 >>> plant = CryostatPlant(load_model())
 >>> plant.set_heater_power(0.0088, time_s=0.0)
 >>> plant.advance_to(2000.0)
->>> round(plant.temperatures()[0] - 4.23, 3)     # step height of T2, K (plus PTC line)
+>>> round(plant.temperatures()[0] - 4.23, 2)     # step height of T2, K (plus PTC line)
 0.06
 """
 
 from __future__ import annotations
 
-import cmath
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from cryod.model import CryostatModel
-from cryod.transfer_function import TransferFunction
-
-
-# ---------------------------------------------------------------------------
-# heater paths: modal state, exact zero-order hold
-# ---------------------------------------------------------------------------
-class HeaterPath:
-    """A linear path driven by a piecewise-constant input, in modal form.
-
-    Parameters
-    ----------
-    transfer_function : TransferFunction
-        Input (W) to output (K) transfer function.
-    """
-
-    def __init__(self, transfer_function: TransferFunction):
-        form = transfer_function.modal_form()
-        self.transfer_function = transfer_function
-        self.all_real = bool(np.all(form.poles.imag == 0.0))
-        if self.all_real:
-            self.poles = [float(p.real) for p in form.poles]
-            self.residues = [float(r.real) for r in form.residues]
-        else:
-            self.poles = [complex(p) for p in form.poles]
-            self.residues = [complex(r) for r in form.residues]
-        self.direct = float(form.direct)
-        self.state = [0.0 * p for p in self.poles]
-        self.input = 0.0
-        self._hold_key: tuple[float, float] | None = None
-        self._hold_coefficients: list = []
-
-    def settle(self, value: float) -> None:
-        """Put the path in steady state for a constant input ``value``."""
-        self.input = value
-        self.state = [-value / p for p in self.poles]
-
-    def hold(self, duration_s: float, time_scale: float = 1.0) -> None:
-        """Advance by ``duration_s`` with the input held (exact).
-
-        ``time_scale`` multiplies every time constant for this step.
-        """
-        if duration_s <= 0.0:
-            return
-        key = (duration_s, time_scale)
-        if key != self._hold_key:
-            exp = math.exp if self.all_real else cmath.exp
-            decay = [exp(pole * duration_s / time_scale) for pole in self.poles]
-            self._hold_coefficients = [(a, (a - 1.0) / pole) for a, pole in zip(decay, self.poles)]
-            self._hold_key = key
-        u = self.input
-        state = self.state
-        for i, (a, gain) in enumerate(self._hold_coefficients):
-            state[i] = a * state[i] + gain * u
-
-    def output(self) -> float:
-        """Output now (the input's direct part uses the input in effect)."""
-        total = self.direct * self.input
-        for residue, z in zip(self.residues, self.state):
-            total += residue * z
-        return total.real if isinstance(total, complex) else total
-
-    def mean_output(self, duration_s: float, time_scale: float = 1.0) -> float:
-        """Mean output over the next ``duration_s`` with the input held; state unchanged."""
-        if duration_s <= 0.0:
-            return self.output()
-        u = self.input
-        exp = math.exp if self.all_real else cmath.exp
-        total = self.direct * u * duration_s
-        for pole, residue, z in zip(self.poles, self.residues, self.state):
-            rate = pole / time_scale
-            a = exp(rate * duration_s)
-            integral = (a - 1.0) / rate * z + ((a - 1.0) / rate - duration_s) / pole * u
-            total += residue * integral
-        total = total.real if isinstance(total, complex) else total
-        return total / duration_s
-
-    def run(self, durations_s: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """Outputs at the start of each interval and after the last one (vectorised).
-
-        Parameters
-        ----------
-        durations_s : numpy.ndarray
-            Interval lengths h_k in s (length n).
-        inputs : numpy.ndarray
-            Input held over each interval (length n).
-
-        Returns
-        -------
-        numpy.ndarray
-            Output at the n + 1 interval boundaries. The path's state is left
-            at the end of the last interval.
-        """
-        durations_s = np.asarray(durations_s, dtype=float)
-        inputs = np.asarray(inputs, dtype=float)
-        count = durations_s.size
-        outputs = np.zeros(count + 1)
-        previous_input = np.concatenate(([self.input], inputs))
-        outputs += self.direct * previous_input
-        for i, pole in enumerate(self.poles):
-            a = np.exp(pole * durations_s)
-            b = (a - 1.0) / pole * inputs
-            states = _linear_recurrence(a, b, self.state[i])
-            self.state[i] = states[-1].item()
-            outputs += np.real(self.residues[i] * states)
-        if count:
-            self.input = float(inputs[-1])
-        return outputs
-
-
-def _linear_recurrence(a: np.ndarray, b: np.ndarray, initial):
-    """z[0] = initial, z[k+1] = a[k] z[k] + b[k]; returns z[0..n].
-
-    A parallel prefix scan (Hillis-Steele) over the affine maps
-    ``z -> a z + b``: log2(n) whole-array passes instead of a Python loop over
-    the samples. Products of the decay factors only shrink (|a| <= 1), so
-    nothing overflows; the result agrees with the sequential loop to rounding.
-    """
-    dtype = np.result_type(a, b, np.asarray(initial))
-    factor = np.empty(a.size + 1, dtype=dtype)
-    offset = np.empty(a.size + 1, dtype=dtype)
-    factor[0], offset[0] = 0.0, initial
-    factor[1:], offset[1:] = a, b
-    span = 1
-    while span < factor.size:
-        offset[span:] = factor[span:] * offset[:-span] + offset[span:]
-        factor[span:] = factor[span:] * factor[:-span]
-        span *= 2
-    return offset
-
-
-# ---------------------------------------------------------------------------
-# PTC paths: phasors at the exact instant
-# ---------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _PtcComponent:
-    order: int
-    heat_phasor: complex      # q_k = Re(heat_phasor * exp(j theta)) for omega = omega_0, in W per (rad/s)
-    stage_phasor: complex     # T5 oscillation = Re(stage_phasor * exp(j theta)), K
-    phase_rad: float
-
-
-class PtcDrive:
-    """The cooler's oscillation: phase, frequency and the heat it drives into the flange."""
-
-    def __init__(self, model: CryostatModel):
-        ptc = model.ptc
-        self.base_angular_frequency = ptc.angular_frequency_rad_s
-        self.drift = model.effects.ptc_frequency_drift
-        self.components = [
-            _PtcComponent(
-                order=order,
-                # q = C d/dt [B sin(theta)] = Re(C k omega B exp(j theta)); omega applied later
-                heat_phasor=complex(ptc.heat_capacity_J_per_K * order * amplitude),
-                # B sin(theta) = Re(-j B exp(j theta))
-                stage_phasor=complex(-1j * amplitude),
-                phase_rad=phase,
-            )
-            for order, amplitude, phase in ptc.components()
-        ]
-
-    def rotor(self, elapsed_s: float) -> tuple[complex, float]:
-        """``exp(j phase)`` of the fundamental and the angular frequency (rad/s), at one instant."""
-        phase = self.base_angular_frequency * elapsed_s
-        frequency = self.base_angular_frequency
-        if self.drift is not None:
-            phase += float(self.drift.phase_offset(elapsed_s))
-            frequency += float(self.drift.angular_frequency_offset(elapsed_s))
-        return cmath.exp(1j * phase), frequency
-
-    def phase_and_frequency(self, elapsed_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Fundamental phase (rad, without the component phases) and angular frequency (rad/s)
-        at many instants."""
-        elapsed_s = np.asarray(elapsed_s, dtype=float)
-        phase = self.base_angular_frequency * elapsed_s
-        frequency = np.full_like(phase, self.base_angular_frequency)
-        if self.drift is not None:
-            phase = phase + self.drift.phase_offset(elapsed_s)
-            frequency = frequency + self.drift.angular_frequency_offset(elapsed_s)
-        return phase, frequency
-
-
-def _horner(coefficients: tuple[float, ...], s):
-    value = 0.0
-    for coefficient in coefficients:
-        value = value * s + coefficient
-    return value
-
-
-class PtcPath:
-    """Response of one thermometer to the PTC oscillation, evaluated as phasors.
-
-    Parameters
-    ----------
-    drive : PtcDrive
-    transfer_function : TransferFunction
-        From the PTC heat q (W) to the thermometer (K), or from the T5
-        oscillation (K) to the T5 thermometer (K).
-    input_is_heat : bool
-        True for the heat path to the flange, False for the stage oscillation.
-    """
-
-    def __init__(self, drive: PtcDrive, transfer_function: TransferFunction, input_is_heat: bool):
-        self.drive = drive
-        self.transfer_function = transfer_function
-        self.input_is_heat = input_is_heat
-        self._cache_key: tuple[float, float] | None = None
-        self._cache: list[complex] = []
-
-    def output_phasors(self, frequency, time_scale=1.0) -> list:
-        """Complex output amplitude of each component (K), for the angular frequency given.
-
-        ``frequency`` may be an array (one phasor per instant) or a float.
-        """
-        numerator = self.transfer_function.numerator
-        denominator = self.transfer_function.denominator
-        phasors = []
-        for component in self.drive.components:
-            s = 1j * component.order * frequency * time_scale
-            gain = np.polyval(numerator, s) / np.polyval(denominator, s)
-            if self.input_is_heat:
-                phasors.append(gain * component.heat_phasor * frequency)
-            else:
-                phasors.append(gain * component.stage_phasor)
-        return phasors
-
-    def _rotated_phasors(self, frequency: float, time_scale: float) -> list[tuple[int, complex]]:
-        """(order, phasor * exp(j component phase)) at one frequency, cached."""
-        key = (frequency, time_scale)
-        if key != self._cache_key:
-            phasors = []
-            for component in self.drive.components:
-                s = 1j * component.order * frequency * time_scale
-                gain = _horner(self.transfer_function.numerator, s) / _horner(self.transfer_function.denominator, s)
-                source = component.heat_phasor * frequency if self.input_is_heat else component.stage_phasor
-                phasors.append((component.order, gain * source * cmath.exp(1j * component.phase_rad)))
-            self._cache_key, self._cache = key, phasors
-        return self._cache
-
-    def value_at(self, rotor: complex, frequency: float, time_scale: float = 1.0) -> float:
-        """Output at one instant given the drive's rotor and frequency there (K)."""
-        total = 0.0
-        for order, phasor in self._rotated_phasors(frequency, time_scale):
-            total += (phasor * (rotor if order == 1 else rotor ** order)).real
-        return total
-
-    def value(self, elapsed_s: float, time_scale: float = 1.0) -> float:
-        """Output at one instant, ``elapsed_s`` after the plant started (K)."""
-        rotor, frequency = self.drive.rotor(elapsed_s)
-        return self.value_at(rotor, frequency, time_scale)
-
-    def values(self, elapsed_s: np.ndarray, time_scale=1.0) -> np.ndarray:
-        """Output at many instants (K).
-
-        ``time_scale`` multiplies the path's time constants: a float, or one
-        factor per instant (heat-capacity effect).
-        """
-        phase, frequency = self.drive.phase_and_frequency(np.asarray(elapsed_s, dtype=float))
-        if self.drive.drift is None:
-            frequency = float(self.drive.base_angular_frequency)
-        total = np.zeros_like(phase)
-        for component, phasor in zip(self.drive.components, self.output_phasors(frequency, time_scale)):
-            total += np.real(phasor * np.exp(1j * (component.order * phase + component.phase_rad)))
-        return total
-
-    def mean_value(self, elapsed_s: float, duration_s: float, time_scale: float = 1.0) -> float:
-        """Mean output over ``[elapsed_s, elapsed_s + duration_s]``, frequency frozen at the start."""
-        if duration_s <= 0.0:
-            return self.value(elapsed_s, time_scale)
-        rotor, frequency = self.drive.rotor(elapsed_s)
-        total = 0.0
-        for order, phasor in self._rotated_phasors(frequency, time_scale):
-            angular = order * frequency
-            start = phasor * rotor ** order
-            total += (start * (cmath.exp(1j * angular * duration_s) - 1.0) / (1j * angular)).real
-        return total / duration_s
+from cryod.model.heater_path import HeaterPath
+from cryod.model.parameters import CryostatModel
+from cryod.model.ptc_path import PtcDrive, PtcPath
+from cryod.model.transfer_function import TransferFunction
 
 
 # ---------------------------------------------------------------------------
@@ -439,7 +167,7 @@ class CryostatPlant:
     def temperatures(self) -> tuple[float, float]:
         """(T2, T5) in K at the current instant, noise-free."""
         point = self.model.operating_point
-        rotor, frequency = self.drive.rotor(self.time_s - self.start_time_s)
+        rotor, frequency = self.drive.cycle.rotor(self.time_s - self.start_time_s)
         heater = self.flange_heater.output()
         scale = 1.0 if self.heat_capacity is None else float(self.time_scale_at(heater))
         flange = point.flange_temperature_K + heater + self.flange_ptc.value_at(rotor, frequency, scale)

@@ -1,0 +1,79 @@
+"""The pulse-tube cooler's cycle: its phase and angular frequency at any instant.
+
+The one place they are computed: the simulated cryostat drives its PTC paths
+with them (:mod:`cryod.model.ptc_path`), and the analysis fits the line it
+measures in T5 at them (:mod:`cryod.analysis.ptc_line`). With ``t`` the time
+since the phase reference (the start of the simulation or of the record)::
+
+    omega(t) = omega_0 + drift offset(t)
+    theta(t) = integral of omega from 0 to t = omega_0 t + drift phase(t)
+
+The drift's form is :class:`~cryod.model.parameters.PtcFrequencyDrift`.
+
+Examples
+--------
+>>> from cryod.model.parameters import PtcFrequencyDrift
+>>> cycle = PtcCycle(10.83, PtcFrequencyDrift(rate_rad_s_per_hour=0.036))
+>>> phase, frequency = cycle.phase_and_frequency(3600.0)
+>>> round(float(phase), 1), round(float(frequency), 3)          # rad, rad/s an hour in
+(39052.8, 10.866)
+>>> PtcCycle(10.83).phase_rad(np.array([0.0, 0.5]))
+array([0.   , 5.415])
+"""
+
+from __future__ import annotations
+
+import cmath
+from dataclasses import dataclass
+
+import numpy as np
+
+from cryod.model.parameters import PtcFrequencyDrift
+
+
+@dataclass(frozen=True)
+class PtcCycle:
+    """Phase and angular frequency of the cooler's fundamental over time.
+
+    Parameters
+    ----------
+    angular_frequency_rad_s : float
+        omega_0, the angular frequency at the phase reference (rad/s).
+    drift : PtcFrequencyDrift, optional
+        How the frequency changes from there; ``None`` for a constant one.
+    """
+
+    angular_frequency_rad_s: float
+    drift: PtcFrequencyDrift | None = None
+
+    def phase_and_frequency(self, elapsed_s):
+        """Phase theta (rad, without any component's own phase) and angular frequency omega (rad/s).
+
+        Parameters
+        ----------
+        elapsed_s : float or numpy.ndarray
+            Time since the phase reference (s).
+
+        Returns
+        -------
+        phase : float or numpy.ndarray
+            theta at each instant.
+        frequency : float or numpy.ndarray
+            omega at each instant; one float when the frequency does not drift.
+        """
+        omega_0 = self.angular_frequency_rad_s
+        if self.drift is None:
+            return omega_0 * elapsed_s, omega_0
+        return (omega_0 * elapsed_s + self.drift.phase_offset(elapsed_s),
+                omega_0 + self.drift.angular_frequency_offset(elapsed_s))
+
+    def phase_rad(self, elapsed_s):
+        """Phase theta (rad) at ``elapsed_s`` (s, a float or a numpy array)."""
+        return self.phase_and_frequency(elapsed_s)[0]
+
+    def rotor(self, elapsed_s: float) -> tuple[complex, float]:
+        """``exp(j theta)`` and omega (rad/s) at one instant: the stepping simulation's fast path."""
+        if self.drift is None:
+            return cmath.exp(1j * (self.angular_frequency_rad_s * elapsed_s)), self.angular_frequency_rad_s
+        phase, frequency = self.phase_and_frequency(elapsed_s)
+        return cmath.exp(1j * float(phase)), float(frequency)

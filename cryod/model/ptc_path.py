@@ -1,0 +1,139 @@
+"""The PTC paths: the cooler's steady oscillation and a thermometer's response to it, as phasors.
+
+The cooler has been running for ever, so its contribution to a thermometer is
+the steady-state response, evaluated at the exact instant asked for, so it
+never aliases. Each harmonic k of the T5 oscillation,
+``B_k sin(k theta(t) + alpha_k)``, drives the heat ``q = C dT5_osc/dt`` into
+the flange (paper eq. 4); a path H (heat to flange thermometer, or the T5
+thermometer's own lag) answers with
+``Re(H(j k omega) Q_k exp(j (k theta(t) + alpha_k))``, with theta and omega
+the cooler's cycle (:class:`~cryod.model.ptc_cycle.PtcCycle`) and
+``H(j k omega)`` from :meth:`~cryod.model.transfer_function.TransferFunction.frequency_response`.
+
+Examples
+--------
+>>> from cryod.model import load_model
+>>> from cryod.model.dynamics import flange_transfer_functions
+>>> model = load_model()
+>>> drive = PtcDrive(model)
+>>> flange = PtcPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
+>>> round(abs(flange.output_phasors(model.ptc.angular_frequency_rad_s)[0]), 5)   # T2's line, K
+0.00173
+"""
+
+from __future__ import annotations
+
+import cmath
+from dataclasses import dataclass
+
+import numpy as np
+
+from cryod.model.parameters import CryostatModel
+from cryod.model.ptc_cycle import PtcCycle
+from cryod.model.transfer_function import TransferFunction
+
+
+@dataclass(frozen=True)
+class _PtcComponent:
+    order: int
+    heat_phasor: complex      # q_k = Re(heat_phasor * exp(j theta)) for omega = omega_0, in W per (rad/s)
+    stage_phasor: complex     # T5 oscillation = Re(stage_phasor * exp(j theta)), K
+    phase_rad: float
+
+
+class PtcDrive:
+    """The cooler's oscillation: its cycle, and the heat it drives into the flange."""
+
+    def __init__(self, model: CryostatModel):
+        ptc = model.ptc
+        self.cycle = PtcCycle(ptc.angular_frequency_rad_s, model.effects.ptc_frequency_drift)
+        self.components = [
+            _PtcComponent(
+                order=order,
+                # q = C d/dt [B sin(theta)] = Re(C k omega B exp(j theta)); omega applied later
+                heat_phasor=complex(ptc.heat_capacity_J_per_K * order * amplitude),
+                # B sin(theta) = Re(-j B exp(j theta))
+                stage_phasor=complex(-1j * amplitude),
+                phase_rad=phase,
+            )
+            for order, amplitude, phase in ptc.components()
+        ]
+
+
+class PtcPath:
+    """Response of one thermometer to the PTC oscillation, evaluated as phasors.
+
+    Parameters
+    ----------
+    drive : PtcDrive
+    transfer_function : TransferFunction
+        From the PTC heat q (W) to the thermometer (K), or from the T5
+        oscillation (K) to the T5 thermometer (K).
+    input_is_heat : bool
+        True for the heat path to the flange, False for the stage oscillation.
+    """
+
+    def __init__(self, drive: PtcDrive, transfer_function: TransferFunction, input_is_heat: bool):
+        self.drive = drive
+        self.transfer_function = transfer_function
+        self.input_is_heat = input_is_heat
+        self._components_and_rotations = [(c, cmath.exp(1j * c.phase_rad)) for c in drive.components]
+        self._cache_key: tuple[float, float] | None = None
+        self._cache: list[complex] = []
+
+    def output_phasors(self, frequency, time_scale=1.0) -> list:
+        """Complex output amplitude of each component (K), for the angular frequency given.
+
+        ``frequency`` may be an array (one phasor per instant) or a float.
+        """
+        return [self._output_phasor(component, frequency, time_scale) for component in self.drive.components]
+
+    def _output_phasor(self, component: _PtcComponent, frequency, time_scale):
+        gain = self.transfer_function.frequency_response(component.order * frequency * time_scale)
+        return gain * (component.heat_phasor * frequency if self.input_is_heat else component.stage_phasor)
+
+    def _rotated_phasors(self, frequency: float, time_scale: float) -> list[tuple[int, complex]]:
+        """(order, phasor * exp(j component phase)) at one frequency, cached."""
+        key = (frequency, time_scale)
+        if key != self._cache_key:
+            phasors = []      # a loop: a comprehension would make the arguments cells, slowing every cache hit
+            for component, rotation in self._components_and_rotations:
+                phasors.append((component.order, self._output_phasor(component, frequency, time_scale) * rotation))
+            self._cache_key, self._cache = key, phasors
+        return self._cache
+
+    def value_at(self, rotor: complex, frequency: float, time_scale: float = 1.0) -> float:
+        """Output at one instant given the cycle's rotor and frequency there (K)."""
+        total = 0.0
+        for order, phasor in self._rotated_phasors(frequency, time_scale):
+            total += (phasor * (rotor if order == 1 else rotor ** order)).real
+        return total
+
+    def value(self, elapsed_s: float, time_scale: float = 1.0) -> float:
+        """Output at one instant, ``elapsed_s`` after the plant started (K)."""
+        rotor, frequency = self.drive.cycle.rotor(elapsed_s)
+        return self.value_at(rotor, frequency, time_scale)
+
+    def values(self, elapsed_s: np.ndarray, time_scale=1.0) -> np.ndarray:
+        """Output at many instants (K).
+
+        ``time_scale`` multiplies the path's time constants: a float, or one
+        factor per instant (heat-capacity effect).
+        """
+        phase, frequency = self.drive.cycle.phase_and_frequency(np.asarray(elapsed_s, dtype=float))
+        total = np.zeros_like(phase)
+        for component, phasor in zip(self.drive.components, self.output_phasors(frequency, time_scale)):
+            total += np.real(phasor * np.exp(1j * (component.order * phase + component.phase_rad)))
+        return total
+
+    def mean_value(self, elapsed_s: float, duration_s: float, time_scale: float = 1.0) -> float:
+        """Mean output over ``[elapsed_s, elapsed_s + duration_s]``, frequency frozen at the start."""
+        if duration_s <= 0.0:
+            return self.value(elapsed_s, time_scale)
+        rotor, frequency = self.drive.cycle.rotor(elapsed_s)
+        total = 0.0
+        for order, phasor in self._rotated_phasors(frequency, time_scale):
+            angular = order * frequency
+            start = phasor * rotor ** order
+            total += (start * (cmath.exp(1j * angular * duration_s) - 1.0) / (1j * angular)).real
+        return total / duration_s

@@ -11,7 +11,7 @@ import pytest
 from cryod import cli
 from cryod.analysis.summary import CAUSES
 from cryod.model import DeadTime, load_model
-from cryod.paper_table1 import regenerated_record
+from cryod.analysis.paper_table1 import regenerated_record
 from cryod.records.record import write_record
 from simulated_hw.measurement_programs import make_record
 

@@ -1,14 +1,11 @@
 """Conversions: round trips, agreement with the calibration data, ranges refused, scalar and array calls."""
 
-import doctest
 import importlib.util
 
 import numpy as np
 import pytest
 
-import cryod.thermometry
 from cryod.thermometry import OutOfCalibrationRange, load_calibration
-from cryod.thermometry import breakpoints, chebyshev, errors, loader, smooth_response, source_text, spline_table
 from cryod.thermometry.spline_table import SplineTableCurve
 from tests.conftest import CALIBRATION_DATA, REPOSITORY
 
@@ -195,14 +192,3 @@ def test_scalar_calls_are_fast_enough_for_every_reading():
     for name in ("X186279.340", "X162690.cof", "X162690.dat"):
         times_us = benchmark.scalar_call_times_us(load_calibration(CALIBRATION_DATA / name), calls=300, repeats=3)
         assert max(times_us.values()) < 50.0, (name, times_us)
-
-
-# ---------------------------------------------------------------------------
-# documentation examples
-# ---------------------------------------------------------------------------
-@pytest.mark.parametrize("module", [cryod.thermometry, breakpoints, chebyshev, errors, loader, smooth_response,
-                                    source_text, spline_table], ids=lambda module: module.__name__)
-def test_docstring_examples(module, monkeypatch):
-    monkeypatch.chdir(REPOSITORY)
-    result = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
-    assert result.attempted > 0 and result.failed == 0

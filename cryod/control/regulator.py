@@ -21,10 +21,13 @@ Examples
 >>> regulator = Regulator(config.control, HeaterPowerOutput(config.heater.max_power_w))
 >>> regulator.mode
 <RegulatorMode.CLOSED: 'closed'>
->>> regulator.close_loop(0.0, flange_K=4.9, ptc_stage_K=3.3, present_power_w=0.0)
->>> step = regulator.step(0.08, dt_s=0.08, flange_K=4.9, ptc_stage_K=3.3)
->>> round(step.power_w, 4), step.setpoint_K, step.limited      # Kp * 0.1 K, plus 0.08 s of integral
-(1.0016, 5.0, False)
+>>> regulator.close_loop(0.0, flange_K=4.99, ptc_stage_K=3.3, present_power_w=0.0)
+>>> step = regulator.step(0.08, dt_s=0.08, flange_K=4.99, ptc_stage_K=3.3)
+>>> round(step.power_w, 5), step.setpoint_K, step.limited      # Kp * 0.01 K, plus 0.08 s of integral
+(0.10016, 5.0, False)
+>>> step = regulator.step(0.16, dt_s=0.08, flange_K=4.9, ptc_stage_K=3.3)
+>>> round(step.power_w, 9), step.limited                       # Kp * 0.1 K is more than R * I_max^2
+(0.5, True)
 """
 
 from __future__ import annotations

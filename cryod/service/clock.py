@@ -18,6 +18,8 @@ import time
 
 from drivers.clock import Clock, MonotonicClock
 
+__all__ = ["Clock", "MonotonicClock", "ScaledClock", "VirtualClock"]
+
 
 class ScaledClock:
     """Real time running ``speed`` times faster (``cryod --simulate --speed X``).

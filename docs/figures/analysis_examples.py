@@ -38,7 +38,7 @@ from cryod import cli  # noqa: E402
 from cryod.model import (  # noqa: E402
     DeadTime, HeatCapacityTemperature, HeaterNonlinearity, OperatingPoint, SensorLag, load_model,
 )
-from cryod.paper_table1 import regenerated_record  # noqa: E402
+from cryod.analysis.paper_table1 import regenerated_record  # noqa: E402
 from cryod.records.record import write_record  # noqa: E402
 from simulated_hw.measurement_programs import make_record  # noqa: E402
 

@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from cryod import paper_table1 as table1
+from cryod.analysis import paper_table1 as table1
 from cryod.analysis.line_fit import fit_line, wrap_phase
 from cryod.model import load_model, simulate
 

@@ -136,6 +136,7 @@ class SafetyConfig:
     max_repeated_readings: int
     valid_readings_to_resume: int
     recovery_timeout_s: float
+    instruments_wait_s: float | None = None     # None: wait for unreachable instruments without end
 
 
 @dataclass(frozen=True)
@@ -352,6 +353,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         max_repeated_readings=section.number("max_repeated_readings", 5, minimum=2, maximum=1000, integer=True),
         valid_readings_to_resume=section.number("valid_readings_to_resume", 5, minimum=1, maximum=1000, integer=True),
         recovery_timeout_s=section.number("recovery_timeout_s", 60.0, minimum=0.0, maximum=86400.0),
+        instruments_wait_s=section.number("instruments_wait_s", None, minimum=0.0),
     )
     section.finish()
 

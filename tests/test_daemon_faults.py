@@ -18,6 +18,8 @@ from cryod.service.daemon import Daemon
 from cryod.model import load_model
 from cryod.records.record import read_record
 from cryod.records.columns import Row
+from cryod.service.instance_lock import InstanceLock
+from drivers.errors import ConnectionLost
 from cryod.service.notify import SystemdNotifier
 from cryod.service.simulation import SimulatedInstrumentsOpener
 from tests.conftest import CONFIG
@@ -135,3 +137,58 @@ def test_recovery_timeout_exits_4(tmp_path):
     assert drill.run(120.0).exit_code == 4
     assert "not recovered within 10 s" in drill.result.loop.last_fault.message
     assert drill.supply_current_a() == 0.0
+
+
+class FlakyOpener:
+    """Instruments out of reach for the first ``failures`` attempts (the bus is down), then the bench."""
+
+    def __init__(self, failures):
+        self.inner = SimulatedInstrumentsOpener(load_model(), seed=4)
+        self.failures = failures
+        self.attempts = []
+
+    def __call__(self, config, clock):
+        self.attempts.append(clock.now())
+        if len(self.attempts) <= self.failures:
+            raise ConnectionLost("flange DMM (T2)", "cannot open TCPIP0::10.0.0.7::1234::SOCKET: no route to host")
+        return self.inner(config, clock)
+
+
+def test_instruments_out_of_reach_at_start_are_waited_for_then_the_loop_runs(tmp_path, caplog):
+    opener = FlakyOpener(failures=12)
+    daemon = Daemon(simulated_config(tmp_path), opener, VirtualClock(), notifier=SystemdNotifier({}),
+                    install_signal_handlers=False)
+    with caplog.at_level("WARNING", logger="cryod.daemon"):
+        result = daemon.run(120.0)
+    assert result.exit_code == 0
+    pauses = np.diff(opener.attempts)
+    np.testing.assert_allclose(pauses[:7], [1, 2, 4, 8, 16, 32, 60], atol=0.01)   # backs off to once a minute
+    assert sum(pauses) > 400.0                                                     # rode out a 7-minute outage
+    record = read_record(result.log_paths[0])
+    waiting = [text for _, text in record.events if text.startswith("event: waiting:")]
+    assert len(waiting) == 12 and "no route to host" in waiting[0]
+    assert sum("instruments out of reach" in r.message for r in caplog.records) == 12
+    assert np.mean(record.flange_K[record.time_s > record.time_s[-1] - 20]) == pytest.approx(5.0, abs=0.05)
+
+
+def test_waiting_for_instruments_is_bounded_when_configured(tmp_path):
+    config = simulated_config(tmp_path)
+    config = dataclasses.replace(config, safety=dataclasses.replace(config.safety, instruments_wait_s=300.0))
+    opener = FlakyOpener(failures=10 ** 6)
+    result = Daemon(config, opener, VirtualClock(), notifier=SystemdNotifier({}), install_signal_handlers=False).run(60.0)
+    assert result.exit_code == 4 and result.loop is None
+    assert 200.0 < opener.attempts[-1] - opener.attempts[0] <= 300.0
+
+
+def test_a_second_daemon_touches_no_instrument(tmp_path):
+    """Opening resets the instruments (heater off): a second daemon must stop before that."""
+    config = simulated_config(tmp_path)
+    first = InstanceLock(config.control_socket.path)
+    first.acquire()
+    try:
+        opener = FlakyOpener(failures=0)
+        result = Daemon(config, opener, VirtualClock(), notifier=SystemdNotifier({}),
+                        install_signal_handlers=False).run(10.0)
+    finally:
+        first.release()
+    assert result.exit_code == 2 and opener.attempts == [] and result.log_paths == []

@@ -1,11 +1,10 @@
 """Data log, control socket, systemd notify and journald logging."""
 
-import io
-import json
 import logging
 import os
 import socket
-import threading
+import subprocess
+import sys
 import time
 
 import pytest
@@ -171,3 +170,20 @@ def test_notify_never_blocks_on_a_receiver_that_does_not_read(tmp_path):
         assert notifier.dropped > 0
     finally:
         listener.close()
+
+
+def test_memory_lock_pins_what_is_used_not_everything_mapped():
+    """mlockall of every mapped page made numpy's and scipy's libraries resident (hundreds of MB)."""
+    script = ("import numpy, scipy.signal\n"
+              "from cryod.service.realtime import lock_memory\n"
+              "def resident():\n"
+              "    return next(int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmRSS'))\n"
+              "before = resident()\n"
+              "problem, figure = lock_memory()\n"
+              "print(before, resident(), problem is None, figure)\n")
+    output = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout.split()
+    before_kb, after_kb, locked = int(output[0]), int(output[1]), output[2] == "True"
+    if not locked:
+        pytest.skip("memory locking not permitted here")
+    assert after_kb < 1.2 * before_kb + 10_000
+    assert "MB resident" in " ".join(output[3:])

@@ -28,7 +28,7 @@ from typing import Callable, Mapping
 from cryod.records.columns import Event, Row, RowSchema
 from cryod.records.record import format_header
 
-log = logging.getLogger("cryod.records.datalog")
+log = logging.getLogger("cryod.datalog")
 
 _STOP = object()          # queued by stop(): write what came before, then close
 #: Rows written per flush at most.

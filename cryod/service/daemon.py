@@ -26,16 +26,23 @@ import numpy as np
 from cryod import __version__
 from cryod.config import DaemonConfig, load_config
 from cryod.records.datalog import DataLog
-from cryod.records.columns import RowSchema
+from cryod.records.columns import Event, RowSchema
 from cryod.service.commands import Command, wait_for
+from cryod.service.faults import ExitCode
+from cryod.service.instance_lock import AlreadyRunning, InstanceLock
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
 from cryod.service.realtime import lock_memory, set_realtime_priority
 from cryod.service.control_socket import ControlSocketServer
 from cryod.service.notify import SystemdNotifier
 from cryod.yaml_source import FileFormatError
 from drivers.clock import Clock
+from drivers.errors import IdentityMismatch, InstrumentError
 
-log = logging.getLogger("cryod.service.daemon")
+log = logging.getLogger("cryod.daemon")
+
+#: Longest pause between two attempts to open instruments that do not answer (s).
+MAX_RETRY_PAUSE_S = 60.0
+
 
 @dataclass
 class RunResult:
@@ -106,13 +113,16 @@ class Daemon:
         self.loop: ControlLoop | None = None
         self.datalog: DataLog | None = None
         self._reload_wanted = False
+        self._stop_reason: str | None = None
+        self._waiting = "opening the instruments"
         self._service_stop = False
         self._service_wake = threading.Event()      # a reload or the stop
 
     # -- signals ----------------------------------------------------------------
     def _on_stop_signal(self, number, frame) -> None:
+        self._stop_reason = f"{signal.Signals(number).name} received"
         if self.loop is not None:
-            self.loop.request_stop(f"{signal.Signals(number).name} received")
+            self.loop.request_stop(self._stop_reason)
 
     def _on_reload_signal(self, number, frame) -> None:
         self._reload_wanted = True
@@ -137,31 +147,59 @@ class Daemon:
         try:
             new = self.reload_config()
         except (FileFormatError, ValueError) as error:
-            log.error("reload refused, keeping the running configuration: %s", error)
-            self.notifier.reloaded(f"reload refused: {error}")
             command = Command("reload")
             command.answer(False, f"reload refused, keeping the running configuration: {error}")
-            return command
-        command = wait_for(self.loop.submit(Command("reload", new)), 10.0)
+        else:
+            if self.loop is None:
+                command = Command("reload")
+                command.answer(False, "reload refused: the daemon is still waiting for its instruments; "
+                                      "restart it to change the configuration")
+            else:
+                command = wait_for(self.loop.submit(Command("reload", new)), 10.0)
         if command.ok:
             self.config = new
             log.info("%s", command.message)
         else:
             log.error("%s", command.message)
+            if self.datalog is not None and not command.message.startswith("kept the running"):
+                self.datalog.put(Event("command", f"reload refused: {command.message}"))   # the loop's are written by it
         self.notifier.reloaded(command.message)
         return command
 
+    # -- the control socket before the loop runs ---------------------------------
+    def _submit(self, command: Command) -> Command:
+        if self.loop is None:
+            command.answer(False, f"not running yet: {self._waiting}; commands are taken once the loop runs")
+            return command
+        return self.loop.submit(command)
+
+    def _status(self) -> dict:
+        if self.loop is None:
+            return {"state": "waiting", "message": self._waiting, "heater_W": None}
+        return self.loop.status.as_dict()
+
     # -- the run --------------------------------------------------------------------
     def run(self, duration_s: float | None = None) -> RunResult:
-        """Open everything, run the loop, close everything with the heater off."""
+        """Take the lock, open everything, run the loop, close everything with the heater off.
+
+        Instruments that do not answer at start are retried with a growing
+        pause (1 s to 60 s) for ``safety.instruments_wait_s`` (without end when
+        null) with the heater untouched; a stop signal ends the wait.
+        """
         started = time.perf_counter()
         config = self.config
+        lock = InstanceLock(config.control_socket.path)
+        try:
+            lock.acquire()
+        except AlreadyRunning as error:
+            log.critical("not started: %s", error)
+            return RunResult(ExitCode.CONFIG, None, [], time.perf_counter() - started)
         instruments: Instruments | None = None
         control_socket: ControlSocketServer | None = None
         service = threading.Thread(target=self._service, name="cryod-service", daemon=True)
         previous_handlers = {}
+        exit_code = ExitCode.OK
         try:
-            instruments, flange_curve, stage_curve = self.open_instruments(config, self.clock)
             clock_start = self.clock.now()
             wall_start = time.time()
             schema = daemon_schema(config)
@@ -169,28 +207,40 @@ class Daemon:
                                    lambda t: wall_start + (t - clock_start), config.loop.period_s,
                                    config.data.fsync_interval_s)
             self.datalog.start()
-            taps = [self.datalog.put, *self.row_taps]
-            self.loop = ControlLoop(config, instruments, flange_curve, stage_curve, self.clock,
-                                    emit=taps[0] if len(taps) == 1 else _fan_out(taps),
-                                    watchdog=self.notifier.watchdog)
             control_socket = ControlSocketServer(config.control_socket.path, config.control_socket.mode,
                                                  config.control_socket.owner, config.control_socket.group,
-                                                 self.loop.submit, lambda: self.loop.status.as_dict())
+                                                 self._submit, self._status)
             control_socket.start()
             if self.install_signal_handlers:
                 for number, handler in ((signal.SIGTERM, self._on_stop_signal), (signal.SIGINT, self._on_stop_signal),
                                         (signal.SIGHUP, self._on_reload_signal)):
                     previous_handlers[number] = signal.signal(number, handler)
-            for problem in (set_realtime_priority(config.loop.realtime_priority),
-                            lock_memory() if config.loop.lock_memory else None):
+            service.start()
+            self.notifier.ready("started: opening the instruments")
+            opened = self._open_instruments_waiting(config)
+            if isinstance(opened, int):
+                exit_code = opened
+            else:
+                instruments, flange_curve, stage_curve = opened
+                taps = [self.datalog.put, *self.row_taps]
+                self.loop = ControlLoop(config, instruments, flange_curve, stage_curve, self.clock,
+                                        emit=taps[0] if len(taps) == 1 else _fan_out(taps),
+                                        watchdog=self.notifier.watchdog)
+                if self._stop_reason:
+                    self.loop.request_stop(self._stop_reason)
+                problem = set_realtime_priority(config.loop.realtime_priority)
                 if problem:
                     log.warning("%s", problem)
-            service.start()
-            self.notifier.ready(f"started: holding the heater off until {config.safety.valid_readings_to_resume} "
-                                f"valid readings")
-            log.info("cryod %s: loop period %.0f ms, data in %s, control socket %s", __version__,
-                     config.loop.period_s * 1e3, config.data.directory, config.control_socket.path)
-            exit_code = self.loop.run(duration_s)
+                if config.loop.lock_memory:
+                    problem, figure = lock_memory()
+                    if problem:
+                        log.warning("%s", problem)
+                    log.info("memory: %s", figure or "no figure on this system")
+                self.notifier.status(f"running: holding the heater off until "
+                                     f"{config.safety.valid_readings_to_resume} valid readings")
+                log.info("cryod %s: loop period %.0f ms, data in %s, control socket %s", __version__,
+                         config.loop.period_s * 1e3, config.data.directory, config.control_socket.path)
+                exit_code = self.loop.run(duration_s)
         finally:
             self._service_stop = True
             self._service_wake.set()
@@ -198,7 +248,8 @@ class Daemon:
                 try:
                     instruments.close()
                 except Exception as error:                 # already off in the loop; say so and go on
-                    log.critical("closing the instruments failed (heater was set to 0 W before): %s", error)
+                    log.critical("closing the instruments failed (the loop had set the heater to 0 W or said it "
+                                 "could not): %s", error)
             if control_socket is not None:
                 control_socket.stop()
             if self.datalog is not None:
@@ -207,12 +258,54 @@ class Daemon:
                 signal.signal(number, handler)
             if service.is_alive():
                 service.join(2.0)
-        status = self.loop.status.one_line() if self.loop else "not started"
+            lock.release()
+        status = self.loop.status.one_line() if self.loop else f"not started: {self._waiting}"
         self.notifier.stopping(status)
         if self.datalog is not None and self.datalog.error is not None:
             log.critical("the data log failed: %s", self.datalog.error)
         return RunResult(exit_code, self.loop, list(self.datalog.paths) if self.datalog else [],
                          time.perf_counter() - started)
+
+    def _open_instruments_waiting(self, config: DaemonConfig):
+        """The opened instruments and curves, or the exit code when they never came (or a stop came first)."""
+        wait_limit = config.safety.instruments_wait_s
+        first_try = self.clock.now()
+        pause, attempt = 1.0, 0
+        while True:
+            attempt += 1
+            try:
+                return self.open_instruments(config, self.clock)
+            except IdentityMismatch as error:
+                self._stop_event(f"{error}: another instrument answers at a configured address", ExitCode.CONFIG)
+                return ExitCode.CONFIG
+            except InstrumentError as error:
+                waited = self.clock.now() - first_try
+                if wait_limit is not None and waited + pause > wait_limit:
+                    self._stop_event(f"instruments out of reach for {waited:.0f} s "
+                                     f"(safety.instruments_wait_s {wait_limit:g}): {error}",
+                                     ExitCode.INSTRUMENTS_LOST)
+                    return ExitCode.INSTRUMENTS_LOST
+                self._waiting = f"waiting for the instruments (attempt {attempt}, {waited:.0f} s): {error}"
+                log.warning("instruments out of reach, heater untouched; retrying in %.0f s: %s", pause, error)
+                self.datalog.put(Event("waiting", f"instruments out of reach, retrying in {pause:.0f} s: {error}"))
+                self.notifier.status(self._waiting)
+            if self._pause(pause):
+                self._stop_event(self._stop_reason, ExitCode.OK)
+                return ExitCode.OK
+            pause = min(2.0 * pause, MAX_RETRY_PAUSE_S)
+
+    def _pause(self, duration_s: float) -> bool:
+        """Wait on the clock, keeping the watchdog fed; True when a stop was asked for meanwhile."""
+        end = self.clock.now() + duration_s
+        while not self._stop_reason and self.clock.now() < end:
+            self.clock.sleep_until(min(end, self.clock.now() + 1.0))
+            self.notifier.watchdog()
+        return bool(self._stop_reason)
+
+    def _stop_event(self, reason: str, exit_code: int) -> None:
+        level = logging.INFO if exit_code == ExitCode.OK else logging.CRITICAL
+        log.log(level, "stopping before the loop ran (exit %d): %s", exit_code, reason)
+        self.datalog.put(Event("stop", f"{reason} (exit {int(exit_code)})"))
 
 
 def _fan_out(receivers: list[Callable]) -> Callable:

@@ -30,7 +30,7 @@ from drivers.transports.prologix import PrologixAdapter
 from drivers.transports.visa import VisaTransport, resource_manager
 from drivers.trigger_lines import SerialControlLine
 
-log = logging.getLogger("cryod.service.instruments")
+log = logging.getLogger("cryod.instruments")
 
 HEATER_DRIVERS = {"keithley6221": Keithley6221, "keithley2400": Keithley2400}
 

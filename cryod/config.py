@@ -22,6 +22,7 @@ from pathlib import Path
 
 from cryod.control.terms import term_settings_from
 from cryod.yaml_source import FileFormatError, Section, read_text_file
+from drivers.keithley2002_timing import ReadingTiming
 
 CONFIG_FORMAT = "cryod-config v1"
 EXAMPLE_CONFIG_PATH = Path(__file__).resolve().parent / "data" / "cryod.yaml"
@@ -29,6 +30,8 @@ EXAMPLE_CONFIG_PATH = Path(__file__).resolve().parent / "data" / "cryod.yaml"
 TRIGGER_MODES = ("gpib-group", "prologix", "external", "sequential")
 HEATER_MODELS = ("keithley6221", "keithley2400")
 SIMULATION_TRANSPORTS = ("tcp", "in-process")
+#: Time a cycle needs besides the readings: fetching, converting, the heater setting (s).
+CYCLE_MARGIN_S = 0.015
 #: Keys of the control section that moved into control.pi.
 MOVED_TO_PI = ("proportional_W_per_K", "integral_W_per_K_s")
 
@@ -60,6 +63,7 @@ class DmmSettings:
     digits: int
     filter_count: int
     autozero: bool
+    autozero_synchronous: bool      # a zero with every reading: every reading's timing alike
     offset_compensation: bool
     line_sync: bool
     line_frequency_hz: float
@@ -276,6 +280,8 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         digits=dmm_section.number("digits", 7, minimum=4, maximum=9, integer=True),
         filter_count=dmm_section.number("filter_count", 1, minimum=1, maximum=100, integer=True),
         autozero=dmm_section.flag("autozero", True),
+        autozero_synchronous=dmm_section.text("autozero_type", "synchronous",
+                                              choices=("synchronous", "normal")) == "synchronous",
         offset_compensation=dmm_section.flag("offset_compensation", False),
         line_sync=dmm_section.flag("line_sync", True),
         line_frequency_hz=dmm_section.number("line_frequency_hz", 50.0, minimum=50.0, maximum=60.0),
@@ -317,10 +323,16 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         heater_model=heater_model,
         dmm=dmm,
     )
-    integration_s = dmm.nplc / dmm.line_frequency_hz
-    if 2 * integration_s >= loop.period_s:
-        raise dmm_section.error("nplc", f"{dmm.nplc:g} PLC = {integration_s * 1e3:.0f} ms per reading leaves no "
-                                        f"time in a {loop.period_s * 1e3:.0f} ms loop period")
+    timing = ReadingTiming(nplc=dmm.nplc, line_frequency_hz=dmm.line_frequency_hz,
+                           offset_compensation=dmm.offset_compensation, autozero=dmm.autozero,
+                           autozero_synchronous=dmm.autozero_synchronous, line_sync=dmm.line_sync,
+                           conversions_per_reading=dmm.filter_count)
+    if timing.worst_case_delay_s + CYCLE_MARGIN_S > loop.period_s:
+        raise dmm_section.error("nplc", f"{dmm.nplc:g} PLC: a reading can take {timing.worst_case_delay_s * 1e3:.0f} ms "
+                                        f"(autozero, offset compensation, filter and line sync included), which "
+                                        f"leaves no time in a {loop.period_s * 1e3:.0f} ms loop period (at least "
+                                        f"{CYCLE_MARGIN_S * 1e3:.0f} ms are needed to fetch, convert and set the "
+                                        f"heater)")
     section.finish()
 
     section = top.section("sensors")

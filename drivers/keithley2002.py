@@ -42,6 +42,8 @@ Examples
 
 from __future__ import annotations
 
+import dataclasses
+
 import enum
 import math
 import re
@@ -158,6 +160,10 @@ class DmmReading:
         The DMM's own time stamp (None unless ``TIMEstamp`` is among the elements).
     reply : str
         The reply verbatim.
+    sample_time_s : float or None
+        Clock time of the middle of the reading's A/D conversions: the instant the
+        reading stands for (set by :meth:`Keithley2002.fetch_new_reading`, which
+        knows the trigger and whether an autozero came first; None otherwise).
     """
 
     resistance_ohm: float
@@ -165,6 +171,7 @@ class DmmReading:
     status: str | None
     timestamp_s: float | None
     reply: str
+    sample_time_s: float | None = None
 
 
 class Keithley2002(ScpiInstrument):
@@ -187,9 +194,10 @@ class Keithley2002(ScpiInstrument):
     fetch_margin_s : float
         Added to the expected reading time before the first ``:FETCh?``.
     first_reading_margin_s : float
-        Added as well for the first reading after configuration: then there is no older
-        reading to tell a too-early ``:FETCh?`` by, the 2002 answers it with ``-230`` and
-        nothing, and the controller would wait out its whole timeout.
+        The first reading after configuration is fetched this long after the longest time
+        it can take (:attr:`~drivers.keithley2002_timing.ReadingTiming.worst_case_delay_s`):
+        then there is no older reading to tell a too-early ``:FETCh?`` by, the 2002 answers
+        it with ``-230`` and nothing, and the controller would wait out its whole timeout.
     """
 
     expected_model = "MODEL 2002"
@@ -278,7 +286,7 @@ class Keithley2002(ScpiInstrument):
     def __init__(self, transport: Transport, clock: Clock, name: str = "Keithley 2002", *,
                  line_frequency_hz: float = 50.0, check_identity: bool = True,
                  fetch_poll_interval_s: float = 0.002, fetch_margin_s: float = 0.0005,
-                 first_reading_margin_s: float = 0.05):
+                 first_reading_margin_s: float = 0.005):
         super().__init__(transport, clock, name)
         if line_frequency_hz not in (50.0, 60.0):
             raise ValueError(f"{name}: line frequency must be 50 or 60 Hz, got {line_frequency_hz}")
@@ -455,8 +463,9 @@ class Keithley2002(ScpiInstrument):
             low, high = learned
             first = max(first, trigger_time_s + 0.5 * (low + high))
         first_after_configuration = self.last_reading_number is None
-        if first_after_configuration:
-            first += self.first_reading_margin_s
+        if first_after_configuration:         # after the longest the reading can take, whatever the DMM did
+            first = max(first, trigger_time_s + timing.worst_case_delay_s + self.fetch_margin_s) \
+                + self.first_reading_margin_s
         limit = (trigger_time_s + self.reading_delay_s + self.fetch_margin_s
                  + (self.transport.timeout_s if timeout_s is None else timeout_s))
         self.clock.sleep_until(first)
@@ -466,10 +475,17 @@ class Keithley2002(ScpiInstrument):
                 reading = self.parse_reading(self.query(":FETCh?"))
                 if reading.reading_number is None or reading.reading_number != self.last_reading_number:
                     self.last_reading_number = reading.reading_number
-                    if not first_after_configuration:     # its first fetch was late on purpose
-                        self._learn_timing(trigger_time_s, earliest, zero_expected, normal_autozero, timing,
-                                           last_miss_s)
-                    return reading
+                    # the first reading after configuration is taken to start a NORMal autozero's 200 ms
+                    # (its fetch was late on purpose, so its timing tells nothing)
+                    if first_after_configuration:
+                        zero_seen = normal_autozero
+                        if zero_seen:
+                            self.last_autozero_trigger_s = trigger_time_s
+                    else:
+                        zero_seen = self._learn_timing(trigger_time_s, earliest, zero_expected, normal_autozero,
+                                                       timing, last_miss_s)
+                    return dataclasses.replace(reading, sample_time_s=self._sample_time_s(trigger_time_s,
+                                                                                           zero_seen, timing))
                 last_miss_s = self.clock.now()
                 if self.clock.now() >= limit:
                     raise InstrumentTimeout(self.label, f"no new reading (number {reading.reading_number} "
@@ -477,9 +493,25 @@ class Keithley2002(ScpiInstrument):
                                                         f"after the trigger", reply=reading.reply)
                 self.clock.sleep_until(self.clock.now() + self.fetch_poll_interval_s)
 
+    def _sample_time_s(self, trigger_time_s: float, zero_seen: bool, timing: ReadingTiming) -> float:
+        """The middle of the conversions of the reading triggered at ``trigger_time_s``.
+
+        From the timing model: after the trigger delay and, when a NORMal
+        autozero came first, one more integration. With line sync the wait for
+        the mains phase is not known in advance: the start is then taken back
+        from the learned ready time (the middle of its bounds), less the
+        conversions and the processing allowance.
+        """
+        start = timing.integration_start_s(trigger_time_s, zero_seen)
+        learned = self._learned_delay_s.get(zero_seen)
+        if timing.line_sync and learned is not None:
+            ready = trigger_time_s + 0.5 * (learned[0] + learned[1])
+            start = max(start, ready - timing.measurement_span_s - timing.processing_time_s)
+        return timing.sample_time_s(start)
+
     def _learn_timing(self, trigger_time_s: float, earliest: float, zero_expected: bool, normal_autozero: bool,
-                      timing: ReadingTiming, last_miss_s: float | None) -> None:
-        """After a reading came: was there an autozero, and when was it ready.
+                      timing: ReadingTiming, last_miss_s: float | None) -> bool:
+        """After a reading came: was there an autozero (returned), and when was it ready.
 
         The reading was ready after the last fetch that missed it and no later
         than the one that got it: those bounds (relative to the trigger) are
@@ -501,6 +533,7 @@ class Keithley2002(ScpiInstrument):
             low = min(previous[0], high) if previous is not None else high - self.fetch_poll_interval_s
             low -= LINE_SYNC_LEARNING_STEP_S
         self._learned_delay_s[zero_seen] = (low, high)
+        return zero_seen
 
     def parse_reading(self, reply: str) -> DmmReading:
         """A reading string with the configured elements; overflow and garbage are typed errors."""

@@ -101,6 +101,20 @@ class ReadingTiming:
         """From the start of the first conversion to the end of the last (s)."""
         return self.conversions_per_reading * self.conversion_time_s
 
+    @property
+    def signal_span_s(self) -> float:
+        """From the start of the first signal integration to the end of the last (s).
+
+        Each conversion integrates the signal first, then its zero or
+        offset-compensation phase (an assumption: the manual does not give the
+        order); the reading stands for the middle of this span.
+        """
+        return (self.conversions_per_reading - 1) * self.conversion_time_s + self.integration_time_s
+
+    def sample_time_s(self, integration_start_s: float) -> float:
+        """The instant a reading whose first integration starts at ``integration_start_s`` stands for (s)."""
+        return integration_start_s + 0.5 * self.signal_span_s
+
     def integration_start_s(self, trigger_time_s: float, needs_zero: bool) -> float:
         """When the first signal integration starts after a trigger at ``trigger_time_s``.
 

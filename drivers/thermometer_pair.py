@@ -59,6 +59,11 @@ class PairReading:
         T5, the PTC second-stage Cernox (ohm).
     fetched_time_s : float
         Clock time when both readings were in.
+    flange_sample_time_s, ptc_stage_sample_time_s : float
+        Clock time each reading stands for: the middle of its A/D conversions
+        (:attr:`drivers.keithley2002.DmmReading.sample_time_s`). It follows the
+        trigger by a delay that an autozero or a line-sync wait can change from
+        reading to reading.
     """
 
     trigger_time_s: float
@@ -66,6 +71,8 @@ class PairReading:
     flange_resistance_ohm: float
     ptc_stage_resistance_ohm: float
     fetched_time_s: float
+    flange_sample_time_s: float
+    ptc_stage_sample_time_s: float
 
 
 class ThermometerPair:
@@ -116,7 +123,7 @@ class ThermometerPair:
         flange = self.flange_dmm.fetch_new_reading(event.time_s)
         stage = self.ptc_stage_dmm.fetch_new_reading(event.time_s + event.skew_s)
         return PairReading(event.time_s, event.skew_s, flange.resistance_ohm, stage.resistance_ohm,
-                           self.clock.now())
+                           self.clock.now(), flange.sample_time_s, stage.sample_time_s)
 
     def close(self) -> None:
         """Shut both DMMs down (best effort)."""

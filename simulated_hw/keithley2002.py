@@ -377,8 +377,7 @@ class Keithley2002Emulator(EmulatedInstrument):
         """Take the reading of ``action`` (once), averaged over its conversions."""
         if action.value_ohm is not None:
             return
-        span = self.timing.measurement_span_s
-        flange_K, stage_K = self.cryostat.read_mean_temperatures(action.start_s, span)
+        flange_K, stage_K = self.cryostat.read_mean_temperatures(action.start_s, self.timing.signal_span_s)
         temperature_K = flange_K if self.thermometer == "flange" else stage_K
         resistance = float(self.calibration.resistance_ohm(temperature_K))
         if self.filter_enabled and self.filter_type == "MOVING":

@@ -40,7 +40,7 @@ class DirectInstruments:
         flange_ohm = float(self.flange_curve.resistance_ohm(flange_K))
         stage_ohm = float(self.ptc_stage_curve.resistance_ohm(stage_K))
         flange_ohm, stage_ohm = self.resistance_override.get(call, (flange_ohm, stage_ohm))
-        return PairReading(trigger, 0.0, flange_ohm, stage_ohm, self.clock.now())
+        return PairReading(trigger, 0.0, flange_ohm, stage_ohm, self.clock.now(), trigger, trigger)
 
     def set_heater_power(self, power_w: float) -> None:
         call = self.heater_writes

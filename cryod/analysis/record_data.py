@@ -45,7 +45,10 @@ class RecordData:
     Attributes
     ----------
     time_s : numpy.ndarray
-        Sample instants (s).
+        Sample instants (s): the instants the readings stand for where the
+        record has them (``T2_sample_s``: the middle of each reading's
+        integration, which an autozero can move from row to row), else the
+        trigger instants (``time_s``).
     flange_K, ptc_stage_K : numpy.ndarray
         T2 and T5 (K); NaN where a reading is missing.
     heater_w : numpy.ndarray
@@ -54,6 +57,9 @@ class RecordData:
         NaN where the loop is open.
     heater_limit_w : float or None
         Heater power limit from the metadata (R I_max^2, or stated), if given.
+    heater_change_s : numpy.ndarray or None
+        When each row's heater power took effect (s), where the record says
+        (``heater_set_s``); None: at the sample instants.
     source : str
     notes : list of str
         What was noticed while reading (limits found, rows left out).
@@ -67,6 +73,7 @@ class RecordData:
     heater_limit_w: float | None = None
     source: str = ""
     notes: list[str] = field(default_factory=list)
+    heater_change_s: np.ndarray | None = None
 
     @property
     def elapsed_s(self) -> np.ndarray:
@@ -98,9 +105,9 @@ class RecordData:
             missing or negative, no temperatures.
         """
         source = record.source or "<record>"
-        time_s = np.asarray(record.time_s, dtype=float)
+        time_s, notes = sample_instants(record)
         heater = np.asarray(record.heater_w, dtype=float)
-        notes: list[str] = list(record.warnings)
+        notes = list(record.warnings) + notes
         if time_s.size < MINIMUM_SAMPLES or time_s[-1] - time_s[0] < MINIMUM_DURATION_S:
             raise RecordFormatError(source, None, f"too short to analyse: {time_s.size} samples over "
                                     f"{time_s[-1] - time_s[0] if time_s.size else 0.0:.1f} s (need at least "
@@ -123,7 +130,46 @@ class RecordData:
         limit = heater_limit_from_metadata(record)
         if limit is not None:
             notes.append(f"heater limit {limit:.4g} W from the record's metadata")
-        return cls(time_s, flange, stage, heater, np.asarray(record.setpoint_K, dtype=float), limit, source, notes)
+        return cls(time_s, flange, stage, heater, np.asarray(record.setpoint_K, dtype=float), limit, source, notes,
+                   heater_change_instants(record, time_s))
+
+
+#: Sample instants of the two thermometers further apart than this (s) are worth a note.
+SAMPLE_INSTANT_TOLERANCE_S = 0.001
+
+
+def sample_instants(record: Record) -> tuple[np.ndarray, list[str]]:
+    """The instants the record's temperatures stand for (s), and notes on them.
+
+    ``T2_sample_s`` where the record has it (the daemon writes the middle of
+    each reading's integration: a NORMal autozero moves it by one integration
+    every third reading), else the trigger instants ``time_s``.
+    """
+    time_s = np.asarray(record.time_s, dtype=float)
+    flange = record.columns.get("T2_sample_s")
+    if flange is None or not np.all(np.isfinite(flange)) or np.any(np.diff(flange) <= 0.0):
+        return time_s, []
+    notes = []
+    delay = flange - time_s
+    if np.ptp(delay) > SAMPLE_INSTANT_TOLERANCE_S:
+        notes.append(f"readings stand for instants {1e3 * delay.min():.1f} to {1e3 * delay.max():.1f} ms after "
+                     f"their triggers (autozero or line sync): the T2_sample_s column is used")
+    stage = record.columns.get("T5_sample_s")
+    if stage is not None and np.nanmax(np.abs(stage - flange)) > SAMPLE_INSTANT_TOLERANCE_S:
+        notes.append(f"T5 was read up to {1e3 * np.nanmax(np.abs(stage - flange)):.1f} ms away from T2; "
+                     f"both are compared at T2's instants")
+    return np.asarray(flange, dtype=float), notes
+
+
+def heater_change_instants(record: Record, sample_s: np.ndarray) -> np.ndarray | None:
+    """When each row's heater power took effect (s): ``heater_set_s`` where the record has it and it
+    lies between the row's sample instant and the next (else that sample instant); None without it."""
+    set_s = record.columns.get("heater_set_s")
+    if set_s is None or not np.any(np.isfinite(set_s)):
+        return None
+    following = np.append(sample_s[1:], np.inf)
+    usable = np.isfinite(set_s) & (set_s >= sample_s) & (set_s < following)
+    return np.where(usable, set_s, sample_s)
 
 
 def heater_limit_from_metadata(record: Record) -> float | None:

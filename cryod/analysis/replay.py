@@ -161,7 +161,8 @@ class Replayer:
         """
         if heater_power_w is None:
             heater_power_w, initial_heater_power_w = self.data.heater_w, self.initial_heater_power_w
-        return simulate(model, self.data.time_s, heater_power_w, initial_heater_power_w=initial_heater_power_w)
+        return simulate(model, self.data.time_s, heater_power_w, initial_heater_power_w=initial_heater_power_w,
+                        heater_change_s=self.data.heater_change_s)
 
     def replay(self, model: CryostatModel, line: PtcLine | None = None, shared_columns=None) -> Replay:
         """Predict the record with ``model`` (and the measured ``line``).

@@ -202,7 +202,7 @@ class SimulatedRecord:
 
 
 def simulate(model: CryostatModel, time_s, heater_power_w, *, initial_heater_power_w: float | None = None,
-             noise: bool = False, seed: int | None = None) -> SimulatedRecord:
+             noise: bool = False, seed: int | None = None, heater_change_s=None) -> SimulatedRecord:
     """Simulate T2 and T5 at the instants of a record.
 
     Parameters
@@ -220,6 +220,10 @@ def simulate(model: CryostatModel, time_s, heater_power_w, *, initial_heater_pow
         Add the model's white sensor noise.
     seed : int, optional
         Seed of the noise generator.
+    heater_change_s : array_like, optional
+        When each ``heater_power_w`` took effect (s), if not at its sample
+        instant: the daemon sets the heater some tens of ms after the readings
+        (the ``heater_set_s`` column). Each must lie between its sample and the next.
 
     Returns
     -------
@@ -243,8 +247,13 @@ def simulate(model: CryostatModel, time_s, heater_power_w, *, initial_heater_pow
         raise ValueError("time_s must be strictly increasing")
     if initial_heater_power_w is None:
         initial_heater_power_w = float(heater_power_w[0]) if heater_power_w.size else 0.0
+    if heater_change_s is not None:
+        heater_change_s = np.asarray(heater_change_s, dtype=float)
+        if heater_change_s.shape != time_s.shape or np.any(heater_change_s < time_s) \
+                or np.any(heater_change_s[:-1] >= time_s[1:]):
+            raise ValueError("heater_change_s must have one instant per sample, each between its sample and the next")
     plant = CryostatPlant(model, float(time_s[0]) if time_s.size else 0.0, initial_heater_power_w)
-    flange, stage = _simulate_whole(plant, time_s, heater_power_w)
+    flange, stage = _simulate_whole(plant, time_s, heater_power_w, heater_change_s)
     if noise:
         generator = np.random.default_rng(seed)
         flange = flange + generator.normal(0.0, model.sensor_noise.flange_thermometer_rms_K, flange.size)
@@ -257,7 +266,8 @@ TIME_SCALE_TOLERANCE = 1e-13
 TIME_SCALE_MAX_ITERATIONS = 60
 
 
-def _simulate_whole(plant: CryostatPlant, time_s: np.ndarray, heater_power_w: np.ndarray):
+def _simulate_whole(plant: CryostatPlant, time_s: np.ndarray, heater_power_w: np.ndarray,
+                    heater_change_s: np.ndarray | None = None):
     """Vectorised: the same exact hold as the stepping plant, over all intervals at once.
 
     With the heat-capacity effect the flange path's time constants depend on
@@ -270,11 +280,13 @@ def _simulate_whole(plant: CryostatPlant, time_s: np.ndarray, heater_power_w: np
     point = plant.model.operating_point
     delivered = heater_power_w if plant.nonlinearity is None \
         else plant.nonlinearity.delivered_power_w(heater_power_w)
-    durations = np.diff(time_s)
-    # PTC stage: input changes at the sample instants.
-    stage_heater = plant.stage_heater.run(durations, delivered[:-1])
-    # Flange: input changes at the sample instants plus the dead time.
-    grid, inputs = _flange_input_grid(plant, time_s, delivered)
+    changes = time_s if heater_change_s is None else heater_change_s
+    # PTC stage: input changes at the heater's change instants.
+    grid, inputs = _input_grid(time_s, changes, delivered, plant.stage_heater.input)
+    outputs = plant.stage_heater.run(np.diff(grid), inputs[:-1])
+    stage_heater = outputs[np.searchsorted(grid, time_s)] if grid.size != time_s.size else outputs
+    # Flange: input changes at those instants plus the dead time.
+    grid, inputs = _input_grid(time_s, changes + plant.dead_time_s, delivered, plant.flange_heater.input)
     if plant.heat_capacity is None:
         outputs = plant.flange_heater.run(np.diff(grid), inputs[:-1])
     else:
@@ -287,14 +299,11 @@ def _simulate_whole(plant: CryostatPlant, time_s: np.ndarray, heater_power_w: np
     return flange, stage
 
 
-def _flange_input_grid(plant: CryostatPlant, time_s: np.ndarray, delivered: np.ndarray):
-    """Instants at which the flange path's input changes (sample instants, delayed changes) and
-    the input held from each of them."""
-    dead = plant.dead_time_s
-    if dead <= 0.0:
+def _input_grid(time_s: np.ndarray, change_times: np.ndarray, delivered: np.ndarray, before: float):
+    """The sample instants and the instants a path's input changes (``delivered[k]`` from
+    ``change_times[k]`` on, ``before`` until the first), and the input held from each."""
+    if change_times is time_s or np.array_equal(change_times, time_s):
         return time_s, delivered
-    before = plant.flange_heater.input
-    change_times = time_s + dead
     grid = np.union1d(time_s, change_times[change_times < time_s[-1]])
     index = np.searchsorted(change_times, grid, side="right") - 1
     inputs = np.where(index >= 0, delivered[np.clip(index, 0, None)], before)

@@ -39,12 +39,15 @@ class Column:
         What the value is, for the header's units line and the docs.
     format : str, optional
         ``str.format`` pattern; None writes a number's shortest exact form and text as it is.
+    is_time : bool
+        A clock time: written as seconds since the record start, like ``time_s``.
     """
 
     name: str
     unit: str
     description: str
     format: str | None = None
+    is_time: bool = False
 
     def formatted(self, value) -> str:
         """The field text: None and NaN are empty; text may not contain ',' or a newline."""
@@ -65,7 +68,8 @@ class Column:
 
 
 # -- the cryod-log v1 contract -------------------------------------------------
-TIME = Column("time_s", "s", "since the record start, at the row's trigger instant (monotonic clock)", "{:.4f}")
+TIME = Column("time_s", "s", "since the record start, at the row's trigger instant (monotonic clock)", "{:.4f}",
+              is_time=True)
 FLANGE_TEMPERATURE = Column("T2_K", "K", "flange (control) thermometer", "{:.7f}")
 PTC_STAGE_TEMPERATURE = Column("T5_K", "K", "PTC second-stage thermometer", "{:.6f}")
 HEATER_POWER = Column("heater_W", "W", "heater power applied from this row until the next", "{:.6e}")
@@ -76,13 +80,20 @@ REQUIRED = (TIME, FLANGE_TEMPERATURE, PTC_STAGE_TEMPERATURE, HEATER_POWER, SETPO
 # -- what the loop adds ----------------------------------------------------------
 FLANGE_RESISTANCE = Column("T2_ohm", "ohm", "flange Cernox resistance")
 PTC_STAGE_RESISTANCE = Column("T5_ohm", "ohm", "PTC-stage Cernox resistance")
+FLANGE_SAMPLE_TIME = Column("T2_sample_s", "s", "since the record start, the instant T2 stands for: the middle of "
+                                              "its reading's A/D conversions", "{:.5f}", is_time=True)
+PTC_STAGE_SAMPLE_TIME = Column("T5_sample_s", "s", "since the record start, the instant T5 stands for",
+                               "{:.5f}", is_time=True)
+HEATER_SET_TIME = Column("heater_set_s", "s", "since the record start, when this row's heater power was set "
+                                             "(the supply's write returned)", "{:.5f}", is_time=True)
 TRIGGER_SKEW = Column("trigger_skew_ms", "ms", "PTC-stage trigger minus flange trigger (0: simultaneous)")
 LATENESS = Column("lateness_ms", "ms", "tick start after its deadline")
 CYCLE = Column("cycle_ms", "ms", "tick start to row")
 STATE = Column("state", "", "loop state: holding, closed, closed-limited (heater at a limit), manual, off, "
                             "recovering, fault:<cause>")
 #: The loop's columns before the control terms' and after them.
-LOOP_MEASUREMENT = (FLANGE_RESISTANCE, PTC_STAGE_RESISTANCE, TRIGGER_SKEW, LATENESS, CYCLE)
+LOOP_MEASUREMENT = (FLANGE_RESISTANCE, PTC_STAGE_RESISTANCE, FLANGE_SAMPLE_TIME, PTC_STAGE_SAMPLE_TIME,
+                    HEATER_SET_TIME, TRIGGER_SKEW, LATENESS, CYCLE)
 LOOP_END = (STATE,)
 
 _REQUIRED_BY_NAME = {column.name: column for column in REQUIRED}
@@ -112,6 +123,9 @@ class Row:
     setpoint_K: float = math.nan
     T2_ohm: float = math.nan
     T5_ohm: float = math.nan
+    T2_sample_s: float = math.nan
+    T5_sample_s: float = math.nan
+    heater_set_s: float = math.nan
     trigger_skew_ms: float = math.nan
     cycle_ms: float = math.nan
     control: dict[str, float] = field(default_factory=dict)
@@ -162,14 +176,15 @@ class RowSchema:
         if len(set(self.names)) != len(self.names):
             raise ValueError(f"a column is declared twice in {', '.join(self.names)}")
         row_fields = set(Row.__slots__)
-        self._after_time = [(column, column.name in row_fields) for column in self.columns[1:]]
+        self._fields = [(column, column.name in row_fields, column.is_time) for column in self.columns]
 
     def format_row(self, row: Row, origin_s: float = 0.0) -> str:
-        """One data line, newline-terminated, with ``time_s`` counted from ``origin_s``."""
+        """One data line, newline-terminated, with the clock times counted from ``origin_s``."""
         control = row.control
-        fields = [TIME.formatted(row.time_s - origin_s)]
-        fields += [column.formatted(getattr(row, column.name) if on_row else control.get(column.name))
-                   for column, on_row in self._after_time]
+        fields = []
+        for column, on_row, is_time in self._fields:
+            value = getattr(row, column.name) if on_row else control.get(column.name)
+            fields.append(column.formatted(value - origin_s if is_time and value is not None else value))
         return ",".join(fields) + "\n"
 
     def units_text(self) -> str:

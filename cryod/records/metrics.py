@@ -36,15 +36,18 @@ def line_frequency(time_s: np.ndarray, ptc_stage_K: np.ndarray, nominal_rad_s: f
     return float(result.x)
 
 
-def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_rad_s: float) -> dict:
+def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_rad_s: float,
+                       ptc_stage_time_s=None) -> dict:
     """Figures of merit of T2 against the setpoint over the rows given.
 
     Parameters
     ----------
     time_s, flange_K, ptc_stage_K, setpoint_K : array_like
-        Row times (s), T2 and T5 (K), setpoint (K; NaN where the loop was open).
+        Instants of the T2 readings (s), T2 and T5 (K), setpoint (K; NaN where the loop was open).
     nominal_line_rad_s : float
         Expected PTC angular frequency (rad/s).
+    ptc_stage_time_s : array_like, optional
+        Instants of the T5 readings where they differ from T2's (s).
 
     Returns
     -------
@@ -53,17 +56,19 @@ def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_r
         ``lowfreq_rms_K``, ``window_s`` (NaN entries where there is no setpoint).
     """
     time_s = np.asarray(time_s, dtype=float)
+    stage_time_s = time_s if ptc_stage_time_s is None else np.asarray(ptc_stage_time_s, dtype=float)
     flange_K = np.asarray(flange_K, dtype=float)
     ptc_stage_K = np.asarray(ptc_stage_K, dtype=float)
     setpoint_K = np.asarray(setpoint_K, dtype=float)
-    valid = np.isfinite(flange_K) & np.isfinite(ptc_stage_K)
+    valid = np.isfinite(flange_K) & np.isfinite(ptc_stage_K) & np.isfinite(time_s) & np.isfinite(stage_time_s)
     time_s, flange_K, ptc_stage_K, setpoint_K = time_s[valid], flange_K[valid], ptc_stage_K[valid], setpoint_K[valid]
+    stage_time_s = stage_time_s[valid]
     result = {"window_s": float(time_s[-1] - time_s[0]) if time_s.size else 0.0,
               "ptc_line_amplitude_K": float("nan"), "ptc_line_rad_s": float("nan"),
               "mean_error_K": float("nan"), "rms_K": float("nan"), "lowfreq_rms_K": float("nan")}
     if time_s.size < 50:
         return result
-    omega = line_frequency(time_s, ptc_stage_K, nominal_line_rad_s)
+    omega = line_frequency(stage_time_s, ptc_stage_K, nominal_line_rad_s)
     result["ptc_line_rad_s"] = omega
     result["ptc_line_amplitude_K"] = fit_line(time_s, flange_K, omega).amplitude[0]
     regulated = np.isfinite(setpoint_K)

@@ -119,6 +119,7 @@ def four_wire_settings(settings: DmmSettings) -> FourWireSettings:
     """The driver's settings from the configuration's ``instruments.dmm``."""
     return FourWireSettings(range_ohm=settings.range_ohm, nplc=settings.nplc, digits=settings.digits,
                             filter_count=settings.filter_count, autozero=settings.autozero,
+                            autozero_synchronous=settings.autozero_synchronous,
                             offset_compensation=settings.offset_compensation, line_sync=settings.line_sync)
 
 

@@ -244,6 +244,8 @@ class ControlLoop:
         row.time_s = reading.trigger_time_s
         row.T2_ohm = reading.flange_resistance_ohm
         row.T5_ohm = reading.ptc_stage_resistance_ohm
+        row.T2_sample_s = reading.flange_sample_time_s
+        row.T5_sample_s = reading.ptc_stage_sample_time_s
         row.trigger_skew_ms = reading.skew_s * 1e3
         fault = self.checks.check_resistances(reading.flange_resistance_ohm, reading.ptc_stage_resistance_ohm)
         if fault is not None:
@@ -272,6 +274,7 @@ class ControlLoop:
         except InstrumentError as error:
             self._fault(fault_from_instrument_error(error), row)
             return
+        row.heater_set_s = self.clock.now()
         self.heater_w = row.heater_W = step.power_w
         row.setpoint_K = step.setpoint_K
         row.control = step.columns

@@ -61,14 +61,15 @@ class WindowCollector:
 
     def __call__(self, item: Row | Event) -> None:
         if type(item) is Row:
-            self.rows.append((item.time_s, item.T2_K, item.T5_K, item.setpoint_K))
+            self.rows.append((item.time_s, item.T2_K, item.T5_K, item.setpoint_K, item.T2_sample_s, item.T5_sample_s))
 
     def arrays(self) -> tuple[np.ndarray, ...]:
+        """Trigger times, T2, T5, setpoint, T2's and T5's sample instants over the window."""
         if not self.rows:
-            return (np.zeros(0),) * 4
+            return (np.zeros(0),) * 6
         data = np.array(self.rows, dtype=float)
         data = data[data[:, 0] >= data[-1, 0] - self.window_s]
-        return tuple(data[:, i] for i in range(4))
+        return tuple(data[:, i] for i in range(6))
 
 
 def simulation_config(args, config: DaemonConfig) -> DaemonConfig:
@@ -230,8 +231,8 @@ def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: floa
     """The ``--json`` object: timing, regulation metrics over the window, where the log is."""
     loop = result.loop
     timing = loop.timing.summary() if loop else {}
-    time_s, flange, stage, setpoint = collector.arrays()
-    metrics = regulation_metrics(time_s, flange, stage, setpoint, line_rad_s)
+    _, flange, stage, setpoint, flange_instants, stage_instants = collector.arrays()
+    metrics = regulation_metrics(flange_instants, flange, stage, setpoint, line_rad_s, ptc_stage_time_s=stage_instants)
     duration = timing.get("ticks", 0) * (loop.period_s if loop else 0.0)
     return {
         "duration_s": round(duration, 3),

@@ -96,8 +96,9 @@ def test_term_runs_in_the_loop_with_its_column_in_the_record_and_reloads(tmp_pat
     loop = ControlLoop(config, instruments, *curves, clock,
                        emit=lambda item: isinstance(item, Row) and rows.append(item))
     assert "bias_W" in loop.schema.names and "bias_W [W]: constant added heater power" in loop.schema.units_text()
-    loop.submit(Command("reload", dataclasses.replace(config, control=dataclasses.replace(
-        config.control, terms=(("pi", config.control.term("pi")), ("bias", 0.05))))))
+    terms = tuple((name, 0.05 if name == "bias" else settings) for name, settings in config.control.terms)
+    loop.submit(Command("reload", dataclasses.replace(config, control=dataclasses.replace(config.control,
+                                                                                          terms=terms))))
     loop.run(duration_s=300.0, manage_gc=False)
     closed = [row for row in rows if row.state.startswith("closed")]
     assert {row.control["bias_W"] for row in closed} == {0.05}

@@ -203,7 +203,7 @@ class PiTerm:
         self.controller.set_automatic(tick.flange_K, tick.flange_K, present_output)
 
     def update(self, tick: TickInputs) -> float:
-        return self.controller.update(tick.flange_K, tick.setpoint_K, tick.dt_s)
+        return self.controller.update(tick.flange_feedback_K, tick.setpoint_K, tick.dt_s)
 
     def limit(self, requested: float, applied: float) -> None:
         self.controller.limit(requested, applied)

@@ -33,7 +33,7 @@ Examples
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 from typing import TYPE_CHECKING
 
@@ -142,30 +142,41 @@ class Regulator:
         self.output = output
         self.control = control
         self.terms: list[ControlTerm] = build_terms(control.terms, output.maximum)
+        self._conditioners = [term for term in self.terms if hasattr(term, "condition")]
         self.columns = term_columns(control.terms)
         self.ramp = SetpointRamp(control.setpoint_K or 0.0, control.ramp_K_per_min)
         self.mode = RegulatorMode.CLOSED if control.setpoint_K is not None else RegulatorMode.OFF
         self.manual_power_w = 0.0
 
     # -- the cycle ---------------------------------------------------------------
-    def step(self, time_s: float, dt_s: float, flange_K: float, ptc_stage_K: float) -> RegulatorStep:
+    def step(self, time_s: float, dt_s: float, flange_K: float, ptc_stage_K: float, *,
+             flange_time_s: float | None = None, ptc_stage_time_s: float | None = None,
+             output_time_s: float | None = None) -> RegulatorStep:
         """The heater power for the coming period from this tick's readings.
 
         Parameters
         ----------
         time_s : float
-            Clock time of the readings (s).
+            Clock time of the readings' trigger (s).
         dt_s : float
             Time since the previous readings (s).
         flange_K, ptc_stage_K : float
             T2 and T5 (K).
+        flange_time_s, ptc_stage_time_s : float, optional
+            The instants the readings stand for (default: ``time_s``).
+        output_time_s : float, optional
+            When the power returned takes effect (default: ``time_s``).
         """
+        tick = TickInputs.at(time_s, dt_s, flange_K, ptc_stage_K, self.ramp.setpoint_K, flange_time_s,
+                             ptc_stage_time_s, output_time_s)
+        for term in self._conditioners:        # every mode: a phase tracker keeps its lock while the loop is open
+            tick = term.condition(tick)
         if self.mode is RegulatorMode.MANUAL:
             return RegulatorStep(self.manual_power_w, math.nan, False, {})
         if self.mode is RegulatorMode.OFF:
             return RegulatorStep(0.0, math.nan, False, {})
-        setpoint = self.ramp.advance(dt_s)
-        tick = TickInputs(time_s, dt_s, flange_K, ptc_stage_K, setpoint)
+        tick = replace(tick, setpoint_K=self.ramp.advance(dt_s))
+        setpoint = tick.setpoint_K
         requested = 0.0
         for term in self.terms:
             requested += term.update(tick)
@@ -184,7 +195,7 @@ class Regulator:
         the target; without, it steps to the target and acts through the terms.
         """
         self.ramp.setpoint_K = flange_K if self.ramp.rate_K_per_min > 0.0 else self.ramp.target_K
-        tick = TickInputs(time_s, 0.0, flange_K, ptc_stage_K, self.ramp.setpoint_K)
+        tick = TickInputs.at(time_s, 0.0, flange_K, ptc_stage_K, self.ramp.setpoint_K)
         present = self.output.output_for(present_power_w)
         for term in self.terms:
             term.start(tick, present)
@@ -198,6 +209,10 @@ class Regulator:
         self.manual_power_w = float(power_w)
         self.mode = RegulatorMode.MANUAL
 
+    def term(self, name: str) -> ControlTerm | None:
+        """The control term called ``name``, if this regulator has it."""
+        return next((term for term in self.terms if term.name == name), None)
+
     def switch_off(self) -> None:
         """Heater at 0 W until the loop is closed again."""
         self.manual_power_w = 0.0
@@ -206,6 +221,9 @@ class Regulator:
     # -- configuration -------------------------------------------------------------------
     def refusal(self, control: "ControlConfig") -> str | None:
         """Why ``control`` cannot be applied now (a limit the running values would exceed), or None."""
+        names = [name for name, _ in control.terms]
+        if names != [term.name for term in self.terms]:
+            return f"the control terms would change ({', '.join(names)}): that needs a restart"
         rate, target = self._rate_and_target(control)
         if rate > control.max_ramp_K_per_min:
             return (f"the ramp in use, {rate:g} K/min, is above the new control.max_ramp_K_per_min "
@@ -222,8 +240,9 @@ class Regulator:
         one it left as it was keeps what commands set since.
         """
         self.ramp.rate_K_per_min, self.ramp.target_K = self._rate_and_target(control)
-        for term, (_, settings) in zip(self.terms, control.terms):
-            term.reconfigure(settings, self.output.maximum)
+        settings = dict(control.terms)
+        for term in self.terms:
+            term.reconfigure(settings[term.name], self.output.maximum)
         self.control = control
 
     def _rate_and_target(self, control: "ControlConfig") -> tuple[float, float]:

@@ -35,13 +35,20 @@ class TickInputs:
     Attributes
     ----------
     time_s : float
-        Clock time of the readings (s).
+        Clock time of the readings' trigger (s).
     dt_s : float
         Time since the previous tick's readings (s).
     flange_K, ptc_stage_K : float
         T2 and T5 (K).
     setpoint_K : float
         Setpoint now, after the ramp (K).
+    flange_time_s, ptc_stage_time_s : float
+        The instants T2 and T5 stand for (s; the middle of their integration).
+    output_time_s : float
+        When this tick's output takes effect (s; the heater is set after the readings).
+    flange_feedback_K : float
+        T2 for feedback terms: T2 less what a term before them explained away
+        (the feedforward takes out T2's part synchronous with the cooler).
     """
 
     time_s: float
@@ -49,6 +56,20 @@ class TickInputs:
     flange_K: float
     ptc_stage_K: float
     setpoint_K: float
+    flange_time_s: float
+    ptc_stage_time_s: float
+    output_time_s: float
+    flange_feedback_K: float
+
+    @classmethod
+    def at(cls, time_s: float, dt_s: float, flange_K: float, ptc_stage_K: float, setpoint_K: float,
+           flange_time_s: float | None = None, ptc_stage_time_s: float | None = None,
+           output_time_s: float | None = None) -> "TickInputs":
+        """Inputs with the instants defaulting to the trigger and the feedback T2 to T2."""
+        return cls(time_s, dt_s, flange_K, ptc_stage_K, setpoint_K,
+                   time_s if flange_time_s is None else flange_time_s,
+                   time_s if ptc_stage_time_s is None else ptc_stage_time_s,
+                   time_s if output_time_s is None else output_time_s, flange_K)
 
 
 class ControlTerm(Protocol):
@@ -62,7 +83,12 @@ class ControlTerm(Protocol):
         """New settings from a reload, without a bump in the output."""
 
     def start(self, tick: TickInputs, present_output: float) -> None:
-        """The loop closes: continue from ``present_output`` without a bump."""
+        """The loop closes: continue from ``present_output`` without a bump.
+
+        A term may also have ``condition(tick) -> TickInputs``: called for every
+        term before any ``update``, it may change what the following terms see
+        (the feedforward takes the cooler's line out of ``flange_feedback_K``).
+        """
 
     def update(self, tick: TickInputs) -> float:
         """This term's output for the coming period."""
@@ -78,6 +104,7 @@ class ControlTerm(Protocol):
 #: written. One line per term.
 TERM_TYPES: dict[str, str] = {
     "pi": "cryod.control.pi.PiTerm",
+    "feedforward": "cryod.control.feedforward.FeedforwardTerm",
 }
 
 

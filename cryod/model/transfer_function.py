@@ -212,6 +212,45 @@ class TransferFunction:
         )
         return ModalForm(poles=poles, residues=residues, direct=direct)
 
+    def sampled_response(self, angular_frequency_rad_s, period_s: float, setting_delay_s: float = 0.0):
+        """Response of the samples to a held input, per harmonic component: the loop's view.
+
+        The output is sampled every ``period_s``; ``setting_delay_s`` after each
+        sample a new input value is set and held until the next setting (a
+        zero-order hold). For an input sequence ``u_k = Re(c exp(j w t_k))`` with
+        ``t_k`` the sample instants, the samples contain
+        ``Re(H_sampled(w) c exp(j w t_k))`` at ``w``: this is ``H_sampled``. It
+        differs from ``H(j w)`` by the hold's attenuation and delay and by the
+        hold's images (at ``w + m 2 pi / period``), which the samples fold back
+        onto ``w``; above half the sampling rate that matters.
+
+        Parameters
+        ----------
+        angular_frequency_rad_s : float or array_like
+            Angular frequency of the input sequence (rad/s).
+        period_s : float
+            Sample and hold period (s).
+        setting_delay_s : float
+            From a sample to the setting of the new input (s), ``0 <= delay < period``.
+
+        Returns
+        -------
+        complex or numpy.ndarray
+        """
+        if not 0.0 <= setting_delay_s < period_s:
+            raise ValueError(f"need 0 <= setting_delay_s < period_s, got {setting_delay_s}, {period_s}")
+        modal = self.modal_form()
+        omega = np.asarray(angular_frequency_rad_s, dtype=float)
+        z = np.exp(1j * omega * period_s)[..., None]
+        poles, residues = modal.poles, modal.residues
+        # exact solution of x' = p x + u over one period: u_{k-1} until the setting, then u_k
+        a = np.exp(poles * period_s)
+        before = np.exp(poles * (period_s - setting_delay_s)) * np.expm1(poles * setting_delay_s) / poles
+        after = np.expm1(poles * (period_s - setting_delay_s)) / poles
+        states = (after + before / z) / (z - a)
+        response = np.sum(residues * states, axis=-1) + modal.direct / z[..., 0]
+        return complex(response) if np.ndim(response) == 0 else response
+
     def to_dict(self) -> dict:
         """Plain mapping for the model file."""
         return {"numerator": [float(c) for c in self.numerator],

@@ -1,0 +1,506 @@
+"""The feedforward: a heater waveform locked to the cooler that cancels its line on the flange.
+
+PI cannot remove the pulse-tube cooler's oscillation from T2 (docs/control.md):
+at 10.8 rad/s the heater reaches T2 only through G2*G1, about 7 mK/W lagging
+90 degrees, and a feedback loop that tried would need far more gain than the
+80 ms loop allows. The cooler's own oscillation, seen in T5 at hundreds of
+times its noise, gives the phase; the heater can then play a waveform locked
+to that phase whose effect on T2 cancels the line.
+
+How it works, every tick:
+
+1. **Phase** (:mod:`cryod.control.cooler_phase`): T5, at the instant its
+   reading stands for, updates a phase-locked loop; lock, phase and
+   frequency come out.
+2. **Residual**: T2's part synchronous with the cooler (harmonics 1 to N of
+   the tracked phase) is estimated by least squares over blocks of readings
+   (default 4 s) at T2's own instants, with an offset and a slope for the slow
+   part. The PI term is given T2 without that part, so it does not chase the
+   line (and the feedforward's plant is the open-loop one).
+3. **Waveform**: the heater part is ``Re(sum_n u_n exp(j n phase))``, a
+   band-limited waveform (no mean, so the mean heater power stays PI's; no
+   harmonics above N, so none alias below 2 Hz through the 80 ms hold), evaluated
+   at the phase of the middle of the coming hold interval.
+4. **Learning** (iterative learning in the cooler's phase): after each block
+   the coefficients step toward cancelling the measured residual through the
+   plant's response at each harmonic, ``u <- u - gain * r / G_n`` (from the
+   model, times a correction learned online from how the residual answered
+   the previous steps), and are then projected onto what the heater can do:
+   ``margin <= PI's power + waveform <= R I_max^2 - margin`` at every phase,
+   in the metric of the plant response (so that the fixed point is the
+   constrained optimum, the physical limit of :mod:`cryod.control.feedforward_limit`).
+5. **Fade**: without lock (cooler stopped, T5 fault) or when switched off,
+   the waveform fades out over ``fade_time_s``; PI carries on. Switching on
+   fades it in.
+
+Configuration, section ``control.feedforward`` (optional; reloadable)::
+
+    feedforward:
+      enabled: true              # cryod ctl feedforward on|off switches it without a reload
+      harmonics: 6
+      block_s: 4.0               # learning block: residual estimated, waveform updated
+      learning_gain: 0.5         # fraction of the measured residual removed per block
+      fade_time_s: 5.0
+      margin_W: 0.001            # kept from 0 W and from R I_max^2
+      model: null                # the controller's model (null: the shipped model)
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from cryod.control.cooler_phase import CoolerPhaseTracker
+from cryod.control.terms import TickInputs
+from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
+from cryod.model.dynamics import flange_transfer_functions, stage_transfer_functions
+from cryod.model.ptc_path import PtcDrive, PtcPath
+from cryod.records.columns import Column
+from cryod.yaml_source import FileFormatError, Section
+
+#: Loop period the plant response assumes when the settings do not say (s).
+DEFAULT_PERIOD_S = 0.08
+#: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
+SETTING_DELAY_TOLERANCE_S = 0.002
+
+
+@dataclass(frozen=True)
+class FeedforwardSettings:
+    """The ``control.feedforward`` section.
+
+    Attributes
+    ----------
+    enabled : bool
+        On at start (``cryod ctl feedforward on|off`` switches it while running).
+    harmonics : int
+        Harmonics of the cooler frequency in the waveform and the residual.
+    update_interval_s : float
+        The waveform steps this often (s).
+    memory_s : float
+        Memory of the estimate of T2's synchronous part (s).
+    learning_gain : float
+        Fraction of the way to the estimated best waveform taken per step (0 to 1).
+    fade_time_s : float
+        Fade in and out (s).
+    margin_W : float
+        Distance kept from 0 W and from R I_max^2 (W).
+    minimum_cooler_amplitude_K : float
+        T5 oscillation below this counts as no cooler signal (K).
+    model : CryostatModel
+        The controller's model (plant response at each harmonic, first waveform).
+    model_source : str
+        Where the model came from.
+    period_s : float
+        Loop period (s): the hold of each heater setting.
+    """
+
+    enabled: bool = True
+    harmonics: int = 6
+    update_interval_s: float = 2.0
+    memory_s: float = 20.0
+    learning_gain: float = 0.5
+    fade_time_s: float = 5.0
+    margin_W: float = 0.001
+    minimum_cooler_amplitude_K: float = 0.01
+    model: CryostatModel | None = None
+    model_source: str = "shipped model"
+    period_s: float = DEFAULT_PERIOD_S
+
+    @property
+    def controller_model(self) -> CryostatModel:
+        return self.model if self.model is not None else load_model(DEFAULT_MODEL_PATH)
+
+
+def plant_at_harmonics(model: CryostatModel, orders, period_s: float, setting_delay_s: float = 0.0) -> np.ndarray:
+    """From the waveform's coefficients to T2's samples at each harmonic of the cooler (K/W, complex).
+
+    The loop samples T2, sets the heater ``setting_delay_s`` later to the
+    waveform's value at the middle of the coming hold, and holds it for a
+    period: :meth:`~cryod.model.transfer_function.TransferFunction.sampled_response`
+    of the heater-to-T2 path, with the phase of the hold's middle. Above half
+    the sampling rate (the 4th harmonic and up at 80 ms) the hold's folded
+    images make it differ much from ``G(j n omega)``.
+    """
+    heater, _ = flange_transfer_functions(model)
+    omega = model.ptc.angular_frequency_rad_s * np.asarray(orders, dtype=float)
+    middle = np.exp(1j * omega * (setting_delay_s + 0.5 * period_s))
+    return heater.sampled_response(omega, period_s, setting_delay_s) * middle
+
+
+def line_at_harmonics(model: CryostatModel, harmonics: int) -> np.ndarray:
+    """The model's cooler line on T2 at each harmonic (K, complex), relative to the phase of
+    T5's fundamental (the tracked phase: T5's fundamental is ``A cos(phase)``)."""
+    drive = PtcDrive(model)
+    omega = model.ptc.angular_frequency_rad_s
+    flange = PtcPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
+    stage = PtcPath(drive, stage_transfer_functions(model)[1], input_is_heat=False)
+    rotations = [cmath.exp(1j * component.phase_rad) for component in drive.components]
+    flange_phasors = [p * r for p, r in zip(flange.output_phasors(omega), rotations)]
+    stage_fundamental = next(p * r for p, r, c in zip(stage.output_phasors(omega), rotations, drive.components)
+                             if c.order == 1)
+    reference = cmath.phase(stage_fundamental)
+    line = np.zeros(harmonics, dtype=complex)
+    for component, phasor in zip(drive.components, flange_phasors):
+        if component.order <= harmonics:
+            line[component.order - 1] += phasor * cmath.exp(-1j * component.order * reference)
+    return line
+
+
+class WaveformBounds:
+    """Projection of a band-limited waveform onto ``low <= waveform(phase) <= high``.
+
+    The waveform ``Re(sum_n u_n exp(j n phase))`` is checked on a grid of
+    phases; the projection minimises ``sum_n weight_n |u_n - target_n|^2``
+    (weights: the plant's squared gain, so the metric is the residual's) by the
+    alternating direction method of multipliers, warm-started from the last
+    solution. On a uniform grid the Fourier columns are orthogonal, so each
+    iteration is two small matrix products.
+
+    Parameters
+    ----------
+    harmonics : int
+    points : int
+        Phases checked per period (at least 4 times the harmonics).
+    """
+
+    def __init__(self, harmonics: int, points: int = 64):
+        phases = 2.0 * math.pi * np.arange(points) / points
+        orders = np.arange(1, harmonics + 1)
+        # real coordinates x = [Re u_1 .. Re u_N, Im u_1 .. Im u_N]; waveform = A x
+        self.matrix = np.hstack([np.cos(np.outer(phases, orders)), -np.sin(np.outer(phases, orders))])
+        self.harmonics = harmonics
+        self.points = points
+        self._dual = np.zeros(points)
+
+    def values(self, coefficients: np.ndarray) -> np.ndarray:
+        """The waveform on the grid for complex coefficients."""
+        return self.matrix @ np.concatenate([coefficients.real, coefficients.imag])
+
+    def project(self, target: np.ndarray, weights: np.ndarray, low: float, high: float,
+                tolerance: float = 1e-7, iterations: int = 400) -> np.ndarray:
+        """The feasible coefficients closest to ``target`` in the weighted metric."""
+        x_target = np.concatenate([target.real, target.imag])
+        if low > high:      # no room at all (the other terms outside the heater's range): no waveform
+            return np.zeros(self.harmonics, dtype=complex)
+        grid = self.matrix @ x_target
+        if grid.min() >= low and grid.max() <= high:
+            self._dual[:] = 0.0
+            return target.copy()
+        w = np.concatenate([weights, weights]) / weights.max()
+        rho = 1.0
+        # A^T A = points/2 * I on a uniform grid
+        inverse = 1.0 / (w + rho * self.points / 2.0)
+        z = np.clip(grid, low, high)
+        y = self._dual
+        x = x_target
+        for _ in range(iterations):
+            x = inverse * (w * x_target + rho * self.matrix.T @ (z - y))
+            ax = self.matrix @ x
+            z_new = np.clip(ax + y, low, high)
+            y = y + ax - z_new
+            primal = float(np.max(np.abs(ax - z_new)))
+            dual = float(np.max(np.abs(z_new - z)))
+            z = z_new
+            if primal < tolerance and dual < tolerance:
+                break
+        self._dual = y
+        # the last iterate may overshoot the bounds by the tolerance: pull it in
+        values = self.matrix @ x
+        excess = max(values.max() - high, low - values.min(), 0.0)
+        if excess > 0.0:
+            x = x * max(0.0, 1.0 - excess / max(float(np.max(np.abs(values))), 1e-12))
+        return x[:self.harmonics] + 1j * x[self.harmonics:]
+
+
+class SynchronousEstimator:
+    """T2's part synchronous with the cooler, split into the cooler's line and the waveform's effect.
+
+    Model of T2 at each reading (phase ``theta`` of the cooler)::
+
+        T2 = slow part + Re(sum_n (L_n + k_n z_n) exp(j n theta)) + noise
+
+    with ``L_n`` the cooler's line (it does not change when the waveform does),
+    ``z_n`` the waveform's effect through the controller's model (its
+    coefficient times the model's plant response, known) and ``k_n`` the
+    correction of the model's plant response (1 when the model is right).
+    Successive readings are differenced, which removes the slow part up to a
+    slope, and ``L``, ``k`` and the slope are fitted by recursive least squares
+    with exponential forgetting (``memory_s``). ``k`` is identifiable only while
+    the waveform changes; in between, a prior at ``k = 1`` (worth
+    ``prior_weight`` of the model's response) holds it.
+
+    Parameters
+    ----------
+    harmonics : int
+    memory_s : float
+        Time constant of the forgetting (s).
+    period_s : float
+        Typical interval between readings (s).
+    """
+
+    def __init__(self, harmonics: int, memory_s: float = 20.0, period_s: float = DEFAULT_PERIOD_S,
+                 prior_weight: float = 30.0):
+        self.harmonics = harmonics
+        self.orders = np.arange(1, harmonics + 1)
+        self.size = 1 + 4 * harmonics
+        self.forgetting = math.exp(-period_s / memory_s)
+        self.prior_weight = prior_weight
+        self.information = np.zeros((self.size, self.size))
+        self.moment = np.zeros(self.size)
+        self._previous: tuple[np.ndarray, float, float] | None = None
+        self.line = np.zeros(harmonics, dtype=complex)
+        self.correction = np.ones(harmonics, dtype=complex)
+        self.samples = 0
+
+    def regressors(self, phase: float, effect: np.ndarray) -> np.ndarray:
+        """[slope placeholder, cos, -sin of each harmonic, Re and -Im of each effect] at one reading."""
+        rotors = np.exp(1j * self.orders * phase)
+        turned = effect * rotors
+        return np.concatenate(([0.0], rotors.real, -rotors.imag, turned.real, -turned.imag))
+
+    def add(self, time_s: float, phase: float, flange_K: float, effect: np.ndarray) -> None:
+        """One T2 reading at its phase, with the waveform's modelled effect ``effect`` (K per harmonic)."""
+        row = self.regressors(phase, effect)
+        previous, self._previous = self._previous, (row, time_s, flange_K)
+        if previous is None:
+            return
+        difference = row - previous[0]
+        difference[0] = time_s - previous[1]
+        change = flange_K - previous[2]
+        keep = self.forgetting
+        self.information *= keep
+        self.moment *= keep
+        self.information += np.outer(difference, difference)
+        self.moment += difference * change
+        # the prior k = 1 on the correction, as strong as prior_weight readings of the effect
+        strength = (1.0 - keep) * self.prior_weight * max(float(np.mean(np.abs(effect) ** 2)), 1e-18)
+        k = slice(1 + 2 * self.harmonics, self.size)
+        self.information[k, k] += strength * np.eye(2 * self.harmonics)
+        self.moment[1 + 2 * self.harmonics:1 + 3 * self.harmonics] += strength
+        self.samples += 1
+
+    def solve(self) -> None:
+        """Update :attr:`line` and :attr:`correction` from what was added."""
+        if self.samples < 4 * self.size:
+            return
+        regularised = self.information + 1e-30 * np.eye(self.size)
+        try:
+            solution = np.linalg.solve(regularised, self.moment)
+        except np.linalg.LinAlgError:
+            return
+        n = self.harmonics
+        self.line = solution[1:1 + n] + 1j * solution[1 + n:1 + 2 * n]
+        correction = solution[1 + 2 * n:1 + 3 * n] + 1j * solution[1 + 3 * n:]
+        size = np.clip(np.abs(correction), 0.2, 5.0)
+        angle = np.clip(np.angle(correction), -1.4, 1.4)
+        self.correction = size * np.exp(1j * angle)
+
+    def forget_last(self) -> None:
+        """Do not difference the next reading against the last (a gap: the heater was held, the lock lost)."""
+        self._previous = None
+
+
+class FeedforwardTerm:
+    """The ``feedforward`` control term (module notes)."""
+
+    name = "feedforward"
+    required = False
+    columns = (
+        Column("ff_W", "W", "feedforward heater part (locked to the cooler)"),
+        Column("ff_phase_rad", "rad", "cooler phase at the T2 reading (T5's fundamental is A cos(phase))",
+               "{:.4f}"),
+        Column("ff_frequency_rad_s", "rad/s", "cooler angular frequency tracked from T5", "{:.5f}"),
+        Column("ff_locked", "", "1 when the phase tracker is locked to the cooler", "{:.0f}"),
+        Column("ff_line_K", "K", "amplitude of T2's part synchronous with the cooler, estimated now "
+                                 "(sqrt of the sum of the harmonics' squared amplitudes)"),
+        Column("ff_scale", "", "fade of the waveform, 0 (off) to 1 (on)", "{:.3f}"),
+    )
+
+    def __init__(self, settings: FeedforwardSettings, output_max: float):
+        self.output_max = output_max
+        self.switched_on = settings.enabled
+        self.scale = 0.0
+        self.coefficients = np.zeros(settings.harmonics, dtype=complex)
+        self.tracker: CoolerPhaseTracker | None = None
+        self._configure(settings)
+
+    # -- configuration ---------------------------------------------------------------
+    @staticmethod
+    def settings_from(section: Section | None) -> FeedforwardSettings:
+        """The ``control.feedforward`` section (defaults when absent)."""
+        if section is None:
+            return FeedforwardSettings(model=load_model(DEFAULT_MODEL_PATH))
+        defaults = FeedforwardSettings()
+        model_path = section.text("model", None)
+        try:
+            model = load_model(_resolve(model_path, section.source)) if model_path else load_model(DEFAULT_MODEL_PATH)
+        except FileFormatError as error:
+            raise section.error("model", f"controller model not usable: {error}") from None
+        settings = FeedforwardSettings(
+            enabled=section.flag("enabled", defaults.enabled),
+            harmonics=section.number("harmonics", defaults.harmonics, minimum=1, maximum=12, integer=True),
+            update_interval_s=section.number("update_interval_s", defaults.update_interval_s, minimum=0.5,
+                                             maximum=60.0),
+            memory_s=section.number("memory_s", defaults.memory_s, minimum=2.0, maximum=3600.0),
+            learning_gain=section.number("learning_gain", defaults.learning_gain, minimum=0.0,
+                                         exclusive_minimum=True, maximum=1.0),
+            fade_time_s=section.number("fade_time_s", defaults.fade_time_s, minimum=0.0, maximum=600.0),
+            margin_W=section.number("margin_W", defaults.margin_W, minimum=0.0, maximum=1.0),
+            minimum_cooler_amplitude_K=section.number("minimum_cooler_amplitude_K",
+                                                      defaults.minimum_cooler_amplitude_K, minimum=0.0,
+                                                      exclusive_minimum=True),
+            model=model, model_source=model_path or "shipped model")
+        section.finish()
+        return settings
+
+    def _configure(self, settings: FeedforwardSettings) -> None:
+        self.settings = settings
+        model = settings.controller_model
+        harmonics = settings.harmonics
+        if self.tracker is None or self.tracker.nominal_rad_s != model.ptc.angular_frequency_rad_s \
+                or self.tracker.minimum_amplitude_K != settings.minimum_cooler_amplitude_K:
+            self.tracker = CoolerPhaseTracker(model.ptc.angular_frequency_rad_s,
+                                              minimum_amplitude_K=settings.minimum_cooler_amplitude_K)
+        self.setting_delay_s = getattr(self, "setting_delay_s", 0.0)
+        self.plant = plant_at_harmonics(model, np.arange(1, harmonics + 1), settings.period_s, self.setting_delay_s)
+        self.model_line = line_at_harmonics(model, harmonics)
+        self._model_stage_amplitude_K = abs(model.ptc.ptc_stage_amplitude_K) or 1.0
+        if self.coefficients.size != harmonics:                    # keep what was learned, as far as it goes
+            kept = np.zeros(harmonics, dtype=complex)
+            count = min(harmonics, self.coefficients.size)
+            kept[:count] = self.coefficients[:count]
+            self.coefficients = kept
+        self.bounds = WaveformBounds(harmonics)
+        self.estimator = SynchronousEstimator(harmonics, settings.memory_s, settings.period_s)
+        self.other_terms_w: float | None = None
+        self.output_w = 0.0
+        self.phase = None
+        self._flange_phase_rad = math.nan
+        self._applied_scale = 0.0         # the scale of the waveform the heater played last tick
+        self._held_since_s = -math.inf     # when the heater was last held at a limit
+        self._next_update_s: float | None = None
+        self._started = bool(np.any(self.coefficients))
+        self._orders = np.arange(1, harmonics + 1)
+
+    def reconfigure(self, settings: FeedforwardSettings, output_max: float) -> None:
+        """A reload: new settings, keeping the lock and the learned waveform (bumpless)."""
+        self.output_max = output_max
+        if settings.enabled != self.settings.enabled:
+            self.switched_on = settings.enabled
+        self._configure(settings)
+
+    def switch(self, on: bool) -> None:
+        """``cryod ctl feedforward on|off``: fade in or out."""
+        self.switched_on = bool(on)
+
+    # -- the cycle ---------------------------------------------------------------------
+    def condition(self, tick: TickInputs) -> TickInputs:
+        """Track the cooler from T5, estimate T2's synchronous part, and hand the following terms
+        T2 without it (PI must not chase the line)."""
+        phase = self.phase = self.tracker.update(tick.ptc_stage_time_s, tick.ptc_stage_K)
+        self._follow_setting_delay(tick.output_time_s - tick.flange_time_s)
+        flange_phase = self._flange_phase_rad = phase.phase_at(tick.flange_time_s)
+        if not phase.locked:
+            self.estimator.forget_last()
+            return tick
+        effect = self.plant * self.coefficients * self._applied_scale
+        if tick.time_s - self._held_since_s > 2.0 * self.settings.period_s:
+            self.estimator.add(tick.flange_time_s, flange_phase, tick.flange_K, effect)
+        else:
+            self.estimator.forget_last()
+        synchronous = self.estimator.line + self.estimator.correction * effect
+        rotors = np.exp(1j * self._orders * flange_phase)
+        return replace(tick, flange_feedback_K=tick.flange_feedback_K - float(np.real(np.dot(synchronous, rotors))))
+
+    def _follow_setting_delay(self, delay_s: float) -> None:
+        """The plant response depends on how long after T2's sample the heater is set: follow it."""
+        delay_s = min(max(delay_s, 0.0), 0.99 * self.settings.period_s)
+        if abs(delay_s - self.setting_delay_s) > SETTING_DELAY_TOLERANCE_S:
+            self.setting_delay_s = delay_s
+            self.plant = plant_at_harmonics(self.settings.controller_model, self._orders, self.settings.period_s,
+                                            delay_s)
+
+    def start(self, tick: TickInputs, present_output: float) -> None:
+        self.scale = 0.0            # the waveform fades in: closing the loop stays bumpless
+
+    def update(self, tick: TickInputs) -> float:
+        locked = self.phase is not None and self.phase.locked
+        wanted = 1.0 if (self.switched_on and locked) else 0.0
+        fade = self.settings.fade_time_s
+        step = tick.dt_s / fade if fade > 0.0 else 1.0
+        self.scale = min(self.scale + step, wanted) if wanted > self.scale else max(self.scale - step, wanted)
+        if locked:
+            if self._next_update_s is None:
+                self._next_update_s = tick.time_s + self.settings.update_interval_s
+            elif tick.time_s >= self._next_update_s:
+                self._next_update_s += self.settings.update_interval_s
+                self._learn()
+        if self.scale <= 0.0 or self.phase is None:
+            self.output_w = self._applied_scale = 0.0
+            return 0.0
+        phase = self.phase.phase_at(tick.output_time_s + 0.5 * self.settings.period_s)  # middle of the hold
+        rotor = cmath.exp(1j * phase)
+        value, power = 0.0, 1.0 + 0j
+        for coefficient in self.coefficients:
+            power *= rotor
+            value += (coefficient * power).real
+        self._applied_scale = self.scale
+        self.output_w = self.scale * value
+        return self.output_w
+
+    def limit(self, requested: float, applied: float) -> None:
+        others = requested - self.output_w
+        if self.other_terms_w is None:
+            self.other_terms_w = others
+        else:       # the other terms' power, smoothed over about 10 s: the level the waveform rides on
+            self.other_terms_w += (others - self.other_terms_w) * min(self.settings.period_s / 10.0, 1.0)
+        if applied != requested and self.phase is not None:
+            self._held_since_s = self.phase.time_s
+
+    def column_values(self) -> tuple[float, ...]:
+        phase = self.phase
+        if phase is None:
+            return (self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale)
+        return (self.output_w, self._flange_phase_rad, phase.frequency_rad_s, 1.0 if phase.locked else 0.0,
+                self.line_amplitude_K(), self.scale)
+
+    def line_amplitude_K(self) -> float:
+        """T2's synchronous part as the estimator has it now (K; NaN before it has enough readings)."""
+        if self.estimator.samples < 4 * self.estimator.size:
+            return math.nan
+        synchronous = self.estimator.line + self.estimator.correction * self.plant * self.coefficients \
+            * self._applied_scale
+        return float(np.sqrt(np.sum(np.abs(synchronous) ** 2)))
+
+    # -- learning ------------------------------------------------------------------------
+    def _learn(self) -> None:
+        """Step the waveform toward cancelling the estimated line, within what the heater can do."""
+        estimator = self.estimator
+        estimator.solve()
+        if self.other_terms_w is None or estimator.samples < 4 * estimator.size:
+            return
+        plant = self.plant * estimator.correction
+        if not self._started:
+            # the first waveform from the model: its line on T2, scaled to the cooler's amplitude in T5
+            self._started = True
+            target = -self.model_line * (self.tracker.amplitude_K / self._model_stage_amplitude_K) / plant
+            gain = 1.0
+        else:
+            target = -estimator.line / plant
+            gain = self.settings.learning_gain
+        margin = self.settings.margin_W
+        low = margin - self.other_terms_w
+        high = self.output_max - margin - self.other_terms_w
+        stepped = self.coefficients + gain * (target - self.coefficients)
+        self.coefficients = self.bounds.project(stepped, np.abs(plant) ** 2, low, high)
+
+
+def _resolve(path: str, config_source: str) -> Path:
+    candidate = Path(path).expanduser()
+    if not candidate.is_absolute() and config_source and not config_source.startswith("<"):
+        candidate = Path(config_source).resolve().parent / candidate
+    return candidate

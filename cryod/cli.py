@@ -73,6 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--sim-model", type=Path, default=None,
                           help="model file of the simulated cryostat (the controller keeps its config)")
     simulate.add_argument("--seed", type=int, default=None, help="sensor-noise seed (overrides the config)")
+    simulate.add_argument("--no-feedforward", action="store_true",
+                          help="PI alone: the feedforward locked to the cooler starts switched off")
     simulate.add_argument("--data-dir", type=Path, default=None,
                           help="where the data log goes (default ./cryod-simulate/data)")
     simulate.add_argument("--socket", type=Path, default=None,

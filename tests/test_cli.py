@@ -65,7 +65,8 @@ def test_run_check_validates_without_instruments():
 
 
 def test_simulate_json_contract_and_log(tmp_path, capsys):
-    code = main(simulate_args(tmp_path, "--duration", "600", "--window", "300", "--json", "--seed", "3"))
+    code = main(simulate_args(tmp_path, "--duration", "600", "--window", "300", "--json", "--seed", "3",
+                              "--no-feedforward"))
     assert code == 0
     summary = json.loads(capsys.readouterr().out)
     assert CONTRACT_KEYS <= set(summary)
@@ -75,8 +76,22 @@ def test_simulate_json_contract_and_log(tmp_path, capsys):
     assert 1.5e-3 < summary["ptc_line_amplitude_K"] < 2.1e-3          # PI cannot remove the line
     assert abs(summary["mean_error_K"]) < 1e-4 and summary["lowfreq_rms_K"] < 1e-4
     assert summary["rms_K"] == pytest.approx(summary["ptc_line_amplitude_K"] / 2 ** 0.5, rel=0.1)
+    # the whole periodic part against the tracked phase: here the fundamental is all of it
+    assert summary["ptc_periodic_amplitude_K"] == pytest.approx(summary["ptc_line_amplitude_K"], rel=0.02)
+    assert len(summary["ptc_harmonic_amplitudes_K"]) == 6
     record = read_record(summary["log_path"])
     assert len(record) == 7500 and record.metadata["simulation_transport"] == "in-process"
+    assert set(record.columns["ff_scale"]) == {0.0}                  # --no-feedforward: never faded in
+
+
+def test_the_feedforward_beats_the_sinusoid_cap_at_5_K(tmp_path, capsys):
+    """At 5 K a sinusoid around the 113 mW mean cannot pass 113 mW: about 1.9 times less line. A
+    waveform shaped within the heater's bounds does better, and the mean and slow noise stay PI's."""
+    assert main(simulate_args(tmp_path, "--duration", "600", "--window", "300", "--json", "--seed", "3")) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["ptc_periodic_amplitude_K"] < 1.73e-3 / 3.0
+    assert abs(summary["mean_error_K"]) < 2e-5 and summary["lowfreq_rms_K"] < 2e-5
+    assert summary["overruns"] == 0
 
 
 def test_sim_model_changes_the_cryostat_but_not_the_controller(tmp_path, capsys):

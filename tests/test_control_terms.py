@@ -104,8 +104,8 @@ def test_term_runs_in_the_loop_with_its_column_in_the_record_and_reloads(tmp_pat
     assert {row.control["bias_W"] for row in closed} == {0.05}
     # the heater is the sum of the terms (where not held at a limit)
     free = [row for row in closed if row.state == "closed"]
-    assert all(row.heater_W == pytest.approx(row.control["pi_proportional_W"] + row.control["pi_integral_W"] + 0.05)
-               for row in free)
+    assert all(row.heater_W == pytest.approx(row.control["pi_proportional_W"] + row.control["pi_integral_W"]
+                                             + row.control["ff_W"] + 0.05) for row in free)
     text = "# cryod-log v1\n" + ",".join(loop.schema.names) + "\n" + "".join(loop.schema.format_row(r) for r in rows)
     assert read_record_text(text).columns["bias_W"][-1] == 0.05
 

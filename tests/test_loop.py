@@ -45,7 +45,8 @@ def test_regulates_to_setpoint_with_contract_columns(reference_model, curves, ba
     assert loop.run(duration_s=900.0, manage_gc=False) == 0
     assert len(rows) == pytest.approx(900 / 0.08, abs=1)
     assert loop.schema.names[:5] == ("time_s", "T2_K", "T5_K", "heater_W", "setpoint_K")
-    assert set(rows[-1].control) == {"pi_proportional_W", "pi_integral_W"} <= set(loop.schema.names)
+    assert {"pi_proportional_W", "pi_integral_W", "ff_W", "ff_phase_rad"} <= set(rows[-1].control) \
+        <= set(loop.schema.names)
     times = np.array([row.time_s for row in rows])
     np.testing.assert_allclose(np.diff(times), 0.08, atol=1e-9)   # absolute deadlines, no drift
     late = [row for row in rows if row.time_s > 600.0]
@@ -195,8 +196,9 @@ def test_reload_is_bumpless_and_refuses_restart_only_changes(quiet_reference_mod
     loop, instruments, cryostat, rows, events = make_loop(quiet_reference_model, curves, base_config)
     control = base_config.control
     gains = control.term("pi")
+    doubled = PiGains(2 * gains.proportional_w_per_K, 2 * gains.integral_w_per_K_s)
     new_gains = dataclasses.replace(base_config, control=dataclasses.replace(
-        control, terms=(("pi", PiGains(2 * gains.proportional_w_per_K, 2 * gains.integral_w_per_K_s)),)),
+        control, terms=tuple((name, doubled if name == "pi" else settings) for name, settings in control.terms)),
         source="new.yaml")
     moved_dmm = dataclasses.replace(base_config, instruments=dataclasses.replace(
         base_config.instruments, timeout_s=2.0), source="new.yaml")
@@ -215,7 +217,6 @@ def test_reload_is_bumpless_and_refuses_restart_only_changes(quiet_reference_mod
 
     instruments.measure = measure_and_reload
     loop.run(duration_s=100.0, manage_gc=False)
-    doubled = PiGains(2 * gains.proportional_w_per_K, 2 * gains.integral_w_per_K_s)
     assert answers["gains"].ok and loop.regulator.terms[0].controller.gains == doubled
     assert not answers["dmm"].ok and "instruments" in answers["dmm"].message and "restart" in answers["dmm"].message
     at = answers["at"]

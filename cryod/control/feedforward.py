@@ -468,6 +468,32 @@ class FeedforwardTerm:
         return (self.output_w, self._flange_phase_rad, phase.frequency_rad_s, 1.0 if phase.locked else 0.0,
                 self.line_amplitude_K(), self.scale)
 
+    def describe(self) -> str:
+        """The feedforward's state in a few lines (``cryod ctl feedforward status``)."""
+        phase = self.phase
+        lines = [f"feedforward {'on' if self.switched_on else 'off'}, waveform at {100 * self.scale:.0f} % "
+                 f"(fade {self.settings.fade_time_s:g} s)"]
+        if phase is None:
+            lines.append("cooler phase: no reading yet")
+        else:
+            lines.append(f"cooler phase {'locked' if phase.locked else 'NOT locked'}: {phase.frequency_rad_s:.4f} rad/s "
+                         f"({phase.frequency_rad_s / (2 * math.pi):.4f} Hz), T5 line {1e3 * phase.amplitude_K:.1f} mK")
+        line = self.line_amplitude_K()
+        if math.isfinite(line):
+            harmonics = ", ".join(f"{1e6 * abs(value):.1f}" for value in self.estimator.line
+                                  + self.estimator.correction * self.plant * self.coefficients * self._applied_scale)
+            lines.append(f"T2's part synchronous with the cooler: {1e6 * line:.1f} uK (harmonics 1-"
+                         f"{self.settings.harmonics}: {harmonics} uK); without the waveform it would be "
+                         f"{1e6 * float(np.sqrt(np.sum(np.abs(self.estimator.line) ** 2))):.1f} uK")
+        amplitude = np.abs(self.coefficients)
+        lines.append(f"waveform: {', '.join(f'{1e3 * a:.1f}' for a in amplitude)} mW per harmonic, on "
+                     f"{1e3 * (self.other_terms_w or 0.0):.1f} mW from PI, within {1e3 * self.settings.margin_W:g} mW "
+                     f"of 0 and {1e3 * self.output_max:.0f} mW")
+        correction = self.estimator.correction[0]
+        lines.append(f"plant at the fundamental: {abs(correction):.2f} x the model's, {math.degrees(cmath.phase(correction)):+.0f} deg "
+                     f"(model: {self.settings.model_source})")
+        return "\n".join(lines)
+
     def line_amplitude_K(self) -> float:
         """T2's synchronous part as the estimator has it now (K; NaN before it has enough readings)."""
         if self.estimator.samples < 4 * self.estimator.size:

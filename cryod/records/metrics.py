@@ -1,7 +1,13 @@
 """Regulation figures of merit over a window of rows (``cryod --simulate --json``).
 
 * ``ptc_line_amplitude_K``: amplitude of T2 at the PTC frequency (least-squares
-  fit; the frequency is refined on T5, where the line is 70 times larger);
+  fit at one frequency, refined on T5, where the line is 70 times larger);
+* ``ptc_periodic_amplitude_K``: T2's whole part synchronous with the cooler,
+  harmonics 1 to 6 against the cooler's phase tracked from T5 sample by sample
+  (:mod:`cryod.control.cooler_phase`), as sqrt(2) times its rms (the square
+  root of the sum of the harmonics' squared amplitudes); unlike the line at one
+  frequency it stays true when the cooler's frequency wanders;
+  ``ptc_harmonic_amplitudes_K``: the harmonics' amplitudes;
 * ``mean_error_K``, ``rms_K``: mean and rms of T2 minus the setpoint;
 * ``lowfreq_rms_K``: rms of T2 minus the setpoint below 0.1 Hz (zero-phase
   4th-order Butterworth low-pass), what drifts slower than 10 s.
@@ -22,8 +28,37 @@ import numpy as np
 from scipy import optimize, signal
 
 from cryod.analysis.line_fit import fit_line
+from cryod.control.cooler_phase import track_cooler_phase
 
 LOW_FREQUENCY_HZ = 0.1
+#: Harmonics of the cooler in the periodic amplitude.
+PERIODIC_HARMONICS = 6
+#: Degree of the polynomial that takes the slow part out of T2 before the periodic fit.
+SLOW_DEGREE = 3
+
+
+def periodic_amplitudes(flange_time_s, flange_K, stage_time_s, ptc_stage_K, nominal_rad_s: float,
+                        harmonics: int = PERIODIC_HARMONICS, window_start_s: float = -np.inf) -> np.ndarray:
+    """Amplitudes (K) of T2's harmonics 1..``harmonics`` of the cooler, phase tracked from T5.
+
+    The tracker runs over every reading given (those before ``window_start_s``
+    only let it lock); the least-squares fit of T2 (harmonics, and a cubic
+    for the slow part) uses the readings from ``window_start_s`` on.
+    """
+    flange_time_s = np.asarray(flange_time_s, dtype=float)
+    track = track_cooler_phase(stage_time_s, ptc_stage_K, nominal_rad_s)
+    phase = track["phase_rad"] + track["frequency_rad_s"] * (flange_time_s - np.asarray(stage_time_s, float))
+    use = (flange_time_s >= window_start_s) & track["locked"]
+    if use.sum() < 4 * harmonics + 10:
+        return np.full(harmonics, np.nan)
+    t = flange_time_s[use]
+    scaled = (t - t.mean()) / max(float(np.ptp(t)), 1e-9)
+    angles = np.outer(phase[use], np.arange(1, harmonics + 1))
+    columns = np.hstack([np.vander(scaled, SLOW_DEGREE + 1), np.cos(angles), np.sin(angles)])
+    solution, *_ = np.linalg.lstsq(columns, np.asarray(flange_K, float)[use], rcond=None)
+    cosines = solution[SLOW_DEGREE + 1:SLOW_DEGREE + 1 + harmonics]
+    sines = solution[SLOW_DEGREE + 1 + harmonics:]
+    return np.hypot(cosines, sines)
 
 
 def line_frequency(time_s: np.ndarray, ptc_stage_K: np.ndarray, nominal_rad_s: float,
@@ -37,7 +72,7 @@ def line_frequency(time_s: np.ndarray, ptc_stage_K: np.ndarray, nominal_rad_s: f
 
 
 def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_rad_s: float,
-                       ptc_stage_time_s=None) -> dict:
+                       ptc_stage_time_s=None, lead_in_s: float = 0.0) -> dict:
     """Figures of merit of T2 against the setpoint over the rows given.
 
     Parameters
@@ -48,12 +83,16 @@ def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_r
         Expected PTC angular frequency (rad/s).
     ptc_stage_time_s : array_like, optional
         Instants of the T5 readings where they differ from T2's (s).
+    lead_in_s : float
+        The first rows, this long, only let the phase tracker lock; the
+        figures are over the rest.
 
     Returns
     -------
     dict
-        ``ptc_line_amplitude_K``, ``ptc_line_rad_s``, ``mean_error_K``, ``rms_K``,
-        ``lowfreq_rms_K``, ``window_s`` (NaN entries where there is no setpoint).
+        ``ptc_line_amplitude_K``, ``ptc_line_rad_s``, ``ptc_periodic_amplitude_K``,
+        ``ptc_harmonic_amplitudes_K``, ``mean_error_K``, ``rms_K``, ``lowfreq_rms_K``,
+        ``window_s`` (NaN entries where there is no setpoint).
     """
     time_s = np.asarray(time_s, dtype=float)
     stage_time_s = time_s if ptc_stage_time_s is None else np.asarray(ptc_stage_time_s, dtype=float)
@@ -63,9 +102,22 @@ def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_r
     valid = np.isfinite(flange_K) & np.isfinite(ptc_stage_K) & np.isfinite(time_s) & np.isfinite(stage_time_s)
     time_s, flange_K, ptc_stage_K, setpoint_K = time_s[valid], flange_K[valid], ptc_stage_K[valid], setpoint_K[valid]
     stage_time_s = stage_time_s[valid]
-    result = {"window_s": float(time_s[-1] - time_s[0]) if time_s.size else 0.0,
-              "ptc_line_amplitude_K": float("nan"), "ptc_line_rad_s": float("nan"),
-              "mean_error_K": float("nan"), "rms_K": float("nan"), "lowfreq_rms_K": float("nan")}
+    nan = float("nan")
+    result = {"window_s": 0.0, "ptc_line_amplitude_K": nan, "ptc_line_rad_s": nan,
+              "ptc_periodic_amplitude_K": nan, "ptc_harmonic_amplitudes_K": [nan] * PERIODIC_HARMONICS,
+              "mean_error_K": nan, "rms_K": nan, "lowfreq_rms_K": nan}
+    if time_s.size < 50:
+        return result
+    window_start = time_s[0] + lead_in_s
+    harmonics = periodic_amplitudes(time_s, flange_K, stage_time_s, ptc_stage_K, nominal_line_rad_s,
+                                    window_start_s=window_start)
+    result["ptc_harmonic_amplitudes_K"] = [float(a) for a in harmonics]
+    result["ptc_periodic_amplitude_K"] = float(np.sqrt(np.sum(harmonics ** 2)))
+    inside = time_s >= window_start
+    time_s, flange_K, ptc_stage_K, setpoint_K = time_s[inside], flange_K[inside], ptc_stage_K[inside], \
+        setpoint_K[inside]
+    stage_time_s = stage_time_s[inside]
+    result["window_s"] = float(time_s[-1] - time_s[0]) if time_s.size else 0.0
     if time_s.size < 50:
         return result
     omega = line_frequency(stage_time_s, ptc_stage_K, nominal_line_rad_s)

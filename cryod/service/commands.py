@@ -110,6 +110,26 @@ def _manual(loop: "ControlLoop", value: float) -> str:
     return f"open loop, heater {value:g} W"
 
 
+def _feedforward(loop: "ControlLoop", value: str) -> str:
+    term = loop.regulator.term("feedforward")
+    if term is None:
+        raise CommandRefused("this daemon has no feedforward term")
+    if value in ("on", "off"):
+        term.switch(value == "on")
+        return (f"feedforward {value}: fading {'in' if value == 'on' else 'out'} over "
+                f"{term.settings.fade_time_s:g} s" + ("" if value == "off" or term.phase is None or term.phase.locked
+                                                        else "; it starts once the cooler's phase is locked"))
+    return term.describe()
+
+
+def _choice(*choices: str) -> Callable[[str], str]:
+    def parse(text: str) -> str:
+        if text not in choices:
+            raise ValueError(f"not one of {', '.join(choices)}")
+        return text
+    return parse
+
+
 def _reload(loop: "ControlLoop", value) -> str:
     return loop.reload(value)
 
@@ -153,6 +173,8 @@ COMMANDS: dict[str, CommandSpec] = {spec.name: spec for spec in (
                 _ramp),
     CommandSpec("heater-off", None, "heater to 0 W, loop open, until a new setpoint", _heater_off),
     CommandSpec("manual", "W", "open loop at W (at most R * I_max^2)", _manual),
+    CommandSpec("feedforward", "on|off|status", "switch the feedforward locked to the cooler (fades in or out), "
+                "or show its state", _feedforward, parse=_choice("on", "off", "status")),
     CommandSpec("reload", None, "apply a validated configuration (SIGHUP)", _reload, from_socket=False),
 )}
 

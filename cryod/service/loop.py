@@ -64,6 +64,10 @@ class TemperatureCurve(Protocol):
     def temperature_K(self, resistance_ohm: float) -> float: ...
 
 
+def _or(value: float | None, default: float) -> float:
+    return default if value is None else value
+
+
 def daemon_schema(config: DaemonConfig) -> RowSchema:
     """The columns of the daemon's rows for this configuration (its control terms' columns included)."""
     return loop_schema(term_columns(config.control.terms))
@@ -86,6 +90,7 @@ class Status:
     ramp_K_per_min: float = 0.0
     last_fault: str | None = None
     loop_timing: object = None      # LoopTiming, summarised when asked, not every tick
+    control: dict | None = None     # the control terms' columns of the last tick
 
     @property
     def timing(self) -> dict:
@@ -95,7 +100,8 @@ class Status:
         return {
             "time_s": self.time_s, "state": str(self.state), "T2_K": self.flange_K, "T5_K": self.ptc_stage_K,
             "heater_W": self.heater_w, "setpoint_K": self.setpoint_K, "target_K": self.target_K,
-            "ramp_K_per_min": self.ramp_K_per_min, "last_fault": self.last_fault, **self.timing,
+            "ramp_K_per_min": self.ramp_K_per_min, "last_fault": self.last_fault, **(self.control or {}),
+            **self.timing,
         }
 
     def one_line(self) -> str:
@@ -165,6 +171,7 @@ class ControlLoop:
         self._resumed_at_s = -math.inf
         self._last_reconnect_s = -math.inf
         self._last_trigger_s: float | None = None
+        self._setting_time_s = 0.002       # from the regulator's step to the heater being set (learned)
         self._tick_start_s = 0.0
         self._gc = LoopGarbageCollector()
 
@@ -267,7 +274,11 @@ class ControlLoop:
             return
         dt = self.period_s if self._last_trigger_s is None else reading.trigger_time_s - self._last_trigger_s
         self._last_trigger_s = reading.trigger_time_s
-        step = self.regulator.step(reading.trigger_time_s, dt, flange_K, stage_K)
+        computing_since = self.clock.now()
+        step = self.regulator.step(reading.trigger_time_s, dt, flange_K, stage_K,
+                                   flange_time_s=_or(reading.flange_sample_time_s, reading.trigger_time_s),
+                                   ptc_stage_time_s=_or(reading.ptc_stage_sample_time_s, reading.trigger_time_s),
+                                   output_time_s=computing_since + self._setting_time_s)
         self.last_commanded_w = step.power_w
         try:
             self.instruments.set_heater_power(step.power_w)
@@ -275,6 +286,8 @@ class ControlLoop:
             self._fault(fault_from_instrument_error(error), row)
             return
         row.heater_set_s = self.clock.now()
+        # how long computing and setting take, smoothed: when the next setting will take effect
+        self._setting_time_s += 0.1 * (row.heater_set_s - computing_since - self._setting_time_s)
         self.heater_w = row.heater_W = step.power_w
         row.setpoint_K = step.setpoint_K
         row.control = step.columns
@@ -294,7 +307,7 @@ class ControlLoop:
         # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
         self._latest = (row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
                         ramp.setpoint_K if closed else None, ramp.target_K if closed else None,
-                        ramp.rate_K_per_min, self.last_fault)
+                        ramp.rate_K_per_min, self.last_fault, row.control)
         self._status = None
 
     @property
@@ -302,10 +315,10 @@ class ControlLoop:
         """The loop as of its last tick (built when asked, from the tick's snapshot)."""
         status = self._status
         if status is None:
-            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault = self._latest
+            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control = self._latest
             status = Status(time_s=time_s, state=state, flange_K=flange_K, ptc_stage_K=stage_K, heater_w=heater_w,
                             setpoint_K=setpoint_K, target_K=target_K, ramp_K_per_min=rate,
-                            last_fault=str(fault) if fault else None, loop_timing=self.timing)
+                            last_fault=str(fault) if fault else None, loop_timing=self.timing, control=control)
             self._status = status
         return status
 
@@ -313,7 +326,7 @@ class ControlLoop:
     def status(self, status: Status) -> None:
         self._status = status
         self._latest = (status.time_s, status.state, status.flange_K, status.ptc_stage_K, status.heater_w,
-                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault)
+                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault, status.control)
 
     # -- start-up and recovery ----------------------------------------------------
     def _count_valid(self, in_range: bool, reading: PairReading, row: Row) -> None:

@@ -52,12 +52,16 @@ MAX_SOCKET_PATH = 100
 SUPPLY_MODELS = {"keithley6221": "6221", "keithley2400": "2400"}
 
 
+#: Rows before the metrics window that let the cooler's phase tracker lock (s).
+TRACKER_LEAD_IN_S = 30.0
+
+
 class WindowCollector:
-    """Keeps the last ``window_s`` of rows for the end-of-run metrics."""
+    """Keeps the last ``window_s`` of rows (and a lead-in for the phase tracker) for the end-of-run metrics."""
 
     def __init__(self, window_s: float, period_s: float):
-        self.rows = collections.deque(maxlen=int(window_s / period_s) + 2)
-        self.window_s = window_s
+        self.rows = collections.deque(maxlen=int((window_s + TRACKER_LEAD_IN_S) / period_s) + 2)
+        self.window_s = window_s + TRACKER_LEAD_IN_S
 
     def __call__(self, item: Row | Event) -> None:
         if type(item) is Row:
@@ -81,6 +85,10 @@ def simulation_config(args, config: DaemonConfig) -> DaemonConfig:
                              f"setpoint_max_K = {control.setpoint_min_K:g}..{control.setpoint_max_K:g} K "
                              f"of {config.source}")
         control = dataclasses.replace(control, setpoint_K=args.setpoint)
+    if getattr(args, "no_feedforward", False):
+        control = dataclasses.replace(control, terms=tuple(
+            (name, dataclasses.replace(settings, enabled=False) if name == "feedforward" else settings)
+            for name, settings in control.terms))
     simulation = config.simulation
     transport = args.transport or ("in-process" if args.speed == "max" else simulation.transport)
     if args.speed == "max" and transport == "tcp":
@@ -232,7 +240,8 @@ def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: floa
     loop = result.loop
     timing = loop.timing.summary() if loop else {}
     _, flange, stage, setpoint, flange_instants, stage_instants = collector.arrays()
-    metrics = regulation_metrics(flange_instants, flange, stage, setpoint, line_rad_s, ptc_stage_time_s=stage_instants)
+    metrics = regulation_metrics(flange_instants, flange, stage, setpoint, line_rad_s, ptc_stage_time_s=stage_instants,
+                                 lead_in_s=TRACKER_LEAD_IN_S)
     duration = timing.get("ticks", 0) * (loop.period_s if loop else 0.0)
     return {
         "duration_s": round(duration, 3),
@@ -248,6 +257,8 @@ def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: floa
         "window_s": round(metrics["window_s"], 3),
         "ptc_line_amplitude_K": metrics["ptc_line_amplitude_K"],
         "ptc_line_rad_s": metrics["ptc_line_rad_s"],
+        "ptc_periodic_amplitude_K": metrics["ptc_periodic_amplitude_K"],
+        "ptc_harmonic_amplitudes_K": metrics["ptc_harmonic_amplitudes_K"],
         "rms_K": metrics["rms_K"],
         "mean_error_K": metrics["mean_error_K"],
         "lowfreq_rms_K": metrics["lowfreq_rms_K"],

@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from cryod.cli import main
@@ -81,13 +82,14 @@ def test_simulate_json_contract_and_log(tmp_path, capsys):
     assert len(summary["ptc_harmonic_amplitudes_K"]) == 6
     record = read_record(summary["log_path"])
     assert len(record) == 7500 and record.metadata["simulation_transport"] == "in-process"
-    assert set(record.columns["ff_scale"]) == {0.0}                  # --no-feedforward: never faded in
+    scale = record.columns["ff_scale"]
+    assert set(scale[np.isfinite(scale)]) == {0.0}                  # --no-feedforward: never faded in
 
 
 def test_the_feedforward_beats_the_sinusoid_cap_at_5_K(tmp_path, capsys):
     """At 5 K a sinusoid around the 113 mW mean cannot pass 113 mW: about 1.9 times less line. A
     waveform shaped within the heater's bounds does better, and the mean and slow noise stay PI's."""
-    assert main(simulate_args(tmp_path, "--duration", "600", "--window", "300", "--json", "--seed", "3")) == 0
+    assert main(simulate_args(tmp_path, "--duration", "900", "--window", "300", "--json", "--seed", "3")) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["ptc_periodic_amplitude_K"] < 1.73e-3 / 3.0
     assert abs(summary["mean_error_K"]) < 2e-5 and summary["lowfreq_rms_K"] < 2e-5

@@ -64,6 +64,8 @@ from cryod.yaml_source import FileFormatError, Section
 
 #: Loop period the plant response assumes when the settings do not say (s).
 DEFAULT_PERIOD_S = 0.08
+#: Smoothing of the feedback terms' power, the level the waveform rides on (s).
+BASE_TIME_S = 2.0
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
 SETTING_DELAY_TOLERANCE_S = 0.002
 
@@ -309,6 +311,7 @@ class FeedforwardTerm:
 
     name = "feedforward"
     required = False
+    rides_on_feedback = True
     columns = (
         Column("ff_W", "W", "feedforward heater part (locked to the cooler)"),
         Column("ff_phase_rad", "rad", "cooler phase at the T2 reading (T5's fundamental is A cos(phase))",
@@ -408,10 +411,7 @@ class FeedforwardTerm:
             self.estimator.forget_last()
             return tick
         effect = self.plant * self.coefficients * self._applied_scale
-        if tick.time_s - self._held_since_s > 2.0 * self.settings.period_s:
-            self.estimator.add(tick.flange_time_s, flange_phase, tick.flange_K, effect)
-        else:
-            self.estimator.forget_last()
+        self.estimator.add(tick.flange_time_s, flange_phase, tick.flange_K, effect)
         synchronous = self.estimator.line + self.estimator.correction * effect
         rotors = np.exp(1j * self._orders * flange_phase)
         return replace(tick, flange_feedback_K=tick.flange_feedback_K - float(np.real(np.dot(synchronous, rotors))))
@@ -456,8 +456,8 @@ class FeedforwardTerm:
         others = requested - self.output_w
         if self.other_terms_w is None:
             self.other_terms_w = others
-        else:       # the other terms' power, smoothed over about 10 s: the level the waveform rides on
-            self.other_terms_w += (others - self.other_terms_w) * min(self.settings.period_s / 10.0, 1.0)
+        else:       # the other terms' power, smoothed over about 2 s: the level the waveform rides on
+            self.other_terms_w += (others - self.other_terms_w) * min(self.settings.period_s / BASE_TIME_S, 1.0)
         if applied != requested and self.phase is not None:
             self._held_since_s = self.phase.time_s
 

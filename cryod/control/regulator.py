@@ -6,7 +6,11 @@ Each tick it turns the readings into the heater power for the coming period:
 2. in ``closed`` the setpoint ramp advances, every control term
    (:mod:`cryod.control.terms`) gives its part, the sum is held within the
    heater's range (0 to R * I_max**2: the heater can only heat and its current
-   is limited) and every term is told what was applied (anti-windup);
+   is limited) and every term is told what was applied (anti-windup). Terms
+   that ride on the feedback (``rides_on_feedback``: the feedforward's
+   waveform) are added after the feedback terms' sum has been held and told,
+   and the total is held again: a waveform clipped at 0 W does not stop PI
+   integrating;
 3. closing the loop from any mode is bumpless: the terms continue from the
    power that was applied.
 
@@ -143,6 +147,8 @@ class Regulator:
         self.control = control
         self.terms: list[ControlTerm] = build_terms(control.terms, output.maximum)
         self._conditioners = [term for term in self.terms if hasattr(term, "condition")]
+        self._riding = [term for term in self.terms if getattr(term, "rides_on_feedback", False)]
+        self._feedback = [term for term in self.terms if term not in self._riding]
         self.columns = term_columns(control.terms)
         self.ramp = SetpointRamp(control.setpoint_K or 0.0, control.ramp_K_per_min)
         self.mode = RegulatorMode.CLOSED if control.setpoint_K is not None else RegulatorMode.OFF
@@ -177,15 +183,27 @@ class Regulator:
             return RegulatorStep(0.0, math.nan, False, {})
         tick = replace(tick, setpoint_K=self.ramp.advance(dt_s))
         setpoint = tick.setpoint_K
+        # feedback terms first, held within the heater's range and told so (their anti-windup);
+        # then the terms that ride on them (the feedforward's waveform), held again
         requested = 0.0
-        for term in self.terms:
+        for term in self._feedback:
             requested += term.update(tick)
         applied = min(max(requested, 0.0), self.output.maximum)
+        for term in self._feedback:
+            term.limit(requested, applied)
+        limited = applied != requested
+        if self._riding:
+            requested = applied
+            for term in self._riding:
+                requested += term.update(tick)
+            applied = min(max(requested, 0.0), self.output.maximum)
+            for term in self._riding:
+                term.limit(requested, applied)
+            limited = limited or applied != requested
         columns = {}
         for term in self.terms:
-            term.limit(requested, applied)
             columns.update(zip((column.name for column in term.columns), term.column_values()))
-        return RegulatorStep(self.output.power_w(applied), setpoint, applied != requested, columns)
+        return RegulatorStep(self.output.power_w(applied), setpoint, limited, columns)
 
     # -- modes -------------------------------------------------------------------------
     def close_loop(self, time_s: float, flange_K: float, ptc_stage_K: float, present_power_w: float) -> None:

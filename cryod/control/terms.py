@@ -9,7 +9,10 @@ A control term is a class with
   static method; called with None when an optional section is absent);
 * ``__init__(settings, output_max)`` and ``reconfigure(settings, output_max)``
   (a reload: bumpless);
-* ``start``, ``update``, ``limit``, ``column_values``: the cycle, below.
+* ``start``, ``update``, ``limit``, ``column_values``: the cycle, below;
+* optionally ``condition(tick)`` (see :meth:`ControlTerm.start`) and
+  ``rides_on_feedback = True``: the term is added after the feedback terms'
+  sum has been held within the heater's range (the feedforward).
 
 A new term is one module with such a class and one line in :data:`TERM_TYPES`.
 The regulator (:mod:`cryod.control.regulator`) adds the terms' outputs, holds

@@ -362,7 +362,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     safety = SafetyConfig(
         flange_max_K=section.number("flange_max_K", minimum=0.0, exclusive_minimum=True, maximum=400.0),
         ptc_stage_max_K=section.number("ptc_stage_max_K", minimum=0.0, exclusive_minimum=True, maximum=400.0),
-        max_repeated_readings=section.number("max_repeated_readings", 5, minimum=2, maximum=1000, integer=True),
+        max_repeated_readings=section.number("max_repeated_readings", 50, minimum=2, maximum=1000, integer=True),
         valid_readings_to_resume=section.number("valid_readings_to_resume", 5, minimum=1, maximum=1000, integer=True),
         recovery_timeout_s=section.number("recovery_timeout_s", 60.0, minimum=0.0, maximum=86400.0),
         instruments_wait_s=section.number("instruments_wait_s", None, minimum=0.0),

@@ -124,11 +124,11 @@ def test_over_temperature_exits_3_with_heater_off(reference_model, curves, base_
 def test_sensor_out_of_calibration_and_stale_readings(reference_model, curves, base_config):
     loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
     instruments.resistance_override = {500: (1.0, 3000.0)}                        # 1 ohm: far outside the curve
-    instruments.resistance_override.update({1000 + k: (2800.0, 3000.0) for k in range(5)})   # frozen DMM
+    instruments.resistance_override.update({1000 + k: (2800.0, 3000.0) for k in range(50)})  # frozen DMM
     assert loop.run(duration_s=120.0, manage_gc=False) == 0
     states = [row.state for row in rows]
     assert states[500] == "fault:sensor_out_of_calibration"
-    assert states[1004] == "fault:sensor_stale"
+    assert states[1049] == "fault:sensor_stale"
     assert states[-1].startswith("closed")
 
 
@@ -188,7 +188,12 @@ def test_commands_are_checked_against_limits(reference_model, curves, base_confi
     assert rows[3501].state == "manual" and rows[3501].heater_W == 0.05
     assert rows[4001].state.startswith("closed")
     # bumpless: closing the loop from 50 mW manual continues from 50 mW
-    assert rows[4001].heater_W == pytest.approx(0.05, abs=0.01)
+    first = rows[4001]
+    assert first.control["pi_integral_W"] == pytest.approx(0.05, abs=1e-4)     # the integral takes the 50 mW over
+    # and the rest is what acts from then on: the ramp's first step through Kp, the feedforward fading in
+    assert first.heater_W == pytest.approx(0.05 + first.control["pi_proportional_W"] + first.control["ff_W"],
+                                           abs=1e-4)
+    assert abs(first.control["pi_proportional_W"]) < 0.02 and abs(first.control["ff_W"]) < 0.005
 
 
 def test_reload_is_bumpless_and_refuses_restart_only_changes(quiet_reference_model, curves, base_config):

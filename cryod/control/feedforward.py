@@ -64,6 +64,10 @@ from cryod.yaml_source import FileFormatError, Section
 
 #: Loop period the plant response assumes when the settings do not say (s).
 DEFAULT_PERIOD_S = 0.08
+#: A plant correction is used once its standard deviation is below this (else the model's response).
+TRUSTED_CORRECTION_SPREAD = 0.3
+#: After the heater did not play the waveform (a gap, a clipped total), T2's readings are left out this long (s).
+SETTLE_S = 1.0
 #: Smoothing of the feedback terms' power, the level the waveform rides on (s).
 BASE_TIME_S = 2.0
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
@@ -103,7 +107,7 @@ class FeedforwardSettings:
     enabled: bool = True
     harmonics: int = 6
     update_interval_s: float = 2.0
-    memory_s: float = 20.0
+    memory_s: float = 60.0
     learning_gain: float = 0.5
     fade_time_s: float = 5.0
     margin_W: float = 0.001
@@ -229,81 +233,137 @@ class SynchronousEstimator:
     ``z_n`` the waveform's effect through the controller's model (its
     coefficient times the model's plant response, known) and ``k_n`` the
     correction of the model's plant response (1 when the model is right).
-    Successive readings are differenced, which removes the slow part up to a
-    slope, and ``L``, ``k`` and the slope are fitted by recursive least squares
-    with exponential forgetting (``memory_s``). ``k`` is identifiable only while
-    the waveform changes; in between, a prior at ``k = 1`` (worth
-    ``prior_weight`` of the model's response) holds it.
+
+    Second differences of successive readings remove the slow part (what is
+    left, its curvature, is a thousandth of the line and not synchronous). A
+    Kalman filter estimates ``L`` and ``k``, each a slow random walk: the line
+    by about ``line_drift_K`` per ``memory_s`` (a cooler frequency wandering by
+    a percent changes T2's line by a percent), the plant's correction by a
+    tenth per hour. ``k`` is learned only from readings where the
+    waveform changes (when it comes in, when it learns) and is kept between
+    them; it starts at 1 with a spread of ``correction_spread``.
+
+    A change of the waveform that the estimate's own noise decided looks, to
+    the estimate, like the plant answering too strongly (closed-loop
+    identification): the noise that moved the waveform is still in the
+    estimate of the line. So ``k_n`` learns only from changes well above what
+    that noise could make (:meth:`mark_step`); otherwise it is held at its
+    estimate, which the readings are corrected with.
 
     Parameters
     ----------
     harmonics : int
+    noise_K : float
+        T2's reading noise (K rms), for the filter's measurement noise.
     memory_s : float
-        Time constant of the forgetting (s).
+        Time over which the line may change by about ``line_drift_K`` (s).
     period_s : float
         Typical interval between readings (s).
+    correction_spread : float
+        Prior spread of ``k`` around 1.
+    line_drift_K : float
+        How much the line may change over ``memory_s`` (K).
     """
 
-    def __init__(self, harmonics: int, memory_s: float = 20.0, period_s: float = DEFAULT_PERIOD_S,
-                 prior_weight: float = 30.0):
+    #: The correction of the plant may drift by about this fraction per hour.
+    CORRECTION_DRIFT_PER_HOUR = 0.1
+
+    def __init__(self, harmonics: int, noise_K: float = 20e-6, memory_s: float = 60.0,
+                 period_s: float = DEFAULT_PERIOD_S, correction_spread: float = 0.7, line_drift_K: float = 20e-6):
         self.harmonics = harmonics
         self.orders = np.arange(1, harmonics + 1)
-        self.size = 1 + 4 * harmonics
-        self.forgetting = math.exp(-period_s / memory_s)
-        self.prior_weight = prior_weight
-        self.information = np.zeros((self.size, self.size))
-        self.moment = np.zeros(self.size)
-        self._previous: tuple[np.ndarray, float, float] | None = None
-        self.line = np.zeros(harmonics, dtype=complex)
-        self.correction = np.ones(harmonics, dtype=complex)
+        self.size = 4 * harmonics
+        n = 2 * harmonics
+        line_scale = 3e-3           # K: a line of mK at most
+        steps = memory_s / period_s
+        self._process = np.concatenate([np.full(n, line_drift_K ** 2 / steps),
+                                        np.full(n, self.CORRECTION_DRIFT_PER_HOUR ** 2 * period_s / 3600.0)])
+        self.covariance = np.diag(np.concatenate([np.full(n, line_scale ** 2), np.full(n, correction_spread ** 2)]))
+        self.state = np.concatenate([np.zeros(n), np.ones(harmonics), np.zeros(harmonics)])
+        self.measurement_variance = 6.0 * noise_K ** 2     # second difference of white noise
+        self._history: list[tuple[np.ndarray, float]] = []     # the last two readings' regressors and T2
         self.samples = 0
+        self.learning = np.zeros(harmonics, dtype=bool)         # harmonics whose k the readings may teach
+
+    @property
+    def line(self) -> np.ndarray:
+        n = self.harmonics
+        return self.state[:n] + 1j * self.state[n:2 * n]
+
+    @property
+    def correction(self) -> np.ndarray:
+        """The plant correction at each harmonic where the readings tell it (its spread below a quarter
+        of its size), else 1: the model's."""
+        n = self.harmonics
+        raw = self.state[2 * n:3 * n] + 1j * self.state[3 * n:]
+        variance = np.diag(self.covariance)
+        spread = np.sqrt(variance[2 * n:3 * n] + variance[3 * n:])
+        raw = np.where(spread < TRUSTED_CORRECTION_SPREAD, raw, 1.0)
+        return np.clip(np.abs(raw), 0.2, 5.0) * np.exp(1j * np.clip(np.angle(raw), -1.4, 1.4))
 
     def regressors(self, phase: float, effect: np.ndarray) -> np.ndarray:
-        """[slope placeholder, cos, -sin of each harmonic, Re and -Im of each effect] at one reading."""
+        """[cos, -sin of each harmonic, Re and -Im of each effect turned by the phase] at one reading."""
         rotors = np.exp(1j * self.orders * phase)
         turned = effect * rotors
-        return np.concatenate(([0.0], rotors.real, -rotors.imag, turned.real, -turned.imag))
+        return np.concatenate((rotors.real, -rotors.imag, turned.real, -turned.imag))
 
-    def add(self, time_s: float, phase: float, flange_K: float, effect: np.ndarray) -> None:
+    def mark_step(self, change: np.ndarray, effect: np.ndarray, gain: float | None) -> None:
+        """The waveform's effect ``effect`` (K per harmonic) just changed by ``change``, a step of ``gain``
+        toward the estimate's target: ``k_n`` may learn from it where it is three times what the noise of
+        the estimate of T2's synchronous part makes. ``gain`` None: a step the estimate did not decide
+        (the first waveform, from the model)."""
+        self.learning[:] = True
+
+    def synchronous_spread(self, effect: np.ndarray) -> np.ndarray:
+        """Standard deviation of the estimate of ``L_n + k_n z_n`` for the effect ``z`` (K per harmonic)."""
+        n = self.harmonics
+        spread = np.empty(n)
+        for index in range(n):
+            lr, li, kr, ki = index, n + index, 2 * n + index, 3 * n + index
+            z = effect[index]
+            block = self.covariance[np.ix_((lr, li, kr, ki), (lr, li, kr, ki))]
+            real = np.array([1.0, 0.0, z.real, -z.imag])      # d Re(s) / d (L_r, L_i, k_r, k_i)
+            imaginary = np.array([0.0, 1.0, z.imag, z.real])
+            spread[index] = math.sqrt(max(real @ block @ real + imaginary @ block @ imaginary, 0.0))
+        return spread
+
+    def add(self, phase: float, flange_K: float, effect: np.ndarray) -> None:
         """One T2 reading at its phase, with the waveform's modelled effect ``effect`` (K per harmonic)."""
         row = self.regressors(phase, effect)
-        previous, self._previous = self._previous, (row, time_s, flange_K)
-        if previous is None:
+        n = self.harmonics
+        held = ~self.learning
+        if held.any():          # k held: its part of the reading is taken as known
+            real, imaginary = row[2 * n:3 * n], row[3 * n:]
+            flange_K -= float(np.dot(self.state[2 * n:3 * n][held], real[held])
+                              + np.dot(self.state[3 * n:][held], imaginary[held]))
+            real[held] = 0.0
+            imaginary[held] = 0.0
+        self._history.append((row, flange_K))
+        if len(self._history) < 3:
             return
-        difference = row - previous[0]
-        difference[0] = time_s - previous[1]
-        change = flange_K - previous[2]
-        keep = self.forgetting
-        self.information *= keep
-        self.moment *= keep
-        self.information += np.outer(difference, difference)
-        self.moment += difference * change
-        # the prior k = 1 on the correction, as strong as prior_weight readings of the effect
-        strength = (1.0 - keep) * self.prior_weight * max(float(np.mean(np.abs(effect) ** 2)), 1e-18)
-        k = slice(1 + 2 * self.harmonics, self.size)
-        self.information[k, k] += strength * np.eye(2 * self.harmonics)
-        self.moment[1 + 2 * self.harmonics:1 + 3 * self.harmonics] += strength
+        (row0, y0), (row1, y1), (row2, y2) = self._history
+        del self._history[0]
+        x = row2 - 2.0 * row1 + row0
+        innovation = (y2 - 2.0 * y1 + y0) - x @ self.state
+        covariance = self.covariance
+        covariance[np.diag_indices(self.size)] += self._process
+        px = covariance @ x
+        gain = px / (x @ px + self.measurement_variance)
+        self.state += gain * innovation
+        covariance -= np.outer(gain, px)
         self.samples += 1
 
+    @property
+    def ready(self) -> bool:
+        """Enough readings for a first estimate."""
+        return self.samples >= 8 * self.harmonics
+
     def solve(self) -> None:
-        """Update :attr:`line` and :attr:`correction` from what was added."""
-        if self.samples < 4 * self.size:
-            return
-        regularised = self.information + 1e-30 * np.eye(self.size)
-        try:
-            solution = np.linalg.solve(regularised, self.moment)
-        except np.linalg.LinAlgError:
-            return
-        n = self.harmonics
-        self.line = solution[1:1 + n] + 1j * solution[1 + n:1 + 2 * n]
-        correction = solution[1 + 2 * n:1 + 3 * n] + 1j * solution[1 + 3 * n:]
-        size = np.clip(np.abs(correction), 0.2, 5.0)
-        angle = np.clip(np.angle(correction), -1.4, 1.4)
-        self.correction = size * np.exp(1j * angle)
+        """Kept for the learning step's rhythm: the filter is up to date after every reading."""
 
     def forget_last(self) -> None:
-        """Do not difference the next reading against the last (a gap: the heater was held, the lock lost)."""
-        self._previous = None
+        """Do not difference the next reading against the last ones (a gap: the lock was lost)."""
+        self._history.clear()
 
 
 class FeedforwardTerm:
@@ -378,7 +438,8 @@ class FeedforwardTerm:
             kept[:count] = self.coefficients[:count]
             self.coefficients = kept
         self.bounds = WaveformBounds(harmonics)
-        self.estimator = SynchronousEstimator(harmonics, settings.memory_s, settings.period_s)
+        self.estimator = SynchronousEstimator(harmonics, model.sensor_noise.flange_thermometer_rms_K,
+                                              settings.memory_s, settings.period_s)
         self.other_terms_w: float | None = None
         self.output_w = 0.0
         self.phase = None
@@ -411,7 +472,14 @@ class FeedforwardTerm:
             self.estimator.forget_last()
             return tick
         effect = self.plant * self.coefficients * self._applied_scale
-        self.estimator.add(tick.flange_time_s, flange_phase, tick.flange_K, effect)
+        if tick.dt_s > 1.5 * self.settings.period_s:
+            self._held_since_s = phase.time_s       # a gap: the loop held the heater off (a fault, start-up)
+        if phase.time_s - self._held_since_s < SETTLE_S:
+            # after a gap, or the total held at a limit, the heater did not play the waveform the estimator
+            # assumes: wait until T2 has settled again
+            self.estimator.forget_last()
+        else:
+            self.estimator.add(flange_phase, tick.flange_K, effect)
         synchronous = self.estimator.line + self.estimator.correction * effect
         rotors = np.exp(1j * self._orders * flange_phase)
         return replace(tick, flange_feedback_K=tick.flange_feedback_K - float(np.real(np.dot(synchronous, rotors))))
@@ -496,7 +564,7 @@ class FeedforwardTerm:
 
     def line_amplitude_K(self) -> float:
         """T2's synchronous part as the estimator has it now (K; NaN before it has enough readings)."""
-        if self.estimator.samples < 4 * self.estimator.size:
+        if not self.estimator.ready:
             return math.nan
         synchronous = self.estimator.line + self.estimator.correction * self.plant * self.coefficients \
             * self._applied_scale
@@ -506,23 +574,28 @@ class FeedforwardTerm:
     def _learn(self) -> None:
         """Step the waveform toward cancelling the estimated line, within what the heater can do."""
         estimator = self.estimator
-        estimator.solve()
-        if self.other_terms_w is None or estimator.samples < 4 * estimator.size:
+        if self.other_terms_w is None or not estimator.ready:
             return
         plant = self.plant * estimator.correction
         if not self._started:
             # the first waveform from the model: its line on T2, scaled to the cooler's amplitude in T5
             self._started = True
             target = -self.model_line * (self.tracker.amplitude_K / self._model_stage_amplitude_K) / plant
-            gain = 1.0
+            gain = None
         else:
             target = -estimator.line / plant
             gain = self.settings.learning_gain
         margin = self.settings.margin_W
         low = margin - self.other_terms_w
         high = self.output_max - margin - self.other_terms_w
-        stepped = self.coefficients + gain * (target - self.coefficients)
-        self.coefficients = self.bounds.project(stepped, np.abs(plant) ** 2, low, high)
+        stepped = target if gain is None else self.coefficients + gain * (target - self.coefficients)
+        updated = self.bounds.project(stepped, np.abs(plant) ** 2, low, high)
+        estimator.mark_step(self.plant * (updated - self.coefficients) * self._applied_scale,
+                            self.plant * self.coefficients * self._applied_scale, gain)
+        self.coefficients = updated
+        # no second difference may span the step: the readings before it decided it, and their noise
+        # would look like the plant's answer to it
+        estimator.forget_last()
 
 
 def _resolve(path: str, config_source: str) -> Path:

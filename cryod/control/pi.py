@@ -200,7 +200,7 @@ class PiTerm:
 
     def start(self, tick: TickInputs, present_output: float) -> None:
         # bumpless against the present temperature; a setpoint step then acts through Kp as usual
-        self.controller.set_automatic(tick.flange_K, tick.flange_K, present_output)
+        self.controller.set_automatic(tick.flange_feedback_K, tick.flange_feedback_K, present_output)
 
     def update(self, tick: TickInputs) -> float:
         return self.controller.update(tick.flange_feedback_K, tick.setpoint_K, tick.dt_s)

@@ -153,6 +153,7 @@ class Regulator:
         self.ramp = SetpointRamp(control.setpoint_K or 0.0, control.ramp_K_per_min)
         self.mode = RegulatorMode.CLOSED if control.setpoint_K is not None else RegulatorMode.OFF
         self.manual_power_w = 0.0
+        self._feedback_offset_K = 0.0       # T2 less what the feedback terms saw of it, last tick
 
     # -- the cycle ---------------------------------------------------------------
     def step(self, time_s: float, dt_s: float, flange_K: float, ptc_stage_K: float, *,
@@ -177,6 +178,7 @@ class Regulator:
                              ptc_stage_time_s, output_time_s)
         for term in self._conditioners:        # every mode: a phase tracker keeps its lock while the loop is open
             tick = term.condition(tick)
+        self._feedback_offset_K = tick.flange_K - tick.flange_feedback_K
         if self.mode is RegulatorMode.MANUAL:
             return RegulatorStep(self.manual_power_w, math.nan, False, {})
         if self.mode is RegulatorMode.OFF:
@@ -212,8 +214,10 @@ class Regulator:
         With a ramp the setpoint starts at the present temperature and ramps to
         the target; without, it steps to the target and acts through the terms.
         """
-        self.ramp.setpoint_K = flange_K if self.ramp.rate_K_per_min > 0.0 else self.ramp.target_K
-        tick = TickInputs.at(time_s, 0.0, flange_K, ptc_stage_K, self.ramp.setpoint_K)
+        feedback_K = flange_K - self._feedback_offset_K      # T2 as the feedback terms see it
+        self.ramp.setpoint_K = feedback_K if self.ramp.rate_K_per_min > 0.0 else self.ramp.target_K
+        tick = replace(TickInputs.at(time_s, 0.0, flange_K, ptc_stage_K, self.ramp.setpoint_K),
+                       flange_feedback_K=feedback_K)
         present = self.output.output_for(present_power_w)
         for term in self.terms:
             term.start(tick, present)

@@ -12,36 +12,47 @@ How it works, every tick:
 1. **Phase** (:mod:`cryod.control.cooler_phase`): T5, at the instant its
    reading stands for, updates a phase-locked loop; lock, phase and
    frequency come out.
-2. **Residual**: T2's part synchronous with the cooler (harmonics 1 to N of
-   the tracked phase) is estimated by least squares over blocks of readings
-   (default 4 s) at T2's own instants, with an offset and a slope for the slow
-   part. The PI term is given T2 without that part, so it does not chase the
-   line (and the feedforward's plant is the open-loop one).
+2. **Estimate** (:class:`SynchronousEstimator`): T2, at its own instant, updates
+   a Kalman filter of T2's part synchronous with the cooler (harmonics 1 to N
+   of the tracked phase), split into the cooler's line and the waveform's
+   effect through the model's plant response times a correction learned from
+   how T2 answers the waveform's changes. The PI term is given T2 without the
+   estimated synchronous part, so it does not chase the line (and the
+   feedforward's plant is the open-loop one).
 3. **Waveform**: the heater part is ``Re(sum_n u_n exp(j n phase))``, a
    band-limited waveform (no mean, so the mean heater power stays PI's; no
-   harmonics above N, so none alias below 2 Hz through the 80 ms hold), evaluated
-   at the phase of the middle of the coming hold interval.
-4. **Learning** (iterative learning in the cooler's phase): after each block
-   the coefficients step toward cancelling the measured residual through the
-   plant's response at each harmonic, ``u <- u - gain * r / G_n`` (from the
-   model, times a correction learned online from how the residual answered
-   the previous steps), and are then projected onto what the heater can do:
-   ``margin <= PI's power + waveform <= R I_max^2 - margin`` at every phase,
-   in the metric of the plant response (so that the fixed point is the
-   constrained optimum, the physical limit of :mod:`cryod.control.feedforward_limit`).
+   harmonics above N, so none alias below 2 Hz through the 80 ms hold),
+   evaluated at the phase of the middle of the coming hold. Its effect on T2's
+   samples is the plant *as the loop samples it*
+   (:func:`plant_at_harmonics`): above half the sampling rate the hold's
+   folded images make it differ much from ``G(j n omega)``.
+4. **Learning** (iterative learning in the cooler's phase): every
+   ``update_interval_s`` the coefficients step toward cancelling the estimated
+   line, ``u <- u + gain (-L / G_n - u)``, and are projected onto what the
+   heater can do, ``margin <= PI's power + waveform <= R I_max^2 - margin`` at
+   every phase, in the metric of the plant response: the fixed point is the
+   constrained optimum, the physical limit of :mod:`cryod.control.feedforward_limit`.
+   The first waveform comes from the model (its line scaled to T5's amplitude).
 5. **Fade**: without lock (cooler stopped, T5 fault) or when switched off,
-   the waveform fades out over ``fade_time_s``; PI carries on. Switching on
-   fades it in.
+   the waveform fades out over ``fade_time_s``; PI carries on. Switching on,
+   or closing the loop, fades it in. Readings after a gap (a fault, start-up)
+   or a tick where the total was held at a limit are left out of the estimate.
 
-Configuration, section ``control.feedforward`` (optional; reloadable)::
+The term rides on the feedback (``rides_on_feedback``): the regulator adds it
+after PI's sum has been held within the heater's range, so a clipped waveform
+never stops PI integrating.
+
+Configuration, section ``control.feedforward`` (optional; reloadable, bumpless)::
 
     feedforward:
       enabled: true              # cryod ctl feedforward on|off switches it without a reload
       harmonics: 6
-      block_s: 4.0               # learning block: residual estimated, waveform updated
-      learning_gain: 0.5         # fraction of the measured residual removed per block
+      update_interval_s: 2.0     # the waveform steps this often
+      memory_s: 60.0             # the line estimate may drift over this
+      learning_gain: 0.5         # fraction of the way to the estimated best waveform per step
       fade_time_s: 5.0
       margin_W: 0.001            # kept from 0 W and from R I_max^2
+      minimum_cooler_amplitude_K: 0.01
       model: null                # the controller's model (null: the shipped model)
 """
 
@@ -243,12 +254,11 @@ class SynchronousEstimator:
     waveform changes (when it comes in, when it learns) and is kept between
     them; it starts at 1 with a spread of ``correction_spread``.
 
-    A change of the waveform that the estimate's own noise decided looks, to
-    the estimate, like the plant answering too strongly (closed-loop
-    identification): the noise that moved the waveform is still in the
-    estimate of the line. So ``k_n`` learns only from changes well above what
-    that noise could make (:meth:`mark_step`); otherwise it is held at its
-    estimate, which the readings are corrected with.
+    Where the waveform hardly changes, the readings hardly tell ``k_n``, and a
+    change the estimate's own noise decided even biases it (the noise that moved
+    the waveform is still in the estimate of the line): ``k_n`` is used only
+    once its spread is below ``TRUSTED_CORRECTION_SPREAD``, else the model's
+    response is. Where that happens the waveform is small, and so is the harm.
 
     Parameters
     ----------
@@ -271,6 +281,7 @@ class SynchronousEstimator:
     def __init__(self, harmonics: int, noise_K: float = 20e-6, memory_s: float = 60.0,
                  period_s: float = DEFAULT_PERIOD_S, correction_spread: float = 0.7, line_drift_K: float = 20e-6):
         self.harmonics = harmonics
+        self.memory_s = memory_s
         self.orders = np.arange(1, harmonics + 1)
         self.size = 4 * harmonics
         n = 2 * harmonics
@@ -283,7 +294,6 @@ class SynchronousEstimator:
         self.measurement_variance = 6.0 * noise_K ** 2     # second difference of white noise
         self._history: list[tuple[np.ndarray, float]] = []     # the last two readings' regressors and T2
         self.samples = 0
-        self.learning = np.zeros(harmonics, dtype=bool)         # harmonics whose k the readings may teach
 
     @property
     def line(self) -> np.ndarray:
@@ -307,38 +317,9 @@ class SynchronousEstimator:
         turned = effect * rotors
         return np.concatenate((rotors.real, -rotors.imag, turned.real, -turned.imag))
 
-    def mark_step(self, change: np.ndarray, effect: np.ndarray, gain: float | None) -> None:
-        """The waveform's effect ``effect`` (K per harmonic) just changed by ``change``, a step of ``gain``
-        toward the estimate's target: ``k_n`` may learn from it where it is three times what the noise of
-        the estimate of T2's synchronous part makes. ``gain`` None: a step the estimate did not decide
-        (the first waveform, from the model)."""
-        self.learning[:] = True
-
-    def synchronous_spread(self, effect: np.ndarray) -> np.ndarray:
-        """Standard deviation of the estimate of ``L_n + k_n z_n`` for the effect ``z`` (K per harmonic)."""
-        n = self.harmonics
-        spread = np.empty(n)
-        for index in range(n):
-            lr, li, kr, ki = index, n + index, 2 * n + index, 3 * n + index
-            z = effect[index]
-            block = self.covariance[np.ix_((lr, li, kr, ki), (lr, li, kr, ki))]
-            real = np.array([1.0, 0.0, z.real, -z.imag])      # d Re(s) / d (L_r, L_i, k_r, k_i)
-            imaginary = np.array([0.0, 1.0, z.imag, z.real])
-            spread[index] = math.sqrt(max(real @ block @ real + imaginary @ block @ imaginary, 0.0))
-        return spread
-
     def add(self, phase: float, flange_K: float, effect: np.ndarray) -> None:
         """One T2 reading at its phase, with the waveform's modelled effect ``effect`` (K per harmonic)."""
-        row = self.regressors(phase, effect)
-        n = self.harmonics
-        held = ~self.learning
-        if held.any():          # k held: its part of the reading is taken as known
-            real, imaginary = row[2 * n:3 * n], row[3 * n:]
-            flange_K -= float(np.dot(self.state[2 * n:3 * n][held], real[held])
-                              + np.dot(self.state[3 * n:][held], imaginary[held]))
-            real[held] = 0.0
-            imaginary[held] = 0.0
-        self._history.append((row, flange_K))
+        self._history.append((self.regressors(phase, effect), flange_K))
         if len(self._history) < 3:
             return
         (row0, y0), (row1, y1), (row2, y2) = self._history
@@ -357,9 +338,6 @@ class SynchronousEstimator:
     def ready(self) -> bool:
         """Enough readings for a first estimate."""
         return self.samples >= 8 * self.harmonics
-
-    def solve(self) -> None:
-        """Kept for the learning step's rhythm: the filter is up to date after every reading."""
 
     def forget_last(self) -> None:
         """Do not difference the next reading against the last ones (a gap: the lock was lost)."""
@@ -389,6 +367,15 @@ class FeedforwardTerm:
         self.scale = 0.0
         self.coefficients = np.zeros(settings.harmonics, dtype=complex)
         self.tracker: CoolerPhaseTracker | None = None
+        self.estimator: SynchronousEstimator | None = None
+        self.setting_delay_s = 0.0
+        self.other_terms_w: float | None = None      # the feedback terms' power, smoothed
+        self.output_w = 0.0
+        self.phase = None
+        self._flange_phase_rad = math.nan
+        self._applied_scale = 0.0           # the scale of the waveform the heater played last tick
+        self._held_since_s = -math.inf      # when the heater last did not play the waveform
+        self._next_update_s: float | None = None
         self._configure(settings)
 
     # -- configuration ---------------------------------------------------------------
@@ -428,8 +415,8 @@ class FeedforwardTerm:
                 or self.tracker.minimum_amplitude_K != settings.minimum_cooler_amplitude_K:
             self.tracker = CoolerPhaseTracker(model.ptc.angular_frequency_rad_s,
                                               minimum_amplitude_K=settings.minimum_cooler_amplitude_K)
-        self.setting_delay_s = getattr(self, "setting_delay_s", 0.0)
-        self.plant = plant_at_harmonics(model, np.arange(1, harmonics + 1), settings.period_s, self.setting_delay_s)
+        self._orders = np.arange(1, harmonics + 1)
+        self.plant = plant_at_harmonics(model, self._orders, settings.period_s, self.setting_delay_s)
         self.model_line = line_at_harmonics(model, harmonics)
         self._model_stage_amplitude_K = abs(model.ptc.ptc_stage_amplitude_K) or 1.0
         if self.coefficients.size != harmonics:                    # keep what was learned, as far as it goes
@@ -438,17 +425,11 @@ class FeedforwardTerm:
             kept[:count] = self.coefficients[:count]
             self.coefficients = kept
         self.bounds = WaveformBounds(harmonics)
-        self.estimator = SynchronousEstimator(harmonics, model.sensor_noise.flange_thermometer_rms_K,
-                                              settings.memory_s, settings.period_s)
-        self.other_terms_w: float | None = None
-        self.output_w = 0.0
-        self.phase = None
-        self._flange_phase_rad = math.nan
-        self._applied_scale = 0.0         # the scale of the waveform the heater played last tick
-        self._held_since_s = -math.inf     # when the heater was last held at a limit
-        self._next_update_s: float | None = None
+        estimator = self.estimator
+        if estimator is None or estimator.harmonics != harmonics or estimator.memory_s != settings.memory_s:
+            self.estimator = SynchronousEstimator(harmonics, model.sensor_noise.flange_thermometer_rms_K,
+                                                  settings.memory_s, settings.period_s)
         self._started = bool(np.any(self.coefficients))
-        self._orders = np.arange(1, harmonics + 1)
 
     def reconfigure(self, settings: FeedforwardSettings, output_max: float) -> None:
         """A reload: new settings, keeping the lock and the learned waveform (bumpless)."""
@@ -589,10 +570,7 @@ class FeedforwardTerm:
         low = margin - self.other_terms_w
         high = self.output_max - margin - self.other_terms_w
         stepped = target if gain is None else self.coefficients + gain * (target - self.coefficients)
-        updated = self.bounds.project(stepped, np.abs(plant) ** 2, low, high)
-        estimator.mark_step(self.plant * (updated - self.coefficients) * self._applied_scale,
-                            self.plant * self.coefficients * self._applied_scale, gain)
-        self.coefficients = updated
+        self.coefficients = self.bounds.project(stepped, np.abs(plant) ** 2, low, high)
         # no second difference may span the step: the readings before it decided it, and their noise
         # would look like the plant's answer to it
         estimator.forget_last()

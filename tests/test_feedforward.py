@@ -1,0 +1,272 @@
+"""The feedforward locked to the cooler: phase tracking, estimation, the heater's bounds, the loop.
+
+Closed-loop runs use the offline simulation (simulated_hw.closed_loop, the
+daemon's own regulator) on virtual time; each figure is checked against the
+physics (the computed limit, PI alone), not against a recorded number.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from scipy import optimize
+
+from cryod.control.cooler_phase import CoolerPhaseTracker
+from cryod.control.feedforward import (FeedforwardSettings, FeedforwardTerm, SynchronousEstimator, WaveformBounds,
+                                       line_at_harmonics, plant_at_harmonics)
+from cryod.control.pi import PiGains
+from cryod.control.terms import TickInputs
+from cryod.model import CryostatPlant
+from cryod.model.dynamics import flange_transfer_functions
+from cryod.model.parameters import SensorLag
+from cryod.records.metrics import periodic_amplitudes
+from simulated_hw.closed_loop import Segment, run_program
+
+OMEGA = 10.83
+PERIOD = 0.08
+GAINS = PiGains(10.0, 0.2)
+
+
+# ---------------------------------------------------------------------------
+# the cooler's phase
+# ---------------------------------------------------------------------------
+def track(phase_of, duration_s=60.0, amplitude_of=None, irregular=True, noise_K=3e-4, seed=1):
+    generator = np.random.default_rng(seed)
+    t = np.arange(0.0, duration_s, PERIOD) + 0.01
+    if irregular:                                   # every third reading 20 ms later (NORMal autozero)
+        t = t + np.where(np.arange(t.size) % 3 == 0, 0.02, 0.0)
+    truth = phase_of(t)
+    amplitude = 0.12 if amplitude_of is None else amplitude_of(t)
+    values = 3.34 + amplitude * np.cos(truth) + 0.002 * np.cos(2 * truth + 1.0) + noise_K * generator.normal(size=t.size)
+    tracker = CoolerPhaseTracker(OMEGA)
+    states = [tracker.update(time_s, value) for time_s, value in zip(t, values)]
+    error = np.angle(np.exp(1j * (np.array([s.phase_rad for s in states]) - truth)))
+    locked = np.array([s.locked for s in states])
+    return t, error, locked, states
+
+
+@pytest.mark.parametrize("offset", [-0.02, 0.0, 0.02])
+def test_tracker_locks_within_10_s_at_a_frequency_2_percent_off(offset):
+    t, error, locked, states = track(lambda t: OMEGA * (1 + offset) * t + 2.0)
+    assert locked.any() and t[np.argmax(locked)] < 10.0
+    assert np.sqrt(np.mean(error[t > 15.0] ** 2)) < 3e-3
+    assert states[-1].frequency_rad_s == pytest.approx(OMEGA * (1 + offset), abs=3e-3)
+
+
+def test_tracker_follows_a_wandering_cooler_and_a_phase_jump():
+    wander = 0.02 * OMEGA
+    t, error, locked, _ = track(lambda t: OMEGA * t - wander * 600.0 / (2 * math.pi) * np.cos(2 * math.pi * t / 600.0)
+                                + np.where(t > 900.0, 2.5, 0.0), duration_s=1200.0)
+    steady = (t > 20.0) & ((t < 900.0) | (t > 910.0))
+    assert np.max(np.abs(error[steady])) < 0.02 and locked[steady].all()
+    assert np.max(np.abs(error[t > 905.0])) < 0.05                     # the restart pulled in within 5 s
+
+
+def test_tracker_drops_the_lock_when_the_oscillation_goes():
+    t, _, locked, _ = track(lambda t: OMEGA * t, amplitude_of=lambda t: np.where(t > 40.0, 0.0, 0.12))
+    assert locked[(t > 20.0) & (t < 40.0)].all()
+    assert not locked[t > 42.0].any()
+
+
+def test_tracker_uses_each_readings_own_instant():
+    """With readings 20 ms late every third tick and treated as on time, the phase would be off by 0.22 rad."""
+    _, error, _, _ = track(lambda t: OMEGA * t, irregular=True)
+    assert np.max(np.abs(error[20 * 12:])) < 0.01
+
+
+# ---------------------------------------------------------------------------
+# the plant as the loop samples it, the estimator, the bounds
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("order, delay_s", [(1, 0.0), (5, 0.0), (1, 0.035), (5, 0.035)])
+def test_sampled_plant_matches_the_simulated_cryostat(reference_model, order, delay_s):
+    """A held heater waveform at harmonic n, set delay_s after each sample, seen in T2's samples."""
+    quiet = reference_model.with_ptc(ptc_stage_amplitude_K=0.0)
+    plant = CryostatPlant(quiet, 0.0, 0.26)
+    times, flange = [], []
+    for k in range(int(900 / PERIOD)):
+        time_s = k * PERIOD
+        plant.advance_to(time_s)
+        times.append(time_s)
+        flange.append(plant.temperatures()[0])
+        setting = time_s + delay_s
+        plant.set_heater_power(0.26 + 0.1 * math.cos(order * OMEGA * (setting + PERIOD / 2)), setting)
+    times, flange = np.array(times), np.array(flange)
+    late = times > 500.0
+    angle = order * OMEGA * times[late]
+    columns = np.column_stack([np.ones(late.sum()), times[late], np.cos(angle), -np.sin(angle)])
+    solution = np.linalg.lstsq(columns, flange[late], rcond=None)[0]
+    measured = (solution[2] + 1j * solution[3]) / 0.1
+    expected = complex(plant_at_harmonics(quiet, [order], PERIOD, delay_s)[0])
+    assert abs(measured - expected) < 1e-3 * abs(expected)
+    if order == 5:       # above half the sampling rate the hold's folded images count: far from G(j 5 w)
+        continuous = flange_transfer_functions(quiet)[0].frequency_response(5 * OMEGA)
+        assert abs(expected) > 1.4 * abs(continuous)
+
+
+def test_estimator_separates_the_line_from_the_plant_correction():
+    generator = np.random.default_rng(0)
+    estimator = SynchronousEstimator(2)
+    line = np.array([1e-3 * np.exp(0.5j), 2e-4])
+    correction = np.array([0.44 * np.exp(-0.82j), 0.8 * np.exp(0.3j)])
+    for k in range(5000):
+        t = k * PERIOD
+        effect = np.array([1.5e-3 * np.exp(1j * (1.0 + 0.01 * t)), 3e-4 * np.exp(-0.02j * t)]) * min(t / 60.0, 1.0)
+        value = 5.0 + 1e-5 * t + np.real(np.sum((line + correction * effect) * np.exp(1j * np.arange(1, 3) * OMEGA * t)))
+        estimator.add(OMEGA * t, value + 2e-5 * generator.normal(), effect)
+    assert np.abs(estimator.correction - correction) == pytest.approx([0, 0], abs=0.05)
+    assert np.abs(estimator.line - line) == pytest.approx([0, 0], abs=3e-5)
+
+
+def test_projection_is_the_constrained_optimum():
+    """Against an independent solver (SLSQP) on a small problem: same objective, within the bounds."""
+    bounds = WaveformBounds(3, points=64)
+    target = np.array([0.25 * np.exp(1j), 0.05j, 0.02])
+    weights = np.array([1.0, 0.3, 0.1])
+    low, high = -0.11, 0.39
+    projected = bounds.project(target, weights, low, high, tolerance=1e-10, iterations=20000)
+    values = bounds.values(projected)
+    assert values.min() >= low - 1e-6 and values.max() <= high + 1e-6
+
+    def objective(x):
+        u = x[:3] + 1j * x[3:]
+        return float(np.sum(weights * np.abs(u - target) ** 2))
+
+    constraints = [{"type": "ineq", "fun": lambda x: bounds.matrix @ x - low},
+                   {"type": "ineq", "fun": lambda x: high - bounds.matrix @ x}]
+    reference = optimize.minimize(objective, np.zeros(6), constraints=constraints, method="SLSQP",
+                                  options={"ftol": 1e-14, "maxiter": 500})
+    assert reference.success
+    ours = objective(np.concatenate([projected.real, projected.imag]))
+    assert ours == pytest.approx(reference.fun, rel=1e-3)
+    inside = np.array([0.1, 0.0, 0.0], dtype=complex)
+    assert np.array_equal(bounds.project(inside, weights, low, high), inside)      # feasible: unchanged
+
+
+# ---------------------------------------------------------------------------
+# the term on its own: fade, lock loss, switching
+# ---------------------------------------------------------------------------
+def feed(term, seconds, start_s=0.0, cooler=True, flange_K=5.0):
+    """Ticks into the term as the regulator would give them; returns the outputs."""
+    outputs = []
+    for k in range(int(seconds / PERIOD)):
+        t = start_s + k * PERIOD
+        stage = 3.34 + (0.12 * math.cos(OMEGA * t) if cooler else 0.0)
+        tick = TickInputs.at(t, PERIOD, flange_K + 1.7e-3 * math.cos(OMEGA * t - 1.1), stage, 5.0)
+        tick = term.condition(tick)
+        outputs.append(term.update(tick))
+        term.limit(0.113 + outputs[-1], 0.113 + outputs[-1])
+    return np.array(outputs)
+
+
+def test_the_waveform_fades_in_and_out_with_the_lock_and_on_command(reference_model):
+    term = FeedforwardTerm(FeedforwardSettings(model=reference_model, fade_time_s=5.0), 0.5)
+    term.start(None, 0.113)
+    feed(term, 40.0)
+    assert term.scale == 1.0 and np.any(term.coefficients)
+    peak = float(np.max(np.abs(term.bounds.values(term.coefficients))))
+    term.switch(False)
+    off = feed(term, 10.0, 40.0)
+    assert term.scale == 0.0 and np.all(off[-20:] == 0.0)
+    envelope = peak * np.clip(1.0 - PERIOD * np.arange(1, off.size + 1) / 5.0, 0.0, 1.0)
+    assert np.all(np.abs(off) <= envelope + 1e-3)          # fades over 5 s, no jump to 0 W
+    term.switch(True)
+    feed(term, 10.0, 50.0)
+    assert term.scale == 1.0
+    lost = feed(term, 10.0, 60.0, cooler=False)             # the cooler stops: the lock goes, the waveform fades
+    assert not term.phase.locked and term.scale == 0.0 and np.all(lost[-10:] == 0.0)
+
+
+def test_a_reload_keeps_what_was_learned(reference_model):
+    settings = FeedforwardSettings(model=reference_model)
+    term = FeedforwardTerm(settings, 0.5)
+    term.start(None, 0.113)
+    feed(term, 60.0)
+    learned = term.coefficients.copy()
+    term.reconfigure(dataclasses.replace(settings, learning_gain=0.2), 0.5)
+    assert np.array_equal(term.coefficients, learned) and term.phase.locked and term.scale == 1.0
+
+
+# ---------------------------------------------------------------------------
+# closed loop on the simulated cryostat
+# ---------------------------------------------------------------------------
+def closed_loop(model, setpoint_K, controller_model=None, duration_s=900.0, feedforward=True, heater_max_w=0.5):
+    settings = FeedforwardSettings(enabled=feedforward, model=controller_model or model)
+    return run_program(model, [Segment(0.0, setpoint_K=setpoint_K)], duration_s, gains=GAINS,
+                       heater_max_w=heater_max_w, seed=1, more_terms=(("feedforward", settings),))
+
+
+def periodic(run, from_s=600.0):
+    amplitudes = periodic_amplitudes(run.time_s, run.flange_K, run.time_s, run.ptc_stage_K, OMEGA,
+                                     window_start_s=from_s)
+    return float(np.sqrt(np.sum(amplitudes ** 2)))
+
+
+def best_band_limited(model, setpoint_K, heater_max_w=0.5, harmonics=16):
+    """The least synchronous T2 any waveform of up to 16 harmonics can leave (for the mean the setpoint needs)."""
+    orders = np.arange(1, harmonics + 1)
+    plant, line = plant_at_harmonics(model, orders, PERIOD), line_at_harmonics(model, harmonics)
+    mean = (setpoint_K - model.operating_point.flange_temperature_K) / flange_transfer_functions(model)[0].dc_gain
+    best = WaveformBounds(harmonics, points=256).project(-line / plant, np.abs(plant) ** 2, -mean, heater_max_w - mean,
+                                                         tolerance=1e-10, iterations=50000)
+    return float(np.sqrt(np.sum(np.abs(line + plant * best) ** 2)))
+
+
+@pytest.fixture(scope="module")
+def pi_alone_5K(reference_model):
+    return closed_loop(reference_model, 5.0, feedforward=False)
+
+
+@pytest.fixture(scope="module")
+def feedforward_5K(reference_model):
+    return closed_loop(reference_model, 5.0)
+
+
+def test_at_5_K_it_reaches_the_physical_limit_well_beyond_the_sinusoids_cap(feedforward_5K, pi_alone_5K,
+                                                                             reference_model):
+    limit = best_band_limited(reference_model, 5.0)
+    achieved = periodic(feedforward_5K)
+    assert achieved < periodic(pi_alone_5K) / 3.0          # a sinusoid around 113 mW: about 1.9 times at most
+    assert achieved < 1.05 * limit
+
+
+def test_the_waveform_stays_within_the_heaters_bounds_and_pi_keeps_the_mean(feedforward_5K, pi_alone_5K):
+    late = feedforward_5K.time_s > 300.0
+    heater = feedforward_5K.heater_w[late]
+    assert heater.min() > 0.0 and heater.max() < 0.5
+    assert np.mean(heater) == pytest.approx(np.mean(pi_alone_5K.heater_w[late]), rel=0.01)
+    assert np.mean(feedforward_5K.flange_K[feedforward_5K.time_s > 600.0]) == pytest.approx(5.0, abs=2e-5)
+
+
+def test_pi_does_not_chase_the_line(feedforward_5K, pi_alone_5K):
+    def line_in(values, run):
+        late = run.time_s > 600.0
+        angle = run.control["ff_phase_rad"][late]
+        columns = np.column_stack([np.ones(late.sum()), np.cos(angle), np.sin(angle)])
+        solution = np.linalg.lstsq(columns, values[late], rcond=None)[0]
+        return math.hypot(solution[1], solution[2])
+
+    with_feedforward = line_in(feedforward_5K.control["pi_proportional_W"], feedforward_5K)
+    assert with_feedforward < 0.05 * GAINS.proportional_w_per_K * 1.7e-3         # Kp x the line: 17 mW
+
+
+def test_at_6_K_it_removes_the_line(reference_model):
+    assert periodic(closed_loop(reference_model, 6.0)) < 1.73e-3 / 100.0
+
+
+@pytest.mark.parametrize("gain, lag_deg", [(0.5, 0.0), (2.0, 0.0), (1.0, 60.0), (1.0, -60.0)])
+def test_a_wrong_model_still_converges(reference_model, gain, lag_deg):
+    """The controller's model off by 0.5-2x in gain or +-60 degrees at the line: the correction is learned."""
+    lag_s = math.tan(math.radians(abs(lag_deg))) / OMEGA
+    scaled = dataclasses.replace(reference_model, heater_to_flange=dataclasses.replace(
+        reference_model.heater_to_flange, numerator=tuple(gain * c for c in reference_model.heater_to_flange.numerator)))
+    if lag_deg > 0:        # the cryostat lags more than the controller thinks
+        cryostat, controller = reference_model.with_effects(sensor_lag=SensorLag(lag_s)), reference_model
+    elif lag_deg < 0:      # the controller thinks it lags more than it does
+        cryostat, controller = reference_model, reference_model.with_effects(sensor_lag=SensorLag(lag_s))
+    else:
+        cryostat, controller = scaled, reference_model
+    achieved = periodic(closed_loop(cryostat, 6.0, controller_model=controller))
+    assert achieved < max(1.15 * best_band_limited(cryostat, 6.0), 20e-6)

@@ -8,7 +8,7 @@ import pytest
 MODULES = [
     "cryod.analysis.ptc_line", "cryod.analysis.noise", "cryod.analysis.record_data", "cryod.analysis.replay",
     "cryod.analysis.segments", "cryod.analysis.decision", "cryod.paper_table1", "simulated_hw.protocols",
-    "simulated_hw.hidden_effects",
+    "simulated_hw.hidden_effects", "cryod.control.feedforward_limit", "cryod.control.bounded_waveform",
 ]
 
 

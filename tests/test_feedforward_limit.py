@@ -54,18 +54,31 @@ def simulated_line(model):
     return fitted_harmonics(time_s, record.flange_K, phase, [1])[0]
 
 
+def cooler_phase(model, time_s):
+    """The phase of T5's fundamental as its thermometer reads it (A cos phase), fitted to a simulation."""
+    record = simulate(model, time_s[:2500], np.zeros(2500))
+    fundamental = fitted_harmonics(time_s[:2500], record.ptc_stage_K, model.ptc.angular_frequency_rad_s * time_s[:2500],
+                                   [1])[0]
+    return model.ptc.angular_frequency_rad_s * time_s + np.angle(fundamental)
+
+
 def run_waveform(model, limit, duration_s=1500.0, settle_s=700.0, orders=range(1, 13)):
     """Simulate the loop holding the limit's waveform every 80 ms; harmonics of the T2 readings."""
     time_s = np.arange(0.0, duration_s, limit.period_s)
-    cooler_phase = model.ptc.angular_frequency_rad_s * time_s + model.ptc.phase_rad
+    phase = cooler_phase(model, time_s)
     orders_w = np.arange(1, limit.harmonics + 1)
-    delivered = limit.mean_heater_power_W + (np.exp(1j * np.outer(cooler_phase, orders_w))
-                                             @ limit.waveform_harmonics_W).real
-    commanded = np.interp(np.mod(cooler_phase, 2.0 * math.pi), limit.waveform_phase_rad, limit.waveform_power_W,
+    delivered = limit.mean_heater_power_W + (np.exp(1j * np.outer(phase, orders_w)) @ limit.waveform_harmonics_W).real
+    commanded = np.interp(np.mod(phase, 2.0 * math.pi), limit.waveform_phase_rad, limit.waveform_power_W,
                           period=2.0 * math.pi) if model.effects.heater_nonlinearity else delivered
     record = simulate(model, time_s, commanded, initial_heater_power_w=float(np.mean(commanded)))
     kept = time_s > settle_s
-    return np.abs(fitted_harmonics(time_s[kept], record.flange_K[kept], cooler_phase[kept], list(orders)))
+    return np.abs(fitted_harmonics(time_s[kept], record.flange_K[kept], phase[kept], list(orders)))
+
+
+def test_heater_response_through_the_hold_matches_scipys_discretisation(reference_model, at_5K):
+    expected = discretised_gain(reference_model, [1])[0]
+    assert at_5K.heater_gain_at_line_K_per_W == pytest.approx(abs(expected), rel=1e-7)
+    assert at_5K.heater_phase_at_line_deg == pytest.approx(math.degrees(np.angle(expected)), abs=1e-5)
 
 
 # ---------------------------------------------------------------------------
@@ -131,7 +144,7 @@ def test_simulated_loop_leaves_exactly_the_predicted_harmonics(reference_model, 
     """The loop simulated in time, heater held 80 ms, readings at the ticks: the predicted residual."""
     model = reference_model
     if effects != "none":
-        model = model.with_effects(dead_time=DeadTime(0.03), sensor_lag=SensorLag(0.1),
+        model = model.with_effects(dead_time=DeadTime(0.03), sensor_lag=SensorLag(0.1, 0.05),
                                    heater_nonlinearity=HeaterNonlinearity(0.4))
         model = model.with_ptc(harmonics=(PtcHarmonic(order=2, ptc_stage_amplitude_K=0.012, phase_rad=0.4),))
     limit = feedforward_limit(model, 5.0, 50.0, 0.1, certify=False)

@@ -122,13 +122,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _sweep_row(row: SweepPoint) -> dict:
+    summary = {"value": row.value, "mean_heater_power_W": row.mean_heater_power_W,
+               "max_heater_power_W": row.max_heater_power_W}
     if row.limit is None:
-        return {"value": row.value, "problem": row.problem}
+        return {**summary, "problem": row.problem}
     limit = row.limit
-    return {"value": row.value, "mean_heater_power_W": limit.mean_heater_power_W,
-            "max_heater_power_W": limit.max_heater_power_W, "authority": limit.authority,
-            "best_sinusoid_K": limit.best_sinusoid_K, "ptc_periodic_limit_K": limit.ptc_periodic_limit_K,
-            "limited_by": limit.limited_by}
+    return {**summary, "authority": limit.authority, "best_sinusoid_K": limit.best_sinusoid_K,
+            "ptc_periodic_limit_K": limit.ptc_periodic_limit_K, "limited_by": limit.limited_by}
 
 
 def _mk(value_K: float) -> str:
@@ -179,12 +179,12 @@ def report(limit: FeedforwardLimit, sweeps: dict, model_path: str = "") -> str:
         title, unit = titles[name]
         lines.append(f"  {title}:")
         for row in rows:
-            label = f"{row.value:g} {unit}"
+            start = f"    {f'{row.value:g} {unit}':>10}  {_mw(row.mean_heater_power_W):>9} {_mw(row.max_heater_power_W):>10}"
             if row.limit is None:
-                lines.append(f"    {label:>10}  out of reach: {row.problem}")
+                reason = "the heater cannot cool" if row.mean_heater_power_W < 0.0 else "more than the heater gives"
+                lines.append(f"{start}  out of reach: {reason}")
                 continue
             item = row.limit
-            lines.append(f"    {label:>10}  {_mw(item.mean_heater_power_W):>9} {_mw(item.max_heater_power_W):>10}"
-                         f"  {item.authority:5.2f}  {_mk(item.best_sinusoid_K):>10}  {_mk(item.ptc_periodic_limit_K):>10}"
-                         f"  {item.limited_by}")
+            lines.append(f"{start}  {item.authority:5.2f}  {_mk(item.best_sinusoid_K):>10}"
+                         f"  {_mk(item.ptc_periodic_limit_K):>10}  {item.limited_by}")
     return "\n".join(lines)

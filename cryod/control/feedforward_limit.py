@@ -18,7 +18,9 @@ The loop as a sampled system
 ----------------------------
 Every period T (80 ms) the loop reads T2 and holds one heater power until the next tick. A
 waveform locked to the cooler sets, at tick k, ``u_k = P(phi_k)`` with phi_k the cooler's phase
-then; T / (cooler period) is not rational, so the phi_k sweep every phase. Write
+then; T / (cooler period) is not rational, so the phi_k sweep every phase. (A heater sequence
+that is not a function of the phase alone gains nothing: averaged over the ticks that fall in
+each phase bin it gives a function of the phase with the same synchronous content and bounds.) Write
 ``P(phi) = P_mean + Re sum_n a_n exp(j n phi)`` (a_n: phasor amplitude of harmonic n, W). The
 held heater power then contains, besides a_n * Hzoh(j n w0) at the harmonic itself
 (Hzoh(jw) = (1 - exp(-jwT)) / (jwT)), images at ``n w0 + 2 pi m / T`` for every m != 0. None of
@@ -120,7 +122,7 @@ class FeedforwardLimitError(ValueError):
     """Inputs for which no limit exists (setpoint out of the heater's reach, bad heater values)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class FeedforwardLimit:
     """The physical limit of the cooler-locked feedforward at one setpoint with one heater.
 

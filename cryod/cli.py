@@ -5,6 +5,7 @@
     cryod ctl [--socket PATH] COMMAND           talk to the running daemon
     cryod analyze RECORD [...]                  what the simulation gets wrong, and why
     cryod identify RECORD [...]                 fit a model from measured records
+    cryod feedforward-limit [...]               the feedforward's physical limit for a heater
 
 Errors go to stderr with a non-zero exit code: 2 for unusable input (a bad
 configuration, a bad command line), the daemon's fault codes otherwise
@@ -28,6 +29,8 @@ DEFAULT_CONFIG = Path("/etc/cryod/cryod.yaml")
 MODEL_TOOLS = (
     ("analyze", "cryod.analysis.command", "what the simulation gets wrong on a record, the cause, the extended model"),
     ("identify", "cryod.identification.command", "fit the model's transfer functions to measured records"),
+    ("feedforward-limit", "cryod.control.feedforward_limit_command",
+     "the least cooler-synchronous oscillation any heater waveform can leave, and what would change it"),
 )
 
 
@@ -110,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_model_tool(name: str, argv: list[str]) -> int:
-    """``cryod analyze ...`` / ``cryod identify ...``: the tool's module parses its own arguments."""
+    """``cryod analyze ...``, ``cryod identify ...``, ...: the tool's module parses its own arguments."""
     module = importlib.import_module(dict((n, m) for n, m, _ in MODEL_TOOLS)[name])
     parser = module.configure_parser(argparse.ArgumentParser(prog=f"cryod {name}"))
     return module.run(parser.parse_args(argv))

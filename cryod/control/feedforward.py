@@ -148,15 +148,18 @@ def plant_at_harmonics(model: CryostatModel, orders, period_s: float, setting_de
     return heater.sampled_response(omega, period_s, setting_delay_s) * middle
 
 
-def line_at_harmonics(model: CryostatModel, harmonics: int) -> np.ndarray:
+def line_at_harmonics(model: CryostatModel, harmonics: int, time_scale: float = 1.0) -> np.ndarray:
     """The model's cooler line on T2 at each harmonic (K, complex), relative to the phase of
-    T5's fundamental (the tracked phase: T5's fundamental is ``A cos(phase)``)."""
+    T5's fundamental (the tracked phase: T5's fundamental is ``A cos(phase)``).
+
+    ``time_scale`` multiplies the flange's time constants (the heat-capacity effect at a setpoint).
+    """
     drive = PtcDrive(model)
     omega = model.ptc.angular_frequency_rad_s
     flange = PtcPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
     stage = PtcPath(drive, stage_transfer_functions(model)[1], input_is_heat=False)
     rotations = [cmath.exp(1j * component.phase_rad) for component in drive.components]
-    flange_phasors = [p * r for p, r in zip(flange.output_phasors(omega), rotations)]
+    flange_phasors = [p * r for p, r in zip(flange.output_phasors(omega, time_scale), rotations)]
     stage_fundamental = next(p * r for p, r, c in zip(stage.output_phasors(omega), rotations, drive.components)
                              if c.order == 1)
     reference = cmath.phase(stage_fundamental)

@@ -18,6 +18,7 @@ Examples
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -231,14 +232,17 @@ class TransferFunction:
         period_s : float
             Sample and hold period (s).
         setting_delay_s : float
-            From a sample to the setting of the new input (s), ``0 <= delay < period``.
+            From a sample to the setting of the new input (s), at least 0; whole periods of it
+            delay the response by as many samples.
 
         Returns
         -------
         complex or numpy.ndarray
         """
-        if not 0.0 <= setting_delay_s < period_s:
-            raise ValueError(f"need 0 <= setting_delay_s < period_s, got {setting_delay_s}, {period_s}")
+        if not (setting_delay_s >= 0.0 and period_s > 0.0):
+            raise ValueError(f"need setting_delay_s >= 0 and period_s > 0, got {setting_delay_s}, {period_s}")
+        whole_periods = math.floor(setting_delay_s / period_s)
+        setting_delay_s -= whole_periods * period_s
         modal = self.modal_form()
         omega = np.asarray(angular_frequency_rad_s, dtype=float)
         z = np.exp(1j * omega * period_s)[..., None]
@@ -248,7 +252,7 @@ class TransferFunction:
         before = np.exp(poles * (period_s - setting_delay_s)) * np.expm1(poles * setting_delay_s) / poles
         after = np.expm1(poles * (period_s - setting_delay_s)) / poles
         states = (after + before / z) / (z - a)
-        response = np.sum(residues * states, axis=-1) + modal.direct / z[..., 0]
+        response = (np.sum(residues * states, axis=-1) + modal.direct / z[..., 0]) * z[..., 0] ** -whole_periods
         return complex(response) if np.ndim(response) == 0 else response
 
     def to_dict(self) -> dict:

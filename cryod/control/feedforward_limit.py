@@ -1,0 +1,620 @@
+"""The physical limit of the feedforward: the least cooler-synchronous oscillation any heater
+waveform locked to the pulse-tube cooler can leave on the flange thermometer (T2).
+
+The heater can only heat (P >= 0), saturates at R * I_max**2, and its mean is fixed by the thermal
+balance at the setpoint. Within those bounds, which waveform P(phi) of the cooler's phase phi
+leaves the smallest PTC-synchronous part on T2, and how small is it? This module answers with a
+convex optimisation, certifies the answer with a lower bound that holds for every waveform, and
+says what limits it (the heater's authority, or the estimation noise) and what would change it.
+
+The measure
+-----------
+The daemon reports ``ptc_periodic_amplitude_K``: sqrt(2) times the rms of the part of T2 that is
+periodic in the cooler's phase, harmonics 1-6, measured in the readings taken at the loop's
+instants. For phasor amplitudes r_n of those harmonics that is ``sqrt(sum |r_n|**2)``; the limit
+is given in the same measure (``ptc_periodic_limit_K``).
+
+The loop as a sampled system
+----------------------------
+Every period T (80 ms) the loop reads T2 and holds one heater power until the next tick. A
+waveform locked to the cooler sets, at tick k, ``u_k = P(phi_k)`` with phi_k the cooler's phase
+then; T / (cooler period) is not rational, so the phi_k sweep every phase. (A heater sequence
+that is not a function of the phase alone gains nothing: averaged over the ticks that fall in
+each phase bin it gives a function of the phase with the same synchronous content and bounds.) Write
+``P(phi) = P_mean + Re sum_n a_n exp(j n phi)`` (a_n: phasor amplitude of harmonic n, W). The
+held heater power then contains, besides a_n * Hzoh(j n w0) at the harmonic itself
+(Hzoh(jw) = (1 - exp(-jwT)) / (jwT)), images at ``n w0 + 2 pi m / T`` for every m != 0. None of
+them is a multiple of the cooler frequency, but the readings, taken every T, see each image at
+exactly the phase progression of harmonic n. So harmonic n of the *readings* is::
+
+    r_n = L_n + H_n a_n,   H_n = sum_m G(j w_m) Hzoh(j w_m) exp(-j w_m d),   w_m = n w0 + 2 pi m / T
+
+with G the heater-to-thermometer path (G2 G1, with the model's sensor lag), d the delay from a
+reading to the heater change (computation latency plus the model's dead time) and L_n the cooler
+line's phasor on T2 at harmonic n. ``H_n`` is the zero-order-hold discretisation of G evaluated
+at harmonic n's frequency in the readings (``measure="sampled"``, the default). It differs
+from the continuous-time ``G(j n w0) Hzoh(j n w0)`` (``measure="continuous"``, the synchronous
+content of the thermometer's continuous signal, images ignored) by +6 % at the fundamental and
+by factors of 3-25 at harmonics 4-6, which alias to low frequencies in the 12.5 Hz readings; and
+harmonic 7 aliases to 0.44 Hz, where it reaches T2 at 28 mK/W against 7.4 mK/W for the line.
+In the sampled measure no harmonic is free: every one reaches T2 with at least
+``min |G_d|`` (3.1 mK/W for the shipped model, at the Nyquist frequency).
+
+A delay d only rotates the waveform in the continuous measure, which the feedforward
+pre-compensates, so there it does not change the limit. In the sampled measure it also turns
+the images against each other (their phases differ by 2 pi m d / T), so the limit depends on
+where in the period the heater changes: ``heater_delay_s`` (0: the heater changes at the reading).
+
+The optimisation
+----------------
+The waveform is a trigonometric polynomial of degree N (``harmonics``, default 12): its
+readings then hold harmonics 1..N and nothing else, so the objective ``sum_{n<=N} |r_n|**2`` is
+the whole periodic oscillation it leaves. The bounds ``low <= P(phi) <= high`` are imposed at M
+phases (``phase_points``, default 512); the mean is exact by construction. This convex quadratic
+programme is solved as a least-distance problem in the residual phasors by
+:func:`scipy.optimize.nnls` (Lawson and Hanson, *Solving Least Squares Problems*, ch. 23). The
+waveform is then shrunk towards its mean, if needed, until it meets the bounds on a grid 8 times
+finer, so the reported limit is reached by a feasible waveform.
+
+Certificate. For every waveform P (any shape, any harmonics), with h <= |H_n| for every n,::
+
+    sum_n |r_n|**2 >= sum_{n<=N} (|L_n + H_n a_n|**2 - h**2 |a_n|**2) + (h**2 / pi) int (P - P_mean)**2
+
+The right side is convex in P and its Lagrange dual is a smooth concave function of (y, lambda)
+in R^(2N+1) whose every value is a lower bound; maximising it (L-BFGS) gives ``lower_bound_K``.
+With h = min |G_d| (sampled measure) the bracket [lower_bound_K, whole_periodic_limit_K] is
+0.2 % wide for the example heater at 5 K: no heater waveform, however shaped, does better. In
+the continuous measure h = 0 and the bound only covers harmonics 1..N.
+
+Heater power here is the power delivered to the flange; with the model's heater nonlinearity
+the bounds and the mean are in delivered power and the waveform is mapped back to commanded
+power. The heat-capacity effect scales the time constants as at the setpoint. A cooler
+frequency drift is not modelled: the limit is at the model's base frequency.
+
+Examples
+--------
+>>> from cryod.model import load_model
+>>> limit = feedforward_limit(load_model(), setpoint_K=5.0, heater_resistance_ohm=50.0, max_current_A=0.1)
+>>> round(limit.mean_heater_power_W, 3), round(limit.line_power_needed_W, 3)
+(0.113, 0.235)
+>>> round(limit.open_line_K * 1e3, 2), round(limit.best_sinusoid_K * 1e3, 2), round(limit.ptc_periodic_limit_K * 1e3, 2)
+(1.73, 0.9, 0.53)
+>>> limit.limited_by
+'authority'
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cryod.control.bounded_waveform import (
+    best_bounded_waveform, largest_fundamental, residual_lower_bound, waveform_values,
+)
+from cryod.control.feedforward import line_at_harmonics
+from cryod.model import CryostatModel, TransferFunction
+from cryod.model.dynamics import flange_transfer_functions
+
+#: Harmonics of the daemon's ``ptc_periodic_amplitude_K``, and of the limit in the same measure.
+REPORTED_HARMONICS = 6
+#: Degree of the waveform (its harmonics 1..N). 12 includes harmonics 7 (aliased to 0.44 Hz in the
+#: readings, 28 mK/W) and 8; with 24 the limit at 5 K moves by 0.1 %.
+DEFAULT_HARMONICS = 12
+#: Phases at which the bounds 0 <= P <= R I_max**2 are imposed.
+DEFAULT_PHASE_POINTS = 512
+#: Averaging time of the estimate that drives the feedforward, s (noise-limited residual).
+DEFAULT_AVERAGING_TIME_S = 60.0
+#: Below this fraction of the open line the heater's bounds no longer limit: noise does.
+AUTHORITY_FRACTION = 0.01
+MEASURES = ("sampled", "continuous")
+
+#: Safety margin on the smallest heater gain h used by the bound (h from a grid of frequencies).
+FLOOR_GAIN_MARGIN = 0.99
+
+
+class FeedforwardLimitError(ValueError):
+    """Inputs for which no limit exists (setpoint out of the heater's reach, bad heater values)."""
+
+
+@dataclass(frozen=True, eq=False)
+class FeedforwardLimit:
+    """The physical limit of the cooler-locked feedforward at one setpoint with one heater.
+
+    Amplitudes are sqrt(2) x rms (a sinusoid's amplitude) over the harmonics named; powers are
+    delivered to the flange (equal to commanded without the model's heater nonlinearity).
+
+    Attributes
+    ----------
+    setpoint_K, heater_resistance_ohm, max_current_A, period_s, heater_delay_s : float
+        The inputs (``heater_delay_s`` includes the model's dead time).
+    measure : str
+        ``"sampled"`` (harmonics of the readings, as the daemon measures) or ``"continuous"``.
+    harmonics : int
+        Degree N of the waveform.
+    phase_points : int
+        Phases at which the bounds were imposed.
+    cooler_angular_frequency_rad_s : float
+    mean_heater_power_W : float
+        Mean power that holds the setpoint: (setpoint - T2_0) / DC gain of G.
+    max_heater_power_W : float
+        R * I_max**2.
+    thermometer_gain_at_line_K_per_W, thermometer_phase_at_line_deg : float
+        |G(j w0)| and its phase: heater power at the line to the flange thermometer.
+    heater_gain_at_line_K_per_W, heater_phase_at_line_deg : float
+        |H_1| and its phase: the heater samples at the line to T2, through the hold (and, in
+        the sampled measure, its images).
+    line_power_needed_W : float
+        Heater amplitude at the line that cancels the line's fundamental: |L_1| / |H_1|.
+    largest_line_power_W : float
+        Largest fundamental any waveform within the bounds and with this mean can have (a
+        rectangular pulse): (2 P_max / pi) sin(pi P_mean / P_max), in delivered power.
+    authority : float
+        largest_line_power_W / line_power_needed_W. Below 1 no waveform can even cancel the
+        fundamental; above 1 it can, and what remains is the harmonics its shape brings.
+    sinusoid_line_power_W : float
+        Largest sinusoid within the bounds: min(P_mean, P_max - P_mean).
+    open_line_K : float
+        The line on T2 without feedforward (harmonics 1-6).
+    best_sinusoid_K : float
+        Best a sinusoid at the line frequency can do (optimal phase, amplitude capped).
+    ptc_periodic_limit_K : float
+        The limit: least PTC-synchronous T2 oscillation, harmonics 1-6, in the daemon's measure.
+    whole_periodic_limit_K : float
+        The same over all harmonics 1..N of the best waveform (what is minimised).
+    lower_bound_K : float or None
+        No waveform of any shape leaves less than this on all harmonics together (None when not
+        certified).
+    open_line_harmonics_K, limit_harmonics_K : tuple of float
+        |L_n| and |r_n| for n = 1..6.
+    noise_floor_K : float
+        Residual left by estimating each harmonic from ``averaging_time_s`` of readings with the
+        model's T2 noise sigma: 2 sigma sqrt(6 / n_readings) (see :func:`noise_floor_K`).
+    averaging_time_s : float
+    predicted_best_residual_K : float
+        sqrt(limit**2 + noise_floor**2) over harmonics 1-6.
+    authority_limited : bool
+        The heater's bounds bind: the limit exceeds ``AUTHORITY_FRACTION`` of the open line.
+    waveform_phase_rad : numpy.ndarray
+        Cooler phase phi of the waveform's grid: T5's fundamental, as its thermometer reads it, is
+        ``A cos(phi)`` (the phase the feedforward tracks). The loop sets ``P(phi_k)`` at reading k.
+        A loop that evaluates the waveform at another instant (the middle of the coming hold,
+        say, s later) plays the same sequence with ``a_n exp(-j n w0 s)``.
+    waveform_power_W : numpy.ndarray
+        Commanded heater power of the best waveform at those phases.
+    waveform_harmonics_W : numpy.ndarray
+        Complex amplitudes a_n (n = 1..N) of the delivered power against that phase:
+        ``P(phi) = P_mean + Re sum_n a_n exp(j n phi)``.
+    """
+
+    setpoint_K: float
+    heater_resistance_ohm: float
+    max_current_A: float
+    period_s: float
+    heater_delay_s: float
+    measure: str
+    harmonics: int
+    phase_points: int
+    cooler_angular_frequency_rad_s: float
+    mean_heater_power_W: float
+    max_heater_power_W: float
+    thermometer_gain_at_line_K_per_W: float
+    thermometer_phase_at_line_deg: float
+    heater_gain_at_line_K_per_W: float
+    heater_phase_at_line_deg: float
+    line_power_needed_W: float
+    largest_line_power_W: float
+    authority: float
+    sinusoid_line_power_W: float
+    open_line_K: float
+    best_sinusoid_K: float
+    ptc_periodic_limit_K: float
+    whole_periodic_limit_K: float
+    lower_bound_K: float | None
+    open_line_harmonics_K: tuple[float, ...]
+    limit_harmonics_K: tuple[float, ...]
+    noise_floor_K: float
+    averaging_time_s: float
+    predicted_best_residual_K: float
+    authority_limited: bool
+    waveform_phase_rad: np.ndarray
+    waveform_power_W: np.ndarray
+    waveform_harmonics_W: np.ndarray
+
+    @property
+    def limited_by(self) -> str:
+        """``"authority"`` (the heater's bounds) or ``"noise"`` (estimating the line)."""
+        return "authority" if self.authority_limited else "noise"
+
+    @property
+    def suppression_factor(self) -> float:
+        """Open line over the predicted best residual."""
+        return self.open_line_K / self.predicted_best_residual_K if self.predicted_best_residual_K > 0 else math.inf
+
+    def summary(self) -> dict:
+        """Scalars and per-harmonic values as plain JSON-ready types (the waveform as lists)."""
+        return {
+            "setpoint_K": self.setpoint_K, "heater_resistance_ohm": self.heater_resistance_ohm,
+            "max_current_A": self.max_current_A, "period_s": self.period_s,
+            "heater_delay_s": self.heater_delay_s, "measure": self.measure, "harmonics": self.harmonics,
+            "phase_points": self.phase_points,
+            "cooler_angular_frequency_rad_s": self.cooler_angular_frequency_rad_s,
+            "mean_heater_power_W": self.mean_heater_power_W, "max_heater_power_W": self.max_heater_power_W,
+            "thermometer_gain_at_line_K_per_W": self.thermometer_gain_at_line_K_per_W,
+            "thermometer_phase_at_line_deg": self.thermometer_phase_at_line_deg,
+            "heater_gain_at_line_K_per_W": self.heater_gain_at_line_K_per_W,
+            "heater_phase_at_line_deg": self.heater_phase_at_line_deg,
+            "line_power_needed_W": self.line_power_needed_W, "largest_line_power_W": self.largest_line_power_W,
+            "authority": self.authority, "sinusoid_line_power_W": self.sinusoid_line_power_W,
+            "open_line_K": self.open_line_K, "best_sinusoid_K": self.best_sinusoid_K,
+            "ptc_periodic_limit_K": self.ptc_periodic_limit_K,
+            "whole_periodic_limit_K": self.whole_periodic_limit_K, "lower_bound_K": self.lower_bound_K,
+            "open_line_harmonics_K": list(self.open_line_harmonics_K),
+            "limit_harmonics_K": list(self.limit_harmonics_K),
+            "noise_floor_K": self.noise_floor_K, "averaging_time_s": self.averaging_time_s,
+            "predicted_best_residual_K": self.predicted_best_residual_K,
+            "authority_limited": self.authority_limited, "limited_by": self.limited_by,
+            "waveform": {
+                "phase_rad": [float(v) for v in self.waveform_phase_rad],
+                "heater_power_W": [float(v) for v in self.waveform_power_W],
+                "harmonics_W": [[float(a.real), float(a.imag)] for a in self.waveform_harmonics_W],
+            },
+        }
+
+
+# ---------------------------------------------------------------------------
+# the plant seen by the waveform
+# ---------------------------------------------------------------------------
+def mean_heater_power_w(model: CryostatModel, setpoint_K: float) -> float:
+    """Delivered heater power that holds the flange thermometer at ``setpoint_K`` in steady state (W).
+
+    ``(setpoint - T2_0) / DC gain of G2 G1``, G of the base model (the PTC line has no mean).
+
+    Examples
+    --------
+    >>> from cryod.model import load_model
+    >>> round(mean_heater_power_w(load_model(), 6.0), 3)
+    0.26
+    """
+    return (setpoint_K - model.operating_point.flange_temperature_K) / model.heater_to_thermometer.dc_gain
+
+
+def noise_floor_K(sensor_noise_rms_K: float, averaging_time_s: float, period_s: float,
+                  harmonics: int = REPORTED_HARMONICS) -> float:
+    """Residual left by a feedforward driven by harmonics estimated from noisy readings (K).
+
+    The least-squares estimate of each quadrature (sine, cosine) of one harmonic from
+    ``n = averaging_time_s / period_s`` readings with white noise sigma has standard deviation
+    ``sigma sqrt(2 / n)``. The feedforward inherits that error as a random phasor on each
+    harmonic; over ``harmonics`` harmonics, two quadratures each, the expected amplitude
+    (sqrt(2) rms, as the limit) is ``sqrt(harmonics * 2 * 2 sigma**2 / n) = 2 sigma sqrt(harmonics / n)``.
+
+    Examples
+    --------
+    >>> round(noise_floor_K(20e-6, 60.0, 0.08) * 1e6, 2)
+    3.58
+    """
+    readings = averaging_time_s / period_s
+    return 2.0 * sensor_noise_rms_K * math.sqrt(harmonics / readings)
+
+
+def _zero_order_hold(angular_frequency, period_s: float):
+    """Hzoh(jw) = (1 - exp(-jwT)) / (jwT): the held power's content at w per unit of the samples'."""
+    x = np.asarray(angular_frequency, dtype=float) * period_s
+    safe = np.where(x == 0.0, 1.0, x)
+    return np.where(x == 0.0, 1.0 + 0.0j, (1.0 - np.exp(-1j * safe)) / (1j * safe))
+
+
+def _held_response(heater_path: TransferFunction, angular_frequency, period_s: float, delay_s: float,
+                   measure: str) -> np.ndarray:
+    """Heater samples (W) to T2 (K) at the angular frequencies given, through the hold and the delay.
+
+    ``"continuous"``: G(jw) Hzoh(jw) exp(-jwd). ``"sampled"``: the response seen in readings taken
+    every T, the hold's images w + 2 pi m / T folded in
+    (:meth:`~cryod.model.transfer_function.TransferFunction.sampled_response`, exact).
+    """
+    frequency = np.atleast_1d(np.asarray(angular_frequency, dtype=float))
+    if measure == "continuous":
+        return (heater_path.frequency_response(frequency) * _zero_order_hold(frequency, period_s)
+                * np.exp(-1j * frequency * delay_s))
+    return heater_path.sampled_response(frequency, period_s, delay_s)
+
+
+def _smallest_held_gain(heater_path: TransferFunction, period_s: float, delay_s: float, measure: str) -> float:
+    """h <= |H| at every frequency of the readings (0 in the continuous measure, where G Hzoh -> 0).
+
+    The least of |H| over 256 frequencies from just above 0 to half the sampling rate (|H| is
+    the same at -w and the readings fold every harmonic into that range), less a 1 % margin
+    for the grid.
+    """
+    if measure == "continuous":
+        return 0.0
+    frequencies = np.linspace(0.0, math.pi / period_s, 257)[1:]
+    gains = _held_response(heater_path, frequencies, period_s, delay_s, measure)
+    return FLOOR_GAIN_MARGIN * float(np.min(np.abs(gains)))
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """The waveform problem in one cryostat: line phasors, heater gains, bounds, mean."""
+
+    line: np.ndarray            # L_n, n = 1..N, K, against the cooler phase phi (T5's fundamental is A cos phi)
+    gain: np.ndarray            # H_n, K/W
+    mean: float                 # delivered W
+    low: float
+    high: float
+    heater_path: TransferFunction    # G at the setpoint, K/W
+
+
+def _heat_capacity_scale(model: CryostatModel, setpoint_K: float) -> float:
+    """Factor on the flange's time constants at the setpoint (model effect ``heat_capacity_temperature``)."""
+    effect = model.effects.heat_capacity_temperature
+    if effect is None:
+        return 1.0
+    return (setpoint_K / effect.reference_temperature_K) ** effect.exponent
+
+
+def _delivered(model: CryostatModel, commanded_w):
+    nonlinearity = model.effects.heater_nonlinearity
+    return commanded_w if nonlinearity is None else nonlinearity.delivered_power_w(commanded_w)
+
+
+def _highest_delivered_w(model: CryostatModel, max_power_w: float) -> float:
+    """Largest delivered power for commanded powers in [0, max_power_w]."""
+    nonlinearity = model.effects.heater_nonlinearity
+    if nonlinearity is None:
+        return max_power_w
+    k = nonlinearity.quadratic_coefficient_per_W
+    top = max_power_w if k >= 0.0 else min(max_power_w, -0.5 / k)
+    return float(_delivered(model, top))
+
+
+def _commanded(model: CryostatModel, delivered_w: np.ndarray) -> np.ndarray:
+    """Commanded power giving ``delivered_w`` (the branch through 0 of P + k P**2)."""
+    nonlinearity = model.effects.heater_nonlinearity
+    if nonlinearity is None or nonlinearity.quadratic_coefficient_per_W == 0.0:
+        return delivered_w
+    k = nonlinearity.quadratic_coefficient_per_W
+    return 2.0 * delivered_w / (1.0 + np.sqrt(np.maximum(1.0 + 4.0 * k * delivered_w, 0.0)))
+
+
+def _problem(model: CryostatModel, setpoint_K: float, max_power_w: float, period_s: float, delay_s: float,
+             measure: str, harmonics: int) -> _Problem:
+    scale = _heat_capacity_scale(model, setpoint_K)
+    heater_path = flange_transfer_functions(model)[0].time_scaled(scale)
+    orders = np.arange(1, harmonics + 1)
+    gain = _held_response(heater_path, orders * model.ptc.angular_frequency_rad_s, period_s, delay_s, measure)
+    return _Problem(line=line_at_harmonics(model, harmonics, scale), gain=gain,
+                    mean=mean_heater_power_w(model, setpoint_K), low=0.0,
+                    high=_highest_delivered_w(model, max_power_w), heater_path=heater_path)
+
+
+def _amplitude(phasors) -> float:
+    return float(np.sqrt(np.sum(np.abs(np.asarray(phasors)) ** 2)))
+
+
+# ---------------------------------------------------------------------------
+# the public computation
+# ---------------------------------------------------------------------------
+def feedforward_limit(model: CryostatModel, setpoint_K: float, heater_resistance_ohm: float, max_current_A: float,
+                      period_s: float = 0.08, *, heater_delay_s: float = 0.0, measure: str = "sampled",
+                      harmonics: int = DEFAULT_HARMONICS, phase_points: int = DEFAULT_PHASE_POINTS,
+                      averaging_time_s: float = DEFAULT_AVERAGING_TIME_S, certify: bool = True) -> FeedforwardLimit:
+    """The least cooler-synchronous T2 oscillation any heater waveform locked to the cooler can leave.
+
+    Parameters
+    ----------
+    model : CryostatModel
+    setpoint_K : float
+        Flange (T2) setpoint; fixes the mean heater power.
+    heater_resistance_ohm, max_current_A : float
+        The heater: its power runs from 0 to R * I_max**2.
+    period_s : float
+        Loop period: the heater is held for this long between ticks (80 ms).
+    heater_delay_s : float
+        Delay from a reading to the heater change it causes (computation latency), s. The
+        model's dead time is added. See the module doc: it matters only in the sampled measure.
+    measure : {"sampled", "continuous"}
+        Harmonics of the readings at the loop's instants (the daemon's measure), or of the
+        thermometer's continuous temperature with the hold's images ignored.
+    harmonics : int
+        Degree N of the waveform (its harmonics 1..N); raised to the line's highest harmonic.
+    phase_points : int
+        Phases at which the bounds are imposed (M).
+    averaging_time_s : float
+        Averaging time of the harmonics' estimate for the noise-limited residual.
+    certify : bool
+        Compute ``lower_bound_K`` (a fraction of a second more).
+
+    Returns
+    -------
+    FeedforwardLimit
+
+    Raises
+    ------
+    FeedforwardLimitError
+        For a non-positive resistance, current, period or averaging time, a negative delay, an
+        unknown measure, or a setpoint the heater cannot hold (below T2_0, or needing more mean
+        power than R * I_max**2).
+    """
+    _check_inputs(heater_resistance_ohm, max_current_A, period_s, heater_delay_s, measure, averaging_time_s,
+                  harmonics, phase_points)
+    max_power = heater_resistance_ohm * max_current_A ** 2
+    _check_reach(model, setpoint_K, max_power, heater_resistance_ohm, max_current_A)
+    dead_time = model.effects.dead_time.heater_to_flange_s if model.effects.dead_time else 0.0
+    delay = heater_delay_s + dead_time
+    harmonics = max(harmonics, max(order for order, _, _ in model.ptc.components()))
+    if 2 * harmonics + 2 > phase_points:
+        raise FeedforwardLimitError(f"phase_points ({phase_points}) must exceed twice the harmonics ({harmonics})")
+    problem = _problem(model, setpoint_K, max_power, period_s, delay, measure, harmonics)
+    bounds = (problem.mean, problem.low, problem.high)
+    amplitudes = best_bounded_waveform(problem.line, problem.gain, *bounds, phase_points=phase_points)
+    residual = problem.line + problem.gain * amplitudes
+    lower_bound = None
+    if certify:
+        floor_gain = _smallest_held_gain(problem.heater_path, period_s, delay, measure)
+        lower_bound = math.sqrt(residual_lower_bound(problem.line, problem.gain, amplitudes, *bounds, floor_gain))
+
+    # Harmonics 1-6 (the waveform has none above N, and N covers every harmonic of the line).
+    line_shown = _first_harmonics(problem.line)
+    residual_shown = _first_harmonics(residual)
+    open_line = _amplitude(line_shown)
+    needed = float(abs(problem.line[0]) / abs(problem.gain[0]))
+    largest = largest_fundamental(*bounds)
+    sinusoid = max(0.0, min(problem.mean - problem.low, problem.high - problem.mean))
+    fundamental_left = max(0.0, float(abs(problem.line[0]) - abs(problem.gain[0]) * sinusoid))
+    best_sinusoid = _amplitude(np.concatenate([[fundamental_left], line_shown[1:]]))
+    limit = _amplitude(residual_shown)
+    noise = noise_floor_K(model.sensor_noise.flange_thermometer_rms_K, averaging_time_s, period_s)
+
+    waveform_harmonics = amplitudes        # against the cooler's phase phi (T5 reads A cos phi)
+    waveform_delivered = waveform_values(waveform_harmonics, problem.mean, phase_points)
+    waveform_delivered = np.clip(waveform_delivered, problem.low, problem.high)
+    waveform_phase = 2.0 * math.pi * np.arange(phase_points) / phase_points
+    gain_at_line = complex(problem.gain[0])
+    thermometer_at_line = complex(problem.heater_path.frequency_response(model.ptc.angular_frequency_rad_s))
+    return FeedforwardLimit(
+        setpoint_K=float(setpoint_K), heater_resistance_ohm=float(heater_resistance_ohm),
+        max_current_A=float(max_current_A), period_s=float(period_s), heater_delay_s=float(delay),
+        measure=measure, harmonics=harmonics, phase_points=phase_points,
+        cooler_angular_frequency_rad_s=model.ptc.angular_frequency_rad_s,
+        mean_heater_power_W=float(problem.mean), max_heater_power_W=float(max_power),
+        thermometer_gain_at_line_K_per_W=abs(thermometer_at_line),
+        thermometer_phase_at_line_deg=math.degrees(cmath.phase(thermometer_at_line)),
+        heater_gain_at_line_K_per_W=abs(gain_at_line),
+        heater_phase_at_line_deg=math.degrees(cmath.phase(gain_at_line)),
+        line_power_needed_W=needed, largest_line_power_W=largest, authority=largest / needed if needed else math.inf,
+        sinusoid_line_power_W=sinusoid, open_line_K=open_line, best_sinusoid_K=best_sinusoid,
+        ptc_periodic_limit_K=limit, whole_periodic_limit_K=_amplitude(residual), lower_bound_K=lower_bound,
+        open_line_harmonics_K=tuple(float(v) for v in np.abs(line_shown)),
+        limit_harmonics_K=tuple(float(v) for v in np.abs(residual_shown)),
+        noise_floor_K=noise, averaging_time_s=float(averaging_time_s),
+        predicted_best_residual_K=math.hypot(limit, noise),
+        authority_limited=limit > AUTHORITY_FRACTION * open_line,
+        waveform_phase_rad=_read_only(waveform_phase),
+        waveform_power_W=_read_only(_commanded(model, waveform_delivered)),
+        waveform_harmonics_W=_read_only(waveform_harmonics),
+    )
+
+
+def _first_harmonics(phasors: np.ndarray) -> np.ndarray:
+    """Phasors of harmonics 1..REPORTED_HARMONICS (zero beyond the ones given)."""
+    shown = np.zeros(REPORTED_HARMONICS, dtype=complex)
+    count = min(REPORTED_HARMONICS, phasors.size)
+    shown[:count] = phasors[:count]
+    return shown
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array = np.array(array)
+    array.flags.writeable = False
+    return array
+
+
+def _check_inputs(resistance, current, period, delay, measure, averaging, harmonics, phase_points) -> None:
+    for name, value, unit in (("heater resistance", resistance, "ohm"), ("current limit", current, "A"),
+                              ("loop period", period, "s"), ("averaging time", averaging, "s")):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
+            raise FeedforwardLimitError(f"the {name} must be a number > 0 {unit}, got {value!r}")
+    if not (math.isfinite(delay) and delay >= 0.0):
+        raise FeedforwardLimitError(f"the heater delay must be >= 0 s, got {delay!r}")
+    if measure not in MEASURES:
+        raise FeedforwardLimitError(f"measure must be one of {', '.join(MEASURES)}, got {measure!r}")
+    if harmonics < 1 or phase_points < 8:
+        raise FeedforwardLimitError(f"need harmonics >= 1 and phase_points >= 8, got {harmonics}, {phase_points}")
+
+
+def _check_reach(model: CryostatModel, setpoint_K: float, max_power_w: float, resistance: float,
+                 current: float) -> None:
+    base = model.operating_point.flange_temperature_K
+    mean = mean_heater_power_w(model, setpoint_K)
+    if not math.isfinite(setpoint_K) or mean < 0.0:
+        raise FeedforwardLimitError(
+            f"setpoint {setpoint_K} K is below the flange's temperature with the heater off ({base} K): "
+            "the heater cannot cool")
+    highest = _highest_delivered_w(model, max_power_w)
+    if mean > highest:
+        reach = base + highest * model.heater_to_thermometer.dc_gain
+        raise FeedforwardLimitError(
+            f"setpoint {setpoint_K} K needs {mean * 1e3:.0f} mW of mean heater power, more than the heater's "
+            f"{highest * 1e3:.0f} mW ({resistance:g} ohm x ({current:g} A)^2); it reaches {reach:.2f} K at most")
+
+
+# ---------------------------------------------------------------------------
+# what would change it
+# ---------------------------------------------------------------------------
+#: Default values of the sensitivity tables.
+SWEEP_SETPOINTS_K = (4.5, 5.0, 5.5, 6.0, 6.5, 7.0, 7.5, 8.0)
+SWEEP_RESISTANCES_OHM = (10.0, 17.0, 25.0, 35.0, 50.0, 75.0, 100.0, 150.0, 200.0)
+SWEEP_MAX_CURRENTS_A = (0.05, 0.075, 0.1, 0.125, 0.15, 0.2)
+SWEEP_PARAMETERS = {"setpoint": "setpoint_K", "heater_resistance": "heater_resistance_ohm",
+                    "max_current": "max_current_A"}
+
+
+@dataclass(frozen=True)
+class SweepPoint:
+    """One row of a sensitivity table: the limit, or why there is none (setpoint out of reach).
+
+    ``mean_heater_power_W`` (what the setpoint needs) and ``max_heater_power_W`` (R I_max**2) are
+    given either way.
+    """
+
+    value: float
+    mean_heater_power_W: float
+    max_heater_power_W: float
+    limit: FeedforwardLimit | None
+    problem: str = ""
+
+
+def limit_sweep(model: CryostatModel, vary: str, values, *, setpoint_K: float, heater_resistance_ohm: float,
+                max_current_A: float, **options) -> tuple[SweepPoint, ...]:
+    """The limit as one of setpoint, heater resistance or current limit varies, the others held.
+
+    Parameters
+    ----------
+    model : CryostatModel
+    vary : {"setpoint", "heater_resistance", "max_current"}
+    values : iterable of float
+        Values of the varied quantity (K, ohm or A).
+    setpoint_K, heater_resistance_ohm, max_current_A : float
+        The values held.
+    **options
+        Passed to :func:`feedforward_limit` (``certify`` defaults to False here).
+
+    Returns
+    -------
+    tuple of SweepPoint
+        One per value; ``limit`` is None with ``problem`` saying why when the setpoint is out
+        of the heater's reach there.
+
+    Examples
+    --------
+    >>> from cryod.model import load_model
+    >>> rows = limit_sweep(load_model(), "heater_resistance", [17.0, 50.0], setpoint_K=5.0,
+    ...                    heater_resistance_ohm=50.0, max_current_A=0.1)
+    >>> [round(row.limit.ptc_periodic_limit_K * 1e3, 2) for row in rows]
+    [1.07, 0.53]
+    """
+    if vary not in SWEEP_PARAMETERS:
+        raise FeedforwardLimitError(f"vary must be one of {', '.join(SWEEP_PARAMETERS)}, got {vary!r}")
+    options.setdefault("certify", False)
+    held = {"setpoint_K": setpoint_K, "heater_resistance_ohm": heater_resistance_ohm, "max_current_A": max_current_A}
+    rows = []
+    for value in values:
+        arguments = dict(held, **{SWEEP_PARAMETERS[vary]: float(value)})
+        powers = (mean_heater_power_w(model, arguments["setpoint_K"]),
+                  arguments["heater_resistance_ohm"] * arguments["max_current_A"] ** 2)
+        try:
+            rows.append(SweepPoint(float(value), *powers, feedforward_limit(model, **arguments, **options)))
+        except FeedforwardLimitError as error:
+            rows.append(SweepPoint(float(value), *powers, None, str(error)))
+    return tuple(rows)
+
+
+__all__ = [
+    "AUTHORITY_FRACTION", "DEFAULT_AVERAGING_TIME_S", "DEFAULT_HARMONICS", "DEFAULT_PHASE_POINTS", "MEASURES",
+    "REPORTED_HARMONICS", "FeedforwardLimit", "FeedforwardLimitError", "SweepPoint", "feedforward_limit",
+    "limit_sweep", "mean_heater_power_w", "noise_floor_K",
+]

@@ -1,0 +1,190 @@
+"""``cryod feedforward-limit [--setpoint K] [--heater-ohm R] [--max-current A] [--model M] ...``.
+
+Prints the physical limit of the cooler-locked feedforward (:mod:`cryod.control.feedforward_limit`)
+for one setpoint and heater, and how it changes with the setpoint, the heater resistance and the
+current limit: a table for a user choosing a heater before buying one. Defaults come from the
+example configuration (heater, setpoint, loop period) and the shipped model.
+
+Exit status: 0 done; 2 unusable input (a bad number, a setpoint the heater cannot hold, a model
+or configuration file that cannot be read).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+from cryod.config import EXAMPLE_CONFIG_PATH, load_config
+from cryod.control.feedforward_limit import (
+    DEFAULT_AVERAGING_TIME_S, MEASURES, REPORTED_HARMONICS, SWEEP_MAX_CURRENTS_A, SWEEP_RESISTANCES_OHM,
+    SWEEP_SETPOINTS_K, FeedforwardLimit, FeedforwardLimitError, SweepPoint, feedforward_limit, limit_sweep,
+)
+from cryod.model import DEFAULT_MODEL_PATH, load_model
+from cryod.yaml_source import FileFormatError
+
+PROGRAM = "cryod feedforward-limit"
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _number(text)
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return value
+
+
+def _not_negative(text: str) -> float:
+    value = _number(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return value
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Arguments of ``cryod feedforward-limit``."""
+    parser.description = (
+        "The least PTC-synchronous oscillation (harmonics 1-6 of T2) that any heater waveform locked to the "
+        "cooler can leave, given the heater's bounds (0 to R*I_max^2), the mean power that holds the setpoint "
+        "and the loop's hold; what limits it, and how it changes with setpoint, heater resistance and current "
+        "limit. Defaults: the example configuration's heater, setpoint and loop period, and the shipped model.")
+    parser.add_argument("--setpoint", type=_number, default=None, metavar="K",
+                        help="flange setpoint in K (default: the configuration's)")
+    parser.add_argument("--heater-ohm", type=_positive, default=None, metavar="R",
+                        help="heater resistance in ohm (default: the configuration's)")
+    parser.add_argument("--max-current", type=_positive, default=None, metavar="A",
+                        help="heater current limit in A (default: the configuration's)")
+    parser.add_argument("--model", default=str(DEFAULT_MODEL_PATH), metavar="M",
+                        help="cryostat model file (default: the shipped model)")
+    parser.add_argument("--period", type=_positive, default=None, metavar="S",
+                        help="loop period in s: the heater is held this long (default: the configuration's)")
+    parser.add_argument("--heater-delay", type=_not_negative, default=0.0, metavar="S",
+                        help="delay from a reading to the heater change, s (default 0; the model's dead time "
+                             "is added)")
+    parser.add_argument("--averaging-time", type=_positive, default=DEFAULT_AVERAGING_TIME_S, metavar="S",
+                        help=f"averaging time of the line's estimate for the noise floor, s "
+                             f"(default {DEFAULT_AVERAGING_TIME_S:g})")
+    parser.add_argument("--measure", choices=MEASURES, default="sampled",
+                        help="harmonics of the readings at the loop's instants, as the daemon measures (default), "
+                             "or of the thermometer's continuous temperature")
+    parser.add_argument("--config", default=str(EXAMPLE_CONFIG_PATH), metavar="PATH",
+                        help="configuration giving the defaults (default: the example config/cryod.yaml)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compute and print the limit; returns the exit status."""
+    try:
+        config = load_config(args.config)
+        model = load_model(args.model)
+    except (FileFormatError, OSError) as error:
+        print(f"{PROGRAM}: {error}", file=sys.stderr)
+        return 2
+    setpoint = args.setpoint if args.setpoint is not None else config.control.setpoint_K
+    if setpoint is None:
+        print(f"{PROGRAM}: {args.config} sets no setpoint: give --setpoint K", file=sys.stderr)
+        return 2
+    resistance = args.heater_ohm if args.heater_ohm is not None else config.heater.resistance_ohm
+    current = args.max_current if args.max_current is not None else config.heater.max_current_A
+    period = args.period if args.period is not None else config.loop.period_s
+    options = {"period_s": period, "heater_delay_s": args.heater_delay, "measure": args.measure,
+               "averaging_time_s": args.averaging_time}
+    try:
+        limit = feedforward_limit(model, setpoint, resistance, current, **options)
+    except FeedforwardLimitError as error:
+        print(f"{PROGRAM}: {error}", file=sys.stderr)
+        return 2
+    held = {"setpoint_K": setpoint, "heater_resistance_ohm": resistance, "max_current_A": current}
+    sweeps = {
+        "setpoint": limit_sweep(model, "setpoint", SWEEP_SETPOINTS_K, **held, **options),
+        "heater_resistance": limit_sweep(model, "heater_resistance", SWEEP_RESISTANCES_OHM, **held, **options),
+        "max_current": limit_sweep(model, "max_current", SWEEP_MAX_CURRENTS_A, **held, **options),
+    }
+    if args.json:
+        summary = limit.summary()
+        summary["model"] = str(args.model)
+        summary["sweeps"] = {name: [_sweep_row(row) for row in rows] for name, rows in sweeps.items()}
+        print(json.dumps(summary))
+    else:
+        print(report(limit, sweeps, model_path=str(args.model)))
+    return 0
+
+
+def _sweep_row(row: SweepPoint) -> dict:
+    summary = {"value": row.value, "mean_heater_power_W": row.mean_heater_power_W,
+               "max_heater_power_W": row.max_heater_power_W}
+    if row.limit is None:
+        return {**summary, "problem": row.problem}
+    limit = row.limit
+    return {**summary, "authority": limit.authority, "best_sinusoid_K": limit.best_sinusoid_K,
+            "ptc_periodic_limit_K": limit.ptc_periodic_limit_K, "limited_by": limit.limited_by}
+
+
+def _mk(value_K: float) -> str:
+    return f"{value_K * 1e3:.3f} mK"
+
+
+def _mw(value_W: float) -> str:
+    return f"{value_W * 1e3:.1f} mW"
+
+
+def report(limit: FeedforwardLimit, sweeps: dict, model_path: str = "") -> str:
+    """The table printed by the command."""
+    ratio = limit.open_line_K / limit.ptc_periodic_limit_K if limit.ptc_periodic_limit_K > 0 else math.inf
+    lines = [
+        f"Physical limit of the cooler-locked feedforward ({limit.measure} measure: harmonics 1-{REPORTED_HARMONICS} "
+        f"of T2, sqrt(2) x rms)",
+        f"  model                         {model_path}",
+        f"  setpoint                      {limit.setpoint_K:g} K",
+        f"  heater                        {limit.heater_resistance_ohm:g} ohm, {limit.max_current_A:g} A: "
+        f"0 to {_mw(limit.max_heater_power_W)}",
+        f"  loop period, heater delay     {limit.period_s * 1e3:g} ms, {limit.heater_delay_s * 1e3:g} ms",
+        f"  mean heater power (balance)   {_mw(limit.mean_heater_power_W)}",
+        f"  heater to T2 at the line      {limit.thermometer_gain_at_line_K_per_W * 1e3:.2f} mK/W, "
+        f"{limit.thermometer_phase_at_line_deg:.0f} deg; through the {limit.period_s * 1e3:g} ms hold "
+        f"{limit.heater_gain_at_line_K_per_W * 1e3:.2f} mK/W, {limit.heater_phase_at_line_deg:.0f} deg",
+        f"  line power needed             {_mw(limit.line_power_needed_W)} (cancels the line's fundamental)",
+        f"  largest line power possible   {_mw(limit.largest_line_power_W)} (a rectangular pulse); "
+        f"a sinusoid: {_mw(limit.sinusoid_line_power_W)}",
+        f"  authority                     {limit.authority:.2f} (largest / needed)",
+        f"  open line (no feedforward)    {_mk(limit.open_line_K)}",
+        f"  best sinusoid                 {_mk(limit.best_sinusoid_K)}",
+        f"  limit (best waveform)         {_mk(limit.ptc_periodic_limit_K)}"
+        + (f"  ({ratio:.1f}x below the open line)" if math.isfinite(ratio) else "  (the line can be cancelled)"),
+        "  limit per harmonic 1-6        " + "  ".join(f"{v * 1e3:.3f}" for v in limit.limit_harmonics_K) + " mK",
+        f"  whole waveform, harmonics 1-{limit.harmonics:<2d} {_mk(limit.whole_periodic_limit_K)}"
+        + (f"; no waveform of any shape goes below {_mk(limit.lower_bound_K)}" if limit.lower_bound_K is not None
+           else ""),
+        f"  noise floor ({limit.averaging_time_s:g} s averaging)   {limit.noise_floor_K * 1e6:.1f} uK",
+        f"  predicted best residual       {_mk(limit.predicted_best_residual_K)}",
+        f"  limited by                    {limit.limited_by}"
+        + (" (the heater's bounds bind)" if limit.authority_limited else " (the heater could cancel the line)"),
+        "",
+        "What would change it (mean power / max power / authority / best sinusoid / limit):",
+    ]
+    titles = {"setpoint": ("setpoint", "K"), "heater_resistance": ("heater resistance", "ohm"),
+              "max_current": ("current limit", "A")}
+    for name, rows in sweeps.items():
+        title, unit = titles[name]
+        lines.append(f"  {title}:")
+        for row in rows:
+            start = f"    {f'{row.value:g} {unit}':>10}  {_mw(row.mean_heater_power_W):>9} {_mw(row.max_heater_power_W):>10}"
+            if row.limit is None:
+                reason = "the heater cannot cool" if row.mean_heater_power_W < 0.0 else "more than the heater gives"
+                lines.append(f"{start}  out of reach: {reason}")
+                continue
+            item = row.limit
+            lines.append(f"{start}  {item.authority:5.2f}  {_mk(item.best_sinusoid_K):>10}"
+                         f"  {_mk(item.ptc_periodic_limit_K):>10}  {item.limited_by}")
+    return "\n".join(lines)

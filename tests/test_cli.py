@@ -92,6 +92,12 @@ def test_the_feedforward_beats_the_sinusoid_cap_at_5_K(tmp_path, capsys):
     assert main(simulate_args(tmp_path, "--duration", "900", "--window", "300", "--json", "--seed", "3")) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["ptc_periodic_amplitude_K"] < 1.73e-3 / 3.0
+    # within 5 % of the physical limit computed for this cryostat, heater and loop
+    assert summary["feedforward_limited_by"] == "authority" and 0.8 < summary["feedforward_authority"] < 0.9
+    assert summary["ptc_periodic_amplitude_K"] < 1.05 * summary["ptc_periodic_limit_K"]
+    record = read_record(summary["log_path"])
+    limit = record.columns["ff_limit_K"]
+    assert limit[-1] == pytest.approx(summary["ptc_periodic_limit_K"], rel=1e-6)    # reported live, same figure
     assert abs(summary["mean_error_K"]) < 2e-5 and summary["lowfreq_rms_K"] < 2e-5
     assert summary["overruns"] == 0
 

@@ -15,8 +15,8 @@ import pytest
 from scipy import optimize
 
 from cryod.control.cooler_phase import CoolerPhaseTracker
-from cryod.control.feedforward import (FeedforwardSettings, FeedforwardTerm, SynchronousEstimator, WaveformBounds,
-                                       line_at_harmonics, plant_at_harmonics)
+from cryod.control.feedforward import FeedforwardSettings, FeedforwardTerm, SynchronousEstimator, WaveformBounds
+from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.control.pi import PiGains
 from cryod.control.terms import TickInputs
 from cryod.model import CryostatPlant

@@ -67,9 +67,9 @@ import numpy as np
 
 from cryod.control.cooler_phase import CoolerPhaseTracker
 from cryod.control.terms import TickInputs
+from cryod.control.feedforward_limit import FeedforwardLimitError, limit_for_heater_power
+from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
-from cryod.model.dynamics import flange_transfer_functions, stage_transfer_functions
-from cryod.model.ptc_path import PtcDrive, PtcPath
 from cryod.records.columns import Column
 from cryod.yaml_source import FileFormatError, Section
 
@@ -81,6 +81,8 @@ TRUSTED_CORRECTION_SPREAD = 0.3
 SETTLE_S = 1.0
 #: Smoothing of the feedback terms' power, the level the waveform rides on (s).
 BASE_TIME_S = 2.0
+#: The physical limit is computed once the setpoint has been steady this long (s).
+LIMIT_AFTER_S = 5.0
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
 SETTING_DELAY_TOLERANCE_S = 0.002
 
@@ -130,44 +132,6 @@ class FeedforwardSettings:
     @property
     def controller_model(self) -> CryostatModel:
         return self.model if self.model is not None else load_model(DEFAULT_MODEL_PATH)
-
-
-def plant_at_harmonics(model: CryostatModel, orders, period_s: float, setting_delay_s: float = 0.0) -> np.ndarray:
-    """From the waveform's coefficients to T2's samples at each harmonic of the cooler (K/W, complex).
-
-    The loop samples T2, sets the heater ``setting_delay_s`` later to the
-    waveform's value at the middle of the coming hold, and holds it for a
-    period: :meth:`~cryod.model.transfer_function.TransferFunction.sampled_response`
-    of the heater-to-T2 path, with the phase of the hold's middle. Above half
-    the sampling rate (the 4th harmonic and up at 80 ms) the hold's folded
-    images make it differ much from ``G(j n omega)``.
-    """
-    heater, _ = flange_transfer_functions(model)
-    omega = model.ptc.angular_frequency_rad_s * np.asarray(orders, dtype=float)
-    middle = np.exp(1j * omega * (setting_delay_s + 0.5 * period_s))
-    return heater.sampled_response(omega, period_s, setting_delay_s) * middle
-
-
-def line_at_harmonics(model: CryostatModel, harmonics: int, time_scale: float = 1.0) -> np.ndarray:
-    """The model's cooler line on T2 at each harmonic (K, complex), relative to the phase of
-    T5's fundamental (the tracked phase: T5's fundamental is ``A cos(phase)``).
-
-    ``time_scale`` multiplies the flange's time constants (the heat-capacity effect at a setpoint).
-    """
-    drive = PtcDrive(model)
-    omega = model.ptc.angular_frequency_rad_s
-    flange = PtcPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
-    stage = PtcPath(drive, stage_transfer_functions(model)[1], input_is_heat=False)
-    rotations = [cmath.exp(1j * component.phase_rad) for component in drive.components]
-    flange_phasors = [p * r for p, r in zip(flange.output_phasors(omega, time_scale), rotations)]
-    stage_fundamental = next(p * r for p, r, c in zip(stage.output_phasors(omega), rotations, drive.components)
-                             if c.order == 1)
-    reference = cmath.phase(stage_fundamental)
-    line = np.zeros(harmonics, dtype=complex)
-    for component, phasor in zip(drive.components, flange_phasors):
-        if component.order <= harmonics:
-            line[component.order - 1] += phasor * cmath.exp(-1j * component.order * reference)
-    return line
 
 
 class WaveformBounds:
@@ -362,6 +326,8 @@ class FeedforwardTerm:
         Column("ff_line_K", "K", "amplitude of T2's part synchronous with the cooler, estimated now "
                                  "(sqrt of the sum of the harmonics' squared amplitudes)"),
         Column("ff_scale", "", "fade of the waveform, 0 (off) to 1 (on)", "{:.3f}"),
+        Column("ff_limit_K", "K", "the physical limit at this setpoint: the least synchronous T2 any heater "
+                                  "waveform can leave (feedforward-limit; empty until computed)"),
     )
 
     def __init__(self, settings: FeedforwardSettings, output_max: float):
@@ -379,6 +345,10 @@ class FeedforwardTerm:
         self._applied_scale = 0.0           # the scale of the waveform the heater played last tick
         self._held_since_s = -math.inf      # when the heater last did not play the waveform
         self._next_update_s: float | None = None
+        #: The physical limit at the setpoint in use (:mod:`cryod.control.feedforward_limit`); None until the
+        #: setpoint has been steady for LIMIT_AFTER_S (a few ms to compute, once per setpoint).
+        self.physical_limit = None
+        self._limit_wanted: tuple[float, float] | None = None       # (setpoint, since when)
         self._configure(settings)
 
     # -- configuration ---------------------------------------------------------------
@@ -491,6 +461,7 @@ class FeedforwardTerm:
             elif tick.time_s >= self._next_update_s:
                 self._next_update_s += self.settings.update_interval_s
                 self._learn()
+        self._follow_limit(tick)
         if self.scale <= 0.0 or self.phase is None:
             self.output_w = self._applied_scale = 0.0
             return 0.0
@@ -504,6 +475,26 @@ class FeedforwardTerm:
         self.output_w = self.scale * value
         return self.output_w
 
+    def _follow_limit(self, tick: TickInputs) -> None:
+        """Compute the physical limit for a setpoint once it has been steady for LIMIT_AFTER_S."""
+        setpoint = round(tick.setpoint_K, 4)
+        if self._limit_wanted is None or self._limit_wanted[0] != setpoint:
+            self._limit_wanted = (setpoint, tick.time_s)
+            return
+        known = self.physical_limit
+        if known is not None and known.setpoint_K == setpoint \
+                and abs(known.heater_delay_s - self.setting_delay_s) < SETTING_DELAY_TOLERANCE_S:
+            return
+        if tick.time_s - self._limit_wanted[1] < LIMIT_AFTER_S:
+            return
+        try:
+            self.physical_limit = limit_for_heater_power(self.settings.controller_model, setpoint, self.output_max,
+                                                         self.settings.period_s, heater_delay_s=self.setting_delay_s,
+                                                         certify=False)
+        except FeedforwardLimitError:
+            self.physical_limit = None
+            self._limit_wanted = (setpoint, math.inf)          # out of reach: not again for this setpoint
+
     def limit(self, requested: float, applied: float) -> None:
         others = requested - self.output_w
         if self.other_terms_w is None:
@@ -515,10 +506,11 @@ class FeedforwardTerm:
 
     def column_values(self) -> tuple[float, ...]:
         phase = self.phase
+        limit = self.physical_limit.ptc_periodic_limit_K if self.physical_limit is not None else math.nan
         if phase is None:
-            return (self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale)
+            return (self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale, limit)
         return (self.output_w, self._flange_phase_rad, phase.frequency_rad_s, 1.0 if phase.locked else 0.0,
-                self.line_amplitude_K(), self.scale)
+                self.line_amplitude_K(), self.scale, limit)
 
     def describe(self) -> str:
         """The feedforward's state in a few lines (``cryod ctl feedforward status``)."""
@@ -542,8 +534,18 @@ class FeedforwardTerm:
                      f"{1e3 * (self.other_terms_w or 0.0):.1f} mW from PI, within {1e3 * self.settings.margin_W:g} mW "
                      f"of 0 and {1e3 * self.output_max:.0f} mW")
         correction = self.estimator.correction[0]
-        lines.append(f"plant at the fundamental: {abs(correction):.2f} x the model's, {math.degrees(cmath.phase(correction)):+.0f} deg "
-                     f"(model: {self.settings.model_source})")
+        lines.append(f"plant at the fundamental: {abs(correction):.2f} x the model's, "
+                     f"{math.degrees(cmath.phase(correction)):+.0f} deg (model: {self.settings.model_source})")
+        limit = self.physical_limit
+        if limit is None:
+            lines.append("physical limit: not computed yet (the daemon computes it for the setpoint in use)")
+        else:
+            lines.append(f"physical limit at {limit.setpoint_K:g} K: {1e6 * limit.ptc_periodic_limit_K:.1f} uK of the "
+                         f"{1e6 * limit.open_line_K:.1f} uK line; {limit.limited_by}-limited (authority "
+                         f"{limit.authority:.2f}: the heater can put {1e3 * limit.largest_line_power_W:.0f} mW at the "
+                         f"line of the {1e3 * limit.line_power_needed_W:.0f} mW needed); predicted best "
+                         f"{1e6 * limit.predicted_best_residual_K:.1f} uK. What would change it: "
+                         f"cryod feedforward-limit --setpoint K --heater-ohm R --max-current A")
         return "\n".join(lines)
 
     def line_amplitude_K(self) -> float:

@@ -94,7 +94,7 @@ import numpy as np
 from cryod.control.bounded_waveform import (
     best_bounded_waveform, largest_fundamental, residual_lower_bound, waveform_values,
 )
-from cryod.control.feedforward import line_at_harmonics
+from cryod.control.harmonic_plant import line_at_harmonics
 from cryod.model import CryostatModel, TransferFunction
 from cryod.model.dynamics import flange_transfer_functions
 
@@ -497,6 +497,17 @@ def feedforward_limit(model: CryostatModel, setpoint_K: float, heater_resistance
         waveform_power_W=_read_only(_commanded(model, waveform_delivered)),
         waveform_harmonics_W=_read_only(waveform_harmonics),
     )
+
+
+def limit_for_heater_power(model: CryostatModel, setpoint_K: float, max_power_w: float, period_s: float = 0.08,
+                           **options) -> FeedforwardLimit:
+    """:func:`feedforward_limit` when only the heater's largest power R * I_max**2 is known.
+
+    The limit depends on the heater only through that power; the result's
+    ``heater_resistance_ohm`` and ``max_current_A`` then read ``max_power_w``
+    ohm and 1 A.
+    """
+    return feedforward_limit(model, setpoint_K, max_power_w, 1.0, period_s, **options)
 
 
 def _first_harmonics(phasors: np.ndarray) -> np.ndarray:

@@ -32,6 +32,7 @@ from cryod.service.clock import MonotonicClock, ScaledClock, VirtualClock
 from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config
 from cryod.service.daemon import Daemon, config_or_exit
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
+from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit
 from cryod.records.columns import Event, Row
 from cryod.records.metrics import regulation_metrics
 from cryod.model import DEFAULT_MODEL_PATH, load_model
@@ -221,6 +222,7 @@ def run_simulation(args) -> int:
     finally:
         logging_service.stop()
     summary = summarize(result, collector, model.ptc.angular_frequency_rad_s, _cpu_seconds() - cpu_start)
+    summary.update(simulated_limit(model, config, result.loop, summary["setpoint_K"]))
     summary["trigger"] = opener.trigger_note
     if args.json:
         print(json.dumps(finite_or_none(summary)))
@@ -233,6 +235,23 @@ def run_simulation(args) -> int:
 def _cpu_seconds() -> float:
     usage = resource.getrusage(resource.RUSAGE_SELF)
     return usage.ru_utime + usage.ru_stime
+
+
+def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None) -> dict:
+    """The physical limit of the feedforward on the simulated cryostat (its model, not the controller's)
+    at the run's last setpoint, with the heater set as late after T2's reading as the loop set it."""
+    term = loop.regulator.term("feedforward") if loop is not None else None
+    delay = term.setting_delay_s if term is not None else 0.0
+    empty = {"ptc_periodic_limit_K": None, "feedforward_authority": None, "feedforward_limited_by": None}
+    if setpoint_K is None:
+        return empty
+    try:
+        limit = feedforward_limit(model, setpoint_K, config.heater.resistance_ohm, config.heater.max_current_A,
+                                  config.loop.period_s, heater_delay_s=delay, certify=False)
+    except FeedforwardLimitError:
+        return empty
+    return {"ptc_periodic_limit_K": limit.ptc_periodic_limit_K, "feedforward_authority": round(limit.authority, 4),
+            "feedforward_limited_by": limit.limited_by}
 
 
 def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: float) -> dict:

@@ -270,3 +270,24 @@ def test_a_wrong_model_still_converges(reference_model, gain, lag_deg):
         cryostat, controller = scaled, reference_model
     achieved = periodic(closed_loop(cryostat, 6.0, controller_model=controller))
     assert achieved < max(1.15 * best_band_limited(cryostat, 6.0), 20e-6)
+
+
+def test_no_windup_while_the_heater_has_no_room(reference_model):
+    """A setpoint the heater cannot hold (PI at R I_max^2 for 10 minutes) leaves no room for a waveform;
+    when the setpoint comes back within reach the waveform returns without a jump and converges."""
+    settings = FeedforwardSettings(model=reference_model)
+    run = run_program(reference_model, [Segment(0.0, setpoint_K=5.6), Segment(600.0, setpoint_K=5.0)], 1200.0,
+                      gains=GAINS, heater_max_w=0.18, seed=2, more_terms=(("feedforward", settings),))
+    held = (run.time_s > 60.0) & (run.time_s < 600.0)
+    assert np.all(run.heater_w[held] <= 0.18) and np.mean(run.heater_w[held] == 0.18) > 0.9
+    assert np.max(np.abs(run.control["ff_W"][held])) < 0.02          # no room: (almost) no waveform
+    after = run.time_s > 600.0
+    assert np.max(np.abs(np.diff(run.control["ff_W"][after]))) < 0.18   # no step beyond the heater's range
+    limit = best_band_limited(reference_model, 5.0, heater_max_w=0.18)
+    assert periodic(run, from_s=1000.0) < 1.15 * limit
+
+
+def test_at_6_K_the_waveform_stays_below_the_heaters_maximum(reference_model):
+    run = closed_loop(reference_model, 6.0, duration_s=600.0)
+    late = run.time_s > 300.0
+    assert run.heater_w[late].max() < 0.5 and run.heater_w[late].max() > 0.45     # it uses the room it has

@@ -318,3 +318,25 @@ def test_a_fault_that_keeps_coming_back_backs_off_and_ends_at_the_recovery_timeo
     heater_on = sum(1 for row in rows if row.time_s > first_fault_time and row.heater_W > 0.0)
     assert heater_on == 0                           # every attempt failed before a power was confirmed
     assert cryostat.heater_power_w == 0.0
+
+
+def test_feedforward_commands_fade_it_out_and_in_and_report(reference_model, curves, base_config):
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    answers = {}
+    original = instruments.measure
+
+    def measure():
+        count = instruments.measurements
+        if count in (2000, 2500, 2600):
+            answers[count] = loop.submit(Command("feedforward", {2000: "off", 2500: "on", 2600: "status"}[count]))
+        return original()
+
+    instruments.measure = measure
+    assert loop.run(duration_s=300.0, manage_gc=False) == 0
+    scale = np.array([row.control.get("ff_scale", np.nan) for row in rows])
+    assert scale[1990] == 1.0 and scale[2001 + 63] == 0.0 and 0.0 < scale[2030] < 1.0     # 5 s fade
+    assert scale[2501 + 63] == 1.0
+    assert answers[2000].ok and "fading out" in answers[2000].message
+    status = answers[2600].message
+    assert answers[2600].ok and "cooler phase locked" in status and "physical limit at 5 K" in status
+    assert any(event.text.startswith("command: feedforward accepted") for event in events)

@@ -328,6 +328,8 @@ class FeedforwardTerm:
         Column("ff_scale", "", "fade of the waveform, 0 (off) to 1 (on)", "{:.3f}"),
         Column("ff_limit_K", "K", "the physical limit at this setpoint: the least synchronous T2 any heater "
                                   "waveform can leave (feedforward-limit; empty until computed)"),
+        Column("ff_authority", "", "largest fundamental the heater can give over the one the line needs "
+                                   "(below 1: authority-limited)", "{:.4f}"),
     )
 
     def __init__(self, settings: FeedforwardSettings, output_max: float):
@@ -506,11 +508,12 @@ class FeedforwardTerm:
 
     def column_values(self) -> tuple[float, ...]:
         phase = self.phase
-        limit = self.physical_limit.ptc_periodic_limit_K if self.physical_limit is not None else math.nan
+        known = self.physical_limit
+        limit, authority = (known.ptc_periodic_limit_K, known.authority) if known is not None else (math.nan,) * 2
         if phase is None:
-            return (self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale, limit)
+            return (self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale, limit, authority)
         return (self.output_w, self._flange_phase_rad, phase.frequency_rad_s, 1.0 if phase.locked else 0.0,
-                self.line_amplitude_K(), self.scale, limit)
+                self.line_amplitude_K(), self.scale, limit, authority)
 
     def describe(self) -> str:
         """The feedforward's state in a few lines (``cryod ctl feedforward status``)."""

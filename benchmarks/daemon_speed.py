@@ -79,12 +79,15 @@ def main() -> None:
     parser.add_argument("--max-s", type=float, default=3600.0)
     parser.add_argument("--repeat", type=int, default=5, help="runs of the --speed max hour (0: none)")
     parser.add_argument("--skip-realtime", action="store_true")
+    parser.add_argument("--cryod-args", default="", help="more arguments for every cryod --simulate run, "
+                                                         "e.g. '--no-feedforward'")
     args = parser.parse_args()
+    extra = args.cryod_args.split()
     print(f"python {platform.python_version()}, {os.cpu_count()} cores, load average "
           f"{os.getloadavg()[0]:.2f} at start")
     if args.repeat > 0:
         reference = reference_s()
-        runs = sorted((run("--speed", "max", "--duration", str(args.max_s)) for _ in range(args.repeat)),
+        runs = sorted((run("--speed", "max", "--duration", str(args.max_s), *extra) for _ in range(args.repeat)),
                       key=lambda summary: summary["wall_s"])
         best, median = runs[0], runs[len(runs) // 2]
         print(f"\n--speed max, {args.max_s:g} simulated s ({best['ticks']} ticks, in process), {args.repeat} runs:")
@@ -100,7 +103,7 @@ def main() -> None:
               f"{median['wall_s'] / reference:.1f}")
     if args.skip_realtime:
         return
-    real = run("--duration", str(args.realtime_s))
+    real = run("--duration", str(args.realtime_s), *extra)
     print(f"\nreal time, {args.realtime_s:g} s, drivers over TCP (pyvisa-py) to the simulated instruments:")
     print("| ticks | overruns | lateness p50 (ms) | p99 (ms) | max (ms) | CPU (% of one core) | trigger |")
     print("|---|---|---|---|---|---|---|")

@@ -42,7 +42,6 @@ Examples
 
 from __future__ import annotations
 
-import dataclasses
 
 import enum
 import math
@@ -484,8 +483,9 @@ class Keithley2002(ScpiInstrument):
                     else:
                         zero_seen = self._learn_timing(trigger_time_s, earliest, zero_expected, normal_autozero,
                                                        timing, last_miss_s)
-                    return dataclasses.replace(reading, sample_time_s=self._sample_time_s(trigger_time_s,
-                                                                                           zero_seen, timing))
+                    return DmmReading(reading.resistance_ohm, reading.reading_number, reading.status,
+                                      reading.timestamp_s, reading.reply,
+                                      self._sample_time_s(trigger_time_s, zero_seen, timing))
                 last_miss_s = self.clock.now()
                 if self.clock.now() >= limit:
                     raise InstrumentTimeout(self.label, f"no new reading (number {reading.reading_number} "

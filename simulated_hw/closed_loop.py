@@ -153,4 +153,5 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
         recorded[:, tick] = now, flange, stage, power, step.setpoint_K
         for name, value in step.columns.items():
             control_columns[name][tick] = value
+    regulator.close()
     return ClosedLoopRun(*recorded, control_columns)

@@ -12,10 +12,10 @@ import math
 
 import numpy as np
 import pytest
-from scipy import optimize
 
 from cryod.control.cooler_phase import CoolerPhaseTracker
-from cryod.control.feedforward import FeedforwardSettings, FeedforwardTerm, SynchronousEstimator, WaveformBounds
+from cryod.control.bounded_waveform import best_bounded_waveform, waveform_values
+from cryod.control.feedforward import FeedforwardSettings, FeedforwardTerm, SynchronousEstimator
 from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.control.pi import PiGains
 from cryod.control.terms import TickInputs
@@ -78,7 +78,7 @@ def test_tracker_uses_each_readings_own_instant():
 
 
 # ---------------------------------------------------------------------------
-# the plant as the loop samples it, the estimator, the bounds
+# the plant as the loop samples it, the estimator
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("order, delay_s", [(1, 0.0), (5, 0.0), (1, 0.035), (5, 0.035)])
 def test_sampled_plant_matches_the_simulated_cryostat(reference_model, order, delay_s):
@@ -120,31 +120,6 @@ def test_estimator_separates_the_line_from_the_plant_correction():
     assert np.abs(estimator.line - line) == pytest.approx([0, 0], abs=3e-5)
 
 
-def test_projection_is_the_constrained_optimum():
-    """Against an independent solver (SLSQP) on a small problem: same objective, within the bounds."""
-    bounds = WaveformBounds(3, points=64)
-    target = np.array([0.25 * np.exp(1j), 0.05j, 0.02])
-    weights = np.array([1.0, 0.3, 0.1])
-    low, high = -0.11, 0.39
-    projected = bounds.project(target, weights, low, high, tolerance=1e-10, iterations=20000)
-    values = bounds.values(projected)
-    assert values.min() >= low - 1e-6 and values.max() <= high + 1e-6
-
-    def objective(x):
-        u = x[:3] + 1j * x[3:]
-        return float(np.sum(weights * np.abs(u - target) ** 2))
-
-    constraints = [{"type": "ineq", "fun": lambda x: bounds.matrix @ x - low},
-                   {"type": "ineq", "fun": lambda x: high - bounds.matrix @ x}]
-    reference = optimize.minimize(objective, np.zeros(6), constraints=constraints, method="SLSQP",
-                                  options={"ftol": 1e-14, "maxiter": 500})
-    assert reference.success
-    ours = objective(np.concatenate([projected.real, projected.imag]))
-    assert ours == pytest.approx(reference.fun, rel=1e-3)
-    inside = np.array([0.1, 0.0, 0.0], dtype=complex)
-    assert np.array_equal(bounds.project(inside, weights, low, high), inside)      # feasible: unchanged
-
-
 # ---------------------------------------------------------------------------
 # the term on its own: fade, lock loss, switching
 # ---------------------------------------------------------------------------
@@ -166,7 +141,7 @@ def test_the_waveform_fades_in_and_out_with_the_lock_and_on_command(reference_mo
     term.start(None, 0.113)
     feed(term, 40.0)
     assert term.scale == 1.0 and np.any(term.coefficients)
-    peak = float(np.max(np.abs(term.bounds.values(term.coefficients))))
+    peak = float(np.max(np.abs(waveform_values(term.coefficients, 0.0, 128))))
     term.switch(False)
     off = feed(term, 10.0, 40.0)
     assert term.scale == 0.0 and np.all(off[-20:] == 0.0)
@@ -209,8 +184,7 @@ def best_band_limited(model, setpoint_K, heater_max_w=0.5, harmonics=16):
     orders = np.arange(1, harmonics + 1)
     plant, line = plant_at_harmonics(model, orders, PERIOD), line_at_harmonics(model, harmonics)
     mean = (setpoint_K - model.operating_point.flange_temperature_K) / flange_transfer_functions(model)[0].dc_gain
-    best = WaveformBounds(harmonics, points=256).project(-line / plant, np.abs(plant) ** 2, -mean, heater_max_w - mean,
-                                                         tolerance=1e-10, iterations=50000)
+    best = best_bounded_waveform(line, plant, mean, 0.0, heater_max_w, phase_points=512)
     return float(np.sqrt(np.sum(np.abs(line + plant * best) ** 2)))
 
 

@@ -9,7 +9,8 @@ import time
 
 import pytest
 
-from cryod.records.columns import REQUIRED, STATE, Event, Row, RowSchema
+from cryod.records.columns import REQUIRED, STATE, Column, Event, Row, RowSchema
+from cryod.service.states import LoopState
 from cryod.records.datalog import DataLog
 from cryod.records.record import read_record
 from cryod.service.commands import Command, parse_command
@@ -187,3 +188,14 @@ def test_memory_lock_pins_what_is_used_not_everything_mapped():
         pytest.skip("memory locking not permitted here")
     assert after_kb < 1.2 * before_kb + 10_000
     assert "MB resident" in " ".join(output[3:])
+
+
+def test_the_writers_fast_path_writes_what_each_column_formats():
+    schema = RowSchema(REQUIRED + (STATE,) + (Column("T2_sample_s", "s", "", "{:.5f}", is_time=True),
+                                            Column("extra", "", "")))
+    row = Row(time_s=10.08, lateness_ms=0.0, state=LoopState.CLOSED, T2_K=4.2306589, T5_K=float("nan"),
+              heater_W=0.0, T2_sample_s=10.09, control={"extra": 0.30000000000000004})
+    expected = ",".join(column.formatted(value) for column, value in zip(
+        schema.columns, (0.08, 4.2306589, None, 0.0, None, "closed", 0.09, 0.30000000000000004))) + "\n"
+    assert schema.format_row(row, origin_s=10.0) == expected == \
+        "0.0800,4.2306589,,0.000000e+00,,closed,0.09000,0.30000000000000004\n"

@@ -36,13 +36,12 @@ from __future__ import annotations
 
 import cmath
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 
-@dataclass(frozen=True, slots=True)
-class CoolerPhase:
+class CoolerPhase(NamedTuple):
     """The tracker's state at one reading.
 
     Attributes
@@ -117,7 +116,6 @@ class CoolerPhaseTracker:
         self.minimum_amplitude_K = float(minimum_amplitude_K)
         self.lock_time_s = float(lock_time_s)
         self.frequency_limits = (nominal_rad_s * (1.0 - frequency_range), nominal_rad_s * (1.0 + frequency_range))
-        self._orders = np.arange(1, self.harmonics + 1)
         self.reset()
 
     def reset(self) -> None:
@@ -126,7 +124,7 @@ class CoolerPhaseTracker:
         self.phase_rad = 0.0
         self.frequency_rad_s = self.nominal_rad_s
         self.offset_K: float | None = None
-        self.amplitudes = np.zeros(self.harmonics, dtype=complex)   # T5 = offset + Re(sum a_n e^{j n phase})
+        self.amplitudes = [0j] * self.harmonics       # T5 = offset + Re(sum a_n e^{j n phase}); plain complex: fast
         self.error_rad = 0.0
         self._settled_s = 0.0
         self._error_average = math.pi
@@ -135,7 +133,7 @@ class CoolerPhaseTracker:
 
     @property
     def amplitude_K(self) -> float:
-        return abs(complex(self.amplitudes[0]))
+        return abs(self.amplitudes[0])
 
     def update(self, time_s: float, ptc_stage_K: float) -> CoolerPhase:
         """Take one T5 reading at its instant; returns the tracker's state at that instant."""
@@ -154,22 +152,30 @@ class CoolerPhaseTracker:
         return self.state
 
     def _demodulate_and_steer(self, phase: float, value: float, dt: float) -> float:
-        rotors = np.exp(1j * self._orders * phase)
-        predicted = self.offset_K + float(np.real(np.dot(self.amplitudes, rotors)))
-        residual = value - predicted
+        rotor = cmath.exp(1j * phase)
+        rotors = [rotor]
+        for _ in range(1, self.harmonics):
+            rotors.append(rotors[-1] * rotor)
+        amplitudes = self.amplitudes
+        residual = value - self.offset_K - sum((a * r).real for a, r in zip(amplitudes, rotors))
         gain = min(dt / self.demodulator_time_s, 0.5)
         self.offset_K += gain * residual
-        self.amplitudes += 2.0 * gain * residual * np.conj(rotors)
-        amplitude = self.amplitude_K
-        present = amplitude >= self.minimum_amplitude_K
+        step = 2.0 * gain * residual
+        amplitudes = [a + step * r.conjugate() for a, r in zip(amplitudes, rotors)]
+        present = abs(amplitudes[0]) >= self.minimum_amplitude_K
         if present:
-            self.error_rad = cmath.phase(complex(self.amplitudes[0]))
+            self.error_rad = cmath.phase(amplitudes[0])
             bandwidth = self.loop_bandwidth_rad_s * (1.0 if self.locked else 4.0)
             correction = min(2.0 * self.damping * bandwidth * dt, 1.0) * self.error_rad
             self.frequency_rad_s = min(max(self.frequency_rad_s + bandwidth ** 2 * dt * self.error_rad,
                                            self.frequency_limits[0]), self.frequency_limits[1])
             phase += correction
-            self.amplitudes *= np.exp(-1j * self._orders * correction)      # the reference moved
+            turn = cmath.exp(-1j * correction)          # the reference moved: so do the amplitudes
+            turns = turn
+            for index in range(self.harmonics):
+                amplitudes[index] *= turns
+                turns *= turn
+        self.amplitudes = amplitudes
         self._judge_lock(present, dt)
         return phase
 

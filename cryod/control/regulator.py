@@ -37,9 +37,8 @@ Examples
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
 from enum import StrEnum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from cryod.control.ramp import SetpointRamp
 from cryod.control.terms import ControlTerm, TickInputs, build_terms, term_columns
@@ -109,8 +108,7 @@ class HeaterCurrentOutput:
         return math.sqrt(power_w / self.resistance_ohm)
 
 
-@dataclass(frozen=True, slots=True)
-class RegulatorStep:
+class RegulatorStep(NamedTuple):
     """One tick's result.
 
     Attributes
@@ -148,6 +146,7 @@ class Regulator:
         self.terms: list[ControlTerm] = build_terms(control.terms, output.maximum)
         self._conditioners = [term for term in self.terms if hasattr(term, "condition")]
         self._riding = [term for term in self.terms if getattr(term, "rides_on_feedback", False)]
+        self._column_names = [(term, tuple(column.name for column in term.columns)) for term in self.terms]
         self._feedback = [term for term in self.terms if term not in self._riding]
         self.columns = term_columns(control.terms)
         self.ramp = SetpointRamp(control.setpoint_K or 0.0, control.ramp_K_per_min)
@@ -183,7 +182,7 @@ class Regulator:
             return RegulatorStep(self.manual_power_w, math.nan, False, {})
         if self.mode is RegulatorMode.OFF:
             return RegulatorStep(0.0, math.nan, False, {})
-        tick = replace(tick, setpoint_K=self.ramp.advance(dt_s))
+        tick = tick.with_setpoint(self.ramp.advance(dt_s))
         setpoint = tick.setpoint_K
         # feedback terms first, held within the heater's range and told so (their anti-windup);
         # then the terms that ride on them (the feedforward's waveform), held again
@@ -203,8 +202,8 @@ class Regulator:
                 term.limit(requested, applied)
             limited = limited or applied != requested
         columns = {}
-        for term in self.terms:
-            columns.update(zip((column.name for column in term.columns), term.column_values()))
+        for term, names in self._column_names:
+            columns.update(zip(names, term.column_values()))
         return RegulatorStep(self.output.power_w(applied), setpoint, limited, columns)
 
     # -- modes -------------------------------------------------------------------------
@@ -216,8 +215,7 @@ class Regulator:
         """
         feedback_K = flange_K - self._feedback_offset_K      # T2 as the feedback terms see it
         self.ramp.setpoint_K = feedback_K if self.ramp.rate_K_per_min > 0.0 else self.ramp.target_K
-        tick = replace(TickInputs.at(time_s, 0.0, flange_K, ptc_stage_K, self.ramp.setpoint_K),
-                       flange_feedback_K=feedback_K)
+        tick = TickInputs.at(time_s, 0.0, flange_K, ptc_stage_K, self.ramp.setpoint_K).with_feedback(feedback_K)
         present = self.output.output_for(present_power_w)
         for term in self.terms:
             term.start(tick, present)
@@ -230,6 +228,12 @@ class Regulator:
                              f"(R * I_max^2)")
         self.manual_power_w = float(power_w)
         self.mode = RegulatorMode.MANUAL
+
+    def close(self) -> None:
+        """Release what the terms hold (the feedforward's learning thread)."""
+        for term in self.terms:
+            if hasattr(term, "close"):
+                term.close()
 
     def term(self, name: str) -> ControlTerm | None:
         """The control term called ``name``, if this regulator has it."""

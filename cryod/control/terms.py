@@ -23,16 +23,14 @@ from __future__ import annotations
 
 import functools
 import importlib
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 if TYPE_CHECKING:
     from cryod.records.columns import Column
     from cryod.yaml_source import Section
 
 
-@dataclass(frozen=True, slots=True)
-class TickInputs:
+class TickInputs(NamedTuple):
     """What a control term sees each tick.
 
     Attributes
@@ -63,6 +61,14 @@ class TickInputs:
     ptc_stage_time_s: float
     output_time_s: float
     flange_feedback_K: float
+
+    def with_feedback(self, flange_feedback_K: float) -> "TickInputs":
+        """The same inputs with another T2 for the feedback terms."""
+        return TickInputs(*self[:8], flange_feedback_K)
+
+    def with_setpoint(self, setpoint_K: float) -> "TickInputs":
+        """The same inputs with another setpoint."""
+        return TickInputs(*self[:4], setpoint_K, *self[5:])
 
     @classmethod
     def at(cls, time_s: float, dt_s: float, flange_K: float, ptc_stage_K: float, setpoint_K: float,

@@ -176,15 +176,30 @@ class RowSchema:
         if len(set(self.names)) != len(self.names):
             raise ValueError(f"a column is declared twice in {', '.join(self.names)}")
         row_fields = set(Row.__slots__)
-        self._fields = [(column, column.name in row_fields, column.is_time) for column in self.columns]
+        # (name, on the Row itself, a clock time, its format's bound method or None), for the writer's hot path
+        self._plan = [(column.name, column.name in row_fields, column.is_time,
+                       column.format.format if column.format else None) for column in self.columns]
 
     def format_row(self, row: Row, origin_s: float = 0.0) -> str:
-        """One data line, newline-terminated, with the clock times counted from ``origin_s``."""
+        """One data line, newline-terminated, with the clock times counted from ``origin_s``.
+
+        The same text as :meth:`Column.formatted` of each field (a test holds them to it), in a
+        loop the data log's thread can afford at 12.5 rows a second and far faster in simulation.
+        """
         control = row.control
         fields = []
-        for column, on_row, is_time in self._fields:
-            value = getattr(row, column.name) if on_row else control.get(column.name)
-            fields.append(column.formatted(value - origin_s if is_time and value is not None else value))
+        append = fields.append
+        for name, on_row, is_time, pattern in self._plan:
+            value = getattr(row, name) if on_row else control.get(name)
+            if value is None or value != value:          # missing or NaN: empty
+                append("")
+            elif isinstance(value, str):
+                if "," in value or "\n" in value:
+                    raise ValueError(f"column {name!r}: text may not contain ',' or a newline")
+                append(value)
+            else:
+                value = float(value) - origin_s if is_time else float(value)
+                append(pattern(value) if pattern else repr(value))
         return ",".join(fields) + "\n"
 
     def units_text(self) -> str:

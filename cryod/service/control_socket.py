@@ -118,7 +118,9 @@ class ControlSocketServer:
             uid = pwd.getpwnam(self.owner).pw_uid if self.owner else -1
             gid = grp.getgrnam(self.group).gr_gid if self.group else -1
             os.chown(self.path, uid, gid)
-        self._thread = threading.Thread(target=self._server.serve_forever, name="cryod-control", daemon=True)
+        # polled every 0.1 s for the stop: stopping the daemon waits at most that long for the socket
+        self._thread = threading.Thread(target=self._server.serve_forever, args=(0.1,), name="cryod-control",
+                                        daemon=True)
         self._thread.start()
         log.info("control socket: %s (mode %o)", self.path, self.mode)
 

@@ -226,6 +226,7 @@ class ControlLoop:
             self._stop(ExitCode.EXCEPTION, Fault(FaultCause.EXCEPTION, f"{type(error).__name__}: {error}"))
             raise
         finally:
+            self.regulator.close()
             if manage_gc:
                 self._gc.stop()
         return self.exit_code

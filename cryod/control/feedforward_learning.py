@@ -1,0 +1,104 @@
+"""The feedforward's estimator and learning steps, on a thread of their own.
+
+The loop's thread only hands each T2 reading over (a queue put) and, every
+``update_interval_s``, asks for a learning step; a worker thread feeds the
+readings to the :class:`~cryod.control.feedforward.SynchronousEstimator` (a
+Kalman filter, tens of µs a reading) and computes the step (a small quadratic
+programme, a fraction of a ms, with an iteration count that depends on the
+data). So the 80 ms cycle stays lean and its time bounded.
+
+Results are deterministic whatever the threads' timing: a step sees exactly
+the readings handed over before it was asked for, and the loop takes its
+result at the next tick, waiting for it if the worker is behind (in service it
+never is: it has a whole period; on virtual time the loop runs ahead).
+
+Examples
+--------
+>>> import numpy as np
+>>> from cryod.control.feedforward import SynchronousEstimator
+>>> worker = LearningWorker(SynchronousEstimator(1))
+>>> for k in range(500):
+...     phase = 10.83 * 0.08 * k
+...     worker.reading(phase, 5.0 + 1e-3 * np.cos(phase), np.zeros(1, dtype=complex))
+>>> worker.step(1, lambda estimator: round(abs(complex(estimator.line[0])) * 1e3, 2))
+>>> worker.result(1)
+1.0
+>>> worker.close()
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import weakref
+from typing import Any, Callable
+
+_GAP = object()
+_STOP = object()
+
+
+def _work(inbox: queue.SimpleQueue, estimator, results: dict, ready: threading.Condition) -> None:
+    """The worker thread: readings into the estimator, steps computed in their turn."""
+    while True:
+        item = inbox.get()
+        if item is _STOP:
+            return
+        if item is _GAP:
+            estimator.forget_last()
+        elif len(item) == 3:
+            estimator.add(*item)
+        else:
+            step_id, compute = item
+            try:
+                result = compute(estimator)
+            except Exception as error:          # noqa: BLE001 - handed to the loop, which raises it
+                result = error
+            with ready:
+                results[step_id] = result
+                ready.notify_all()
+
+
+class LearningWorker:
+    """A thread that owns an estimator: readings in, learning steps out.
+
+    Parameters
+    ----------
+    estimator : SynchronousEstimator
+        Used only by the worker thread from now on.
+    """
+
+    def __init__(self, estimator):
+        self.estimator = estimator
+        self._inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self._results: dict[int, Any] = {}
+        self._ready = threading.Condition()
+        self._thread = threading.Thread(target=_work, args=(self._inbox, estimator, self._results, self._ready),
+                                        name="cryod-feedforward", daemon=True)
+        self._thread.start()
+        weakref.finalize(self, self._inbox.put, _STOP)      # a term dropped without close(): the thread ends
+
+    def reading(self, phase: float, flange_K: float, effect) -> None:
+        """A T2 reading at its cooler phase, with the waveform's modelled effect (non-blocking)."""
+        self._inbox.put((phase, flange_K, effect))
+
+    def gap(self) -> None:
+        """The next reading is not to be differenced against the last ones."""
+        self._inbox.put(_GAP)
+
+    def step(self, step_id: int, compute: Callable[[Any], Any]) -> None:
+        """Compute ``compute(estimator)`` after every reading handed over so far (non-blocking)."""
+        self._inbox.put((step_id, compute))
+
+    def result(self, step_id: int, timeout_s: float | None = 60.0):
+        """The result of step ``step_id``, waiting for it; an error in the step is raised here."""
+        with self._ready:
+            if not self._ready.wait_for(lambda: step_id in self._results, timeout_s):
+                raise TimeoutError(f"feedforward learning step {step_id} not done within {timeout_s} s")
+            result = self._results.pop(step_id)
+        if isinstance(result, Exception):
+            raise result
+        return result
+
+    def close(self) -> None:
+        """End the thread once what was handed over is done."""
+        self._inbox.put(_STOP)

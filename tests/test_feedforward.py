@@ -148,9 +148,9 @@ def test_the_waveform_fades_in_and_out_with_the_lock_and_on_command(reference_mo
     envelope = peak * np.clip(1.0 - PERIOD * np.arange(1, off.size + 1) / 5.0, 0.0, 1.0)
     assert np.all(np.abs(off) <= envelope + 1e-3)          # fades over 5 s, no jump to 0 W
     term.switch(True)
-    feed(term, 10.0, 50.0)
+    feed(term, 15.0, 50.0)                                  # locks again (about 6 s), then fades in
     assert term.scale == 1.0
-    lost = feed(term, 10.0, 60.0, cooler=False)             # the cooler stops: the lock goes, the waveform fades
+    lost = feed(term, 10.0, 65.0, cooler=False)             # the cooler stops: the lock goes, the waveform fades
     assert not term.phase.locked and term.scale == 0.0 and np.all(lost[-10:] == 0.0)
 
 

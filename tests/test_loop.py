@@ -335,7 +335,9 @@ def test_feedforward_commands_fade_it_out_and_in_and_report(reference_model, cur
     assert loop.run(duration_s=300.0, manage_gc=False) == 0
     scale = np.array([row.control.get("ff_scale", np.nan) for row in rows])
     assert scale[1990] == 1.0 and scale[2001 + 63] == 0.0 and 0.0 < scale[2030] < 1.0     # 5 s fade
-    assert scale[2501 + 63] == 1.0
+    phase = np.array([row.control.get("ff_phase_rad", np.nan) for row in rows])
+    assert scale[2499] == 0.0 and np.isnan(phase[2499])     # off: the cooler is not even tracked
+    assert scale[2501 + int(15.0 / 0.08)] == 1.0            # on: locks again (about 6 s), then fades in
     assert answers[2000].ok and "fading out" in answers[2000].message
     status = answers[2600].message
     assert answers[2600].ok and "cooler phase locked" in status and "physical limit at 5 K" in status

@@ -408,11 +408,19 @@ class FeedforwardTerm:
         # the step asked for last tick, before this reading goes in: the readings from here on are the
         # new waveform's (applied later, T2's transient at the change would be taken for the plant's answer)
         self._take_step_result()
+        if not (self.switched_on or self.scale > 0.0):
+            # off: PI alone, as without this term, at no cost to the loop (the cooler is not even tracked;
+            # switched on, it locks again within seconds)
+            if self.phase is not None:
+                self._gap()
+                self.tracker.reset()
+                self.phase = None
+            return tick
         phase = self.phase = self.tracker.update(tick.ptc_stage_time_s, tick.ptc_stage_K)
         self._follow_setting_delay(tick.output_time_s - tick.flange_time_s)
         flange_phase = self._flange_phase_rad = phase.phase_at(tick.flange_time_s)
-        if not (phase.locked and (self.switched_on or self.scale > 0.0)):
-            self._gap()                       # unlocked, or off (PI alone, as without this term)
+        if not phase.locked:
+            self._gap()
             return tick
         effect = self._effect()
         if tick.dt_s > 1.5 * self.settings.period_s:
@@ -548,7 +556,7 @@ class FeedforwardTerm:
         lines = [f"feedforward {'on' if self.switched_on else 'off'}, waveform at {100 * self.scale:.0f} % "
                  f"(fade {self.settings.fade_time_s:g} s)"]
         if phase is None:
-            lines.append("cooler phase: no reading yet")
+            lines.append("cooler phase: not tracked (off, or no reading yet)")
         else:
             lines.append(f"cooler phase {'locked' if phase.locked else 'NOT locked'}: {phase.frequency_rad_s:.4f} rad/s "
                          f"({phase.frequency_rad_s / (2 * math.pi):.4f} Hz), T5 line {1e3 * phase.amplitude_K:.1f} mK")

@@ -55,7 +55,7 @@ FINE_PHASES_RAD = np.arange(32) * np.pi / 16
 PAPER_OPEN_LINE_MK = 2.75
 PAPER_REDUCED_MK = 1.4
 PAPER_MINIMUM_BETWEEN_RAD = (3 * np.pi / 4, np.pi)
-#: The paper's experiment, PI at 5 K (Sec. 4.1, Fig. 6): "an oscillation with an amplitude around 1.5 mK".
+#: The paper's experiment, PI at 5 K (Sec. 4.1, Fig. 6): about 1.5 mK of oscillation left on T2.
 PAPER_PI_LINE_MK = 1.5
 
 

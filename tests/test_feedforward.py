@@ -265,3 +265,48 @@ def test_at_6_K_the_waveform_stays_below_the_heaters_maximum(reference_model):
     run = closed_loop(reference_model, 6.0, duration_s=600.0)
     late = run.time_s > 300.0
     assert run.heater_w[late].max() < 0.5 and run.heater_w[late].max() > 0.45     # it uses the room it has
+
+
+# ---------------------------------------------------------------------------
+# a heater held at its bounds (the paper's 17 ohm heater)
+# ---------------------------------------------------------------------------
+def test_the_power_held_back_is_followed_as_the_cryostat_answers_it(reference_model):
+    """UnplayedPower against the simulated cryostat: two records, one with the power asked, one with it
+    held at 170 mW; their difference at every reading is what UnplayedPower says it is."""
+    from cryod.control.unplayed_power import UnplayedPower
+    from cryod.model.dynamics import simulate
+    t = np.arange(0.0, 60.0, PERIOD)
+    setting = t + 0.0325                                        # the heater set 32.5 ms after the readings
+    asked = 0.113 + 0.12 * np.cos(OMEGA * t) + 0.03 * np.cos(2 * OMEGA * t + 1.0)
+    played = np.minimum(asked, 0.17)
+    difference = (simulate(reference_model, t, played, heater_change_s=setting, initial_heater_power_w=0.113).flange_K
+                  - simulate(reference_model, t, asked, heater_change_s=setting, initial_heater_power_w=0.113).flange_K)
+    unplayed = UnplayedPower(reference_model)
+    predicted = []
+    for time_s, change_s, power_asked, power_played in zip(t, setting, asked, played):
+        predicted.append(unplayed.at(time_s))
+        unplayed.set(change_s, power_played - power_asked)
+    assert np.max(np.abs(difference)) > 50e-6                   # clipping moves T2 by tens of uK
+    assert np.max(np.abs(np.array(predicted) - difference)) < 1e-3 * np.max(np.abs(difference))
+
+
+def test_a_heater_held_at_its_bounds_does_not_stop_the_learning(reference_model, monkeypatch):
+    """17 ohm at 100 mA (170 mW for a mean of 113 mW at 5 K) with the paper's Kp 80 W/K: the total is
+    held at a bound on a large share of the ticks; the estimator still takes every reading (T2 as if
+    the heater had played what was asked), learns a controller model 0.7x too weak and reaches the limit."""
+    from cryod.control.feedforward_learning import LearningWorker
+    taken = []
+    original = LearningWorker.reading
+    monkeypatch.setattr(LearningWorker, "reading", lambda self, *values: (taken.append(1), original(self, *values)))
+    weak = dataclasses.replace(reference_model, heater_to_flange=dataclasses.replace(
+        reference_model.heater_to_flange, numerator=tuple(0.7 * c for c in reference_model.heater_to_flange.numerator)))
+    settings = FeedforwardSettings(model=weak)
+    run = run_program(reference_model, [Segment(0.0, setpoint_K=5.0)], 900.0, gains=PiGains(80.0, 4.0),
+                      heater_max_w=0.17, seed=1, more_terms=(("feedforward", settings),))
+    late = run.time_s > 300.0
+    held = (run.heater_w[late] <= 0.0) | (run.heater_w[late] >= 0.17)
+    assert np.mean(held) > 0.1
+    locked = int(np.sum(run.control["ff_locked"] == 1.0))
+    assert len(taken) >= locked - int(1.0 / PERIOD) - 2          # all but the first second after the lock
+    limit = best_band_limited(reference_model, 5.0, heater_max_w=0.17)
+    assert periodic(run) < 1.05 * limit

@@ -69,6 +69,7 @@ from cryod.control.bounded_waveform import best_bounded_waveform, waveform_value
 from cryod.control.cooler_phase import CoolerPhaseTracker
 from cryod.control.feedforward_learning import LearningWorker
 from cryod.control.terms import TickInputs
+from cryod.control.unplayed_power import UnplayedPower
 from cryod.control.feedforward_limit import FeedforwardLimitError, limit_for_heater_power
 from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
@@ -79,7 +80,7 @@ from cryod.yaml_source import FileFormatError, Section
 DEFAULT_PERIOD_S = 0.08
 #: A plant correction is used once its standard deviation is below this (else the model's response).
 TRUSTED_CORRECTION_SPREAD = 0.3
-#: After the heater did not play the waveform (a gap, a clipped total), T2's readings are left out this long (s).
+#: After a gap in the loop (a fault, start-up), T2's readings are left out this long (s).
 SETTLE_S = 1.0
 #: Smoothing of the feedback terms' power, the level the waveform rides on (s).
 BASE_TIME_S = 2.0
@@ -318,7 +319,10 @@ class FeedforwardTerm:
         self.phase = None
         self._flange_phase_rad = math.nan
         self._applied_scale = 0.0           # the scale of the waveform the heater played last tick
-        self._held_since_s = -math.inf      # when the heater last did not play the waveform
+        self._held_since_s = -math.inf      # when the loop last had a gap (the heater held off)
+        self._played = False                # update() ran last tick: the heater played the waveform
+        self._output_time_s = 0.0           # when this tick's power takes effect
+        self.unplayed: UnplayedPower | None = None      # the power held back at the heater's bounds
         self._next_update_s: float | None = None
         self._in_gap = False                # the worker was told of a gap since the last reading
         self._synchronous_cache = None
@@ -366,6 +370,7 @@ class FeedforwardTerm:
             self.tracker = CoolerPhaseTracker(model.ptc.angular_frequency_rad_s,
                                               minimum_amplitude_K=settings.minimum_cooler_amplitude_K)
         self._orders = np.arange(1, harmonics + 1)
+        self.unplayed = UnplayedPower(model)
         self.plant = plant_at_harmonics(model, self._orders, settings.period_s, self.setting_delay_s)
         self._effect_cache = None
         self.model_line = line_at_harmonics(model, harmonics)
@@ -408,6 +413,9 @@ class FeedforwardTerm:
         # the step asked for last tick, before this reading goes in: the readings from here on are the
         # new waveform's (applied later, T2's transient at the change would be taken for the plant's answer)
         self._take_step_result()
+        if not self._played:                    # the loop was open last tick: no waveform reached the heater
+            self._applied_scale = 0.0
+        self._played = False
         if not (self.switched_on or self.scale > 0.0):
             # off: PI alone, as without this term, at no cost to the loop (the cooler is not even tracked;
             # switched on, it locks again within seconds)
@@ -425,13 +433,14 @@ class FeedforwardTerm:
         effect = self._effect()
         if tick.dt_s > 1.5 * self.settings.period_s:
             self._held_since_s = phase.time_s       # a gap: the loop held the heater off (a fault, start-up)
+            self.unplayed.reset()
         if phase.time_s - self._held_since_s < SETTLE_S:
-            # after a gap, or the total held at a limit, the heater did not play the waveform the estimator
-            # assumes: wait until T2 has settled again
+            # after a gap the heater did not play the waveform the estimator assumes: wait until T2 has settled
             self._gap()
         else:
             self._in_gap = False
-            self.worker.reading(flange_phase, tick.flange_K, effect)
+            # where the total was held at a bound, T2 as if the heater had played what was asked
+            self.worker.reading(flange_phase, tick.flange_K - self.unplayed.at(tick.flange_time_s), effect)
         if not self._estimate.ready:
             return tick
         # PI sees T2 without its synchronous part, as much of it as the waveform has faded in
@@ -469,6 +478,8 @@ class FeedforwardTerm:
         self.scale = 0.0            # the waveform fades in: closing the loop stays bumpless
 
     def update(self, tick: TickInputs) -> float:
+        self._played = True
+        self._output_time_s = tick.output_time_s
         locked = self.phase is not None and self.phase.locked
         wanted = 1.0 if (self.switched_on and locked) else 0.0
         fade = self.settings.fade_time_s
@@ -538,8 +549,7 @@ class FeedforwardTerm:
             self.other_terms_w = others
         else:       # the other terms' power, smoothed over about 2 s: the level the waveform rides on
             self.other_terms_w += (others - self.other_terms_w) * min(self.settings.period_s / BASE_TIME_S, 1.0)
-        if applied != requested and self.phase is not None:
-            self._held_since_s = self.phase.time_s
+        self.unplayed.set(self._output_time_s, applied - requested)
 
     def column_values(self) -> tuple[float, ...]:
         phase = self.phase

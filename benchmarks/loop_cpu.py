@@ -56,8 +56,9 @@ print(json.dumps(measured))
 """
 
 
-def measure(tree: Path, mode: str, duration_s: float, normal_autozero: bool = False) -> float:
-    """Loop-thread CPU per tick (s) of one run."""
+def measure(tree: Path, mode: str, duration_s: float, normal_autozero: bool = False,
+            arguments: tuple[str, ...] = ()) -> float:
+    """Loop-thread CPU per tick (s) of one run (``arguments``: more of cryod's, e.g. the setpoint)."""
     with tempfile.TemporaryDirectory() as folder:
         config = []
         if normal_autozero:            # the earlier commit's DMM setting: autozero every 200 ms
@@ -68,7 +69,7 @@ def measure(tree: Path, mode: str, duration_s: float, normal_autozero: bool = Fa
             config = ["--config", str(Path(folder, "cryod.yaml"))]
         code = (PROBE.replace("TREE", repr(str(tree))).replace("MODE", repr(mode))
                 .replace("DURATION", repr(str(duration_s))).replace("FOLDER", repr(folder))
-                .replace("CONFIG", repr(config)))
+                .replace("CONFIG", repr(config + list(arguments))))
         output = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tree, check=True)
         result = json.loads(output.stdout.strip().splitlines()[-1])
     return result["cpu_s"] / result["ticks"]

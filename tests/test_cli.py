@@ -98,6 +98,11 @@ def test_the_feedforward_beats_the_sinusoid_cap_at_5_K(tmp_path, capsys):
     record = read_record(summary["log_path"])
     limit = record.columns["ff_limit_K"]
     assert limit[-1] == pytest.approx(summary["ptc_periodic_limit_K"], rel=1e-6)    # reported live, same figure
+    # what would change it: a lower setpoint needs less mean power (less room), a higher one more; at 5 K the
+    # waveform rests at 0 W, so a heater with twice R I_max^2 changes (almost) nothing
+    changes = {change["change"]: change["ptc_periodic_limit_K"] for change in summary["feedforward_limit_changes"]}
+    assert changes["setpoint 4.5 K"] > 1.5 * summary["ptc_periodic_limit_K"] > 3 * changes["setpoint 5.5 K"]
+    assert changes["R I_max^2 x 2 (1000 mW)"] == pytest.approx(summary["ptc_periodic_limit_K"], rel=0.01)
     assert abs(summary["mean_error_K"]) < 2e-5 and summary["lowfreq_rms_K"] < 2e-5
     assert summary["overruns"] == 0
 

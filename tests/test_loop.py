@@ -341,4 +341,5 @@ def test_feedforward_commands_fade_it_out_and_in_and_report(reference_model, cur
     assert answers[2000].ok and "fading out" in answers[2000].message
     status = answers[2600].message
     assert answers[2600].ok and "cooler phase locked" in status and "physical limit at 5 K" in status
+    assert "what would change it: setpoint 4.5 K:" in status and "setpoint 5.5 K:" in status
     assert any(event.text.startswith("command: feedforward accepted") for event in events)

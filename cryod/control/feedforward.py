@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import cmath
 import math
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,7 +71,7 @@ from cryod.control.cooler_phase import CoolerPhaseTracker
 from cryod.control.feedforward_learning import LearningWorker
 from cryod.control.terms import TickInputs
 from cryod.control.unplayed_power import UnplayedPower
-from cryod.control.feedforward_limit import FeedforwardLimitError, limit_for_heater_power
+from cryod.control.feedforward_limit import FeedforwardLimitError, limit_changes, limit_for_heater_power
 from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
 from cryod.records.columns import Column
@@ -91,6 +92,10 @@ BATCH = 4
 BOUND_POINTS = 48
 #: The physical limit is computed once the setpoint has been steady this long (s).
 LIMIT_AFTER_S = 5.0
+#: ... on a thread of its own (with what would change it: some 60 ms of computing), and taken this long
+#: after it was asked for (s): in service it is long done; on virtual time the loop waits, so runs stay
+#: deterministic.
+LIMIT_TAKEN_AFTER_S = 2.0
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
 SETTING_DELAY_TOLERANCE_S = 0.002
 
@@ -329,7 +334,11 @@ class FeedforwardTerm:
         #: The physical limit at the setpoint in use (:mod:`cryod.control.feedforward_limit`); None until the
         #: setpoint has been steady for LIMIT_AFTER_S (a few ms to compute, once per setpoint).
         self.physical_limit = None
+        #: The limit if the setpoint moved by 0.5 K either way, or R I_max^2 doubled (LimitChange, with it).
+        self.limit_changes: tuple = ()
         self._limit_wanted: tuple[float, float] | None = None       # (setpoint, since when)
+        self._limit_executor: ThreadPoolExecutor | None = None
+        self._limit_asked: tuple[Future, float, float] | None = None     # (result, setpoint, when to take it)
         self._configure(settings)
 
     # -- configuration ---------------------------------------------------------------
@@ -362,6 +371,9 @@ class FeedforwardTerm:
         return settings
 
     def _configure(self, settings: FeedforwardSettings) -> None:
+        previous = getattr(self, "settings", None)
+        if previous is not None and previous.controller_model != settings.controller_model:
+            self.physical_limit, self.limit_changes = None, ()      # computed again for the new model
         self.settings = settings
         model = settings.controller_model
         harmonics = settings.harmonics
@@ -401,6 +413,10 @@ class FeedforwardTerm:
         """End the learning thread (the regulator closes its terms when the loop stops)."""
         if self.worker is not None:
             self.worker.close()
+        if self._limit_executor is not None:
+            self._limit_executor.shutdown(wait=False, cancel_futures=True)
+            self._limit_executor = None
+            self._limit_asked = None
 
     def switch(self, on: bool) -> None:
         """``cryod ctl feedforward on|off``: fade in or out."""
@@ -524,24 +540,33 @@ class FeedforwardTerm:
         return self._effect_cache[1]
 
     def _follow_limit(self, tick: TickInputs) -> None:
-        """Compute the physical limit for a setpoint once it has been steady for LIMIT_AFTER_S."""
+        """Compute the physical limit for a setpoint once it has been steady for LIMIT_AFTER_S (on a thread
+        of its own, taken LIMIT_TAKEN_AFTER_S later)."""
+        if self._limit_asked is not None:
+            result, setpoint, take_at_s = self._limit_asked
+            if tick.time_s < take_at_s:
+                return
+            self._limit_asked = None
+            self.physical_limit, self.limit_changes = result.result()
+            if self.physical_limit is None:
+                self._limit_wanted = (setpoint, math.inf)       # out of reach: not again for this setpoint
+            return
         setpoint = round(tick.setpoint_K, 4)
         if self._limit_wanted is None or self._limit_wanted[0] != setpoint:
             self._limit_wanted = (setpoint, tick.time_s)
             return
         known = self.physical_limit
         if known is not None and known.setpoint_K == setpoint \
-                and abs(known.heater_delay_s - self.setting_delay_s) < SETTING_DELAY_TOLERANCE_S:
+                and abs(known.heater_delay_s - self.setting_delay_s) < SETTING_DELAY_TOLERANCE_S \
+                and known.max_heater_power_W == self.output_max:
             return
         if tick.time_s - self._limit_wanted[1] < LIMIT_AFTER_S:
             return
-        try:
-            self.physical_limit = limit_for_heater_power(self.settings.controller_model, setpoint, self.output_max,
-                                                         self.settings.period_s, heater_delay_s=self.setting_delay_s,
-                                                         certify=False)
-        except FeedforwardLimitError:
-            self.physical_limit = None
-            self._limit_wanted = (setpoint, math.inf)          # out of reach: not again for this setpoint
+        if self._limit_executor is None:
+            self._limit_executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cryod-feedforward-limit")
+        result = self._limit_executor.submit(_limit_report, self.settings.controller_model, setpoint, self.output_max,
+                                             self.settings.period_s, self.setting_delay_s)
+        self._limit_asked = (result, setpoint, tick.time_s + LIMIT_TAKEN_AFTER_S)
 
     def limit(self, requested: float, applied: float) -> None:
         others = requested - self.output_w
@@ -593,8 +618,10 @@ class FeedforwardTerm:
                          f"{1e6 * limit.open_line_K:.1f} uK line; {limit.limited_by}-limited (authority "
                          f"{limit.authority:.2f}: the heater can put {1e3 * limit.largest_line_power_W:.0f} mW at the "
                          f"line of the {1e3 * limit.line_power_needed_W:.0f} mW needed); predicted best "
-                         f"{1e6 * limit.predicted_best_residual_K:.1f} uK. What would change it: "
-                         f"cryod feedforward-limit --setpoint K --heater-ohm R --max-current A")
+                         f"{1e6 * limit.predicted_best_residual_K:.1f} uK")
+            if self.limit_changes:
+                lines.append("what would change it: " + "; ".join(change.describe() for change in self.limit_changes)
+                             + " (R I_max^2 x 2: R x 2 or I_max x 1.41; more: cryod feedforward-limit)")
         return "\n".join(lines)
 
     def line_amplitude_K(self) -> float:
@@ -627,6 +654,17 @@ class FeedforwardTerm:
         if result.coefficients is not None:
             self._started = True
             self.coefficients = result.coefficients
+
+
+def _limit_report(model: CryostatModel, setpoint_K: float, max_power_w: float, period_s: float,
+                  delay_s: float) -> tuple:
+    """(the physical limit, what would change it) at a setpoint, or (None, ()) when it is out of reach."""
+    try:
+        limit = limit_for_heater_power(model, setpoint_K, max_power_w, period_s, heater_delay_s=delay_s,
+                                       certify=False)
+    except FeedforwardLimitError:
+        return None, ()
+    return limit, limit_changes(model, setpoint_K, max_power_w, period_s, heater_delay_s=delay_s)
 
 
 @dataclass(frozen=True, eq=False)

@@ -624,8 +624,75 @@ def limit_sweep(model: CryostatModel, vary: str, values, *, setpoint_K: float, h
     return tuple(rows)
 
 
+@dataclass(frozen=True)
+class LimitChange:
+    """The limit if one thing were changed (:func:`limit_changes`)."""
+
+    change: str                         # what, in words ("setpoint 5.5 K", "R I_max^2 x 2 (1000 mW)")
+    point: SweepPoint
+
+    def describe(self) -> str:
+        """One phrase: the change and the limit it would give (or why none)."""
+        limit = self.point.limit
+        if limit is None:
+            return f"{self.change}: out of reach"
+        return f"{self.change}: {1e6 * limit.ptc_periodic_limit_K:.1f} uK ({limit.limited_by}-limited)"
+
+    def to_dict(self) -> dict:
+        """For ``--json``."""
+        limit = self.point.limit
+        return {"change": self.change,
+                "ptc_periodic_limit_K": None if limit is None else limit.ptc_periodic_limit_K,
+                "limited_by": None if limit is None else limit.limited_by,
+                "problem": self.point.problem or None}
+
+
+def limit_changes(model: CryostatModel, setpoint_K: float, max_power_w: float, period_s: float = 0.08, *,
+                  setpoint_step_K: float = 0.5, **options) -> tuple[LimitChange, ...]:
+    """What would change the limit: the setpoint a step down and up, the heater's largest power doubled.
+
+    The heater enters the limit only through R * I_max**2: doubling it is R x 2 or I_max x sqrt(2).
+    At 5 K it changes nothing (the waveform rests at 0 W: the lower bound binds), while the
+    setpoint, which sets the mean power, does.
+
+    Parameters
+    ----------
+    model : CryostatModel
+    setpoint_K, max_power_w : float
+        The setpoint and R * I_max**2 in use (K, W).
+    period_s : float
+        Loop period (s).
+    setpoint_step_K : float
+        How far the setpoint is moved each way (K).
+    **options
+        Passed to :func:`feedforward_limit` (``certify`` defaults to False).
+
+    Returns
+    -------
+    tuple of LimitChange
+
+    Examples
+    --------
+    >>> from cryod.model import load_model
+    >>> for change in limit_changes(load_model(), 5.0, 0.5, heater_delay_s=0.0):
+    ...     print(change.describe())
+    setpoint 4.5 K: 1220.3 uK (authority-limited)
+    setpoint 5.5 K: 116.5 uK (authority-limited)
+    R I_max^2 x 2 (1000 mW): 526.0 uK (authority-limited)
+    """
+    options.setdefault("certify", False)
+    held = {"setpoint_K": setpoint_K, "heater_resistance_ohm": max_power_w, "max_current_A": 1.0,
+            "period_s": period_s}
+    setpoints = (setpoint_K - setpoint_step_K, setpoint_K + setpoint_step_K)
+    changes = [LimitChange(f"setpoint {point.value:g} K", point)
+               for point in limit_sweep(model, "setpoint", setpoints, **held, **options)]
+    doubled = limit_sweep(model, "heater_resistance", (2.0 * max_power_w,), **held, **options)[0]
+    changes.append(LimitChange(f"R I_max^2 x 2 ({1e3 * doubled.max_heater_power_W:.0f} mW)", doubled))
+    return tuple(changes)
+
+
 __all__ = [
     "AUTHORITY_FRACTION", "DEFAULT_AVERAGING_TIME_S", "DEFAULT_HARMONICS", "DEFAULT_PHASE_POINTS", "MEASURES",
-    "REPORTED_HARMONICS", "FeedforwardLimit", "FeedforwardLimitError", "SweepPoint", "feedforward_limit",
-    "limit_sweep", "mean_heater_power_w", "noise_floor_K",
+    "REPORTED_HARMONICS", "FeedforwardLimit", "FeedforwardLimitError", "LimitChange", "SweepPoint",
+    "feedforward_limit", "limit_changes", "limit_sweep", "mean_heater_power_w", "noise_floor_K",
 ]

@@ -32,7 +32,7 @@ from cryod.service.clock import MonotonicClock, ScaledClock, VirtualClock
 from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config
 from cryod.service.daemon import Daemon, config_or_exit
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
-from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit
+from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit, limit_changes
 from cryod.records.columns import Event, Row
 from cryod.records.metrics import regulation_metrics
 from cryod.model import DEFAULT_MODEL_PATH, load_model
@@ -242,7 +242,8 @@ def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None)
     at the run's last setpoint, with the heater set as late after T2's reading as the loop set it."""
     term = loop.regulator.term("feedforward") if loop is not None else None
     delay = term.setting_delay_s if term is not None else 0.0
-    empty = {"ptc_periodic_limit_K": None, "feedforward_authority": None, "feedforward_limited_by": None}
+    empty = {"ptc_periodic_limit_K": None, "feedforward_authority": None, "feedforward_limited_by": None,
+             "feedforward_limit_changes": []}
     if setpoint_K is None:
         return empty
     try:
@@ -250,8 +251,10 @@ def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None)
                                   config.loop.period_s, heater_delay_s=delay, certify=False)
     except FeedforwardLimitError:
         return empty
+    changes = limit_changes(model, setpoint_K, limit.max_heater_power_W, config.loop.period_s, heater_delay_s=delay)
     return {"ptc_periodic_limit_K": limit.ptc_periodic_limit_K, "feedforward_authority": round(limit.authority, 4),
-            "feedforward_limited_by": limit.limited_by}
+            "feedforward_limited_by": limit.limited_by,
+            "feedforward_limit_changes": [change.to_dict() for change in changes]}
 
 
 def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: float) -> dict:

@@ -90,6 +90,11 @@ class HeaterRefused(InstrumentError):
     """The heater supply did not turn its output on (interlock, output enable, over-temperature)."""
 
 
+class HeaterOutputOff(HeaterRefused):
+    """The supply's output went off by itself while driving the heater (interlock opened, output enable,
+    front panel): the loop's power was not reaching the heater."""
+
+
 class HeaterCompliance(InstrumentError):
     """The heater supply reached its voltage compliance: open heater or too high a resistance."""
 

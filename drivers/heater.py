@@ -27,7 +27,9 @@ import numbers
 from dataclasses import dataclass
 
 from drivers.clock import Clock
-from drivers.errors import ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterRefused, InstrumentError
+from drivers.errors import (
+    BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterOutputOff, HeaterRefused, InstrumentError,
+)
 from drivers.scpi import Control, ScpiInstrument, on_off, parse_bool
 from drivers.transports.base import Transport
 
@@ -71,6 +73,10 @@ class HeaterReadback:
     voltage_v: float
     power_w: float
     voltage_measured: bool
+
+
+#: Whether the output is on (both Keithley supplies: OUTPut subsystem).
+OUTPUT_STATE_QUERY = ":OUTPut:STATe?"
 
 
 class HeaterSupply(ScpiInstrument, abc.ABC):
@@ -208,10 +214,13 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         self._check_current(current_a, f"{current_a * 1e3:.4g} mA")
         with self.safe_on_fault():
             if self.output_is_on and self.verify_each_setting:
-                # every cycle: the setting and its compliance check in one program message
-                reply = self.query(f"{self.current_command(current_a)};{self.compliance_query}")
+                # every cycle, in one program message: the setting, whether the output is still on (an
+                # interlock that opens turns it off unseen otherwise), and its compliance
+                reply = self.query(f"{self.current_command(current_a)};{OUTPUT_STATE_QUERY};{self.compliance_query}")
                 self.current_a = current_a
-                self._raise_if_in_compliance(self.compliance_from_reply(reply))
+                output_reply, _, compliance_reply = reply.partition(";")
+                self._raise_if_output_went_off(output_reply, compliance_reply)
+                self._raise_if_in_compliance(self.compliance_from_reply(compliance_reply))
             else:
                 self.write_current(current_a)
                 self.current_a = current_a
@@ -280,6 +289,21 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
     def check_compliance(self) -> None:
         """:class:`HeaterCompliance` if the output is voltage-limited."""
         self._raise_if_in_compliance(self.in_compliance())
+
+    def _raise_if_output_went_off(self, output_reply: str, compliance_reply: str) -> None:
+        try:
+            on = parse_bool(output_reply)
+        except ValueError:
+            raise BadReply(self.label, f"output state: reply to {OUTPUT_STATE_QUERY} is not 1 or 0",
+                           reply=output_reply) from None
+        if not on:
+            raise HeaterOutputOff(self.label, f"output went off while driving {self.current_a * 1e3:.4g} mA "
+                                              f"({self.output_off_reason(compliance_reply)}): the heater was "
+                                              "getting no power; check the interlock before restarting")
+
+    def output_off_reason(self, compliance_reply: str) -> str:
+        """Why the output may have gone off, from the reply to :attr:`compliance_query` (per model)."""
+        return "interlock, output enable or front panel"
 
     def _raise_if_in_compliance(self, in_compliance: bool) -> None:
         if in_compliance:

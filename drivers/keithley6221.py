@@ -83,6 +83,12 @@ class Keithley6221(HeaterSupply):
     def compliance_from_reply(self, reply: str) -> bool:
         return bool(self._condition_from_reply(reply) & COMPLIANCE_BIT)
 
+    def output_off_reason(self, compliance_reply: str) -> str:
+        condition = self._condition_from_reply(compliance_reply)
+        if not condition & INTERLOCK_ASSERTED_BIT:
+            return f"interlock not asserted, measurement condition {condition}"
+        return f"interlock asserted: turned off at the supply, measurement condition {condition}"
+
     def output_refused(self) -> HeaterRefused:
         condition = self.measurement_condition()
         why = "interlock not asserted" if not condition & INTERLOCK_ASSERTED_BIT else "output did not turn on"

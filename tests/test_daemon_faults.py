@@ -110,6 +110,22 @@ def test_heater_supply_refusing_output_stops_with_exit_6(tmp_path):
     assert drill.supply_current_a() == 0.0 and not drill.opener.bench.heater_supply.output_on
 
 
+def test_an_output_that_goes_off_mid_run_is_seen_at_the_next_setting_and_stops_with_exit_6(tmp_path):
+    """The supply's interlock opens at row 500 (output off, 0 A): the next setting reads the output state
+    back, the loop stops on its own cause with the heater at 0 W, and the supply is left at 0 A and off, so
+    that closing the interlock again brings no current back."""
+    drill = FaultDrill(tmp_path, {500: lambda bench: bench.heater_supply.inject_refuse_output()})
+    assert drill.run(120.0).exit_code == 6
+    fault = drill.result.loop.last_fault
+    assert fault.cause == "heater_output_off" and "interlock not asserted" in fault.message
+    index = first_fault(drill, "heater_output_off")
+    assert index <= 502 and drill.record.heater_w[index] == 0.0 and len(drill.states) == index + 1
+    supply = drill.opener.bench.heater_supply
+    supply.inject_refuse_output(False)                 # the interlock closes again
+    assert supply.current_setpoint_a == 0.0 and not supply.output_on and supply.output_current_a == 0.0
+    assert any("(exit 6)" in text for _, text in drill.record.events)
+
+
 def test_open_heater_compliance_stops_with_exit_6(tmp_path):
     drill = FaultDrill(tmp_path, {1000: lambda bench: bench.heater_supply.inject_open_heater()})
     assert drill.run(300.0).exit_code == 6

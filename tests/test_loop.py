@@ -232,6 +232,35 @@ def test_reload_is_bumpless_and_refuses_restart_only_changes(quiet_reference_mod
     assert abs(after - before) < 0.03
 
 
+@pytest.mark.parametrize("reload_at, state_then", [(200, "closed"), (310, "fault:instrument_timeout"), (335, "recovering")])
+def test_no_reload_leaves_the_setpoint_in_use_outside_the_limits(reference_model, curves, base_config, reload_at,
+                                                                  state_then):
+    """Setpoint 15 K, then a DMM timeout, then a reload with setpoint_max_K 10: refused whether the loop is
+    regulating or recovering from the fault (it would resume at 15 K, above the new limit)."""
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    narrowed = dataclasses.replace(base_config, control=dataclasses.replace(base_config.control, setpoint_max_K=10.0),
+                                   source="narrowed.yaml")
+    instruments.measure_faults = {k: InstrumentTimeout("flange DMM", "no reply") for k in range(300, 330)}
+    answers = {}
+    original = instruments.measure
+
+    def measure():
+        count = instruments.measurements
+        if count == 100:
+            answers["setpoint"] = loop.submit(Command("setpoint", 15.0))
+        if count == reload_at:
+            answers["reload"] = loop.submit(Command("reload", narrowed))
+            answers["state"] = rows[-1].state
+        return original()
+
+    instruments.measure = measure
+    assert loop.run(duration_s=60.0, manage_gc=False) == 0
+    assert answers["setpoint"].ok and answers["state"].startswith(state_then)
+    assert not answers["reload"].ok and "15 K" in answers["reload"].message and "10 K" in answers["reload"].message
+    assert loop.config.control.setpoint_max_K == 20.0 and rows[-1].setpoint_K <= 20.0
+    assert rows[-1].state.startswith("closed")                 # resumed, within the limits still in force
+
+
 @pytest.mark.parametrize("command, state, heater", [(("heater-off", None), "off", 0.0),
                                                     (("manual", 0.02), "manual", 0.02)])
 def test_recovery_returns_to_the_mode_that_was_running(reference_model, curves, base_config, command, state, heater):

@@ -20,6 +20,7 @@ with any other cause cannot be made.
 | identity_mismatch          | no        |             | 2                  |
 | over_temperature           | no        |             | 3                  |
 | heater_fault               | no        |             | 6                  |
+| heater_output_off          | no        |             | 6                  |
 | overrun_streak             | no        |             | 5                  |
 | exception                  | no        |             | 1                  |
 | stop_requested (SIGTERM)   | no        |             | 0                  |
@@ -41,7 +42,7 @@ from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 
 from drivers.errors import (
-    BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterRefused, IdentityMismatch,
+    BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterOutputOff, HeaterRefused, IdentityMismatch,
     InstrumentError, InstrumentReportedError, InstrumentTimeout, OverflowReading,
 )
 
@@ -90,6 +91,7 @@ class FaultCause(StrEnum):
     IDENTITY_MISMATCH = ("identity_mismatch", False, ExitCode.CONFIG)
     OVER_TEMPERATURE = ("over_temperature", False, ExitCode.OVER_TEMPERATURE)
     HEATER_FAULT = ("heater_fault", False, ExitCode.HEATER_FAULT)
+    HEATER_OUTPUT_OFF = ("heater_output_off", False, ExitCode.HEATER_FAULT)
     OVERRUN_STREAK = ("overrun_streak", False, ExitCode.OVERRUN_STREAK)
     EXCEPTION = ("exception", False, ExitCode.EXCEPTION)
     STOP_REQUESTED = ("stop_requested", False, ExitCode.OK)
@@ -127,6 +129,7 @@ class Fault:
 
 #: Driver errors and the cause each one is, most specific first.
 _DRIVER_ERROR_CAUSES = (
+    (HeaterOutputOff, FaultCause.HEATER_OUTPUT_OFF),
     ((HeaterRefused, HeaterCompliance, HeaterLimitRefused), FaultCause.HEATER_FAULT),
     (OverflowReading, FaultCause.SENSOR_OVERFLOW),
     (InstrumentTimeout, FaultCause.INSTRUMENT_TIMEOUT),

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from drivers.errors import HeaterCompliance, HeaterLimitRefused, HeaterRefused, InstrumentReportedError
+from drivers.errors import HeaterCompliance, HeaterOutputOff, HeaterLimitRefused, HeaterRefused, InstrumentReportedError
 from drivers.keithley2002 import (DEFAULT_ELEMENTS, DataElement, FilterType, FourWireSettings, Keithley2002,
                                   TriggerSource)
 from drivers.keithley2400 import Keithley2400
@@ -256,7 +256,7 @@ def test_6221_set_power_first_time_turns_output_on(clock):
         (":OUTPut:STATe?", "1"),
         (":STATus:MEASurement:CONDition?", "2"),
         # with the output on, each setting and its compliance check go in one program message
-        (":SOURce:CURRent 1.414214E-02;:STATus:MEASurement:CONDition?", "2"),
+        (":SOURce:CURRent 1.414214E-02;:OUTPut:STATe?;:STATus:MEASurement:CONDition?", "1;2"),
     ]) as transport:
         heater = supply_6221(transport, clock)
         first = heater.set_power_w(0.110)
@@ -378,7 +378,7 @@ def test_6221_compliance_on_a_later_setting_switches_off(clock):
         (":OUTPut:STATe ON", None),
         (":OUTPut:STATe?", "1"),
         (":STATus:MEASurement:CONDition?", "2"),
-        (":SOURce:CURRent 2.000000E-02;:STATus:MEASurement:CONDition?", "10"),
+        (":SOURce:CURRent 2.000000E-02;:OUTPut:STATe?;:STATus:MEASurement:CONDition?", "1;10"),
         *OFF_6221,
         QUEUE_EMPTY,
     ]) as transport:
@@ -389,13 +389,32 @@ def test_6221_compliance_on_a_later_setting_switches_off(clock):
     assert not heater.output_is_on and heater.current_a == 0.0
 
 
+def test_6221_output_that_went_off_is_a_fault_and_is_left_off(clock):
+    """An interlock that opens mid-run turns the output off: the next setting's read-back sees it, and
+    the driver leaves the supply at 0 A and off, so nothing comes back when the interlock closes."""
+    with expected_protocol(CONFIGURE_6221 + [
+        (":SOURce:CURRent 1.000000E-02", None),
+        (":OUTPut:STATe ON", None),
+        (":OUTPut:STATe?", "1"),
+        (":STATus:MEASurement:CONDition?", "2"),
+        (":SOURce:CURRent 2.000000E-02;:OUTPut:STATe?;:STATus:MEASurement:CONDition?", "0;0"),
+        *OFF_6221,
+        QUEUE_EMPTY,
+    ]) as transport:
+        heater = supply_6221(transport, clock)
+        heater.set_current_a(0.010)
+        with pytest.raises(HeaterOutputOff, match="output went off while driving 20 mA .interlock not asserted"):
+            heater.set_current_a(0.020)
+    assert not heater.output_is_on and heater.current_a == 0.0
+
+
 def test_2400_later_settings_carry_their_compliance_query(clock):
     with expected_protocol(CONFIGURE_2400 + [
         (":SOURce:CURRent 1.000000E-02", None),
         (":OUTPut:STATe ON", None),
         (":OUTPut:STATe?", "1"),
         (":SENSe:VOLTage:PROTection:TRIPped?", "0"),
-        (":SOURce:CURRent 2.000000E-02;:SENSe:VOLTage:PROTection:TRIPped?", "0"),
+        (":SOURce:CURRent 2.000000E-02;:OUTPut:STATe?;:SENSe:VOLTage:PROTection:TRIPped?", "1;0"),
     ]) as transport:
         heater = supply_2400(transport, clock)
         heater.set_current_a(0.010)

@@ -147,6 +147,8 @@ class SafetyConfig:
 class DataConfig:
     directory: Path
     fsync_interval_s: float
+    warn_free_MB: float = 1000.0        # below this free space: a warning in the journal and the record
+    min_free_MB: float = 100.0          # below this: heater off, exit 7 (while the last rows still fit)
 
 
 @dataclass(frozen=True)
@@ -375,7 +377,12 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     data = DataConfig(
         directory=_directory(section, "directory", base),
         fsync_interval_s=section.number("fsync_interval_s", 2.0, minimum=0.01, maximum=2.0),
+        warn_free_MB=section.number("warn_free_MB", 1000.0, minimum=0.0, maximum=1e9),
+        min_free_MB=section.number("min_free_MB", 100.0, minimum=1.0, maximum=1e9),
     )
+    if data.warn_free_MB < data.min_free_MB:
+        raise section.error("warn_free_MB", f"{data.warn_free_MB:g} MB is below data.min_free_MB "
+                                            f"{data.min_free_MB:g} MB: the warning would come after the stop")
     section.finish()
 
     section = top.section("control_socket")

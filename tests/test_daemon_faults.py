@@ -39,8 +39,9 @@ def simulated_config(tmp_path, **control):
 class FaultDrill:
     """Runs the daemon on the simulated bench; ``actions[tick](bench)`` fires after that row."""
 
-    def __init__(self, tmp_path, actions, config=None, before_start=None):
+    def __init__(self, tmp_path, actions, config=None, before_start=None, datalog_options=None):
         self.config = config or simulated_config(tmp_path)
+        self.datalog_options = datalog_options
         self.opener = SimulatedInstrumentsOpener(load_model(), seed=4)
         self.actions = dict(actions)
         self.before_start = before_start
@@ -63,7 +64,7 @@ class FaultDrill:
 
     def run(self, duration_s):
         daemon = Daemon(self.config, self.open_instruments, VirtualClock(), notifier=SystemdNotifier({}),
-                        row_taps=[self.tap], install_signal_handlers=False)
+                        row_taps=[self.tap], install_signal_handlers=False, datalog_options=self.datalog_options)
         self.result = daemon.run(duration_s)
         self.record = read_record(self.result.log_paths[0])
         self.states = [str(state) for state in self.record.columns["state"]]
@@ -208,3 +209,54 @@ def test_a_second_daemon_touches_no_instrument(tmp_path):
     finally:
         first.release()
     assert result.exit_code == 2 and opener.attempts == [] and result.log_paths == []
+
+
+# ---------------------------------------------------------------------------
+# the data directory running out of space (docs/operations.md, "Disk space")
+# ---------------------------------------------------------------------------
+class ShrinkingDisk:
+    """Free space (bytes) that falls by ``per_check`` at every check of the data log."""
+
+    def __init__(self, start_bytes, per_check):
+        self.free, self.per_check, self.checks = start_bytes, per_check, 0
+
+    def __call__(self, directory):
+        self.checks += 1
+        self.free -= self.per_check
+        return self.free
+
+
+def test_a_filling_disk_warns_then_stops_the_heater_with_exit_7_while_the_record_still_fits(tmp_path):
+    """Defaults: warn below 1000 MB, stop below 100 MB; the disk loses 300 MB between checks."""
+    disk = ShrinkingDisk(1500e6, 300e6)
+    drill = FaultDrill(tmp_path, {}, datalog_options={"free_space": disk})
+    result = drill.run(600.0)
+    assert result.exit_code == 7 and result.loop.last_fault.cause == "data_log_failed"
+    assert "below data.min_free_MB 100 MB" in result.loop.last_fault.message
+    assert drill.supply_current_a() == 0.0 and drill.record.heater_w[-1] == 0.0
+    events = [text for _, text in drill.record.events]
+    warnings = [text for text in events if "below data.warn_free_MB" in text]
+    assert len(warnings) == 1 and "900 MB free" in warnings[0]          # once, not at every check
+    assert any("data_log_failed" in text and "(exit 7)" in text for text in events)    # the stop is recorded
+    # checks at start (1200 MB) and when the file opens (900 MB: the warning), then every 750 rows: 600, 300,
+    # 0 MB, the stop at row 2250 (on virtual time the loop runs ahead of the writer by some hundred rows)
+    assert disk.checks == 5 and 2250 <= len(drill.record.time_s) < 2250 + 750
+
+
+def test_no_room_at_start_touches_no_instrument(tmp_path):
+    opener = FlakyOpener(failures=0)
+    daemon = Daemon(simulated_config(tmp_path), opener, VirtualClock(), notifier=SystemdNotifier({}),
+                    install_signal_handlers=False, datalog_options={"free_space": lambda directory: 50e6})
+    result = daemon.run(10.0)
+    assert result.exit_code == 7 and opener.attempts == [] and result.loop is None
+
+
+def test_a_data_directory_that_is_a_file_is_named_with_its_key(tmp_path, caplog):
+    config = simulated_config(tmp_path)
+    config.data.directory.parent.mkdir(parents=True, exist_ok=True)
+    config.data.directory.write_text("not a directory")
+    opener = FlakyOpener(failures=0)
+    result = Daemon(config, opener, VirtualClock(), notifier=SystemdNotifier({}), install_signal_handlers=False).run(5.0)
+    assert result.exit_code == 7 and opener.attempts == []
+    assert any(f"data.directory {config.data.directory} is not a directory" in record.message
+               for record in caplog.records)

@@ -162,3 +162,30 @@ def test_sigkill_loses_at_most_two_seconds_and_the_file_parses(daemon):
     expected_last = killed_at - ready_at                  # the loop starts right after READY
     assert len(record) > 40 and not [w for w in record.warnings if "cut short" not in w]
     assert record.time_s[-1] >= expected_last - 2.0, (record.time_s[-1], expected_last)
+
+
+def _file_size_limit(limit_bytes):
+    """In the child: files may not grow beyond ``limit_bytes`` (a full disk, as the writer meets it)."""
+    import resource
+
+    def apply():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)       # the write then fails with EFBIG instead of a kill
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+    return apply
+
+
+def test_a_write_that_fails_stops_the_heater_with_exit_7_and_keeps_what_was_written(tmp_path):
+    """No room left: the data file cannot grow past 400 kB. The write fails in the writer thread, the loop
+    switches the heater off and the daemon exits 7 (not 0); the file holds every row written before."""
+    env = dict(os.environ, PYTHONPATH=str(REPOSITORY))
+    result = subprocess.run(
+        [sys.executable, "-m", "cryod.cli", "--simulate", "--config", str(write_config(tmp_path / "cryod.yaml")),
+         "--data-dir", str(tmp_path / "data"), "--socket", str(tmp_path / "control.sock"), "--speed", "max",
+         "--duration", "3600"],
+        env=env, capture_output=True, text=True, timeout=120, preexec_fn=_file_size_limit(400_000), cwd=tmp_path)
+    assert result.returncode == 7, result.stderr[-2000:]
+    assert "data_log_failed" in result.stderr and "File too large" in result.stderr
+    assert "heater off, stopping (exit 7)" in result.stderr
+    (path,) = (tmp_path / "data").glob("cryod-*.csv")
+    record = read_record(path)                          # parses; a cut-short last line is dropped
+    assert path.stat().st_size <= 400_000 and len(record.time_s) > 500

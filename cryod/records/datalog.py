@@ -12,6 +12,14 @@ One file per UTC day, ``cryod-YYYY-MM-DD.csv``, each a complete record with
 its own header (``time_s`` counts from that file's start). An existing file
 is never opened for writing again: a restart the same day writes
 ``cryod-YYYY-MM-DD.2.csv``, and so on.
+
+A lab must not regulate unrecorded for hours. The free space of the data
+directory is checked when a file opens and every ``FREE_SPACE_CHECK_ROWS``
+rows (a minute in service): below ``warn_free_bytes`` a warning goes to the
+journal and into the record (once, until the space is back); below
+``min_free_bytes``, or when a write fails, ``on_failure`` is called with the
+reason (the daemon then stops with the heater at 0 W, exit 7). Above the
+minimum the writer still has room for the stop event and the last rows.
 """
 
 from __future__ import annotations
@@ -20,6 +28,8 @@ import datetime as dt
 import logging
 import os
 import queue
+import shutil
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -36,6 +46,13 @@ MAX_BATCH = 1000
 #: After a batch of this many rows (the loop runs faster than real time), pause this long.
 BATCH_PAUSE_AT = 50
 BATCH_PAUSE_S = 0.05
+#: Free space is checked every this many rows (a minute at 80 ms), and when a file opens.
+FREE_SPACE_CHECK_ROWS = 750
+
+
+def free_bytes(directory: Path) -> int:
+    """Free space for an unprivileged writer in ``directory``'s file system (bytes)."""
+    return shutil.disk_usage(directory).free
 
 
 def _utc_text(wall_s: float) -> str:
@@ -65,10 +82,20 @@ class DataLog:
         Loop period: a file's time origin is one period before its first row.
     fsync_interval_s : float
         Longest time between fsyncs while rows arrive (at most 2 s).
+    warn_free_bytes, min_free_bytes : int
+        Free space below which a warning is given, and below which ``on_failure`` is called.
+    on_failure : callable, optional
+        Called once, from the writer thread, with the reason when the log cannot go on (a failed
+        write, too little space): the caller stops what must not run unrecorded.
+    free_space : callable
+        Free bytes of a directory (:func:`free_bytes`; tests give a fake disk).
     """
 
     def __init__(self, directory: Path, schema: RowSchema, metadata: Mapping[str, object],
-                 monotonic_to_wall: Callable[[float], float], period_s: float, fsync_interval_s: float = 2.0):
+                 monotonic_to_wall: Callable[[float], float], period_s: float, fsync_interval_s: float = 2.0, *,
+                 warn_free_bytes: int = 0, min_free_bytes: int = 0,
+                 on_failure: Callable[[str], None] | None = None,
+                 free_space: Callable[[Path], int] = free_bytes):
         self.directory = Path(directory)
         self.schema = schema
         self.metadata = dict(metadata)
@@ -85,6 +112,13 @@ class DataLog:
         self.paths: list[Path] = []
         self.error: BaseException | None = None
         self._pending_events: list[Event] = []   # events before the first file is open
+        self.warn_free_bytes = warn_free_bytes
+        self.min_free_bytes = min_free_bytes
+        self.on_failure = on_failure
+        self.free_space = free_space
+        self.failure: str | None = None          # why the log could not go on (on_failure was called with it)
+        self._warned = False
+        self._rows_since_check = 0
 
     # -- producer side (any thread, never blocks) ------------------------------
     def put(self, item: Row | Event) -> None:
@@ -93,7 +127,21 @@ class DataLog:
 
     # -- lifetime -------------------------------------------------------------------
     def start(self) -> None:
-        self.directory.mkdir(parents=True, exist_ok=True)
+        """Check that the data directory takes files and has room, then start the writer thread.
+
+        A directory that cannot be written or is short of space is a failure (``on_failure``, and
+        :attr:`failure` says why) before anything else happens: nothing is to run unrecorded.
+        """
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=self.directory):
+                pass
+        except OSError as error:
+            what = "is not a directory" if self.directory.exists() and not self.directory.is_dir() \
+                else f"cannot be written ({type(error).__name__}: {error.strerror or error})"
+            self._fail(f"data.directory {self.directory} {what}")
+        else:
+            self.check_free_space()
         self._thread = threading.Thread(target=self._run, name="cryod-datalog", daemon=True)
         self._thread.start()
 
@@ -142,8 +190,12 @@ class DataLog:
         except BaseException as error:          # a full disk must not go unnoticed
             self.error = error
             log.critical("data log stopped: %s", error)
+            self._fail(f"writing {self._describe_target()} failed: {type(error).__name__}: {error}")
         finally:
-            self._close()
+            try:
+                self._close()
+            except OSError as error:            # the disk that failed the write may fail the close too
+                log.critical("data log: closing the file failed: %s", error)
 
     def _write_row(self, row: Row) -> None:
         clock_time = row.time_s
@@ -153,6 +205,9 @@ class DataLog:
             self._open(day, clock_time - self.period_s)
         self._stream.write(self.schema.format_row(row, origin_s=self._origin_s))
         self._dirty = True
+        self._rows_since_check += 1
+        if self._rows_since_check >= FREE_SPACE_CHECK_ROWS:
+            self.check_free_space()
 
     def _write_event(self, event: Event) -> None:
         if self._stream is None:
@@ -176,6 +231,48 @@ class DataLog:
         self._sync()
         self.paths.append(path)
         log.info("data log: writing %s", path)
+        self.check_free_space()
+
+    # -- free space --------------------------------------------------------------------
+    def check_free_space(self) -> None:
+        """Warn below ``warn_free_bytes``; below ``min_free_bytes`` report the failure (writer thread,
+        or before the writer starts)."""
+        self._rows_since_check = 0
+        try:
+            free = self.free_space(self.directory)
+        except OSError as error:
+            self._fail(f"the free space of {self.directory} cannot be read: {error}")
+            return
+        megabytes = free / 1e6
+        if free < self.min_free_bytes:
+            self._fail(f"only {megabytes:.0f} MB free for {self.directory}, below data.min_free_MB "
+                       f"{self.min_free_bytes / 1e6:g} MB")
+        elif free < self.warn_free_bytes:
+            if not self._warned:
+                self._warned = True
+                text = (f"only {megabytes:.0f} MB free for {self.directory}, below data.warn_free_MB "
+                        f"{self.warn_free_bytes / 1e6:g} MB: at data.min_free_MB {self.min_free_bytes / 1e6:g} MB "
+                        f"cryod stops the heater and exits 7; free some space")
+                log.warning("data log: %s", text)
+                self._write_event(Event("disk", text))
+        else:
+            self._warned = False
+
+    def _fail(self, reason: str) -> None:
+        if self.failure is not None:
+            return
+        self.failure = reason
+        log.critical("data log: %s", reason)
+        if self._stream is not None:
+            try:
+                self._write_event(Event("disk", f"{reason}: stopping"))
+            except OSError:
+                pass
+        if self.on_failure is not None:
+            self.on_failure(reason)
+
+    def _describe_target(self) -> str:
+        return str(self.paths[-1]) if self.paths and self._stream is not None else str(self.directory)
 
     def _free_path(self, day: str) -> Path:
         candidate = self.directory / f"cryod-{day}.csv"

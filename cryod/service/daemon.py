@@ -28,7 +28,7 @@ from cryod.config import DaemonConfig, load_config
 from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
 from cryod.service.commands import Command, wait_for
-from cryod.service.faults import ExitCode
+from cryod.service.faults import ExitCode, Fault, FaultCause
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
 from cryod.service.realtime import lock_memory, set_realtime_priority
@@ -96,12 +96,15 @@ class Daemon:
         Reads and validates the configuration again on reload (default:
         :func:`cryod.config.load_config` of the file it came from);
         ``cryod --simulate`` passes one that applies its command-line overrides.
+    datalog_options : dict, optional
+        More keyword arguments of :class:`~cryod.records.datalog.DataLog` (tests: a fake disk's
+        ``free_space``).
     """
 
     def __init__(self, config: DaemonConfig, open_instruments: Callable, clock: Clock,
                  notifier: SystemdNotifier | None = None, metadata: dict | None = None,
                  row_taps: list[Callable] | None = None, install_signal_handlers: bool = True,
-                 reload_config: Callable[[], DaemonConfig] | None = None):
+                 reload_config: Callable[[], DaemonConfig] | None = None, datalog_options: dict | None = None):
         self.config = config
         self.reload_config = reload_config or (lambda: load_config(self.config.source))
         self.open_instruments = open_instruments
@@ -109,6 +112,7 @@ class Daemon:
         self.notifier = notifier or SystemdNotifier()
         self.metadata = metadata or {}
         self.row_taps = row_taps or []
+        self.datalog_options = datalog_options or {}      # e.g. a fake disk's free space, for tests
         self.install_signal_handlers = install_signal_handlers
         self.loop: ControlLoop | None = None
         self.datalog: DataLog | None = None
@@ -127,6 +131,18 @@ class Daemon:
     def _on_reload_signal(self, number, frame) -> None:
         self._reload_wanted = True
         self._service_wake.set()
+
+    def _on_data_log_failure(self, reason: str) -> None:
+        """The data log cannot go on (writer thread): the loop stops with the heater at 0 W, exit 7."""
+        loop = self.loop
+        if loop is not None:
+            loop.fail(Fault(FaultCause.DATA_LOG_FAILED, reason))
+        self._service_wake.set()
+
+    def _data_log_stop(self) -> int:
+        """Before the instruments are touched: no data log, no regulation."""
+        self._stop_event(f"data_log_failed: {self.datalog.failure}", ExitCode.DATA_LOG_FAILED)
+        return ExitCode.DATA_LOG_FAILED
 
     # -- service thread: STATUS about once a second, reloads --------------------
     def _service(self) -> None:
@@ -205,7 +221,9 @@ class Daemon:
             schema = daemon_schema(config)
             self.datalog = DataLog(config.data.directory, schema, record_metadata(config, schema, self.metadata),
                                    lambda t: wall_start + (t - clock_start), config.loop.period_s,
-                                   config.data.fsync_interval_s)
+                                   config.data.fsync_interval_s, warn_free_bytes=int(config.data.warn_free_MB * 1e6),
+                                   min_free_bytes=int(config.data.min_free_MB * 1e6),
+                                   on_failure=self._on_data_log_failure, **self.datalog_options)
             self.datalog.start()
             control_socket = ControlSocketServer(config.control_socket.path, config.control_socket.mode,
                                                  config.control_socket.owner, config.control_socket.group,
@@ -217,7 +235,8 @@ class Daemon:
                     previous_handlers[number] = signal.signal(number, handler)
             service.start()
             self.notifier.ready("started: opening the instruments")
-            opened = self._open_instruments_waiting(config)
+            opened = self._open_instruments_waiting(config) if self.datalog.failure is None \
+                else self._data_log_stop()
             if isinstance(opened, int):
                 exit_code = opened
             else:
@@ -228,6 +247,8 @@ class Daemon:
                                         watchdog=self.notifier.watchdog)
                 if self._stop_reason:
                     self.loop.request_stop(self._stop_reason)
+                if self.datalog.failure is not None:
+                    self.loop.fail(Fault(FaultCause.DATA_LOG_FAILED, self.datalog.failure))
                 problem = set_realtime_priority(config.loop.realtime_priority)
                 if problem:
                     log.warning("%s", problem)
@@ -273,6 +294,8 @@ class Daemon:
         pause, attempt = 1.0, 0
         while True:
             attempt += 1
+            if self.datalog.failure is not None:
+                return self._data_log_stop()
             try:
                 return self.open_instruments(config, self.clock)
             except IdentityMismatch as error:

@@ -21,6 +21,7 @@ with any other cause cannot be made.
 | over_temperature           | no        |             | 3                  |
 | heater_fault               | no        |             | 6                  |
 | heater_output_off          | no        |             | 6                  |
+| data_log_failed            | no        |             | 7                  |
 | overrun_streak             | no        |             | 5                  |
 | exception                  | no        |             | 1                  |
 | stop_requested (SIGTERM)   | no        |             | 0                  |
@@ -57,6 +58,7 @@ class ExitCode(IntEnum):
     INSTRUMENTS_LOST = 4
     OVERRUN_STREAK = 5
     HEATER_FAULT = 6
+    DATA_LOG_FAILED = 7
 
 
 class FaultCause(StrEnum):
@@ -92,6 +94,7 @@ class FaultCause(StrEnum):
     OVER_TEMPERATURE = ("over_temperature", False, ExitCode.OVER_TEMPERATURE)
     HEATER_FAULT = ("heater_fault", False, ExitCode.HEATER_FAULT)
     HEATER_OUTPUT_OFF = ("heater_output_off", False, ExitCode.HEATER_FAULT)
+    DATA_LOG_FAILED = ("data_log_failed", False, ExitCode.DATA_LOG_FAILED)
     OVERRUN_STREAK = ("overrun_streak", False, ExitCode.OVERRUN_STREAK)
     EXCEPTION = ("exception", False, ExitCode.EXCEPTION)
     STOP_REQUESTED = ("stop_requested", False, ExitCode.OK)

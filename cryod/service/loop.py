@@ -160,6 +160,7 @@ class ControlLoop:
         self.commands: queue.SimpleQueue[Command] = queue.SimpleQueue()
         self.exit_code: int | None = None
         self._stop_reason: str | None = None
+        self._outside_fault: Fault | None = None
         self._valid_in_a_row = 0
         self._regulating = False            # the loop has left its start-up hold at least once
         # a fault episode: from a first recoverable fault until the loop has run clean for
@@ -184,6 +185,12 @@ class ControlLoop:
     def request_stop(self, reason: str) -> None:
         """Stop at the next tick with the heater at 0 W (safe from a signal handler)."""
         self._stop_reason = reason
+
+    def fail(self, fault: Fault) -> None:
+        """A fault found outside the loop (the data log): handled at the next tick like one found in it
+        (thread-safe; the first one is kept)."""
+        if self._outside_fault is None:
+            self._outside_fault = fault
 
     # -- running ----------------------------------------------------------------
     def run(self, duration_s: float | None = None, manage_gc: bool = True) -> int:
@@ -236,6 +243,11 @@ class ControlLoop:
         tick_start = self._tick_start_s = self.clock.now()
         self.timing.record_tick(tick_start - deadline)
         self._apply_commands()
+        if self._outside_fault is not None:
+            fault, self._outside_fault = self._outside_fault, None
+            self._fault(fault, Row(time_s=tick_start, lateness_ms=(tick_start - deadline) * 1e3))
+            if self.exit_code is not None:
+                return
         if self._stop_reason is not None:
             self._stop(ExitCode.OK, Fault(FaultCause.STOP_REQUESTED, self._stop_reason))
             return

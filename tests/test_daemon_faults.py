@@ -260,3 +260,48 @@ def test_a_data_directory_that_is_a_file_is_named_with_its_key(tmp_path, caplog)
     assert result.exit_code == 7 and opener.attempts == []
     assert any(f"data.directory {config.data.directory} is not a directory" in record.message
                for record in caplog.records)
+
+
+# ---------------------------------------------------------------------------
+# a DMM outage longer than a few seconds (each reply waits instruments.timeout_s)
+# ---------------------------------------------------------------------------
+class TimedOutage:
+    """The flange DMM stops answering at row ``at_row`` for ``duration_s`` of clock time (None: for good)."""
+
+    def __init__(self, drill, at_row, duration_s):
+        self.drill, self.at_row, self.duration_s, self.started_s = drill, at_row, duration_s, None
+
+    def __call__(self, item):
+        if not isinstance(item, Row):
+            return
+        rows = self.drill.rows
+        if len(rows) == self.at_row:
+            self.started_s = item.time_s
+            self.drill.opener.bench.flange_dmm.inject_no_reply(True)
+        elif self.started_s is not None and self.duration_s is not None \
+                and item.time_s - self.started_s >= self.duration_s:
+            self.drill.opener.bench.flange_dmm.inject_no_reply(False)
+            self.started_s = None
+
+
+@pytest.mark.parametrize("outage_s", [20.0, 45.0])
+def test_a_dmm_outage_of_tens_of_seconds_is_recovered_not_an_overrun_streak(tmp_path, outage_s):
+    drill = FaultDrill(tmp_path, {})
+    outage = TimedOutage(drill, 1000, outage_s)
+    original_tap = drill.tap
+    drill.tap = lambda item: (original_tap(item), outage(item))
+    assert drill.run(300.0).exit_code == 0
+    assert drill.result.loop.last_fault.cause == "instrument_timeout"
+    assert drill.states[-1].startswith("closed")
+    assert not any("overrun" in text for _, text in drill.record.events)
+
+
+def test_a_dmm_that_stays_dead_ends_in_exit_4_after_the_recovery_timeout(tmp_path):
+    drill = FaultDrill(tmp_path, {})
+    outage = TimedOutage(drill, 1000, None)
+    original_tap = drill.tap
+    drill.tap = lambda item: (original_tap(item), outage(item))
+    assert drill.run(600.0).exit_code == 4
+    fault = drill.result.loop.last_fault
+    assert fault.cause == "instrument_timeout" and "not recovered within 60 s" in fault.message
+    assert drill.supply_current_a() == 0.0

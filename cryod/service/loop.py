@@ -213,10 +213,17 @@ class ControlLoop:
                     break
                 self.clock.sleep_until(deadline)
                 self._tick(deadline)
+                self.watchdog()                 # every tick that returns: a call that hangs trips it
                 now = self.clock.now()
                 missed = int((now - deadline) // self.period_s) if now > deadline + self.period_s else 0
-                self.timing.record_cycle_end(missed)
-                if missed:
+                if missed and self.state.waits_for_readings:
+                    # heater off, waiting on instruments whose replies time out: late, but not an overrun
+                    # (the streak is about a PC that cannot keep 80 ms while regulating)
+                    self.timing.record_cycle_end(0)
+                    self.timing.waiting_cycles += 1
+                else:
+                    self.timing.record_cycle_end(missed)
+                if missed and not self.state.waits_for_readings:
                     self._event("overrun", f"cycle ended {(now - deadline) * 1e3:.1f} ms after its deadline "
                                            f"(started {(self._tick_start_s - deadline) * 1e3:.1f} ms late); "
                                            f"{missed} deadline(s) skipped")
@@ -252,10 +259,13 @@ class ControlLoop:
             self._stop(ExitCode.OK, Fault(FaultCause.STOP_REQUESTED, self._stop_reason))
             return
         row = Row(time_s=tick_start, lateness_ms=(tick_start - deadline) * 1e3)
-        if self.state is LoopState.RECOVERING:
-            self._maybe_reconnect(tick_start)
-            if self.exit_code is not None:
-                return
+        if self.state is LoopState.RECOVERING and self._maybe_reconnect(tick_start):
+            # one slow thing per tick: the readings come at the next one
+            if self.exit_code is None:
+                row.heater_W = 0.0
+                row.state = self.state
+                self._finish_row(row)
+            return
         try:
             reading = self.instruments.measure()
         except InstrumentError as error:
@@ -310,7 +320,6 @@ class ControlLoop:
                 >= self.config.safety.recovery_timeout_s:
             self._episode_start_s = None         # ran clean long enough: the next fault is a new episode
             self._resumes_in_episode = 0
-        self.watchdog()
 
     def _finish_row(self, row: Row) -> None:
         row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
@@ -388,20 +397,30 @@ class ControlLoop:
             if failure is not None:
                 self._stop(ExitCode.HEATER_FAULT, failure)
 
-    def _maybe_reconnect(self, now: float) -> None:
+    def _maybe_reconnect(self, now: float) -> bool:
+        """Stop when the recovery timed out, else reopen the connections at most once a second.
+
+        Returns
+        -------
+        bool
+            True when this tick stopped the loop or tried a reconnect (no reading this tick).
+        """
         if now - self._episode_start_s > self.config.safety.recovery_timeout_s:
             resumes = f" (resumed {self._resumes_in_episode} times in between)" if self._resumes_in_episode else ""
             self._stop(ExitCode.INSTRUMENTS_LOST, Fault(self.last_fault.cause,
                        f"not recovered within {self.config.safety.recovery_timeout_s:g} s{resumes}: "
                        f"{self.last_fault.message}"))
-            return
-        if self.last_fault.cause.reconnect and now - self._last_reconnect_s >= 1.0:
+            return True
+        if self.last_fault.cause.reconnect and self._valid_in_a_row == 0 and now - self._last_reconnect_s >= 1.0:
+            # (not once readings are valid again: they are counted toward the resume)
             self._last_reconnect_s = now
             try:
                 self.instruments.reconnect()
                 self.checks.reset()
             except InstrumentError as error:
                 log.warning("reconnect failed: %s", error)
+            return True
+        return False
 
     # -- faults ---------------------------------------------------------------------
     def _fault(self, fault: Fault, row: Row | None = None) -> None:

@@ -34,6 +34,9 @@ class LoopTiming:
         self.overruns = 0
         self.missed_deadlines = 0
         self.overrun_streak = 0
+        #: Cycles that ended late while the heater was off waiting for valid readings (instruments timing
+        #: out during a recovery): not overruns.
+        self.waiting_cycles = 0
         self.lateness_max_s = 0.0
         self.gc_longest_s = 0.0
 
@@ -75,6 +78,7 @@ class LoopTiming:
             "ticks": self.ticks,
             "overruns": self.overruns,
             "missed_deadlines": self.missed_deadlines,
+            "late_cycles_waiting_for_instruments": self.waiting_cycles,
             "lateness_ms_p50": round(self.percentile_s(0.50) * 1e3, 3),
             "lateness_ms_p99": round(self.percentile_s(0.99) * 1e3, 3),
             "lateness_ms_max": round(self.lateness_max_s * 1e3, 3),

@@ -31,7 +31,7 @@ import numpy as np
 
 from cryod.control.pi import PiGains
 from cryod.model import CryostatModel
-from simulated_hw.closed_loop import Segment, run_program
+from cryod.control.closed_loop import Segment, run_program
 
 #: Heater of the simulated records: 25 ohm, 100 mA limit, so at most 0.25 W.
 HEATER_RESISTANCE_OHM = 25.0

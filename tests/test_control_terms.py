@@ -22,7 +22,7 @@ from cryod.service.clock import VirtualClock
 from cryod.service.instruments import load_curves
 from cryod.service.loop import ControlLoop
 from cryod.yaml_source import FileFormatError, Section
-from simulated_hw.closed_loop import Segment, run_program
+from cryod.control.closed_loop import Segment, run_program
 from simulated_hw.cryostat import SimulatedCryostat
 from tests.conftest import CONFIG
 from tests.loop_doubles import DirectInstruments

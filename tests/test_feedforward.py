@@ -1,6 +1,6 @@
 """The feedforward locked to the cooler: phase tracking, estimation, the heater's bounds, the loop.
 
-Closed-loop runs use the offline simulation (simulated_hw.closed_loop, the
+Closed-loop runs use the offline simulation (cryod.control.closed_loop, the
 daemon's own regulator) on virtual time; each figure is checked against the
 physics (the computed limit, PI alone), not against a recorded number.
 """
@@ -23,7 +23,7 @@ from cryod.model import CryostatPlant
 from cryod.model.dynamics import flange_transfer_functions
 from cryod.model.parameters import SensorLag
 from cryod.records.metrics import periodic_amplitudes
-from simulated_hw.closed_loop import Segment, run_program
+from cryod.control.closed_loop import Segment, run_program
 
 OMEGA = 10.83
 PERIOD = 0.08

@@ -5,7 +5,7 @@ from cryod.config import ControlConfig
 from cryod.control.pi import PiController, PiGains
 from cryod.control.ramp import SetpointRamp
 from cryod.control.regulator import HeaterPowerOutput, Regulator
-from simulated_hw.closed_loop import Segment, run_program
+from cryod.control.closed_loop import Segment, run_program
 
 
 def control_section(gains: PiGains, setpoint_K: float | None = None) -> ControlConfig:

@@ -16,7 +16,7 @@ Each tick it turns the readings into the heater power for the coming period:
 
 It knows neither instruments nor clocks: :class:`cryod.service.loop.ControlLoop`
 schedules it, handles faults and does the I/O;
-:func:`simulated_hw.closed_loop.run_program` drives it on the simulated cryostat.
+:func:`cryod.control.closed_loop.run_program` drives it on the simulated cryostat.
 
 Examples
 --------

@@ -18,7 +18,7 @@ from scipy import optimize
 from cryod.control.pi import PiGains
 from cryod.analysis.line_fit import fit_line
 from cryod.model import load_model
-from simulated_hw.closed_loop import Segment, run_program
+from cryod.control.closed_loop import Segment, run_program
 
 HERE = Path(__file__).resolve().parent
 MODEL = load_model(HERE.parent.parent / "config" / "model.yaml")

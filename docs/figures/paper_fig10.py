@@ -35,7 +35,7 @@ from cryod.control.terms import TERM_TYPES, TickInputs, term_type
 from cryod.model import CryostatModel, load_model
 from cryod.records.columns import Column
 from cryod.records.metrics import periodic_amplitudes
-from simulated_hw.closed_loop import ClosedLoopRun, Segment, run_program
+from cryod.control.closed_loop import ClosedLoopRun, Segment, run_program
 
 HERE = Path(__file__).resolve().parent
 CONFIG = HERE.parent.parent / "config"

@@ -6,6 +6,7 @@
     cryod analyze RECORD [...]                  what the simulation gets wrong, and why
     cryod identify RECORD [...]                 fit a model from measured records
     cryod feedforward-limit [...]               the feedforward's physical limit for a heater
+    cryod tune [...]                            PI gains from the model, compared
 
 Errors go to stderr with a non-zero exit code: 2 for unusable input (a bad
 configuration, a bad command line), the daemon's fault codes otherwise
@@ -21,6 +22,7 @@ import sys
 from pathlib import Path
 
 from cryod import __version__
+from cryod.argument_types import positive
 from cryod.service.commands import COMMANDS, socket_usage
 
 DEFAULT_CONFIG = Path("/etc/cryod/cryod.yaml")
@@ -31,24 +33,15 @@ MODEL_TOOLS = (
     ("identify", "cryod.identification.command", "fit the model's transfer functions to measured records"),
     ("feedforward-limit", "cryod.control.feedforward_limit_command",
      "the least cooler-synchronous oscillation any heater waveform can leave, and what would change it"),
+    ("tune", "cryod.control.tuning_command", "PI gains for the lab's model and heater, beside the configured ones"),
 )
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
-    return value
 
 
 def _speed(text: str) -> float | str:
     if text == "max":
         return "max"
     try:
-        return _positive(text)
+        return positive(text)
     except argparse.ArgumentTypeError as error:
         raise argparse.ArgumentTypeError(f"speed must be a number > 0 or 'max': {error}") from None
 
@@ -65,12 +58,12 @@ def build_parser() -> argparse.ArgumentParser:
                           help="run the daemon against simulated instruments and a simulated cryostat")
     simulate.add_argument("--config", type=Path, default=None,
                           help="daemon configuration (default: the documented example config/cryod.yaml)")
-    simulate.add_argument("--duration", type=_positive, default=None,
+    simulate.add_argument("--duration", type=positive, default=None,
                           help="simulated seconds to run (default: until stopped)")
     simulate.add_argument("--speed", type=_speed, default=1.0,
                           help="simulated seconds per real second, or 'max' for virtual time (default 1)")
     simulate.add_argument("--json", action="store_true", help="print one summary object on stdout at the end")
-    simulate.add_argument("--window", type=_positive, default=300.0,
+    simulate.add_argument("--window", type=positive, default=300.0,
                           help="length of the metrics window at the end, s (default 300)")
     simulate.add_argument("--setpoint", type=float, default=None, help="setpoint in K (overrides the config)")
     simulate.add_argument("--sim-model", type=Path, default=None,
@@ -93,7 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"daemon configuration (default {DEFAULT_CONFIG})")
     run.add_argument("--check", action="store_true",
                      help="only validate the configuration and the calibration files, then exit")
-    run.add_argument("--duration", type=_positive, default=None, dest="run_duration",
+    run.add_argument("--duration", type=positive, default=None, dest="run_duration",
                      help="stop after this many seconds (default: until SIGTERM)")
 
     ctl = commands.add_parser("ctl", help="talk to the running daemon",

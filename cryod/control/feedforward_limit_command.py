@@ -16,6 +16,8 @@ import json
 import math
 import sys
 
+from cryod.argument_types import not_negative, number, positive
+
 from cryod.config import EXAMPLE_CONFIG_PATH, load_config
 from cryod.control.feedforward_limit import (
     DEFAULT_AVERAGING_TIME_S, MEASURES, REPORTED_HARMONICS, SWEEP_MAX_CURRENTS_A, SWEEP_RESISTANCES_OHM,
@@ -27,30 +29,6 @@ from cryod.yaml_source import FileFormatError
 PROGRAM = "cryod feedforward-limit"
 
 
-def _number(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
-
-
-def _positive(text: str) -> float:
-    value = _number(text)
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
-    return value
-
-
-def _not_negative(text: str) -> float:
-    value = _number(text)
-    if value < 0.0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
-    return value
-
-
 def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Arguments of ``cryod feedforward-limit``."""
     parser.description = (
@@ -58,20 +36,20 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
         "cooler can leave, given the heater's bounds (0 to R*I_max^2), the mean power that holds the setpoint "
         "and the loop's hold; what limits it, and how it changes with setpoint, heater resistance and current "
         "limit. Defaults: the example configuration's heater, setpoint and loop period, and the shipped model.")
-    parser.add_argument("--setpoint", type=_number, default=None, metavar="K",
+    parser.add_argument("--setpoint", type=number, default=None, metavar="K",
                         help="flange setpoint in K (default: the configuration's)")
-    parser.add_argument("--heater-ohm", type=_positive, default=None, metavar="R",
+    parser.add_argument("--heater-ohm", type=positive, default=None, metavar="R",
                         help="heater resistance in ohm (default: the configuration's)")
-    parser.add_argument("--max-current", type=_positive, default=None, metavar="A",
+    parser.add_argument("--max-current", type=positive, default=None, metavar="A",
                         help="heater current limit in A (default: the configuration's)")
     parser.add_argument("--model", default=str(DEFAULT_MODEL_PATH), metavar="M",
                         help="cryostat model file (default: the shipped model)")
-    parser.add_argument("--period", type=_positive, default=None, metavar="S",
+    parser.add_argument("--period", type=positive, default=None, metavar="S",
                         help="loop period in s: the heater is held this long (default: the configuration's)")
-    parser.add_argument("--heater-delay", type=_not_negative, default=0.0, metavar="S",
+    parser.add_argument("--heater-delay", type=not_negative, default=0.0, metavar="S",
                         help="delay from a reading to the heater change, s (default 0; the model's dead time "
                              "is added)")
-    parser.add_argument("--averaging-time", type=_positive, default=DEFAULT_AVERAGING_TIME_S, metavar="S",
+    parser.add_argument("--averaging-time", type=positive, default=DEFAULT_AVERAGING_TIME_S, metavar="S",
                         help=f"averaging time of the line's estimate for the noise floor, s "
                              f"(default {DEFAULT_AVERAGING_TIME_S:g})")
     parser.add_argument("--measure", choices=MEASURES, default="sampled",

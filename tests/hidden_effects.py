@@ -40,7 +40,15 @@ def analysed_case(cause: str, magnitude: int, protocol: str, duration_s: float, 
     return analysed(model, protocol, duration_s, seed)
 
 
+def named_parameters(analysis: Analysis, cause: str) -> dict:
+    """The fitted parameters of a cause the analysis named (refitted with the recalibration)."""
+    for named in analysis.causes:
+        if named.cause == cause:
+            return named.fit.parameters
+    raise AssertionError(f"{cause} is not named: {analysis.decision.reason}")
+
+
 def parameter_errors(analysis: Analysis, cause: str, truth: dict) -> dict:
     """{parameter: (fitted, true)} for the truth's parameters, from the named cause's fit."""
-    fitted = analysis.fits[cause].parameters
+    fitted = named_parameters(analysis, cause)
     return {name: (fitted.get(name), true) for name, true in truth.items()}

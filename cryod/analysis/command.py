@@ -92,17 +92,19 @@ def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Pat
     frequency = analysis.base_line.angular_frequency_rad_s
     discrepancies = find_discrepancies(data, model, analysis.base_replay, analysis.noise_rms_K, frequency, segments)
     extended = []
-    if analysis.cause in analysis.fits:
+    if analysis.extended:
         extended = find_discrepancies(data, analysis.extended_model, analysis.extended_replay, analysis.noise_rms_K,
                                       frequency, segments)
     analysis.timings_s["discrepancies"] = time.perf_counter() - moment
     model_path_out = out / EXTENDED_MODEL_NAME
     extended_model = analysis.extended_model
-    if analysis.cause in analysis.fits:
+    if analysis.extended:
         base_name = model.name or "model"
+        added = [named.cause for named in analysis.causes] if analysis.cause not in ("none", "unexplained") else []
+        what = " + ".join((["recalibrated"] if analysis.recalibrated else []) + added)
         extended_model = dataclasses.replace(
-            extended_model, name=f"{base_name} + {analysis.cause}",
-            description=f"{model.description} Extended by cryod analyze with {analysis.cause} fitted to "
+            extended_model, name=f"{base_name} + {what}",
+            description=f"{model.description} Extended by cryod analyze ({what}) fitted to "
                         f"{record_path.name}.".strip())
     save_model(extended_model, model_path_out, header=model_header(analysis, record_path, model_path))
     made = {}

@@ -1,4 +1,4 @@
-"""One analysis of one record: replay, noise, candidates, decision.
+"""One analysis of one record: replay, noise, recalibration, candidates, decision, every cause present.
 
 :func:`analyze` is what ``cryod analyze`` runs; the figures, the report and the
 JSON are made from the :class:`Analysis` it returns.
@@ -11,24 +11,71 @@ Steps:
    operating point and the initial state (:mod:`cryod.analysis.replay`).
 3. Measure the noise of T2 and T5 in the base model's residuals
    (:mod:`cryod.analysis.noise`); it weights the two thermometers in the fits.
-4. Fit every candidate cause (:mod:`cryod.analysis.candidates`). The noise
+4. Recalibrate: refit the base model's own gains and time constants and the
+   line's gain and phase on T2, within their tolerances
+   (:mod:`cryod.analysis.recalibration`). When the base model as given shows a
+   discrepancy, every later step starts from the recalibrated model and refits
+   the recalibration alongside each cause.
+5. Fit every candidate cause (:mod:`cryod.analysis.candidates`). The noise
    used for judging is the lowest white floor of any replay's residuals (a
    large misfit leaks a little into the base model's floor).
-5. Judge the candidates on the held-out blocks (:mod:`cryod.analysis.decision`).
+6. Judge the candidates on the held-out blocks (:mod:`cryod.analysis.decision`);
+   refit the best one jointly with the recalibration
+   (:mod:`cryod.analysis.refinement`) and add it to the model. While a
+   discrepancy remains, look for the next cause on top of it: a further cause
+   is named when it counts and removes at least 70 % of what is left.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from cryod.analysis.candidates import CANDIDATE_CAUSES, FITTERS, CandidateFit, FitContext
-from cryod.analysis.decision import CandidateScore, Decision, base_discrepancy, decide, score_candidate
+from cryod.analysis.decision import (
+    EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision, Gain, base_discrepancy, decide, gain_between,
+    score_candidate,
+)
 from cryod.analysis.noise import white_noise_rms
 from cryod.analysis.ptc_line import PtcLine
+from cryod.analysis.recalibration import (
+    LINK_PARAMETERS, RecalibratedBase, Recalibration, linear_basis, recalibrate,
+)
 from cryod.analysis.record_data import RecordData, fit_block_mask
+from cryod.analysis.refinement import refine
 from cryod.analysis.replay import Replay, Replayer
 from cryod.model import CryostatModel
+
+#: Causes named in one record at most.
+MOST_CAUSES = 3
+
+
+@dataclass
+class NamedCause:
+    """A cause named in the record, with what it brought when it was added to the model.
+
+    Attributes
+    ----------
+    cause : str
+    fit : CandidateFit
+        Refitted jointly with the recalibration.
+    score : CandidateScore
+        Against the model it was added to.
+    explained_fraction : float
+        Its held-out improvement over the recalibrated model's excess.
+    gain : Gain
+        Held-out residual of the model before it and with it.
+    """
+
+    cause: str
+    fit: CandidateFit
+    score: CandidateScore
+    explained_fraction: float
+    gain: Gain
 
 
 @dataclass
@@ -39,17 +86,35 @@ class Analysis:
     ----------
     data : RecordData
     base_model : CryostatModel
+        The model as given.
     base_line : PtcLine
         The line measured in T5, in the base model's form.
     base_replay : Replay
+        The record replayed with the base model as given.
     noise_rms_K : tuple of float
         Measured (T2, T5) noise.
     fits : dict of str to CandidateFit
+        The candidates of the first round (on the recalibrated model).
     scores : dict of str to CandidateScore
     decision : Decision
+        The cause named and why; its ``base`` is the recalibrated model's discrepancy.
     context : FitContext
+        Where the first round's candidates were fitted.
     timings_s : dict of str to float
         Wall time of each step.
+    recalibration : Recalibration or None
+    recalibrated : bool
+        Whether the recalibration is part of the extended model (it is when the
+        base model as given shows a discrepancy).
+    recalibration_gain : Gain or None
+        Held-out residual of the base model as given and recalibrated.
+    causes : list of NamedCause
+        Every cause named, strongest (first added) first; empty for ``none``.
+    final_model : CryostatModel
+        The recalibrated model plus every cause named (the base model for ``none`` without recalibration).
+    final_replay : Replay
+    base_discrepancy : BaseDiscrepancy
+        The base model as given, on the held-out blocks.
     """
 
     data: RecordData
@@ -62,6 +127,13 @@ class Analysis:
     decision: Decision
     context: FitContext
     timings_s: dict[str, float] = field(default_factory=dict)
+    recalibration: Recalibration | None = None
+    recalibrated: bool = False
+    recalibration_gain: Gain | None = None
+    causes: list = field(default_factory=list)
+    final_model: CryostatModel | None = None
+    final_replay: Replay | None = None
+    base_discrepancy: BaseDiscrepancy | None = None
 
     @property
     def cause(self) -> str:
@@ -69,16 +141,21 @@ class Analysis:
 
     @property
     def extended_model(self) -> CryostatModel:
-        """The base model plus the named effect (the base model itself for none or unexplained)."""
-        if self.cause in self.fits:
-            return self.fits[self.cause].extended_model
-        return self.base_model
+        """The recalibrated base model plus every cause named (the base model itself when nothing changed)."""
+        return self.final_model if self.final_model is not None else self.base_model
 
     @property
     def extended_replay(self) -> Replay:
-        if self.cause in self.fits:
-            return self.fits[self.cause].replay
-        return self.base_replay
+        return self.final_replay if self.final_replay is not None else self.base_replay
+
+    @property
+    def extended(self) -> bool:
+        """Whether the extended model differs from the base model."""
+        return self.extended_model is not self.base_model
+
+    @property
+    def cause_names(self) -> list[str]:
+        return [named.cause for named in self.causes]
 
 
 def measured_noise(data: RecordData, replay: Replay, line: PtcLine) -> tuple[float, float]:
@@ -86,6 +163,58 @@ def measured_noise(data: RecordData, replay: Replay, line: PtcLine) -> tuple[flo
     interval, frequency = data.sample_interval_s, line.angular_frequency_rad_s
     return (white_noise_rms(replay.flange_residual_K[data.valid], interval, frequency),
             white_noise_rms(replay.ptc_stage_residual_K[data.valid], interval, frequency))
+
+
+def _carried(reference: CryostatModel | None):
+    """``model -> model`` with ``reference``'s effects, PTC source and operating point (the causes named so far)."""
+    if reference is None:
+        return None
+    return lambda model: dataclasses.replace(model, effects=reference.effects, ptc=reference.ptc,
+                                             operating_point=reference.operating_point)
+
+
+def _context_on(data, replayer: Replayer, base: RecalibratedBase, model: CryostatModel, line: PtcLine,
+                state: Replay, noise, masks, reference: CryostatModel | None, against: Replay | None = None,
+                line_model: CryostatModel | None = None) -> FitContext:
+    """Candidates' context: ``model`` (the recalibration ``base`` plus the causes named so far, ``reference``),
+    with the recalibration linearised there fitted in every replay; candidates are judged against
+    ``against`` (default: ``model``'s replay)."""
+    cache = {}
+    apply = _carried(reference)
+
+    def basis_for(replayed_line):
+        key = id(replayed_line)
+        if key not in cache:
+            cache[key] = (replayed_line, linear_basis(replayer, base.shipped, replayed_line, base.parameters,
+                                                      base.log_factors, state=state, apply=apply))
+        return cache[key][1]
+
+    replayer.basis_for = basis_for
+    replay = against if against is not None else replayer.replay(model, line)
+    return FitContext(data, replayer, model, line, replay, noise, masks[0], masks[1],
+                      link_reference=base.model(without=LINK_PARAMETERS).ptc_to_flange, recalibrated=base,
+                      line_model=line_model)
+
+
+def _distinctness(context: FitContext, fits: dict):
+    mask, noise = context.held_out_mask, context.noise_rms_K
+
+    def distinctness(first: str, second: str) -> float:
+        a, b = fits[first].replay, fits[second].replay
+        flange = (a.flange_K - b.flange_K)[mask] / noise[0]
+        stage = (a.ptc_stage_K - b.ptc_stage_K)[mask] / noise[1]
+        return float(flange @ flange + stage @ stage)
+
+    return distinctness
+
+
+def _fit_candidates(context: FitContext, causes, timings: dict, label: str = "") -> dict:
+    fits = {}
+    for cause in causes:
+        started = time.perf_counter()
+        fits[cause] = FITTERS[cause](context)
+        timings[cause + label] = timings.get(cause + label, 0.0) + time.perf_counter() - started
+    return fits
 
 
 def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES) -> Analysis:
@@ -106,38 +235,166 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
     started = time.perf_counter()
     fit_mask = fit_block_mask(data.time_s) & data.valid
     held_out_mask = ~fit_block_mask(data.time_s) & data.valid
+    masks = (fit_mask, held_out_mask)
     replayer = Replayer(data, fit_mask)
     orders = (1,) + tuple(h.order for h in base_model.ptc.harmonics)
-    base_line = replayer.stage_line(base_model, orders=orders, drift=base_model.effects.ptc_frequency_drift is not None)
+    drift = base_model.effects.ptc_frequency_drift is not None
+    base_line = replayer.stage_line(base_model, orders=orders, measured_phase=drift)
     replayer.settle_from(replayer.replay(base_model, base_line))
     base_replay = replayer.replay(base_model, base_line)
     noise = measured_noise(data, base_replay, base_line)
     replayer.noise_rms_K = noise
+    shipped_context = FitContext(data, replayer, base_model, base_line, base_replay, noise, fit_mask, held_out_mask)
     timings["base replay and noise"] = time.perf_counter() - started
-    context = FitContext(data, replayer, base_model, base_line, base_replay, noise, fit_mask, held_out_mask)
-    fits, scores = {}, {}
-    for cause in causes:
-        started = time.perf_counter()
-        fits[cause] = FITTERS[cause](context)
-        timings[cause] = time.perf_counter() - started
+
+    started = time.perf_counter()
+    recalibration = recalibrate(replayer, base_model, base_line)
+    applied = base_discrepancy(shipped_context).present
+    context = shipped_context
+    if applied:
+        line = replayer.stage_line(recalibration.model, orders=orders, measured_phase=drift)
+        centre = dataclasses.replace(recalibration.base, log_factors=np.zeros(len(recalibration.parameters)))
+        context = _context_on(data, replayer, centre, base_model, line, recalibration.replay, noise, masks, None,
+                              against=replayer.replay(recalibration.model, line, basis=None),
+                              line_model=recalibration.model)
+    timings["recalibration"] = time.perf_counter() - started
+
+    fits = _fit_candidates(context, causes, timings)
     # A large misfit leaks into the base model's noise floor; the best-fitting replay gives the truer noise.
-    context.noise_rms_K = noise = tuple(
-        min([noise[channel]] + [measured_noise(data, fit.replay, fit.line)[channel] for fit in fits.values()])
-        for channel in (0, 1))
-    base = base_discrepancy(context)
-    for cause in causes:
-        scores[cause] = score_candidate(context, fits[cause], base)
-    mask = held_out_mask
+    replays = [base_replay, recalibration.replay, context.base_replay] + [fit.replay for fit in fits.values()]
+    lines = [base_line, base_line, context.base_line] + [fit.line for fit in fits.values()]
+    noise = tuple(min(measured_noise(data, replay, line)[channel] for replay, line in zip(replays, lines))
+                  for channel in (0, 1))
+    shipped_context.noise_rms_K = context.noise_rms_K = noise
+    shipped = base_discrepancy(shipped_context)
+    first_base = base_discrepancy(context)
+    scores = {cause: score_candidate(context, fits[cause], first_base) for cause in causes}
+    counts = {cause: fit.parameter_count for cause, fit in fits.items()}
+    first = decide(first_base, list(scores.values()), _distinctness(context, fits), counts)
 
-    def distinctness(first: str, second: str) -> float:
-        a, b = fits[first].replay, fits[second].replay
-        flange = (a.flange_K - b.flange_K)[mask] / noise[0]
-        stage = (a.ptc_stage_K - b.ptc_stage_K)[mask] / noise[1]
-        return float(flange @ flange + stage @ stage)
+    recalibrated_sum = sum(shipped_context.chi_square(recalibration.replay, held_out_mask))
+    analysis = Analysis(data, base_model, base_line, base_replay, noise, fits, scores, first, context, timings,
+                        recalibration, False, gain_between(shipped.sum_of_squares, recalibrated_sum, shipped.terms),
+                        [], base_model, base_replay, shipped)
+    if not shipped.present:
+        analysis.decision = decide(shipped, [], None, None)
+        analysis.decision = dataclasses.replace(
+            analysis.decision, reason=analysis.decision.reason + "; the base model is kept as given")
+        return analysis
+    analysis.recalibrated = True
+    analysis.final_model, analysis.final_replay = context.base_model, context.base_replay
+    started = time.perf_counter()
+    _name_causes(analysis, replayer, context, fits, scores, first, causes, masks)
+    timings["naming the causes"] = time.perf_counter() - started
+    return analysis
 
-    decision = decide(base, list(scores.values()), distinctness,
-                      {cause: fit.parameter_count for cause, fit in fits.items()})
-    return Analysis(data, base_model, base_line, base_replay, noise, fits, scores, decision, context, timings)
+
+def _name_causes(analysis: Analysis, replayer: Replayer, context: FitContext, fits: dict, scores: dict,
+                 first: Decision, causes, masks) -> None:
+    """Add causes to the recalibrated model while the record shows a discrepancy (see the module doc)."""
+    data = analysis.data
+    recalibrated_base = base = base_discrepancy(context)
+    shipped = analysis.base_discrepancy
+    if not base.present:
+        analysis.decision = dataclasses.replace(
+            first, cause="none", best=None, gain=analysis.recalibration_gain,
+            reason=(f"the recalibrated base model leaves no discrepancy beyond the noise (held-out excess "
+                    f"{base.excess:.4g}, {base.significance:.1f} sigma, {100.0 * base.excess / base.terms:.2f} % of "
+                    f"the noise power); the base model as given left {shipped.excess:.4g} "
+                    f"({shipped.significance:.1f} sigma): its parameters differ, no effect is needed"))
+        return
+    recalibration_base = context.recalibrated
+    reference = None
+    decision, reasons, remaining = first, [], [cause for cause in causes]
+    for round_index in range(MOST_CAUSES):
+        if decision.best is None or decision.best.cause not in fits:
+            break
+        decision, refined_fits, refined_bases = _refined_decision(replayer, context, base, fits, scores,
+                                                                  recalibration_base)
+        best = decision.best
+        if best is None:
+            break
+        refined, refined_base = refined_fits[best.cause], refined_bases[best.cause]
+        score = best
+        if round_index > 0 and not (score.counts and score.explained_fraction >= EXPLAINED_FRACTION):
+            reasons.append(f"{best.cause} would remove {100.0 * score.explained_fraction:.1f} % of what is left, "
+                           f"too little for a further cause")
+            break
+        if not score.counts:
+            break
+        after = gain_between(base.sum_of_squares, base.sum_of_squares - score.improvement, base.terms)
+        analysis.causes.append(NamedCause(best.cause, refined, score,
+                                          score.improvement / recalibrated_base.excess, after))
+        reasons.append(f"{best.cause} removes {100.0 * score.improvement / recalibrated_base.excess:.1f} % "
+                       f"({score.significance:.1f} sigma)")
+        remaining.remove(best.cause)
+        reference = refined.extended_model
+        recalibration_base = refined_base
+        context = _context_on(data, replayer, refined_base, reference, refined.line, refined.replay,
+                              context.noise_rms_K, masks, reference)
+        base = base_discrepancy(context)
+        analysis.final_model, analysis.final_replay = reference, context.base_replay
+        if not base.present or len(analysis.causes) == MOST_CAUSES:
+            break
+        fits = _fit_candidates(context, [c for c in remaining if not _already_in(c, reference)], analysis.timings_s,
+                               " (next cause)")
+        if not fits:
+            break
+        scores = {cause: score_candidate(context, fit, base) for cause, fit in fits.items()}
+        decision = decide(base, list(scores.values()), _distinctness(context, fits),
+                          {cause: fit.parameter_count for cause, fit in fits.items()})
+    explained = (recalibrated_base.excess - base.excess) / recalibrated_base.excess
+    excess_text = (f"the recalibrated base model's held-out excess is {recalibrated_base.excess:.4g} "
+                   f"({recalibrated_base.significance:.1f} sigma, "
+                   f"{100.0 * recalibrated_base.excess / recalibrated_base.terms:.2f} % of the noise power)")
+    total_gain = gain_between(shipped.sum_of_squares, shipped.sum_of_squares - shipped.excess + base.excess,
+                              shipped.terms)
+    if analysis.causes and (explained >= EXPLAINED_FRACTION or not base.present):
+        named = analysis.causes[0]
+        reason = f"{excess_text}; " + ", then ".join(reasons)
+        tie = first.reason.find("this record cannot tell")
+        if len(analysis.causes) == 1 and first.best is not None and first.best.cause == named.cause and tie >= 0:
+            reason += "; " + first.reason[tie:]
+        analysis.decision = Decision(named.cause, reason, named.score, recalibrated_base, total_gain)
+        return
+    partial = "; ".join(reasons)
+    analysis.decision = Decision(
+        "unexplained",
+        f"{excess_text}; " + (f"{partial}: together {100.0 * explained:.1f} % of it, and a discrepancy of "
+                              f"{base.significance:.1f} sigma is left" if analysis.causes
+                              else "no candidate improves it significantly"),
+        first.best, recalibrated_base, gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares,
+                                                    shipped.terms))
+    analysis.final_model, analysis.final_replay = analysis.context.base_model, analysis.context.base_replay
 
 
-__all__ = ["Analysis", "analyze"]
+#: Candidates refitted with the recalibration before one is chosen: those counting whose improvement is at least
+#: this fraction of the best one's, at most this many.
+REFINED_FRACTION = 0.5
+REFINED_MOST = 3
+
+
+def _refined_decision(replayer: Replayer, context: FitContext, base: BaseDiscrepancy, fits: dict, scores: dict,
+                      recalibration_base: RecalibratedBase):
+    """Refit the leading candidates jointly with the recalibration, then apply the rules to them."""
+    counting = sorted((score for score in scores.values() if score.counts), key=lambda score: -score.improvement)
+    leading = [score.cause for score in counting
+               if score.improvement >= REFINED_FRACTION * counting[0].improvement][:REFINED_MOST] if counting else []
+    refined_fits, refined_bases, refined_scores = {}, {}, {}
+    for cause in leading:
+        refined_fits[cause], refined_bases[cause] = refine(replayer, recalibration_base, fits[cause])
+        refined_scores[cause] = score_candidate(context, refined_fits[cause], base)
+    decision = decide(base, list(refined_scores.values()), _distinctness(context, refined_fits),
+                      {cause: fit.parameter_count for cause, fit in refined_fits.items()})
+    return decision, refined_fits, refined_bases
+
+
+def _present(excess: float, terms: int) -> bool:
+    return BaseDiscrepancy(terms, terms + excess, excess, excess / math.sqrt(2.0 * terms)).present
+
+
+def _already_in(cause: str, model: CryostatModel) -> bool:
+    return cause in model.effect_names()
+
+
+__all__ = ["Analysis", "NamedCause", "analyze"]

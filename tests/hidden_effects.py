@@ -32,11 +32,24 @@ def analysed(model, protocol: str, duration_s: float, seed: int, **disturbance) 
     return analyze(data, base_model())
 
 
-@lru_cache(maxsize=None)
-def analysed_case(cause: str, magnitude: int, protocol: str, duration_s: float, seed: int = 1) -> Analysis:
+def real_model(cause: str, magnitude: int, variant: int = 0, perturbation: int | None = 0):
+    """(model, truth): a hidden cause (or ``"none"``) on another day's cryostat whose base parameters are off
+    by up to 5 % and 0.05 rad (``perturbation`` seeds the draw; None keeps the shipped parameters)."""
     if cause == "none":
-        return analysed(other_day(base_model(), magnitude), protocol, duration_s, seed)
-    model, _ = hidden_model(cause, magnitude, variant=magnitude + seed)
+        model, truth = other_day(base_model(), variant), {}
+    else:
+        model, truth = hidden_model(cause, magnitude, variant=variant)
+    if perturbation is not None:
+        model, _ = hidden_effects.perturbed_base(model, perturbation)
+    return model, truth
+
+
+@lru_cache(maxsize=None)
+def analysed_case(cause: str, magnitude: int, protocol: str, duration_s: float, seed: int = 1,
+                  perturbation: int | None = 0) -> Analysis:
+    """A record of ``cause`` at a magnitude, on a cryostat with its base parameters off (``perturbation``)."""
+    variant = magnitude if cause == "none" else magnitude + seed
+    model, _ = real_model(cause, magnitude, variant, None if perturbation is None else perturbation + 17 * seed)
     return analysed(model, protocol, duration_s, seed)
 
 

@@ -1,5 +1,10 @@
 """The analysis finds effects hidden in simulated records: the cause, its parameters within 20 %, a gain above 1.
 
+The records come from cryostats whose base parameters are off the shipped
+model's by up to 5 % (gains, time constants) and 0.05 rad (the line's phase),
+as real ones are (:func:`simulated_hw.hidden_effects.perturbed_base`): the
+analysis recalibrates them and names the cause on top.
+
 Default run: one realistic magnitude of each cause, each in one protocol, plus
 clean records and disturbances outside the list. ``pytest -m slow``: every
 cause x both protocols x three magnitudes, clean records and every
@@ -14,7 +19,7 @@ import pytest
 from cryod.model import load_model, save_model
 from tests.hidden_effects import (
     DISTURBANCES, DURATIONS_S, MAGNITUDES, SLOW_DURATIONS_S, analysed, analysed_case, base_model, hidden_model,
-    other_day, parameter_errors, within,
+    other_day, parameter_errors, real_model, within,
 )
 
 FAST_CASES = [
@@ -47,10 +52,23 @@ def test_hidden_effect_is_found(cause, protocol):
 
 
 @pytest.mark.parametrize("protocol", ["identification", "pi_only"])
-def test_clean_record_gives_none(protocol):
+def test_clean_record_gives_none_with_the_recalibration(protocol):
+    """Base parameters off by a few percent and nothing else: none, the recalibration reported and applied."""
     analysis = analysed_case("none", 1, protocol, DURATIONS_S[protocol])
     assert analysis.cause == "none", analysis.decision.reason
-    assert analysis.decision.gain.ratio == 1.0
+    assert analysis.causes == [] and analysis.recalibrated
+    assert "parameters differ" in analysis.decision.reason
+    assert analysis.decision.gain.ratio > 5.0 and analysis.decision.gain.extended < 1.05
+    assert analysis.recalibration_gain.ratio == pytest.approx(analysis.decision.gain.ratio, rel=0.05)
+    assert analysis.extended_model is not analysis.base_model and not analysis.extended_model.effect_names()
+
+
+@pytest.mark.parametrize("protocol", ["identification", "pi_only"])
+def test_record_of_the_model_itself_keeps_the_model(protocol):
+    """The shipped parameters exactly (another day): none, nothing recalibrated, the base model kept."""
+    analysis = analysed_case("none", 1, protocol, DURATIONS_S[protocol], perturbation=None)
+    assert analysis.cause == "none", analysis.decision.reason
+    assert not analysis.recalibrated and analysis.decision.gain.ratio == 1.0
     assert analysis.extended_model is analysis.base_model
 
 
@@ -58,7 +76,8 @@ def test_clean_record_gives_none(protocol):
                                                    ("thermometer drift", "identification")])
 def test_disturbance_outside_the_list_is_unexplained(disturbance, protocol):
     duration = DURATIONS_S[protocol]
-    analysis = analysed(other_day(base_model(), 2), protocol, duration, 3, **DISTURBANCES[disturbance](duration))
+    model, _ = real_model("none", 0, variant=2, perturbation=5)
+    analysis = analysed(model, protocol, duration, 3, **DISTURBANCES[disturbance](duration))
     assert analysis.cause == "unexplained", analysis.decision.reason
     assert analysis.decision.base.present
 
@@ -85,7 +104,8 @@ def test_clean_records_of_other_days_give_none(protocol, variant):
 @pytest.mark.parametrize("disturbance", sorted(DISTURBANCES))
 def test_every_disturbance_is_unexplained(disturbance, protocol):
     duration = SLOW_DURATIONS_S[protocol]
-    analysis = analysed(other_day(base_model(), 1), protocol, duration, 5, **DISTURBANCES[disturbance](duration))
+    model, _ = real_model("none", 0, variant=1, perturbation=6)
+    analysis = analysed(model, protocol, duration, 5, **DISTURBANCES[disturbance](duration))
     assert analysis.cause == "unexplained", analysis.decision.reason
 
 
@@ -98,7 +118,7 @@ def test_effects_with_sampling_jitter_and_another_period(cause):
     from cryod.records.record import Record
     from simulated_hw.measurement_programs import make_record
 
-    model, truth = hidden_model(cause, 1, variant=1)
+    model, truth = real_model(cause, 1, variant=1, perturbation=7)
     record = make_record(model, "identification", duration_s=2400.0, seed=6, period_s=0.1, timing_jitter_s=0.02)
     analysis = analyze(RecordData.from_record(Record(record.metadata, record.columns, source="jittered")),
                        base_model())
@@ -113,7 +133,7 @@ def test_record_cut_in_the_middle_of_a_transient(cause):
     from cryod.records.record import Record
     from simulated_hw.measurement_programs import make_record
 
-    model, truth = (other_day(base_model(), 0), {}) if cause == "none" else hidden_model(cause, 1)
+    model, truth = real_model(cause, 1, variant=0, perturbation=8)
     record = make_record(model, "identification", duration_s=1500.0, seed=9)
     start = record.columns["time_s"] >= 270.0          # the 10 mW step is at 237 s
     columns = {name: values[start] for name, values in record.columns.items()}
@@ -134,7 +154,7 @@ def test_rows_without_a_reading_are_left_out():
     from cryod.records.record import Record
     from simulated_hw.measurement_programs import make_record
 
-    model, truth = hidden_model("dead_time", 1, variant=3)
+    model, truth = real_model("dead_time", 1, variant=3, perturbation=9)
     record = make_record(model, "pi_only", duration_s=900.0, seed=10)
     columns = dict(record.columns)
     generator = np.random.default_rng(0)

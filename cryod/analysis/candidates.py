@@ -43,7 +43,7 @@ import numpy as np
 from scipy import optimize
 
 from cryod.analysis.ptc_line import PtcLine, measurable_orders
-from cryod.analysis.recalibration import LINK_PARAMETERS
+from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD, LINK_PARAMETERS
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replay, Replayer
 from cryod.model import (
@@ -211,7 +211,9 @@ def fit_sensor_lag(context: FitContext) -> CandidateFit:
     measured in T5 is the source lagged by tau5, so with the flange lag alone
     the model's line on T2 is off by exactly the factor F = 1 + j w tau5;
     F is a linear least-squares coefficient (:func:`line_factor`), and
-    ``tau5 = tan(arg F) / w`` (0 below 1e-4 rad). A pair of thermometers lagging
+    ``tau5 = tan(arg F) / w`` (0 below 1e-4 rad, or below the recalibration's
+    tolerance on the line's phase when the model is recalibrated: that much is
+    the recalibration's). A pair of thermometers lagging
     alike leaves the line alone and shows only in the heater's paths.
     """
     omega = context.base_line.angular_frequency_rad_s
@@ -222,11 +224,14 @@ def fit_sensor_lag(context: FitContext) -> CandidateFit:
             return context.base_model
         return context.base_model.with_effects(sensor_lag=SensorLag(max(tau, 1e-9), stage))
 
+    # with a recalibration, a phase within its tolerance is the recalibration's, not a second thermometer's
+    smallest = LINE_PHASE_TOLERANCE_RAD if context.recalibrated is not None else STAGE_LAG_SMALLEST_PHASE_RAD
+
     def replay_at(tau):
         flange_only = model(tau)
         factor, replay = line_factor(context, flange_only)
         angle = cmath.phase(factor)
-        stage = float(min(math.tan(angle) / omega, 30.0)) if STAGE_LAG_SMALLEST_PHASE_RAD < angle < math.pi / 2 else 0.0
+        stage = float(min(math.tan(angle) / omega, 30.0)) if smallest < angle < math.pi / 2 else 0.0
         stage_taus[tau] = stage
         return replay if stage == 0.0 else context.replayer.replay(model(tau, stage), context.base_line)
 

@@ -282,7 +282,7 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
             analysis.decision, reason=analysis.decision.reason + "; the base model is kept as given")
         return analysis
     analysis.recalibrated = True
-    analysis.final_model, analysis.final_replay = context.base_model, context.base_replay
+    analysis.final_model, analysis.final_replay = recalibration.model, context.base_replay
     started = time.perf_counter()
     _name_causes(analysis, replayer, context, fits, scores, first, causes, masks)
     timings["naming the causes"] = time.perf_counter() - started
@@ -365,7 +365,7 @@ def _name_causes(analysis: Analysis, replayer: Replayer, context: FitContext, fi
                               else "no candidate improves it significantly"),
         first.best, recalibrated_base, gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares,
                                                     shipped.terms))
-    analysis.final_model, analysis.final_replay = analysis.context.base_model, analysis.context.base_replay
+    analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.context.base_replay
 
 
 #: Candidates refitted with the recalibration before one is chosen: those counting whose improvement is at least

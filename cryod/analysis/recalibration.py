@@ -61,6 +61,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import optimize
 
 from cryod.analysis.ptc_line import PtcLine
 from cryod.analysis.replay import LinearBasis, Replay, Replayer, flange_mode_columns, stage_release_response
@@ -153,6 +154,25 @@ def _phase_per_time_scale(link: TransferFunction, angular_frequency_rad_s: float
     return cmath.phase(after / before) / step
 
 
+def _time_scale_tolerance(link: TransferFunction, model: CryostatModel) -> float:
+    """Largest |log time scale| of the link that moves its phase at the line by at most the tolerance,
+    either way (the smaller of the two scales that move it by exactly the tolerance)."""
+    omega = model.ptc.angular_frequency_rad_s
+    reference = link.frequency_response(omega)
+
+    def shift(x):
+        return abs(cmath.phase(link.frequency_response(omega * math.exp(x)) / reference))
+
+    limits = []
+    for direction in (1.0, -1.0):
+        if shift(direction * LARGEST_TIME_SCALE) <= LINE_PHASE_TOLERANCE_RAD:
+            limits.append(LARGEST_TIME_SCALE)
+            continue
+        limits.append(optimize.brentq(lambda x: shift(direction * x) - LINE_PHASE_TOLERANCE_RAD, 0.0,
+                                      LARGEST_TIME_SCALE, xtol=1e-10))
+    return float(min(limits))
+
+
 def structure_parameters(model: CryostatModel) -> list[StructureParameter]:
     """The parameters of ``model``'s structure a recalibration may change, with their tolerances.
 
@@ -168,9 +188,8 @@ def structure_parameters(model: CryostatModel) -> list[StructureParameter]:
             found.append(StructureParameter("line gain on T2", path, "gain", 0, "K/K", abs(line), TOLERANCE))
             sensitivity = abs(_phase_per_time_scale(transfer_function, model.ptc.angular_frequency_rad_s))
             if factored is not None and sensitivity > 0.0:
-                tolerance = min(LINE_PHASE_TOLERANCE_RAD / sensitivity, LARGEST_TIME_SCALE)
                 found.append(StructureParameter("line phase on T2", path, "time_scale", 0, "rad",
-                                                -cmath.phase(line), tolerance))
+                                                -cmath.phase(line), _time_scale_tolerance(transfer_function, model)))
             continue
         if with_gain:
             found.append(StructureParameter(f"{path} static gain", path, "gain", 0, "K/W",
@@ -188,15 +207,18 @@ def structure_parameters(model: CryostatModel) -> list[StructureParameter]:
 
 
 def _time_scaled_by_phase(link: TransferFunction, phase_change_rad: float, angular_frequency_rad_s: float):
-    """``link`` time-scaled so that its phase at the frequency moves by ``phase_change_rad`` (two Newton steps)."""
+    """``link`` time-scaled so that its phase at the frequency moves by ``phase_change_rad`` (Newton)."""
     per_unit = _phase_per_time_scale(link, angular_frequency_rad_s)
     if per_unit == 0.0 or phase_change_rad == 0.0:
         return link
-    reference = cmath.phase(link.frequency_response(angular_frequency_rad_s))
+    reference = link.frequency_response(angular_frequency_rad_s)
     factor = 0.0
-    for _ in range(2):
-        moved = cmath.phase(link.frequency_response(angular_frequency_rad_s * math.exp(factor)))
-        factor += (phase_change_rad - (moved - reference)) / per_unit
+    for _ in range(8):
+        moved = cmath.phase(link.frequency_response(angular_frequency_rad_s * math.exp(factor)) / reference)
+        step = (phase_change_rad - moved) / per_unit
+        factor += step
+        if abs(step) < 1e-13:
+            break
     return link.time_scaled(math.exp(factor))
 
 
@@ -238,19 +260,21 @@ def with_factors(model: CryostatModel, parameters, log_factors) -> CryostatModel
         ratio = model.flange_to_thermometer.frequency_response(omega) \
             / replaced["flange_to_thermometer"].frequency_response(omega)
         link = replaced.get("ptc_to_flange", model.ptc_to_flange)
+        target = link.frequency_response(omega) * ratio
         link = _time_scaled_by_phase(link, cmath.phase(ratio), omega)
-        replaced["ptc_to_flange"] = TransferFunction(tuple(abs(ratio) * c for c in link.numerator), link.denominator)
+        gain = abs(target) / abs(link.frequency_response(omega))
+        replaced["ptc_to_flange"] = TransferFunction(tuple(gain * c for c in link.numerator), link.denominator)
     return dataclasses.replace(model, **replaced)
 
 
-def line_on_flange(model: CryostatModel) -> complex:
-    """T2's line over T5's at the model's line frequency (complex): j G2 G_link C omega.
+def line_on_flange(model: CryostatModel, angular_frequency_rad_s: float | None = None) -> complex:
+    """T2's line over T5's at the model's line frequency (or the one given; complex): j G2 G_link C omega.
 
     T5's line is ``B sin(theta)``, the heat it drives ``C omega B cos(theta)``,
     so T2's line is ``Re(G2 G_link(j omega) C omega B exp(j theta))`` and its
     ratio to T5's is ``j G2 G_link C omega``; T2 lags T5 by minus its phase.
     """
-    omega = model.ptc.angular_frequency_rad_s
+    omega = angular_frequency_rad_s or model.ptc.angular_frequency_rad_s
     return 1j * model.ptc_heat_to_thermometer.frequency_response(omega) * model.ptc.heat_capacity_J_per_K * omega
 
 

@@ -159,6 +159,28 @@ def hidden_model(model: CryostatModel, cause: str, magnitude: int, variant: int 
     return model.with_effects(**changes), truth
 
 
+#: The causes by the part of the cryostat they change; two effects from different groups are told apart.
+EFFECT_GROUPS = {
+    "heater path": ("dead_time", "heater_nonlinearity", "heat_capacity_temperature"),
+    "link and thermometers": ("sensor_lag", "link_dynamics"),
+    "cooler": ("ptc_harmonics", "ptc_frequency_drift"),
+}
+
+
+def combined_model(model: CryostatModel, causes: dict, variant: int = 0):
+    """(model with several effects, {cause: truth}) for ``{cause: magnitude index}``, on day ``variant``."""
+    model = other_day(model, variant)
+    truths = {}
+    for cause, magnitude in causes.items():
+        changes, truth = MAGNITUDES[cause][magnitude]
+        if "harmonics" in changes:
+            model = model.with_ptc(harmonics=changes["harmonics"])
+        else:
+            model = model.with_effects(**changes)
+        truths[cause] = truth
+    return model, truths
+
+
 def within(fitted, true, relative: float = 0.2) -> bool:
     """Fitted value within ``relative`` of the true one."""
     return fitted is not None and abs(fitted - true) <= relative * abs(true)

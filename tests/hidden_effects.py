@@ -9,7 +9,7 @@ from cryod.analysis.record_data import RecordData
 from cryod.model import load_model
 from cryod.records.record import Record
 from simulated_hw import hidden_effects
-from simulated_hw.hidden_effects import DISTURBANCES, MAGNITUDES, other_day, within  # noqa: F401
+from simulated_hw.hidden_effects import DISTURBANCES, EFFECT_GROUPS, MAGNITUDES, other_day, within  # noqa: F401
 from simulated_hw.measurement_programs import make_record
 
 from tests.conftest import CONFIG
@@ -65,3 +65,16 @@ def parameter_errors(analysis: Analysis, cause: str, truth: dict) -> dict:
     """{parameter: (fitted, true)} for the truth's parameters, from the named cause's fit."""
     fitted = named_parameters(analysis, cause)
     return {name: (fitted.get(name), true) for name, true in truth.items()}
+
+
+#: Every pair of causes from different groups (heater path, link and thermometers, cooler).
+CROSS_GROUP_PAIRS = [(first, second) for index, group in enumerate(EFFECT_GROUPS.values())
+                     for later in list(EFFECT_GROUPS.values())[index + 1:] for first in group for second in later]
+
+
+def two_effect_model(causes, magnitude: int = 1, variant: int = 0, perturbation: int | None = 0):
+    """(model, {cause: truth}): two hidden causes at one magnitude, base parameters off (``perturbation``)."""
+    model, truths = hidden_effects.combined_model(base_model(), {cause: magnitude for cause in causes}, variant)
+    if perturbation is not None:
+        model, _ = hidden_effects.perturbed_base(model, perturbation)
+    return model, truths

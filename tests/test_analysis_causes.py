@@ -18,8 +18,8 @@ import pytest
 
 from cryod.model import load_model, save_model
 from tests.hidden_effects import (
-    DISTURBANCES, DURATIONS_S, MAGNITUDES, SLOW_DURATIONS_S, analysed, analysed_case, base_model, hidden_model,
-    other_day, parameter_errors, real_model, within,
+    CROSS_GROUP_PAIRS, DISTURBANCES, DURATIONS_S, MAGNITUDES, SLOW_DURATIONS_S, analysed, analysed_case, base_model,
+    hidden_model, other_day, parameter_errors, real_model, two_effect_model, within,
 )
 
 FAST_CASES = [
@@ -163,3 +163,40 @@ def test_rows_without_a_reading_are_left_out():
     data = RecordData.from_record(Record(record.metadata, columns, source="gaps"))
     assert any("left out" in note for note in data.notes)
     _check_found(analyze(data, base_model()), "dead_time", truth)
+
+
+# -- two effects at once ---------------------------------------------------------------------
+TWO_EFFECT_CASES = [
+    (("dead_time", "ptc_harmonics"), "identification"),          # heater path + cooler
+    (("heater_nonlinearity", "link_dynamics"), "pi_only"),       # heater path + link
+]
+
+
+def _check_both_found(analysis, truths):
+    assert set(analysis.cause_names) == set(truths), analysis.decision.reason
+    assert analysis.cause == analysis.cause_names[0]
+    for cause, truth in truths.items():
+        for name, (fitted, true) in parameter_errors(analysis, cause, truth).items():
+            assert within(fitted, true), f"{cause} {name}: fitted {fitted}, true {true}"
+    improvements = [named.score.improvement for named in analysis.causes]
+    assert improvements == sorted(improvements, reverse=True)          # strongest first
+    assert analysis.decision.gain.extended < 1.1
+    with tempfile.TemporaryDirectory() as directory:
+        loaded = load_model(save_model(analysis.extended_model, Path(directory) / "extended.yaml"))
+    assert set(loaded.effect_names()) == set(truths)
+
+
+@pytest.mark.parametrize("causes, protocol", TWO_EFFECT_CASES)
+def test_two_effects_at_once_are_both_named(causes, protocol):
+    model, truths = two_effect_model(causes, variant=1, perturbation=21)
+    analysis = analysed(model, protocol, DURATIONS_S[protocol], 4)
+    _check_both_found(analysis, truths)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("protocol", ["identification", "pi_only"])
+@pytest.mark.parametrize("causes", CROSS_GROUP_PAIRS)
+def test_every_pair_from_different_groups(causes, protocol):
+    model, truths = two_effect_model(causes, variant=2, perturbation=23)
+    analysis = analysed(model, protocol, SLOW_DURATIONS_S[protocol], 5)
+    _check_both_found(analysis, truths)

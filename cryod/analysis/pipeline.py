@@ -37,7 +37,7 @@ import numpy as np
 
 from cryod.analysis.candidates import CANDIDATE_CAUSES, FITTERS, CandidateFit, FitContext
 from cryod.analysis.decision import (
-    EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision, Gain, base_discrepancy, decide, gain_between,
+    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision, Gain, base_discrepancy, decide, gain_between,
     score_candidate,
 )
 from cryod.analysis.noise import white_noise_rms
@@ -46,7 +46,7 @@ from cryod.analysis.recalibration import (
     LINK_PARAMETERS, RecalibratedBase, Recalibration, linear_basis, recalibrate,
 )
 from cryod.analysis.record_data import RecordData, fit_block_mask
-from cryod.analysis.refinement import refine
+from cryod.analysis.refinement import NamedEffect, combined_effect, joint_basis, refine
 from cryod.analysis.replay import Replay, Replayer
 from cryod.model import CryostatModel
 
@@ -175,18 +175,25 @@ def _carried(reference: CryostatModel | None):
 
 def _context_on(data, replayer: Replayer, base: RecalibratedBase, model: CryostatModel, line: PtcLine,
                 state: Replay, noise, masks, reference: CryostatModel | None, against: Replay | None = None,
-                line_model: CryostatModel | None = None) -> FitContext:
+                line_model: CryostatModel | None = None, named=()) -> FitContext:
     """Candidates' context: ``model`` (the recalibration ``base`` plus the causes named so far, ``reference``),
-    with the recalibration linearised there fitted in every replay; candidates are judged against
-    ``against`` (default: ``model``'s replay)."""
+    with the recalibration (and the ``named`` causes' own numbers) linearised there fitted in every replay;
+    candidates are judged against ``against`` (default: ``model``'s replay)."""
     cache = {}
-    apply = _carried(reference)
+    carry = _carried(reference)
+    effect = combined_effect([item.effect for item in named])
+    excluded = tuple(sorted(set().union(*[set(item.excluded) for item in named])))
 
     def basis_for(replayed_line):
         key = id(replayed_line)
         if key not in cache:
-            cache[key] = (replayed_line, linear_basis(replayer, base.shipped, replayed_line, base.parameters,
-                                                      base.log_factors, state=state, apply=apply))
+            if effect is None:
+                made = linear_basis(replayer, base.shipped, replayed_line, base.parameters, base.log_factors,
+                                    state=state, apply=carry)
+            else:
+                wrapped = dataclasses.replace(effect, apply=lambda m, v: effect.apply(carry(m), v))
+                made = joint_basis(replayer, base, replayed_line, wrapped, np.asarray(effect.values), state)
+            cache[key] = (replayed_line, made.without(excluded) if excluded else made)
         return cache[key][1]
 
     replayer.basis_for = basis_for
@@ -289,10 +296,27 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
     return analysis
 
 
+@dataclass
+class _Path:
+    """Causes named one after another from a first choice, and where that leaves the model."""
+
+    causes: list
+    context: FitContext
+    base: BaseDiscrepancy
+    named_effects: list
+    recalibration_base: RecalibratedBase
+    reasons: list
+
+
 def _name_causes(analysis: Analysis, replayer: Replayer, context: FitContext, fits: dict, scores: dict,
                  first: Decision, causes, masks) -> None:
-    """Add causes to the recalibrated model while the record shows a discrepancy (see the module doc)."""
-    data = analysis.data
+    """Add causes to the recalibrated model while the record shows a discrepancy (see the module doc).
+
+    The best candidate is added first and the next ones on top of it. When that leaves a discrepancy, the
+    path that starts from the second-best candidate is followed too (one cause can stand in for most of two:
+    a thermometer lag with the stage lagging alike looks much like a dead time plus a link that differs), and
+    the path that explains clearly more is kept.
+    """
     recalibrated_base = base = base_discrepancy(context)
     shipped = analysis.base_discrepancy
     if not base.present:
@@ -303,69 +327,161 @@ def _name_causes(analysis: Analysis, replayer: Replayer, context: FitContext, fi
                     f"the noise power); the base model as given left {shipped.excess:.4g} "
                     f"({shipped.significance:.1f} sigma): its parameters differ, no effect is needed"))
         return
-    recalibration_base = context.recalibrated
-    reference = None
-    decision, reasons, remaining = first, [], [cause for cause in causes]
-    for round_index in range(MOST_CAUSES):
-        if decision.best is None or decision.best.cause not in fits:
-            break
-        decision, refined_fits, refined_bases = _refined_decision(replayer, context, base, fits, scores,
-                                                                  recalibration_base)
-        best = decision.best
-        if best is None:
-            break
-        refined, refined_base = refined_fits[best.cause], refined_bases[best.cause]
-        score = best
-        if round_index > 0 and not (score.counts and score.explained_fraction >= EXPLAINED_FRACTION):
-            reasons.append(f"{best.cause} would remove {100.0 * score.explained_fraction:.1f} % of what is left, "
-                           f"too little for a further cause")
-            break
-        if not score.counts:
-            break
-        after = gain_between(base.sum_of_squares, base.sum_of_squares - score.improvement, base.terms)
-        analysis.causes.append(NamedCause(best.cause, refined, score,
-                                          score.improvement / recalibrated_base.excess, after))
-        reasons.append(f"{best.cause} removes {100.0 * score.improvement / recalibrated_base.excess:.1f} % "
-                       f"({score.significance:.1f} sigma)")
-        remaining.remove(best.cause)
-        reference = refined.extended_model
-        recalibration_base = refined_base
-        context = _context_on(data, replayer, refined_base, reference, refined.line, refined.replay,
-                              context.noise_rms_K, masks, reference)
-        base = base_discrepancy(context)
-        analysis.final_model, analysis.final_replay = reference, context.base_replay
-        if not base.present or len(analysis.causes) == MOST_CAUSES:
-            break
-        fits = _fit_candidates(context, [c for c in remaining if not _already_in(c, reference)], analysis.timings_s,
-                               " (next cause)")
-        if not fits:
-            break
-        scores = {cause: score_candidate(context, fit, base) for cause, fit in fits.items()}
-        decision = decide(base, list(scores.values()), _distinctness(context, fits),
-                          {cause: fit.parameter_count for cause, fit in fits.items()})
-    explained = (recalibrated_base.excess - base.excess) / recalibrated_base.excess
+    path = None
+    if first.best is not None and first.best.cause in fits:
+        decision, refined = _refined_decision(replayer, context, base, fits, scores, context.recalibrated)
+        if decision.best is not None:
+            path = _follow(analysis, replayer, context, base, decision.best, refined, causes, masks, recalibrated_base)
+            alternatives = sorted((score_candidate(context, refined[cause][0], base) for cause in refined
+                                   if cause != decision.best.cause), key=lambda score: -score.improvement)
+            alternatives = [score for score in alternatives if score.counts]
+            if path.base.present and alternatives:
+                other = _follow(analysis, replayer, context, base, alternatives[0], refined, causes, masks,
+                                recalibrated_base)
+                if other.base.excess < ALTERNATIVE_FRACTION * path.base.excess and len(other.causes) > 1:
+                    path = other
     excess_text = (f"the recalibrated base model's held-out excess is {recalibrated_base.excess:.4g} "
                    f"({recalibrated_base.significance:.1f} sigma, "
                    f"{100.0 * recalibrated_base.excess / recalibrated_base.terms:.2f} % of the noise power)")
+    if path is None or not path.causes:
+        analysis.decision = Decision("unexplained", f"{excess_text}, and no candidate improves it significantly",
+                                     first.best, recalibrated_base,
+                                     gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares,
+                                                  shipped.terms))
+        analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.context.base_replay
+        return
+    analysis.causes = path.causes
+    base = path.base
+    explained = (recalibrated_base.excess - base.excess) / recalibrated_base.excess
     total_gain = gain_between(shipped.sum_of_squares, shipped.sum_of_squares - shipped.excess + base.excess,
                               shipped.terms)
-    if analysis.causes and (explained >= EXPLAINED_FRACTION or not base.present):
+    if explained >= EXPLAINED_FRACTION or not base.present:
         named = analysis.causes[0]
-        reason = f"{excess_text}; " + ", then ".join(reasons)
+        reason = f"{excess_text}; " + ", then ".join(path.reasons)
         tie = first.reason.find("this record cannot tell")
         if len(analysis.causes) == 1 and first.best is not None and first.best.cause == named.cause and tie >= 0:
             reason += "; " + first.reason[tie:]
         analysis.decision = Decision(named.cause, reason, named.score, recalibrated_base, total_gain)
+        analysis.final_model, analysis.final_replay = path.context.base_model, path.context.base_replay
         return
-    partial = "; ".join(reasons)
     analysis.decision = Decision(
         "unexplained",
-        f"{excess_text}; " + (f"{partial}: together {100.0 * explained:.1f} % of it, and a discrepancy of "
-                              f"{base.significance:.1f} sigma is left" if analysis.causes
-                              else "no candidate improves it significantly"),
-        first.best, recalibrated_base, gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares,
-                                                    shipped.terms))
+        f"{excess_text}; {'; '.join(path.reasons)}: together {100.0 * explained:.1f} % of it, and a discrepancy "
+        f"of {base.significance:.1f} sigma is left", first.best, recalibrated_base,
+        gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares, shipped.terms))
     analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.context.base_replay
+
+
+#: The path from the second-best first cause is kept when it leaves less than this fraction of the other's excess.
+ALTERNATIVE_FRACTION = 0.5
+
+
+def _follow(analysis: Analysis, replayer: Replayer, context: FitContext, base: BaseDiscrepancy, choice, refined,
+            causes, masks, recalibrated_base: BaseDiscrepancy) -> _Path:
+    """Name ``choice`` (a refined candidate's score) first, then causes on top of it while one counts and removes
+    at least 70 % of what is left."""
+    path = _Path([], context, base, [], context.recalibrated, [])
+    remaining = list(causes)
+    best = choice
+    for round_index in range(MOST_CAUSES):
+        if round_index > 0:
+            fits = _fit_candidates(path.context, [c for c in remaining if not _already_in(c, path.context.base_model)],
+                                   analysis.timings_s, " (next cause)")
+            if not fits:
+                break
+            scores = {cause: score_candidate(path.context, fit, path.base) for cause, fit in fits.items()}
+            if not any(score.counts for score in scores.values()):
+                break
+            decision, refined = _refined_decision(replayer, path.context, path.base, fits, scores,
+                                                  path.recalibration_base, path.named_effects)
+            best = decision.best
+            if best is None or not (best.counts and best.explained_fraction >= EXPLAINED_FRACTION):
+                if best is not None:
+                    path.reasons.append(f"{best.cause} would remove {100.0 * best.explained_fraction:.1f} % of "
+                                        "what is left, too little for a further cause")
+                break
+        if not best.counts:
+            break
+        fit, refined_base, others = refined[best.cause]
+        after = gain_between(path.base.sum_of_squares, path.base.sum_of_squares - best.improvement, path.base.terms)
+        earlier = [named for named in path.causes if named.fit.effect is not None]
+        path.causes = [dataclasses.replace(named, fit=dataclasses.replace(
+            named.fit, effect=other.effect, parameters=other.effect.describe(fit.extended_model)))
+            if named in earlier else named for named, other in _pair_up(path.causes, earlier, others)]
+        path.causes.append(NamedCause(best.cause, fit, best, best.improvement / recalibrated_base.excess, after))
+        path.reasons.append(f"{best.cause} removes {100.0 * best.improvement / recalibrated_base.excess:.1f} % "
+                            f"({best.significance:.1f} sigma)")
+        remaining.remove(best.cause)
+        path.named_effects = others + ([NamedEffect(best.cause, fit.effect, tuple(fit.excluded))]
+                                       if fit.effect is not None else [])
+        path.recalibration_base = refined_base
+        path.context = _context_on(analysis.data, replayer, refined_base, fit.extended_model, fit.line, fit.replay,
+                                   context.noise_rms_K, masks, fit.extended_model, named=path.named_effects)
+        path.base = base_discrepancy(path.context)
+        if len(path.causes) > 1:
+            _drop_unneeded(analysis, replayer, path, masks)
+        if not path.base.present or len(path.causes) == MOST_CAUSES:
+            break
+    return path
+
+
+def _pair_up(causes: list, earlier: list, others: list):
+    """Each named cause with its refitted effect (None for causes without an effect form)."""
+    refitted = dict(zip([id(named) for named in earlier], others))
+    return [(named, refitted.get(id(named))) for named in causes]
+
+
+def _drop_unneeded(analysis: Analysis, replayer: Replayer, path: _Path, masks) -> None:
+    """Leave out an earlier cause that the later ones have made unnecessary (it no longer counts on top of them).
+
+    Once a further cause is named and all are refitted together, each earlier one is tried without: if what it
+    adds no longer counts (5 sigma and 25), it is left out.
+    """
+    newest = path.causes[-1]
+    for named in list(path.causes[:-1]):
+        if named.fit.effect is None or len(path.named_effects) < 2:
+            continue
+        context = path.context
+        kept = [item for item in path.named_effects if item.cause != named.cause]
+        own = next((item.effect for item in kept if item.cause == newest.cause), newest.fit.effect)
+        without = dataclasses.replace(newest.fit, extended_model=context.base_model.with_effects(**{named.cause: None}),
+                                      replay=context.base_replay, effect=own)
+        others = [item for item in kept if item.cause != newest.cause]
+        fit, refined_base, others = refine(replayer, path.recalibration_base, without, others)
+        mask, noise = context.held_out_mask, context.noise_rms_K
+        flange = (fit.replay.flange_K - context.base_replay.flange_K)[mask] / noise[0]
+        stage = (fit.replay.ptc_stage_K - context.base_replay.ptc_stage_K)[mask] / noise[1]
+        distinct = float(flange @ flange + stage @ stage)
+        adds = sum(context.chi_square(fit.replay, mask)) - path.base.sum_of_squares
+        sigma = adds / (2.0 * math.sqrt(distinct)) if distinct > 0 else 0.0
+        if adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA:
+            continue
+        path.reasons.append(f"{named.cause} left out: with {newest.cause} it adds only {adds:.4g} "
+                            f"({sigma:.1f} sigma)")
+        earlier = [item for item in path.causes if item is not named and item is not newest
+                   and item.fit.effect is not None]
+        refitted = dict(zip([id(item) for item in earlier], others))
+        updated = []
+        for item in path.causes:
+            if item is named:
+                continue
+            if item is newest:
+                item = dataclasses.replace(item, fit=dataclasses.replace(
+                    item.fit, effect=fit.effect, parameters=fit.parameters if fit.effect else item.fit.parameters,
+                    extended_model=fit.extended_model, replay=fit.replay))
+            elif id(item) in refitted:
+                item = dataclasses.replace(item, fit=dataclasses.replace(
+                    item.fit, effect=refitted[id(item)].effect,
+                    parameters=refitted[id(item)].effect.describe(fit.extended_model)))
+            updated.append(item)
+        path.causes = updated
+        path.named_effects = others + ([NamedEffect(newest.cause, fit.effect, tuple(fit.excluded))]
+                                       if fit.effect is not None else [])
+        path.recalibration_base = refined_base
+        path.context = _context_on(analysis.data, replayer, refined_base, fit.extended_model, fit.line, fit.replay,
+                                   context.noise_rms_K, masks, fit.extended_model, named=path.named_effects)
+        path.base = base_discrepancy(path.context)
+        newest = path.causes[-1]
 
 
 #: Candidates refitted with the recalibration before one is chosen: those counting whose improvement is at least
@@ -375,18 +491,20 @@ REFINED_MOST = 3
 
 
 def _refined_decision(replayer: Replayer, context: FitContext, base: BaseDiscrepancy, fits: dict, scores: dict,
-                      recalibration_base: RecalibratedBase):
-    """Refit the leading candidates jointly with the recalibration, then apply the rules to them."""
+                      recalibration_base: RecalibratedBase, named_effects=()):
+    """Refit the leading candidates jointly with the recalibration (and the causes named so far), then apply
+    the rules to them. Returns the decision and, per leading cause, (fit, recalibration, named effects)."""
     counting = sorted((score for score in scores.values() if score.counts), key=lambda score: -score.improvement)
     leading = [score.cause for score in counting
                if score.improvement >= REFINED_FRACTION * counting[0].improvement][:REFINED_MOST] if counting else []
-    refined_fits, refined_bases, refined_scores = {}, {}, {}
+    refined, refined_fits, refined_scores = {}, {}, {}
     for cause in leading:
-        refined_fits[cause], refined_bases[cause] = refine(replayer, recalibration_base, fits[cause])
+        refined[cause] = refine(replayer, recalibration_base, fits[cause], named_effects)
+        refined_fits[cause] = refined[cause][0]
         refined_scores[cause] = score_candidate(context, refined_fits[cause], base)
     decision = decide(base, list(refined_scores.values()), _distinctness(context, refined_fits),
                       {cause: fit.parameter_count for cause, fit in refined_fits.items()})
-    return decision, refined_fits, refined_bases
+    return decision, refined
 
 
 def _present(excess: float, terms: int) -> bool:

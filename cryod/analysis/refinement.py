@@ -19,6 +19,7 @@ held within the effect's own range and have no penalty.
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -81,8 +82,47 @@ def joint_basis(replayer: Replayer, base: RecalibratedBase, line: PtcLine, effec
     return joint.without(excluded) if excluded else joint
 
 
-def refine(replayer: Replayer, base: RecalibratedBase, fit: CandidateFit) -> tuple[CandidateFit, RecalibratedBase]:
-    """Refit ``fit``'s effect and the recalibration together.
+@dataclass(frozen=True)
+class NamedEffect:
+    """A cause already named, as the refinement refits it: its effect form and the recalibration it replaces."""
+
+    cause: str
+    effect: EffectForm
+    excluded: tuple = ()
+
+
+def combined_effect(effects) -> EffectForm | None:
+    """Several effect forms as one (their values one after the other); None if there are none."""
+    effects = [effect for effect in effects if effect is not None]
+    if not effects:
+        return None
+    sizes = [len(effect.values) for effect in effects]
+    bounds = np.cumsum([0] + sizes)
+
+    def apply(model, values):
+        for effect, start, stop in zip(effects, bounds[:-1], bounds[1:]):
+            model = effect.apply(model, tuple(values[start:stop]))
+        return model
+
+    return EffectForm(tuple(v for effect in effects for v in effect.values),
+                      tuple(v for effect in effects for v in effect.lower),
+                      tuple(v for effect in effects for v in effect.upper),
+                      tuple(v for effect in effects for v in effect.steps), apply, None)
+
+
+def _split(effects, values):
+    """The values of a combined form back into each form."""
+    found, start = [], 0
+    for effect in effects:
+        stop = start + len(effect.values)
+        found.append(dataclasses.replace(effect, values=tuple(float(v) for v in values[start:stop])))
+        start = stop
+    return found
+
+
+def refine(replayer: Replayer, base: RecalibratedBase, fit: CandidateFit, others=()
+           ) -> tuple[CandidateFit, RecalibratedBase, list]:
+    """Refit ``fit``'s effect and the recalibration together (and the causes named before it).
 
     Parameters
     ----------
@@ -91,9 +131,12 @@ def refine(replayer: Replayer, base: RecalibratedBase, fit: CandidateFit) -> tup
         The recalibration the candidate was fitted on (its log factors are the start).
     fit : CandidateFit
         A candidate; its model's other effects and PTC source (the causes named
-        before it, harmonics) are kept as they are. Without an
+        before it, harmonics) are kept as they are, except ``others``. Without an
         :attr:`~cryod.analysis.candidates.CandidateFit.effect` (a measured line),
-        only the recalibration is refitted.
+        only the recalibration (and ``others``) is refitted.
+    others : sequence of NamedEffect
+        Causes named before, refitted alongside: a cause that took part of what
+        this one explains gives it back.
 
     Returns
     -------
@@ -101,8 +144,11 @@ def refine(replayer: Replayer, base: RecalibratedBase, fit: CandidateFit) -> tup
         The refined candidate.
     base : RecalibratedBase
         The recalibration refitted with it.
+    others : list of NamedEffect
+        ``others`` with their refitted values.
     """
-    excluded = tuple(fit.excluded)
+    others = list(others)
+    excluded = tuple(sorted(set(fit.excluded).union(*[set(other.excluded) for other in others])))
     names = [parameter.name for parameter in base.parameters]
     kept = [index for index, name in enumerate(names) if name not in excluded]
     x = base.log_factors.copy()
@@ -123,7 +169,9 @@ def refine(replayer: Replayer, base: RecalibratedBase, fit: CandidateFit) -> tup
                                     operating_point=source.operating_point)
         return dataclasses.replace(model, ptc_to_flange=source.ptc_to_flange) if own_link else model
 
-    effect = fit.effect or EffectForm((), (), (), (), lambda model, values: model, lambda model: fit.parameters)
+    own = fit.effect or EffectForm((), (), (), (), lambda model, values: model, lambda model: fit.parameters)
+    forms = [other.effect for other in others] + [own]
+    effect = combined_effect(forms)
     wrapped = dataclasses.replace(effect, apply=lambda model, v: effect.apply(carried(model), v))
     values = np.asarray(effect.values, dtype=float)
     lower, upper = np.asarray(effect.lower, dtype=float), np.asarray(effect.upper, dtype=float)
@@ -149,10 +197,10 @@ def refine(replayer: Replayer, base: RecalibratedBase, fit: CandidateFit) -> tup
                          lambda m: wrapped.apply(m, tuple(values)))
     basis = basis.without(excluded) if excluded else basis
     replay = replayer.replay(model, line, basis=basis)
-    refined = dataclasses.replace(fit, parameters=effect.describe(model) if fit.effect else fit.parameters,
-                                  extended_model=model, replay=replay,
-                                  effect=dataclasses.replace(effect, values=tuple(values)) if fit.effect else None)
-    return refined, refined_base
+    split = _split(forms, values)
+    refined = dataclasses.replace(fit, parameters=split[-1].describe(model) if fit.effect else fit.parameters,
+                                  extended_model=model, replay=replay, effect=split[-1] if fit.effect else None)
+    return refined, refined_base, [dataclasses.replace(other, effect=form) for other, form in zip(others, split)]
 
 
-__all__ = ["joint_basis", "refine"]
+__all__ = ["NamedEffect", "combined_effect", "joint_basis", "refine"]

@@ -7,7 +7,8 @@ effect, or the base model unchanged when the cause is ``none`` or
 ``unexplained``) and ``analysis.json`` (the same object ``--json`` prints).
 
 Exit status: 0 done; 2 the record or the model cannot be used (the message
-names the file, the line and what is wrong); 1 the analysis itself failed.
+names the file, the line and what is wrong, or what the record is missing for
+an analysis: :mod:`cryod.analysis.usability`); 1 the analysis itself failed.
 The record is only read, never changed.
 """
 
@@ -26,6 +27,7 @@ from cryod.analysis.record_data import RecordData
 from cryod.analysis.report import write_report
 from cryod.analysis.segments import find_segments
 from cryod.analysis.summary import json_summary, model_header
+from cryod.analysis.usability import check_usable
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
 from cryod.records.record import RecordFormatError, read_record
 from cryod.yaml_source import FileFormatError
@@ -56,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
         record = read_record(record_path)
         model = load_model(args.model)
         data = RecordData.from_record(record)
+        check_usable(data)
     except (RecordFormatError, FileFormatError) as error:
         print(f"cryod analyze: {error}", file=sys.stderr)
         return 2

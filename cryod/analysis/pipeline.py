@@ -48,6 +48,7 @@ from cryod.analysis.recalibration import (
 from cryod.analysis.record_data import RecordData, fit_block_mask
 from cryod.analysis.refinement import NamedEffect, combined_effect, joint_basis, refine
 from cryod.analysis.replay import Replay, Replayer
+from cryod.analysis.usability import check_usable
 from cryod.model import CryostatModel
 
 #: Causes named in one record at most.
@@ -237,9 +238,15 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
     Returns
     -------
     Analysis
+
+    Raises
+    ------
+    cryod.analysis.usability.UnusableRecordError
+        When the record cannot be analysed, saying what it is missing.
     """
     timings = {}
     started = time.perf_counter()
+    check_usable(data)
     fit_mask = fit_block_mask(data.time_s) & data.valid
     held_out_mask = ~fit_block_mask(data.time_s) & data.valid
     masks = (fit_mask, held_out_mask)

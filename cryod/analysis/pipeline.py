@@ -104,6 +104,9 @@ class Analysis:
     timings_s : dict of str to float
         Wall time of each step.
     recalibration : Recalibration or None
+        The recalibration of the base model alone.
+    final_recalibration : Recalibration or None
+        The recalibration as refitted with the causes named (what the extended model has).
     recalibrated : bool
         Whether the recalibration is part of the extended model (it is when the
         base model as given shows a discrepancy).
@@ -135,6 +138,7 @@ class Analysis:
     final_model: CryostatModel | None = None
     final_replay: Replay | None = None
     base_discrepancy: BaseDiscrepancy | None = None
+    final_recalibration: Recalibration | None = None
 
     @property
     def cause(self) -> str:
@@ -264,12 +268,15 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
     started = time.perf_counter()
     recalibration = recalibrate(replayer, base_model, base_line)
     applied = base_discrepancy(shipped_context).present
-    context = shipped_context
+    context, recalibrated_replay = shipped_context, recalibration.replay
     if applied:
+        # Candidates are screened against the base model with the recalibration linearised at the shipped
+        # parameters, as they are fitted themselves; whether anything needs a cause is judged on the
+        # recalibrated model itself.
         line = replayer.stage_line(recalibration.model, orders=orders, measured_phase=drift)
         centre = dataclasses.replace(recalibration.base, log_factors=np.zeros(len(recalibration.parameters)))
+        recalibrated_replay = replayer.replay(recalibration.model, line, basis=None)
         context = _context_on(data, replayer, centre, base_model, line, recalibration.replay, noise, masks, None,
-                              against=replayer.replay(recalibration.model, line, basis=None),
                               line_model=recalibration.model)
     timings["recalibration"] = time.perf_counter() - started
 
@@ -296,9 +303,11 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
             analysis.decision, reason=analysis.decision.reason + "; the base model is kept as given")
         return analysis
     analysis.recalibrated = True
-    analysis.final_model, analysis.final_replay = recalibration.model, context.base_replay
+    analysis.final_model, analysis.final_replay = recalibration.model, recalibrated_replay
+    recalibrated_context = dataclasses.replace(context, base_replay=recalibrated_replay)
     started = time.perf_counter()
-    _name_causes(analysis, replayer, context, fits, scores, first, causes, masks)
+    _name_causes(analysis, replayer, context, fits, scores, first, causes, masks,
+                 base_discrepancy(recalibrated_context))
     timings["naming the causes"] = time.perf_counter() - started
     return analysis
 
@@ -316,7 +325,7 @@ class _Path:
 
 
 def _name_causes(analysis: Analysis, replayer: Replayer, context: FitContext, fits: dict, scores: dict,
-                 first: Decision, causes, masks) -> None:
+                 first: Decision, causes, masks, recalibrated: BaseDiscrepancy) -> None:
     """Add causes to the recalibrated model while the record shows a discrepancy (see the module doc).
 
     The best candidate is added first and the next ones on top of it. When that leaves a discrepancy, the
@@ -324,7 +333,7 @@ def _name_causes(analysis: Analysis, replayer: Replayer, context: FitContext, fi
     a thermometer lag with the stage lagging alike looks much like a dead time plus a link that differs), and
     the path that explains clearly more is kept.
     """
-    recalibrated_base = base = base_discrepancy(context)
+    recalibrated_base = base = recalibrated
     shipped = analysis.base_discrepancy
     if not base.present:
         analysis.decision = dataclasses.replace(
@@ -355,7 +364,7 @@ def _name_causes(analysis: Analysis, replayer: Replayer, context: FitContext, fi
                                      first.best, recalibrated_base,
                                      gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares,
                                                   shipped.terms))
-        analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.context.base_replay
+        analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
         return
     analysis.causes = path.causes
     base = path.base
@@ -370,13 +379,14 @@ def _name_causes(analysis: Analysis, replayer: Replayer, context: FitContext, fi
             reason += "; " + first.reason[tie:]
         analysis.decision = Decision(named.cause, reason, named.score, recalibrated_base, total_gain)
         analysis.final_model, analysis.final_replay = path.context.base_model, path.context.base_replay
+        analysis.final_recalibration = Recalibration.refitted(path.recalibration_base, path.context.base_replay)
         return
     analysis.decision = Decision(
         "unexplained",
         f"{excess_text}; {'; '.join(path.reasons)}: together {100.0 * explained:.1f} % of it, and a discrepancy "
         f"of {base.significance:.1f} sigma is left", first.best, recalibrated_base,
         gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares, shipped.terms))
-    analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.context.base_replay
+    analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
 
 
 #: The path from the second-best first cause is kept when it leaves less than this fraction of the other's excess.

@@ -416,6 +416,20 @@ class Recalibration:
     def base(self) -> RecalibratedBase:
         return RecalibratedBase(self.shipped, tuple(self.parameters), self.log_factors)
 
+    @classmethod
+    def refitted(cls, base: RecalibratedBase, replay: Replay) -> "Recalibration":
+        """The recalibration as refitted with the causes: ``base``'s factors, the uncertainties from ``replay``
+        (whose fit had the recalibration's columns; a parameter a cause replaced has none)."""
+        errors = np.full(len(base.parameters), np.nan)
+        if replay.basis is not None and replay.normal_inverse is not None:
+            count = len(replay.basis.names)
+            diagonal = np.diag(replay.normal_inverse)[-count:]
+            for name, variance in zip(replay.basis.names, diagonal):
+                names = [parameter.name for parameter in base.parameters]
+                if name in names:
+                    errors[names.index(name)] = math.sqrt(max(float(variance), 0.0))
+        return cls(list(base.parameters), base.log_factors, errors, base.model(), replay, 0, base.shipped)
+
     def table(self) -> list[RecalibratedParameter]:
         """Each structure parameter: shipped and fitted value, standard error, significance."""
         rows = []
@@ -428,7 +442,7 @@ class Recalibration:
                 uncertainty = abs(fitted) * float(error)
             rows.append(RecalibratedParameter(
                 parameter.name, parameter.unit, parameter.shipped, fitted, uncertainty,
-                abs(float(x)) / float(error) if error > 0 else math.inf,
+                abs(float(x)) / float(error) if error > 0 else (0.0 if x == 0 else math.inf),
                 bool(abs(x) >= parameter.tolerance * (1.0 - 1e-6))))
         return rows
 

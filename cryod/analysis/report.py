@@ -89,7 +89,7 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
     """Write ``report.md`` into ``directory``; figure links are relative to it."""
     data, decision = analysis.data, analysis.decision
     line = analysis.base_line
-    point = analysis.base_replay.operating_point
+    point = analysis.extended_replay.operating_point
     at_zero, at_limit = saturation_fraction(data.heater_w, data.heater_limit_w)
     intervals = np.diff(data.time_s)
     lines = [
@@ -111,7 +111,7 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
         "|---|---|",
         f"| duration | {data.duration_s:.1f} s, {data.time_s.size} samples |",
         f"| sample interval | median {1e3 * data.sample_interval_s:.2f} ms, rms jitter {1e3 * np.std(intervals):.3f} ms |",
-        f"| operating point (estimated) | T2_0 = {point.flange_temperature_K:.5f} K, "
+        f"| operating point (estimated with the extended model) | T2_0 = {point.flange_temperature_K:.5f} K, "
         f"T5_0 = {point.ptc_stage_temperature_K:.5f} K |",
         f"| PTC line in T5 | {line.angular_frequency_rad_s:.5f} +- {line.frequency_uncertainty_rad_s:.1e} rad/s, "
         f"{1e3 * line.fundamental.amplitude_K:.3f} mK, "

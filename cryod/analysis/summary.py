@@ -73,7 +73,7 @@ def causes_summary(analysis: Analysis) -> list[dict]:
 
 def recalibration_rows(analysis: Analysis) -> list[dict]:
     """Each recalibrated quantity: the structure's parameters, the operating point and the noise."""
-    recalibration = analysis.recalibration
+    recalibration = analysis.final_recalibration or analysis.recalibration
     if recalibration is None:
         return []
     rows = [row.as_dict() for row in recalibration.table()]
@@ -152,7 +152,7 @@ def model_header(analysis: Analysis, record_path: Path, base_model_path: Path) -
     ]
     if analysis.recalibrated:
         changed = ", ".join(f"{row.parameter} {row.shipped:.6g} -> {row.fitted:.6g} {row.unit}".rstrip()
-                            for row in analysis.recalibration.table())
+                            for row in (analysis.final_recalibration or analysis.recalibration).table())
         lines.append(f"Recalibrated (base model's parameters refitted to the record): {changed}")
     for named in (analysis.causes if analysis.cause not in ("none", "unexplained") else []):
         lines.append(f"Fitted effect: {named.cause}: {format_parameters(named.fit.parameters)}")

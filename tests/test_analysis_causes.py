@@ -19,7 +19,7 @@ import pytest
 from cryod.model import load_model, save_model
 from tests.hidden_effects import (
     CROSS_GROUP_PAIRS, DISTURBANCES, DURATIONS_S, MAGNITUDES, SLOW_DURATIONS_S, analysed, analysed_case, base_model,
-    other_day, parameter_errors, real_model, two_effect_model, within,
+    parameter_errors, real_model, two_effect_model, within,
 )
 
 FAST_CASES = [

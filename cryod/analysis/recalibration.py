@@ -315,14 +315,15 @@ def linear_basis(replayer: Replayer, model: CryostatModel, line: PtcLine | None,
     """
     log_factors = np.asarray(log_factors, dtype=float)
     data = replayer.data
+    cycle = line.cycle if line is not None else None
 
-    def simulated(x):
+    def aligned_at(x):
         changed = with_factors(model, parameters, x)
         if apply is not None:
             changed = apply(changed)
-        aligned = line.applied_to(changed) if line is not None else changed
-        result = replayer.simulate(aligned, cycle=line.cycle if line is not None else None)
-        flange, stage = result.flange_K, result.ptc_stage_K
+        return line.applied_to(changed) if line is not None else changed
+
+    def with_state(aligned, flange, stage):
         if state is not None:
             modes = flange_mode_columns(aligned, data.elapsed_s, data.sample_interval_s)
             if modes.shape[1] == state.initial_mode_amplitudes_K.size:
@@ -330,10 +331,32 @@ def linear_basis(replayer: Replayer, model: CryostatModel, line: PtcLine | None,
             stage = stage + stage_release_response(aligned, data.elapsed_s) * state.initial_power_offset_w
         return flange, stage
 
-    flange, stage = simulated(log_factors)
+    def simulated(x):
+        aligned = aligned_at(x)
+        result = replayer.simulate(aligned, cycle=cycle)
+        return with_state(aligned, result.flange_K, result.ptc_stage_K)
+
+    aligned = aligned_at(log_factors)
+    whole = replayer.simulate(aligned, cycle=cycle)
+    flange, stage = with_state(aligned, whole.flange_K, whole.ptc_stage_K)
     flange_columns = np.empty((flange.size, len(parameters)))
     stage_columns = np.empty((flange.size, len(parameters)))
-    for index in range(len(parameters)):
+    # A gain scales its own path's output exactly (unless the time constants depend on that output): its column
+    # is that output, from one simulation without the line, instead of a simulation per gain.
+    parts = None
+    if aligned.effects.heat_capacity_temperature is None:
+        quiet = aligned.with_ptc(ptc_stage_amplitude_K=0.0, harmonics=())
+        heater_only = replayer.simulate(quiet)
+        point = quiet.operating_point
+        parts = {"heater_to_flange": (heater_only.flange_K - point.flange_temperature_K, 0.0),
+                 "heater_to_ptc_stage": (0.0, heater_only.ptc_stage_K - point.ptc_stage_temperature_K
+                                         + (stage_release_response(aligned, data.elapsed_s)
+                                            * state.initial_power_offset_w if state is not None else 0.0)),
+                 "ptc_to_flange": (whole.flange_K - heater_only.flange_K, 0.0)}
+    for index, parameter in enumerate(parameters):
+        if parts is not None and parameter.kind == "gain" and parameter.path in parts:
+            flange_columns[:, index], stage_columns[:, index] = parts[parameter.path]
+            continue
         moved = log_factors.copy()
         moved[index] += DIFFERENCE_STEP
         moved_flange, moved_stage = simulated(moved)

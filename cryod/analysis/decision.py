@@ -26,8 +26,10 @@ The rules:
    Otherwise, or when no candidate counts, the cause is ``unexplained``.
 4. When another counting candidate is worse than the best by less than 1.5
    standard deviations of the difference between their two predictions
-   (``2 sqrt(D_ab)``), the record cannot tell them apart: the one with fewer
-   parameters is named (at equal numbers, the earlier in
+   (``2 sqrt(D_ab)``), the record cannot tell them apart: one whose fit needs
+   the recalibration to move a parameter by more than half its tolerance (the
+   spread expected of a base model's parameters) comes last; then the one with
+   fewer parameters is named (at equal numbers, the earlier in
    :data:`TIE_PREFERENCE`), and the reason says so. A record with only the PTC
    line cannot tell a lagging flange thermometer from a link of unit gain
    (one parameter against two: ``sensor_lag``), nor a pair of thermometers
@@ -194,7 +196,7 @@ def _tied_with(best: CandidateScore, counting: list[CandidateScore], distinctnes
 
 
 def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=None,
-           parameter_counts: dict | None = None) -> Decision:
+           parameter_counts: dict | None = None, strained: dict | None = None) -> Decision:
     """Apply the rules of this module.
 
     Parameters
@@ -207,6 +209,10 @@ def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=Non
         candidates the data cannot tell apart from the best are a tie.
     parameter_counts : dict, optional
         Number of fitted parameters per cause; a tie goes to the fewest.
+    strained : dict, optional
+        Per cause, whether its fit needed the recalibration to move a parameter
+        by more than half its tolerance (beyond the spread expected of a base
+        model's parameters): in a tie such a cause comes after the others.
     """
     unchanged = gain_between(base.sum_of_squares, base.sum_of_squares, base.terms)
     counting = [score for score in scores if score.counts]
@@ -215,12 +221,16 @@ def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=Non
     if best is not None and distinctness is not None:
         tied = _tied_with(best, counting, distinctness)
         if tied:
-            counts = parameter_counts or {}
-            simplest = min([best] + tied, key=lambda score: (counts.get(score.cause, 1), _preference(score.cause)))
+            counts, strain = parameter_counts or {}, strained or {}
+            simplest = min([best] + tied, key=lambda score: (strain.get(score.cause, False), counts.get(score.cause, 1),
+                                                             _preference(score.cause)))
             others = ", ".join(score.cause for score in [best] + tied if score is not simplest)
+            why = ("the others need the recalibration beyond the spread expected of a base model's parameters"
+                   if any(strain.get(score.cause, False) for score in [best] + tied if score is not simplest)
+                   and not strain.get(simplest.cause, False)
+                   else "with the fewest parameters or, at equal numbers, the more common cause")
             tie_text = (f"; this record cannot tell {simplest.cause} from {others} (within {TIE_SIGMA:g} standard "
-                        f"deviations on the held-out data): {simplest.cause} is named, with the fewest parameters "
-                        "or, at equal numbers, the more common cause")
+                        f"deviations on the held-out data): {simplest.cause} is named, {why}")
             best = simplest
     excess_text = (f"the base model's held-out excess is {base.excess:.4g} "
                    f"({base.significance:.1f} sigma, {100.0 * base.excess / base.terms:.2f} % of the noise power)")

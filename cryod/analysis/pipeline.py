@@ -520,8 +520,22 @@ def _refined_decision(replayer: Replayer, context: FitContext, base: BaseDiscrep
         refined_fits[cause] = refined[cause][0]
         refined_scores[cause] = score_candidate(context, refined_fits[cause], base)
     decision = decide(base, list(refined_scores.values()), _distinctness(context, refined_fits),
-                      {cause: fit.parameter_count for cause, fit in refined_fits.items()})
+                      {cause: fit.parameter_count for cause, fit in refined_fits.items()},
+                      {cause: _strained(fit.replay) for cause, fit in refined_fits.items()})
     return decision, refined
+
+
+#: A recalibration factor beyond this fraction of its tolerance is beyond the spread expected of a base model.
+EXPECTED_SPREAD = 0.5
+
+
+def _strained(replay: Replay) -> bool:
+    """Whether a fit needed the recalibration to move a parameter beyond the spread expected of a base model."""
+    basis = replay.basis
+    if basis is None:
+        return False
+    values = (basis.values + replay.basis_change) / basis.widths
+    return bool(np.any(np.abs(values) > EXPECTED_SPREAD))
 
 
 def _present(excess: float, terms: int) -> bool:

@@ -160,6 +160,12 @@ class SocketConfig:
 
 
 @dataclass(frozen=True)
+class MetricsConfig:
+    address: str | None = None          # host:port of the Prometheus endpoint; None: off
+    cryostat: str = ""                  # the lab's name for this cryostat (label of cryod_info)
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     model: Path | None
     seed: int
@@ -179,6 +185,7 @@ class DaemonConfig:
     data: DataConfig
     control_socket: SocketConfig
     simulation: SimulationConfig
+    metrics: MetricsConfig = MetricsConfig()
     source: str = ""
     text: str = ""
 
@@ -403,9 +410,27 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
             transport=section.text("transport", "tcp", choices=SIMULATION_TRANSPORTS),
         )
         section.finish()
+    metrics = _metrics(top.section("metrics", None))
     top.finish()
     return DaemonConfig(loop=loop, instruments=instruments, sensors=sensors, heater=heater, control=control,
-                        safety=safety, data=data, control_socket=socket_config, simulation=simulation)
+                        safety=safety, data=data, control_socket=socket_config, simulation=simulation,
+                        metrics=metrics)
+
+
+def _metrics(section: Section | None) -> MetricsConfig:
+    if section is None:
+        return MetricsConfig()
+    from cryod.service.metrics_export import parse_address
+
+    address = section.text("address", None)
+    if address is not None:
+        try:
+            parse_address(address)
+        except ValueError as error:
+            raise section.error("address", str(error)) from None
+    metrics = MetricsConfig(address=address, cryostat=section.text("cryostat", ""))
+    section.finish()
+    return metrics
 
 
 def _control(section: Section, safety: SafetyConfig) -> ControlConfig:

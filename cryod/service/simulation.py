@@ -38,6 +38,7 @@ from cryod.records.metrics import regulation_metrics
 from cryod.model import DEFAULT_MODEL_PATH, load_model
 from cryod.service.control_socket import finite_or_none
 from cryod.service.logs import ServiceLogging
+from cryod.service.status_line import StatusLine
 from cryod.yaml_source import FileFormatError
 from drivers.keithley2002 import TriggerSource
 from drivers.pair_triggers import GpibGroupTrigger, HardwareTrigger, PrologixGroupTrigger, SequentialTrigger
@@ -208,18 +209,21 @@ def run_simulation(args) -> int:
     metadata = {"simulated": "yes (cryod --simulate)", "simulated_model": str(model_path),
                 "simulation_seed": config.simulation.seed, "simulation_speed": args.speed,
                 "simulation_transport": config.simulation.transport}
-    logging_service = ServiceLogging()
+    daemon = Daemon(config, opener, clock, metadata=metadata, row_taps=[collector],
+                    reload_config=lambda: simulation_config(args, load_config(config_path)))
+    status_line = StatusLine(daemon.live_view, sys.stderr, duration_s=args.duration)
+    logging_service = ServiceLogging(stream=status_line.log_stream)
     logging_service.start()
+    status_line.start()
     cpu_start = _cpu_seconds()
     try:
-        daemon = Daemon(config, opener, clock, metadata=metadata, row_taps=[collector],
-                        reload_config=lambda: simulation_config(args, load_config(config_path)))
         result = daemon.run(args.duration)
     except Exception as error:
         logging.getLogger("cryod").critical("simulation stopped: %s: %s", type(error).__name__, error)
         print(f"cryod: {type(error).__name__}: {error}", file=sys.stderr)
         return 1
     finally:
+        status_line.stop()
         logging_service.stop()
     summary = summarize(result, collector, model.ptc.angular_frequency_rad_s, _cpu_seconds() - cpu_start)
     summary.update(simulated_limit(model, config, result.loop, summary["setpoint_K"]))

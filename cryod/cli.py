@@ -18,11 +18,13 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
+import signal
 import sys
 from pathlib import Path
 
 from cryod import __version__
-from cryod.argument_types import positive
+from cryod.argument_types import positive, whole_number
 from cryod.service.commands import COMMANDS, socket_usage
 
 DEFAULT_CONFIG = Path("/etc/cryod/cryod.yaml")
@@ -65,10 +67,10 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--json", action="store_true", help="print one summary object on stdout at the end")
     simulate.add_argument("--window", type=positive, default=300.0,
                           help="length of the metrics window at the end, s (default 300)")
-    simulate.add_argument("--setpoint", type=float, default=None, help="setpoint in K (overrides the config)")
+    simulate.add_argument("--setpoint", type=positive, default=None, help="setpoint in K (overrides the config)")
     simulate.add_argument("--sim-model", type=Path, default=None,
                           help="model file of the simulated cryostat (the controller keeps its config)")
-    simulate.add_argument("--seed", type=int, default=None, help="sensor-noise seed (overrides the config)")
+    simulate.add_argument("--seed", type=whole_number, default=None, help="sensor-noise seed (overrides the config)")
     simulate.add_argument("--no-feedforward", action="store_true",
                           help="PI alone: the feedforward locked to the cooler starts switched off")
     simulate.add_argument("--data-dir", type=Path, default=None,
@@ -112,7 +114,28 @@ def _run_model_tool(name: str, argv: list[str]) -> int:
     return module.run(parser.parse_args(argv))
 
 
+#: Exit code when the reader of the output went away (``cryod ctl status | head -2``): as a Unix tool killed
+#: by SIGPIPE, 128 + 13.
+READER_GONE = 128 + signal.SIGPIPE
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one cryod command line; the exit code.
+
+    When whatever reads the output stops reading (``cryod ctl status | head -2``), the command
+    ends quietly with :data:`READER_GONE`, as Unix tools do, instead of a traceback.
+    """
+    try:
+        code = _main(argv)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # nothing more can reach the reader; send what Python would flush at exit nowhere
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return READER_GONE
+    return code
+
+
+def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] in {name for name, _, _ in MODEL_TOOLS}:
         return _run_model_tool(argv[0], argv[1:])
@@ -173,6 +196,9 @@ def _ctl(args) -> int:
         path = config.control_socket.path
     try:
         reply = send_command(path, " ".join(args.words))
+    except ValueError as error:
+        print(f"cryod ctl: {error}", file=sys.stderr)
+        return 2
     except (ConnectionError, OSError) as error:
         print(f"cryod ctl: {error}", file=sys.stderr)
         return 3

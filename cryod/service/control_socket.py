@@ -68,15 +68,15 @@ class ControlSocketServer:
         Returns the loop's current status as a dict.
     reply_timeout_s : float
         How long to wait for the loop's answer.
-    max_clients : int
-        Connections open at once (:data:`MAX_CLIENTS`); one more gets a busy reply.
-    line_timeout_s : float
-        How long a client has to send its line (:data:`LINE_TIMEOUT_S`).
+    max_clients : int, optional
+        Connections open at once (default :data:`MAX_CLIENTS`); one more gets a busy reply.
+    line_timeout_s : float, optional
+        How long a client has to send its line, s (default :data:`LINE_TIMEOUT_S`).
     """
 
     def __init__(self, path: Path, mode: int, owner: str | None, group: str | None,
                  submit: Callable[[Command], Command], status: Callable[[], dict], reply_timeout_s: float = 5.0,
-                 max_clients: int = MAX_CLIENTS, line_timeout_s: float = LINE_TIMEOUT_S):
+                 max_clients: int | None = None, line_timeout_s: float | None = None):
         self.path = Path(path)
         self.mode = mode
         self.owner = owner
@@ -84,8 +84,8 @@ class ControlSocketServer:
         self.submit = submit
         self.status = status
         self.reply_timeout_s = reply_timeout_s
-        self.max_clients = max_clients
-        self.line_timeout_s = line_timeout_s
+        self.max_clients = MAX_CLIENTS if max_clients is None else max_clients
+        self.line_timeout_s = LINE_TIMEOUT_S if line_timeout_s is None else line_timeout_s
         #: Connections open now, and the most at once since the start.
         self.clients = 0
         self.most_clients = 0
@@ -139,9 +139,9 @@ class ControlSocketServer:
         return {"ok": command.ok, "message": command.message, "status": self.status()}
 
     async def _read_line(self, reader: asyncio.StreamReader) -> bytes | dict:
-        """The client's line (its last bytes when it ends without a newline), or the refusal."""
+        """The client's line without its newline (its last bytes when it ends without one), or the refusal."""
         try:
-            return await asyncio.wait_for(reader.readuntil(b"\n"), self.line_timeout_s)
+            return (await asyncio.wait_for(reader.readuntil(b"\n"), self.line_timeout_s))[:-1]
         except asyncio.IncompleteReadError as ended:
             return ended.partial
         except asyncio.LimitOverrunError:

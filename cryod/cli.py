@@ -10,7 +10,8 @@
 
 Errors go to stderr with a non-zero exit code: 2 for unusable input (a bad
 configuration, a bad command line), the daemon's fault codes otherwise
-(docs/operations.md).
+(docs/operations.md); 141 (as for SIGPIPE), quietly, when whatever reads the
+output stops reading it.
 """
 
 from __future__ import annotations

@@ -84,13 +84,16 @@ def main() -> None:
     parser.add_argument("--clients", type=int, default=100)
     parser.add_argument("--phase-s", type=float, default=20.0, help="length of each phase, s")
     parser.add_argument("--phases", type=int, default=3, help="pairs of (quiet, clients) phases")
+    parser.add_argument("--speed", default="1", help="the daemon's --speed (below 1 gives its loop more room on a "
+                                                     "loaded machine)")
     parser.add_argument("--nice", type=int, default=0,
                         help="niceness of the daemon (negative, as root: less disturbed by other work on the machine)")
     arguments = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "c.sock"
         daemon = subprocess.Popen(
-            [sys.executable, "-m", "cryod.cli", "--simulate", "--data-dir", f"{folder}/data", "--socket", str(path)],
+            [sys.executable, "-m", "cryod.cli", "--simulate", "--speed", arguments.speed, "--data-dir", f"{folder}/data",
+             "--socket", str(path)],
             cwd=folder, env=dict(os.environ, PYTHONPATH=str(REPOSITORY)), stdout=subprocess.DEVNULL,
             stderr=open(Path(folder) / "stderr.txt", "w"), preexec_fn=lambda: os.nice(arguments.nice))
         try:

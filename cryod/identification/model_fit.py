@@ -75,6 +75,8 @@ class ModelIdentification:
         (T2, T5) white noise in the residuals.
     residual_rms_in_noise : list of tuple of float
         Per record: (T2, T5) residual rms in units of the noise.
+    bootstrap_ratio : dict of str to float
+        Per fitted parameter: the bootstrap's standard uncertainty over the covariance's.
     """
 
     model: CryostatModel
@@ -84,6 +86,7 @@ class ModelIdentification:
     line: object
     noise_rms_K: tuple[float, float]
     residual_rms_in_noise: list[tuple[float, float]]
+    bootstrap_ratio: dict[str, float] = dataclasses.field(default_factory=dict)
 
     @property
     def uncertainty(self) -> ModelUncertainty:
@@ -210,7 +213,7 @@ def identify_model(records: list[RecordData], base: CryostatModel, *, harmonics:
     noise = (_measured_noise(records, flange.residual_K, line.angular_frequency_rad_s),
              _measured_noise(records, stage.residual_K, line.angular_frequency_rad_s))
     first = records[0]
-    names, values, covariance = _parameters(flange, stage, line, float(np.mean(first.elapsed_s[first.valid])))
+    names, values, covariance, ratios = _parameters(flange, stage, line, float(np.mean(first.elapsed_s[first.valid])))
     method = (f"fit covariance (Jacobian at the solution, residual variance), checked by a moving-block bootstrap "
               f"of the residuals ({flange.uncertainty.replicates} and {stage.uncertainty.replicates} refits of "
               f"{block_s:g} s blocks; a parameter whose bootstrap spread is larger beyond its sampling error takes "
@@ -225,7 +228,7 @@ def identify_model(records: list[RecordData], base: CryostatModel, *, harmonics:
     check_consistent(model, uncertainty)
     rms = [(float(np.sqrt(np.nanmean(f ** 2)) / noise[0]), float(np.sqrt(np.nanmean(s ** 2)) / noise[1]))
            for f, s in zip(flange.residual_K, stage.residual_K)]
-    return ModelIdentification(model, list(records), flange, stage, line, noise, rms)
+    return ModelIdentification(model, list(records), flange, stage, line, noise, rms, ratios)
 
 
 def _parameters(flange: ChannelResult, stage: ChannelResult, line, middle_s: float):
@@ -233,6 +236,7 @@ def _parameters(flange: ChannelResult, stage: ChannelResult, line, middle_s: flo
     (measured in a record whose samples' mean elapsed time is ``middle_s``)."""
     names: list[str] = []
     rows: list[tuple[int, int]] = []          # (block, index within the block's parameter vector)
+    sources: list[tuple[int, int] | None] = []
 
     def add_terms(result: ChannelResult, path: str, block: int):
         count = result.fit.count
@@ -257,6 +261,7 @@ def _parameters(flange: ChannelResult, stage: ChannelResult, line, middle_s: flo
         weights = [np.zeros(vectors[0].size), np.zeros(vectors[1].size)]
         weights[block][index] = 1.0
         transform_rows.append(weights)
+        sources.append((block, index))
     # the line gain T2/T5 = j d: real part -d_imaginary, imaginary part d_real
     for name, index, sign in (("ptc_line.T2_over_T5_real", d_imaginary, -1.0),
                               ("ptc_line.T2_over_T5_imaginary", d_real, 1.0)):
@@ -264,12 +269,14 @@ def _parameters(flange: ChannelResult, stage: ChannelResult, line, middle_s: flo
         weights[0][index] = sign
         names.append(name)
         transform_rows.append(weights)
+        sources.append((0, index))
     for name, block, index in (("operating_point.flange_temperature_K", 0, flange_offset),
                                ("operating_point.ptc_stage_temperature_K", 1, stage_offset)):
         weights = [np.zeros(vectors[0].size), np.zeros(vectors[1].size)]
         weights[block][index] = 1.0
         names.append(name)
         transform_rows.append(weights)
+        sources.append((block, index))
     covariance = np.zeros((count, count))
     fitted = len(transform_rows)
     for a in range(fitted):
@@ -288,12 +295,21 @@ def _parameters(flange: ChannelResult, stage: ChannelResult, line, middle_s: flo
                                             ("ptc.phase_rad", fundamental.phase_rad))):
         names.append(name)
         values.append(float(value))
+        sources.append(None)
     frequency, amplitude_index, phase = fitted, fitted + 1, fitted + 2
     covariance[frequency, frequency] = frequency_sigma ** 2
     covariance[amplitude_index, amplitude_index] = fundamental.amplitude_uncertainty_K ** 2
     covariance[phase, phase] = middle_phase_sigma ** 2 + (frequency_sigma * middle_s) ** 2
     covariance[phase, frequency] = covariance[frequency, phase] = -frequency_sigma ** 2 * middle_s
-    return names, values, covariance
+    ratios = {}
+    for name, source in zip(names, sources):
+        if source is None:
+            continue
+        uncertainty = blocks[source[0]][1]
+        ratio = uncertainty.bootstrap_ratio(source[1] + 1)
+        if ratio is not None:
+            ratios[name] = float(ratio[source[1]])
+    return names, values, covariance, ratios
 
 
 __all__ = ["ChannelResult", "ModelIdentification", "identify_model"]

@@ -21,8 +21,10 @@ change since the phase began (the mean of that window less the mean of the
 previous phase's last window; for the first phase, of its first 10 s), or by
 less than ``settle_floor_K`` (a flange that was already settled). A straight line over many cooler periods is blind to the
 cooler's line, and its slope is measured to about 2 uK per window at 20 uK
-noise. For the shipped model and a 10 mW step the default 0.5 % means about
-five of the longest time constant: T2 is then within 0.7 % of its final change.
+noise. The line's slope is that at the window's middle, so for a single
+exponential of time constant tau the default (0.5 %, 120 s) is met at
+``t = 60 s + tau ln(120 s / (0.005 tau))``: 880 s for the shipped model's 165 s,
+when T2 is within 0.5 % of its final change.
 
 :class:`ExperimentRunner` takes each row the loop emits (it is one of the
 daemon's row taps, so it runs on the loop's thread: it appends the reading and

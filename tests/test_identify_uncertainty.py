@@ -162,3 +162,30 @@ def test_heater_modulation_in_manual_mode_is_refused_outside_the_heaters_range()
     assert powers == pytest.approx([0.02, 0.03, 0.02])
     regulator.switch_off()
     assert regulator.step(12.0, 0.5, 4.3, 3.3).power_w == 0.0
+
+
+def test_analyze_says_whether_the_discrepancy_is_within_the_models_stated_uncertainty(tmp_path, reference_model,
+                                                                                      capsys):
+    from cryod.records.record import Record
+    from simulated_hw.measurement_programs import make_record
+
+    stated = identified(reference_model)
+    record = make_record(stated.with_ptc(phase_rad=0.3), "identification", duration_s=1200.0, seed=4)
+    path = tmp_path / "record.csv"
+    write_record(path, record.columns, record.metadata)
+    uncertainty = stated.uncertainty
+    index = uncertainty.names.index("heater_to_thermometer.time_constant_s.2")
+    for shift_in_sigma, within in ((0.5, True), (40.0, False)):
+        values = list(uncertainty.values)
+        values[index] += shift_in_sigma * uncertainty.standard_uncertainties[index]
+        shifted = dataclasses.replace(uncertainty, values=tuple(values))
+        model = dataclasses.replace(apply_parameters(stated, shifted.as_dict()), uncertainty=shifted)
+        model_path = save_model(model, tmp_path / f"model-{shift_in_sigma}.yaml")
+        out = tmp_path / f"analysis-{shift_in_sigma}"
+        assert cli.main(["analyze", str(path), "--model", str(model_path), "--out", str(out), "--no-figures",
+                         "--json"]) == 0
+        check = json.loads(capsys.readouterr().out)["model_uncertainty"]
+        assert check["draws"] == 20 and check["within_model_uncertainty"] is within, check["verdict"]
+        assert "The base model's own uncertainty" in (out / "report.md").read_text()
+    assert cli.main(["analyze", str(path), "--out", str(tmp_path / "plain"), "--no-figures", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["model_uncertainty"] is None      # the shipped model states none

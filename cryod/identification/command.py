@@ -241,7 +241,7 @@ def _tuning_text(model, setpoint_K: float, config) -> str:
         paper = step_performance(model, PAPER_GAINS, setpoint_K, heater_max_w, **options)
     except TuningError as error:
         return f"cryod tune found no gains: {error}"
-    rows = (("suggested", tuning.best), (f"configuration ({config.source})", configured),
+    rows = (("suggested", tuning.best), (f"configuration ({Path(config.source).name})", configured),
             ("paper (Kp 80, I 4 as W/K, W/(K s))", paper))
     from cryod.control.tuning import Tolerances
 

@@ -127,14 +127,16 @@ def terms_figure(result: ModelIdentification, path: Path) -> Path:
         counts = [row["terms"] for row in channel.selection.table]
         rms = np.array([row["residual_rms_K"] for row in channel.selection.table]) / noise
         held = np.array([row["held_out_rms_K"] for row in channel.selection.table]) / noise
-        axis.semilogy(counts, rms, "o-", color="black", label="residual rms / noise")
+        axis.plot(counts, rms, "o-", color="black", label="residual rms / noise")
         if np.all(np.isfinite(held)):
-            axis.semilogy(counts, held, "s--", color="tab:blue", label="held-out rms / noise")
+            axis.plot(counts, held, "s--", color="tab:blue", label="held-out rms / noise")
+        if np.nanmax(held if np.all(np.isfinite(held)) else rms) > 3.0 * np.nanmin(rms):
+            axis.set_yscale("log")
         axis.axvline(channel.fit.count, color="tab:red", lw=1.0, ls=":", label=f"chosen: {channel.fit.count}")
         axis.set_xticks(counts)
         axis.set_xlabel("first-order terms")
         axis.set_ylabel("rms in units of the noise")
-        axis.set_title(f"heater to {name}: {channel.selection.reason}", fontsize=8)
+        axis.set_title(f"heater to {name}: {channel.fit.count} term(s) chosen by the BIC", fontsize=9)
         axis.legend(fontsize=8)
         axis.grid(alpha=0.3, which="both")
     return _save(figure, path)

@@ -116,8 +116,8 @@ def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Pat
     report_path = write_report(analysis, discrepancies, extended, segments, made, model_path_out, out)
     summary = json_summary(analysis, discrepancies, model_path_out)
     check = model_uncertainty_check(analysis)      # only for a model that states its uncertainty
-    summary["model_uncertainty"] = check
     if check is not None:
+        summary["model_uncertainty"] = check
         with Path(report_path).open("a", encoding="utf-8") as report:
             report.write(report_section(check))
     (out / "analysis.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")

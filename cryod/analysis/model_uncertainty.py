@@ -17,7 +17,8 @@ prediction could move without anything being wrong with its form:
   before the model is extended.
 
 The cause the analysis names is not changed by this; ``cryod analyze`` reports
-it beside the cause (``model_uncertainty`` in the JSON, a section in the report).
+it beside the cause (``model_uncertainty`` in the JSON, present only for a model
+that states its uncertainty; a section in the report).
 """
 
 from __future__ import annotations

@@ -114,7 +114,7 @@ class ProgressDisplay:
         from tqdm import tqdm
 
         bar = tqdm(total=1, file=self.stream, unit="s", dynamic_ncols=True, leave=True,
-                   bar_format="{desc} {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s [{elapsed}] {postfix}")
+                   bar_format="{desc} {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s [{elapsed}]{postfix}")
         try:
             while not self._stop.wait(self.interval_s):
                 self._draw(bar)

@@ -212,7 +212,8 @@ class SettleJudge:
         return elapsed >= plan.min_settle_s and self.drift_K <= allowed
 
     def time_left_s(self, now_s: float) -> float:
-        """Estimated time until settled (s): from the decay of the drift over the last minutes, else the guess."""
+        """Estimated time until settled (s): from the decay of the drift over the last two minutes (not less
+        than the guess until half of it has passed), else the guess."""
         plan = self.plan
         elapsed = self.elapsed_s(now_s)
         guess = max(self.expected_s - elapsed, plan.min_settle_s - elapsed, 0.0)
@@ -220,8 +221,11 @@ class SettleJudge:
         if len(recent) >= 10:
             times, ratios = np.array(recent).T
             rate = -np.polyfit(times, np.log(ratios), 1)[0]
+            # early on the fastest term dominates the drift's decay and the data promise too much:
+            # until half the guess has passed, the guess is the least
+            floor = guess if elapsed < 0.5 * self.expected_s else 0.0
             if rate > 0.0 and ratios[-1] > 1.0:
-                guess = max(math.log(ratios[-1]) / rate, plan.min_settle_s - elapsed, 0.0)
+                guess = max(math.log(ratios[-1]) / rate, plan.min_settle_s - elapsed, floor)
             elif ratios[-1] <= 1.0:
                 guess = max(plan.min_settle_s - elapsed, 0.0)
         return float(min(guess, max(plan.max_settle_s - elapsed, 0.0)))

@@ -189,3 +189,21 @@ def test_analyze_says_whether_the_discrepancy_is_within_the_models_stated_uncert
         assert "The base model's own uncertainty" in (out / "report.md").read_text()
     assert cli.main(["analyze", str(path), "--out", str(tmp_path / "plain"), "--no-figures", "--json"]) == 0
     assert "model_uncertainty" not in json.loads(capsys.readouterr().out)      # the shipped model states none
+
+
+def test_a_record_without_a_step_is_accepted_beside_one_with_it(tmp_path, reference_model, capsys):
+    from cryod.control.closed_loop import Segment, run_program
+    from cryod.control.pi import PiGains
+    from simulated_hw.measurement_programs import make_record
+
+    stepped = make_record(reference_model, "identification", duration_s=1200.0, seed=8)
+    paths = [tmp_path / "stepped.csv", tmp_path / "hold.csv"]
+    write_record(paths[0], stepped.columns, stepped.metadata)
+    hold = run_program(reference_model, [Segment(0.0, heater_power_w=0.0)], 300.0, gains=PiGains(0.4, 0.01),
+                       heater_max_w=0.25, seed=9)                            # 300 s at 0 W: the line only
+    write_record(paths[1], hold.columns(), stepped.metadata)
+    assert cli.main(["identify", str(paths[1]), "--out", str(tmp_path / "m.yaml")]) == 1
+    assert "no heater step" in capsys.readouterr().err
+    assert cli.main(["identify", *map(str, paths), "--out", str(tmp_path / "m.yaml"), "--bootstrap", "0"]) == 0
+    assert load_model(tmp_path / "m.yaml").heater_to_thermometer.time_constants_s == pytest.approx([165.41, 26.48],
+                                                                                                 rel=0.01)

@@ -207,3 +207,19 @@ def test_a_record_without_a_step_is_accepted_beside_one_with_it(tmp_path, refere
     assert cli.main(["identify", *map(str, paths), "--out", str(tmp_path / "m.yaml"), "--bootstrap", "0"]) == 0
     assert load_model(tmp_path / "m.yaml").heater_to_thermometer.time_constants_s == pytest.approx([165.41, 26.48],
                                                                                                  rel=0.01)
+
+
+def test_a_record_cut_at_midnight_is_fitted_with_the_next_one(tmp_path, reference_model, capsys):
+    from simulated_hw.measurement_programs import make_record
+
+    record = make_record(reference_model, "identification", duration_s=1200.0, seed=10)
+    cut = 5000                                    # 400 s: the first step (at 63 s) has 337 s after it here
+    paths = [tmp_path / "cryod-2026-11-18.csv", tmp_path / "cryod-2026-11-19.csv"]
+    for path, rows in zip(paths, (slice(0, cut), slice(cut, None))):
+        columns = {name: values[rows] for name, values in record.columns.items()}
+        columns["time_s"] = columns["time_s"] - columns["time_s"][0] + 0.08
+        write_record(path, columns, record.metadata)
+    assert cli.main(["identify", str(paths[0]), "--out", str(tmp_path / "m.yaml")]) == 1
+    assert "record the step for longer" in capsys.readouterr().err
+    assert cli.main(["identify", *map(str, paths), "--out", str(tmp_path / "m.yaml"), "--bootstrap", "0"]) == 0
+    assert load_model(tmp_path / "m.yaml").heater_to_ptc_stage.time_constants_s == pytest.approx([135.0], rel=0.01)

@@ -34,6 +34,7 @@ def test_help(arguments, words):
     result = cryod(*arguments)
     assert result.returncode == 0
     assert all(word in result.stdout for word in words)
+    assert "RUN_CONFIG" not in result.stdout and "CTL_SOCKET" not in result.stdout      # metavars in the lab's words
 
 
 def test_no_command_prints_usage_and_fails():
@@ -48,6 +49,10 @@ def test_no_command_prints_usage_and_fails():
     (["--simulate", "--speed", "max", "--setpoint", "50"], "--setpoint 50 K is outside"),
     (["--simulate", "--speed", "max", "--transport", "tcp"], "only the in-process transport"),
     (["--simulate", "--speed", "max", "--sim-model", "no/such/model.yaml"], "file not found"),
+    (["simulate", "--speed", "max", "--setpoint", "50"], "--setpoint 50 K is outside"),      # the alias
+    (["--simulate", "--speed", "max", "--setpoint", "1_5"], "expected a number, got '1_5'"),
+    (["--duration", "5", "run"], "--duration: option(s) of the dry run"),
+    (["--socket", "/tmp/x.sock", "--json", "ctl", "status"], "--json: option(s) of the dry run"),
 ])
 def test_usage_errors_name_the_problem(arguments, message):
     result = cryod(*arguments)
@@ -58,6 +63,45 @@ def test_usage_errors_name_the_problem(arguments, message):
 def test_ctl_without_daemon(tmp_path):
     result = cryod("ctl", "--socket", str(tmp_path / "nobody.sock"), "status")
     assert result.returncode == 3 and "no cryod daemon listening" in result.stderr
+    result = cryod("--socket", str(tmp_path / "top.sock"), "ctl", "status")      # a top-level --socket is used
+    assert result.returncode == 3 and "top.sock" in result.stderr
+
+
+def test_ctl_finds_a_dry_run_without_options_and_says_where_it_looked(tmp_path, monkeypatch, capsys):
+    runtime = tmp_path / "runtime"
+    runtime.mkdir(mode=0o700)
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
+    monkeypatch.setattr("cryod.service.discovery.SERVICE_CONFIG", tmp_path / "absent.yaml")
+    assert main(["ctl", "status"]) == 3
+    error = capsys.readouterr().err
+    assert f"{runtime}/cryod/simulate.sock (a cryod --simulate of this user)" in error and "--socket PATH" in error
+    taps = []
+
+    def ask_while_running(item):       # the loop thread asks through the socket, as a user beside it would
+        if not taps and getattr(item, "state", "") == "closed":
+            taps.append(main(["ctl", "status"]))
+            taps.append(capsys.readouterr().out)
+
+    from cryod.service import simulation
+    original = simulation.WindowCollector.__call__
+    monkeypatch.setattr(simulation.WindowCollector, "__call__", lambda self, item: (original(self, item),
+                                                                                  ask_while_running(item)))
+    assert main(["simulate", "--speed", "max", "--duration", "30", "--data-dir", str(tmp_path / "data")]) == 0
+    assert taps[0] == 0
+    lines = taps[1].splitlines()
+    assert "state: closed" in lines and any(line.startswith("T2_K: ") and line.endswith(" K") for line in lines)
+    assert any(line.startswith("heater_W: ") and line.endswith(" mW") for line in lines)
+
+
+def test_a_per_user_directory_of_someone_else_is_refused(tmp_path, monkeypatch):
+    from cryod.service.discovery import simulation_socket
+
+    runtime = tmp_path / "runtime"
+    (runtime / "cryod").mkdir(parents=True)
+    (runtime / "cryod").chmod(0o777)
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
+    with pytest.raises(PermissionError, match="not a private directory"):
+        simulation_socket()
 
 
 def test_run_check_validates_without_instruments():

@@ -196,7 +196,11 @@ class Daemon:
     def _status(self) -> dict:
         if self.loop is None:
             return {"state": "waiting", "message": self._waiting, "heater_W": None}
-        return self.loop.status.as_dict()
+        status = self.loop.status.as_dict()
+        # figures over the recent past, computed on this (the socket's) thread
+        status["T2_average_K"] = self.live_view.flange_average_K()
+        status["line_amplitude_K"] = self.live_view.line_amplitude_K()
+        return status
 
     # -- the run --------------------------------------------------------------------
     def run(self, duration_s: float | None = None) -> RunResult:

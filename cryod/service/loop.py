@@ -158,6 +158,7 @@ class ControlLoop:
         self.last_fault: Fault | None = None
         self.status = Status(target_K=config.control.setpoint_K, ramp_K_per_min=config.control.ramp_K_per_min)
         self.commands: queue.SimpleQueue[Command] = queue.SimpleQueue()
+        self._answers: list[tuple[Command, bool, str]] = []
         self.exit_code: int | None = None
         self._stop_reason: str | None = None
         self._outside_fault: Fault | None = None
@@ -213,6 +214,7 @@ class ControlLoop:
                     break
                 self.clock.sleep_until(deadline)
                 self._tick(deadline)
+                self._answer_commands()         # after the tick: the reply's status shows the command's effect
                 self.watchdog()                 # every tick that returns: a call that hangs trips it
                 now = self.clock.now()
                 missed = int((now - deadline) // self.period_s) if now > deadline + self.period_s else 0
@@ -240,6 +242,7 @@ class ControlLoop:
             self._stop(ExitCode.EXCEPTION, Fault(FaultCause.EXCEPTION, f"{type(error).__name__}: {error}"))
             raise
         finally:
+            self._answer_commands()
             self.regulator.close()
             if manage_gc:
                 self._gc.stop()
@@ -326,9 +329,12 @@ class ControlLoop:
         self.emit(row)
         closed = self.state is LoopState.CLOSED
         ramp = self.regulator.ramp
+        # the target once a setpoint is asked for (also while holding for valid readings), the setpoint in use
+        # only while regulating
+        aiming = closed or self.regulator.mode is RegulatorMode.CLOSED
         # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
         self._latest = (row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
-                        ramp.setpoint_K if closed else None, ramp.target_K if closed else None,
+                        ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
                         ramp.rate_K_per_min, self.last_fault, row.control)
         self._status = None
 
@@ -501,6 +507,12 @@ class ControlLoop:
                 return
             ok, message = apply_command(self, command)
             self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}")
+            self._answers.append((command, ok, message))
+
+    def _answer_commands(self) -> None:
+        """Answer the commands applied this tick, now that its status is published."""
+        answers, self._answers = self._answers, []
+        for command, ok, message in answers:
             command.answer(ok, message)
 
     def reload(self, new: DaemonConfig) -> str:

@@ -156,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run_service(args) -> int:
     from cryod.service.daemon import Daemon, config_or_exit
-    from cryod.service.instruments import open_instruments, check_calibrations
+    from cryod.service.instruments import open_instruments, check_calibrations, check_instrument_support
     from cryod.service.clock import MonotonicClock
     from cryod.service.logs import ServiceLogging
 
@@ -165,7 +165,7 @@ def _run_service(args) -> int:
     config = config_or_exit(args.run_config, sys.stderr)
     if config is None:
         return 2
-    problem = check_calibrations(config)
+    problem = check_calibrations(config) or check_instrument_support(config)
     if problem:
         print(f"cryod: {problem}", file=sys.stderr)
         return 2

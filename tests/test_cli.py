@@ -104,9 +104,25 @@ def test_a_per_user_directory_of_someone_else_is_refused(tmp_path, monkeypatch):
         simulation_socket()
 
 
-def test_run_check_validates_without_instruments():
-    result = cryod("run", "--config", str(CONFIG / "cryod.yaml"), "--check")
+def test_run_check_validates_without_instruments(tmp_path):
+    text = (CONFIG / "cryod.yaml").read_text().replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/")
+    lan = tmp_path / "lan.yaml"          # the instruments behind a LAN-to-GPIB gateway: no GPIB card binding needed
+    lan.write_text(text.replace("GPIB0::16::INSTR", "TCPIP0::192.168.1.20::1234::SOCKET")
+                   .replace("GPIB0::17::INSTR", "TCPIP0::192.168.1.21::1234::SOCKET")
+                   .replace("GPIB0::12::INSTR", "TCPIP0::192.168.1.22::1234::SOCKET"))
+    result = cryod("run", "--config", str(lan), "--check")
     assert result.returncode == 0 and "valid" in result.stdout
+
+
+def test_a_gpib_card_without_its_python_binding_is_an_installation_error_not_an_outage():
+    import importlib.util
+
+    if importlib.util.find_spec("gpib") or importlib.util.find_spec("gpib_ctypes"):
+        pytest.skip("a GPIB binding is installed here")
+    result = cryod("run", "--config", str(CONFIG / "cryod.yaml"), "--check")
+    assert result.returncode == 2
+    assert "instruments.flange_dmm: GPIB0::16::INSTR" in result.stderr and "linux-gpib" in result.stderr
+    assert "Traceback" not in result.stderr
 
 
 def test_simulate_json_contract_and_log(tmp_path, capsys):

@@ -8,6 +8,7 @@
     cryod identify RECORD [...]                 fit a model from measured records
     cryod feedforward-limit [...]               the feedforward's physical limit for a heater
     cryod tune [...]                            PI gains from the model, compared
+    cryod plot RECORD                           a quick look at a record (PNG beside it)
 
 Errors go to stderr with a non-zero exit code: 2 for unusable input (a bad
 configuration, a bad command line), the daemon's fault codes otherwise
@@ -34,6 +35,7 @@ MODEL_TOOLS = (
     ("feedforward-limit", "cryod.control.feedforward_limit_command",
      "the least cooler-synchronous oscillation any heater waveform can leave, and what would change it"),
     ("tune", "cryod.control.tuning_command", "PI gains for the lab's model and heater, beside the configured ones"),
+    ("plot", "cryod.records.quick_look", "a quick look at a record: temperatures, heater, cooler line, spectrum"),
 )
 
 

@@ -149,6 +149,7 @@ class DataConfig:
     fsync_interval_s: float
     warn_free_MB: float = 1000.0        # below this free space: a warning in the journal and the record
     min_free_MB: float = 100.0          # below this: heater off, exit 7 (while the last rows still fit)
+    compress_finished: bool = True      # records of finished UTC days become .csv.gz
 
 
 @dataclass(frozen=True)
@@ -386,6 +387,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         fsync_interval_s=section.number("fsync_interval_s", 2.0, minimum=0.01, maximum=2.0),
         warn_free_MB=section.number("warn_free_MB", 1000.0, minimum=0.0, maximum=1e9),
         min_free_MB=section.number("min_free_MB", 100.0, minimum=1.0, maximum=1e9),
+        compress_finished=section.flag("compress_finished", True),
     )
     if data.warn_free_MB < data.min_free_MB:
         raise section.error("warn_free_MB", f"{data.warn_free_MB:g} MB is below data.min_free_MB "

@@ -232,7 +232,8 @@ class Daemon:
                                    lambda t: wall_start + (t - clock_start), config.loop.period_s,
                                    config.data.fsync_interval_s, warn_free_bytes=int(config.data.warn_free_MB * 1e6),
                                    min_free_bytes=int(config.data.min_free_MB * 1e6),
-                                   on_failure=self._on_data_log_failure, **self.datalog_options)
+                                   on_failure=self._on_data_log_failure,
+                                   compress_finished=config.data.compress_finished, **self.datalog_options)
             self.datalog.start()
             control_socket = ControlSocketServer(config.control_socket.path, config.control_socket.mode,
                                                  config.control_socket.owner, config.control_socket.group,

@@ -53,3 +53,18 @@ def test_records_that_cannot_be_plotted_say_why(tmp_path, capsys, text, message)
     assert main(["plot", str(path)]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "bad.png").exists()
+
+
+def test_spectral_lines_are_named_where_sampling_puts_them():
+    from cryod.analysis.figures import heater_modulation_hz
+    from cryod.records.quick_look import folded_frequency
+
+    assert folded_frequency(1.7237, 12.5) == pytest.approx(1.7237)
+    assert folded_frequency(6 * 1.7237, 12.5) == pytest.approx(12.5 - 6 * 1.7237)   # 10.34 Hz shows at 2.16 Hz
+    t = np.arange(0.0, 1200.0, 0.08)
+    steps = np.where(t > 300.0, 0.03, 0.0) + np.where(t > 800.0, 0.05, 0.0)
+    modulated = steps + np.where((t > 400) & (t < 600), 0.01 * np.sign(np.sin(2 * np.pi * 0.4 * t)), 0.0)
+    feedforward = steps + 0.1 * (1 + np.cos(2 * np.pi * 1.7237 * t))          # the cooler's line: not a modulation
+    assert heater_modulation_hz(modulated, 12.5, 1.7237) == pytest.approx(0.4, abs=0.01)
+    assert heater_modulation_hz(steps, 12.5, 1.7237) is None
+    assert heater_modulation_hz(feedforward, 12.5, 1.7237) is None

@@ -167,16 +167,7 @@ def plot_record(record, out: Path, nominal_rad_s: float = 10.83) -> Path:
                                           detrend="linear", scaling="spectrum")
         amplitude = np.sqrt(2.0 * density)                 # sine amplitude of a line (K)
         axes[4].loglog(frequency[1:], amplitude[1:], color="black", lw=0.8, label="T2")
-        nyquist = sample_hz / 2.0
-        base_hz = rad_s / (2.0 * math.pi)
-        for order in range(1, HARMONICS + 1):
-            true_hz = order * base_hz
-            folded = abs(((true_hz + nyquist) % sample_hz) - nyquist)
-            aliased = true_hz > nyquist
-            axes[4].axvline(folded, color="tab:red" if not aliased else "tab:purple", lw=0.6, ls="--", alpha=0.6)
-            axes[4].annotate(f"{order}f" + (f" (aliased from {true_hz:.2f} Hz)" if aliased else ""),
-                             (folded, 0.97), xycoords=("data", "axes fraction"), rotation=90, fontsize=7,
-                             va="top", ha="right")
+        mark_cooler_harmonics(axes[4], rad_s / (2.0 * math.pi), sample_hz)
         axes[4].set_xlabel("frequency (Hz)")
         axes[4].set_ylabel("T2 line amplitude (K)")
         axes[4].set_title(f"spectrum of T2 (sine amplitude per bin, {segment / sample_hz:.0f} s segments); "
@@ -204,6 +195,25 @@ def _draw_error(axis, time_s, error_K, regulated, scale: float) -> None:
     axis.set_title("where the loop regulated, scaled to the error after the first fifth of that time "
                    "(a start-up transient leaves the axis)", fontsize=8)
     axis.legend(loc="best", fontsize=8)
+
+
+def folded_frequency(frequency_hz: float, sample_hz: float) -> float:
+    """Where a line at ``frequency_hz`` appears in the spectrum of data sampled at ``sample_hz`` (Hz)."""
+    nyquist = sample_hz / 2.0
+    return abs(((frequency_hz + nyquist) % sample_hz) - nyquist)
+
+
+def mark_cooler_harmonics(axis, cooler_hz: float, sample_hz: float, harmonics: int = HARMONICS) -> None:
+    """Dashed, labelled lines at the cooler's harmonics on a spectrum axis; those above the Nyquist
+    frequency where sampling folds them, labelled with the frequency they come from."""
+    for order in range(1, harmonics + 1):
+        true_hz = order * cooler_hz
+        aliased = true_hz > sample_hz / 2.0
+        folded = folded_frequency(true_hz, sample_hz)
+        axis.axvline(folded, color="tab:purple" if aliased else "tab:red", lw=0.6, ls="--", alpha=0.6)
+        axis.annotate(f"{order}f" + (f" (aliased from {true_hz:.2f} Hz)" if aliased else ""),
+                      (folded, 0.97), xycoords=("data", "axes fraction"), rotation=90, fontsize=7,
+                      va="top", ha="right")
 
 
 def _mark_events(record, axes, scale: float) -> None:

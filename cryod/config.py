@@ -236,6 +236,22 @@ def load_config(path: str | Path) -> DaemonConfig:
     return dataclasses.replace(config, source=str(path), text=text)
 
 
+def located_error(config: DaemonConfig, dotted_key: str, reason: str) -> FileFormatError:
+    """An error at ``dotted_key`` (``"safety.ptc_stage_max_K"``) of the file ``config`` was read from.
+
+    For checks made after loading (against a model, an instrument): the message names the file,
+    the line of the key in the text that was loaded, and the key, like every configuration error.
+    """
+    line = None
+    if config.text:
+        section = Section.from_text(config.text, config.source)
+        *parents, key = dotted_key.split(".")
+        for parent in parents:
+            section = section.section(parent)
+        line = section.line_of(key)
+    return FileFormatError(config.source, line, dotted_key, reason)
+
+
 def _path_value(section: Section, key: str, base: Path, default=None) -> Path | None:
     """A path setting, relative to the configuration's folder; empty text is refused."""
     value = section.text(key, default)
@@ -306,7 +322,7 @@ def _covers(curve: CalibrationCurve, low_K: float, high_K: float) -> bool:
 
 def _range_text(curve: CalibrationCurve) -> str:
     ranges = curve.calibrated_temperature_ranges_K
-    return " and ".join(f"{low:g}..{high:g} K" for low, high in ranges)
+    return " and ".join(f"{low:.5g}..{high:.5g} K" for low, high in ranges)
 
 
 def _address(section: Section) -> InstrumentAddress:
@@ -550,4 +566,4 @@ def _check_limits_against_calibrations(control: ControlConfig, control_section: 
                                                       f"this limit: {stage_file}")
 
 
-__all__ = ["DaemonConfig", "FileFormatError", "load_config", "EXAMPLE_CONFIG_PATH"]
+__all__ = ["DaemonConfig", "FileFormatError", "load_config", "located_error", "EXAMPLE_CONFIG_PATH"]

@@ -54,8 +54,8 @@ class _BoundedRepr(reprlib.Repr):
 
 
 _REPR = _BoundedRepr()
-_REPR.maxlevel = 3
-_REPR.maxdict = _REPR.maxlist = _REPR.maxtuple = _REPR.maxset = 6
+_REPR.maxlevel = 2
+_REPR.maxdict = _REPR.maxlist = _REPR.maxtuple = _REPR.maxset = 5
 _REPR.maxstring = _REPR.maxother = 60
 _REPR.maxlong = 40
 
@@ -73,7 +73,7 @@ def shown(value: Any) -> str:
     >>> shown(10 ** 400)
     '100000000000000000...0000000000000000000'
     >>> shown([[1, 2, 3, 4, 5, 6, 7, 8]] * 3)
-    '[[1, 2, 3, 4, 5, 6, ...], [1, 2, 3, 4, 5, 6, ...], [1, 2, 3, 4, 5, 6, ...]]'
+    '[[1, 2, 3, 4, 5, ...], [1, 2, 3, 4, 5, ...], [1, 2, 3, 4, 5, ...]]'
     """
     return _REPR.repr(value)
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from cryod.service.clock import MonotonicClock, ScaledClock, VirtualClock
-from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config
+from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config, located_error
 from cryod.service.daemon import Daemon, config_or_exit
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
 from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit, limit_changes
@@ -202,6 +202,10 @@ def run_simulation(args) -> int:
     except FileFormatError as error:
         print(f"cryod: simulated cryostat model not usable: {error}", file=sys.stderr)
         return 2
+    problem = limits_against_model(config, model, model_path)
+    if problem is not None:
+        print(f"cryod: configuration not usable, nothing was started: {problem}", file=sys.stderr)
+        return 2
     clock = _clock(args.speed)
     opener = SimulatedInstrumentsOpener(model, config.simulation.seed)
     collector = WindowCollector(args.window, config.loop.period_s)
@@ -230,6 +234,43 @@ def run_simulation(args) -> int:
         for key, value in summary.items():
             print(f"{key}: {value}")
     return result.exit_code
+
+
+def limits_against_model(config: DaemonConfig, model, model_path) -> FileFormatError | None:
+    """An over-temperature limit the simulated cryostat is above with the heater off, or None.
+
+    Start-up holds the heater off until both temperatures are below their limits; a limit at or
+    below the cryostat's heater-off temperature (T5 at the top of the cooler's oscillation) would
+    hold it off for the whole run, with nothing wrong to see but a flange that never warms.
+
+    Parameters
+    ----------
+    config : DaemonConfig
+    model : cryod.model.CryostatModel
+        The simulated cryostat.
+    model_path : str or pathlib.Path
+        Named in the message.
+
+    Returns
+    -------
+    cryod.yaml_source.FileFormatError or None
+        Naming the configuration's file, line and key.
+    """
+    operating_point = model.operating_point
+    stage_peak_K = operating_point.ptc_stage_temperature_K + sum(abs(amplitude) for _, amplitude, _
+                                                                 in model.ptc.components())
+    if config.safety.ptc_stage_max_K <= stage_peak_K:
+        return located_error(config, "safety.ptc_stage_max_K",
+                             f"{config.safety.ptc_stage_max_K:g} K: the simulated cryostat's PTC stage is at "
+                             f"{operating_point.ptc_stage_temperature_K:g} K with the heater off, up to "
+                             f"{stage_peak_K:.3f} K with the cooler's oscillation (model {model_path}), so the "
+                             f"heater would be held off for the whole run")
+    if config.safety.flange_max_K <= operating_point.flange_temperature_K:
+        return located_error(config, "safety.flange_max_K",
+                             f"{config.safety.flange_max_K:g} K: the simulated cryostat's flange is at "
+                             f"{operating_point.flange_temperature_K:g} K with the heater off (model "
+                             f"{model_path}), so the heater would be held off for the whole run")
+    return None
 
 
 def _cpu_seconds() -> float:

@@ -240,8 +240,8 @@ def limits_against_model(config: DaemonConfig, model, model_path) -> FileFormatE
     """An over-temperature limit the simulated cryostat is above with the heater off, or None.
 
     Start-up holds the heater off until both temperatures are below their limits; a limit at or
-    below the cryostat's heater-off temperature (T5 at the top of the cooler's oscillation) would
-    hold it off for the whole run, with nothing wrong to see but a flange that never warms.
+    below the cryostat's heater-off temperature would hold it off for the whole run, and one
+    below the top of the cooler's oscillation at T5 would stop the run at its first peak.
 
     Parameters
     ----------
@@ -264,12 +264,13 @@ def limits_against_model(config: DaemonConfig, model, model_path) -> FileFormatE
                              f"{config.safety.ptc_stage_max_K:g} K: the simulated cryostat's PTC stage is at "
                              f"{operating_point.ptc_stage_temperature_K:g} K with the heater off, up to "
                              f"{stage_peak_K:.3f} K with the cooler's oscillation (model {model_path}), so the "
-                             f"heater would be held off for the whole run")
+                             f"heater would never regulate: held off while T5 is above the limit, stopped "
+                             f"(over_temperature) at the first peak above it")
     if config.safety.flange_max_K <= operating_point.flange_temperature_K:
         return located_error(config, "safety.flange_max_K",
                              f"{config.safety.flange_max_K:g} K: the simulated cryostat's flange is at "
                              f"{operating_point.flange_temperature_K:g} K with the heater off (model "
-                             f"{model_path}), so the heater would be held off for the whole run")
+                             f"{model_path}), so the heater would never regulate: held off for the whole run")
     return None
 
 

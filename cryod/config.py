@@ -252,9 +252,15 @@ def located_error(config: DaemonConfig, dotted_key: str, reason: str) -> FileFor
     return FileFormatError(config.source, line, dotted_key, reason)
 
 
-def _path_value(section: Section, key: str, base: Path, default=None) -> Path | None:
-    """A path setting, relative to the configuration's folder; empty text is refused."""
-    value = section.text(key, default)
+_REQUIRED = object()
+
+
+def _path_value(section: Section, key: str, base: Path, default=_REQUIRED) -> Path | None:
+    """A path setting, relative to the configuration's folder; empty text is refused.
+
+    Without ``default`` the key is required; with ``default=None`` a missing key or null gives None.
+    """
+    value = section.text(key) if default is _REQUIRED else section.text(key, default)
     if value is None:
         return None
     if not value.strip():
@@ -268,7 +274,7 @@ def _path_value(section: Section, key: str, base: Path, default=None) -> Path | 
     return candidate if candidate.is_absolute() else base / candidate
 
 
-def _existing_file(section: Section, key: str, base: Path, default=None) -> Path | None:
+def _existing_file(section: Section, key: str, base: Path, default=_REQUIRED) -> Path | None:
     candidate = _path_value(section, key, base, default)
     if candidate is None:
         return None

@@ -264,9 +264,14 @@ def _parse(text: str, source: str) -> Any:
     if len(text) > MAX_FILE_BYTES:
         raise FileFormatError(source, None, "", f"{len(text)} characters: too long for a YAML file here "
                                                 f"(at most {MAX_FILE_BYTES})")
-    loader = _LocatingLoader(text, source)
+    loader = None
     try:
+        loader = _LocatingLoader(text, source)      # reads the text's characters at once
         return loader.get_single_data()
+    except yaml.reader.ReaderError as error:
+        line = text.count("\n", 0, error.position) + 1
+        raise FileFormatError(source, line, "", f"character {error.character:#06x} is not allowed in "
+                                                f"YAML ({error.reason})") from None
     except yaml.MarkedYAMLError as error:
         mark = error.problem_mark or error.context_mark
         line = mark.line + 1 if mark is not None else None
@@ -276,7 +281,8 @@ def _parse(text: str, source: str) -> Any:
     except RecursionError:
         raise FileFormatError(source, None, "", "nested too deeply to read") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 _MISSING = object()

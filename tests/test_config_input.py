@@ -244,3 +244,13 @@ def test_a_data_directory_that_is_a_file_is_refused_at_load_naming_its_key(tmp_p
     error = refused(path)
     assert error.key == "data.directory" and error.line == line_of(text, f"directory: {directory}")
     assert f"{occupied}, which is a file" in error.reason if inside else "is a file, not a directory" in error.reason
+
+
+def test_a_sensor_without_its_calibration_is_refused(tmp_path):
+    """Before, ``flange: {}`` was taken as no calibration, and the daemon failed later with a TypeError."""
+    path, text = written(tmp_path, "    calibration: calibration/X186279.340       # .340, .cof, or a raw R-T table",
+                         "    {}")
+    path.write_text(text.replace("  flange:\n    {}", "  flange: {}"))
+    error = refused(path)
+    assert error.key == "sensors.flange.calibration" and error.reason == "missing required key"
+    assert error.line == line_of(text, "flange:")

@@ -37,7 +37,7 @@ CYCLE_MARGIN_S = 0.015
 MOVED_TO_PI = ("proportional_W_per_K", "integral_W_per_K_s")
 #: Fastest setpoint ramp a configuration may allow (K/min). Lake Shore controllers stop at the same
 #: 100 K/min; a flange on a 4 K cooler follows a few K/min at most (the example's 0.5 W heater moves T2
-#: by about 2 K/min through the model's 2.06 K/W fast path and 26.5 s thermometer lag), so a larger
+#: by about 2 K/min through the model's 2.05 K/W fast path and 26.5 s thermometer lag), so a larger
 #: figure is a slip (K/s for K/min, an exponent), not a wish.
 MAX_RAMP_K_PER_MIN = 100.0
 #: Permission bits for others (not owner, not group) on the control socket. Connecting to a Unix

@@ -169,6 +169,12 @@ class Daemon:
         except (FileFormatError, ValueError) as error:
             command = Command("reload")
             command.answer(False, f"reload refused, keeping the running configuration: {error}")
+        except Exception as error:          # a file the checks did not foresee: refused all the same
+            log.exception("reading the configuration for the reload failed")
+            command = Command("reload")
+            command.answer(False, f"reload refused, keeping the running configuration: reading "
+                                  f"{self.config.source or 'the configuration'} failed: {type(error).__name__}: "
+                                  f"{str(error)[:300]}")
         else:
             if self.loop is None:
                 command = Command("reload")
@@ -182,7 +188,9 @@ class Daemon:
         else:
             log.error("%s", command.message)
             if self.datalog is not None and not command.message.startswith("kept the running"):
-                self.datalog.put(Event("command", f"reload refused: {command.message}"))   # the loop's are written by it
+                message = command.message                       # the loop's are written by it
+                self.datalog.put(Event("command", message if message.startswith("reload refused")
+                                       else f"reload refused: {message}"))
         self.notifier.reloaded(command.message)
         return command
 

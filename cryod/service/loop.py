@@ -163,6 +163,7 @@ class ControlLoop:
         self._stop_reason: str | None = None
         self._outside_fault: Fault | None = None
         self._valid_in_a_row = 0
+        self._hold_reported = False         # a reading above a limit kept the heater off (said once per hold)
         self._regulating = False            # the loop has left its start-up hold at least once
         # a fault episode: from a first recoverable fault until the loop has run clean for
         # safety.recovery_timeout_s; the recovery timeout counts from its start, and every resume
@@ -293,6 +294,8 @@ class ControlLoop:
         row.T2_K, row.T5_K = flange_K, stage_K
         over = self.checks.check_temperatures(flange_K, stage_K)
         if self.state.waits_for_readings:
+            if over is not None:
+                self._report_hold(over, flange_K)
             self._count_valid(over is None, reading, row)
             return
         if over is not None:
@@ -370,6 +373,7 @@ class ControlLoop:
             if self.state is LoopState.CLOSED and not self._regulating:
                 self.regulator.close_loop(reading.trigger_time_s, row.T2_K, row.T5_K, present_power_w=0.0)
             self._regulating = True
+            self._hold_reported = False
             note = ""
             if self._episode_start_s is not None:
                 self._resumes_in_episode += 1
@@ -379,6 +383,17 @@ class ControlLoop:
                         f"after another fault {self.readings_to_resume()} valid readings)")
             self._event("resumed", f"{waiting_for} valid readings after {previous}; state {self.state}{note}")
         self._finish_row(row)
+
+    def _report_hold(self, over: Fault, flange_K: float) -> None:
+        """Say once per hold why the heater stays off: a temperature above its limit (journal and record)."""
+        if self._hold_reported:
+            return
+        self._hold_reported = True
+        key = "safety.flange_max_K" if flange_K > self.checks.flange_max_K else "safety.ptc_stage_max_K"
+        message = (f"heater held off while {self.state}: {over.message} ({key}); it stays off until the "
+                   f"temperature is below the limit")
+        log.warning("%s", message)
+        self._event("holding", message)
 
     def readings_to_resume(self) -> int:
         """Valid readings in a row the loop needs before it resumes: ``safety.valid_readings_to_resume``,

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from cryod.service.clock import MonotonicClock, ScaledClock, VirtualClock
-from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config
+from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config, located_error
 from cryod.service.daemon import Daemon
 from cryod.service.discovery import simulation_socket
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
@@ -229,6 +229,9 @@ def prepare_simulation(args) -> tuple[DaemonConfig, object, Path]:
         model = load_model(model_path)
     except FileFormatError as error:
         raise SimulationNotStarted(f"simulated cryostat model not usable: {error}") from None
+    problem = limits_against_model(config, model, model_path)
+    if problem is not None:
+        raise SimulationNotStarted(f"configuration not usable, nothing was started: {problem}")
     return config, model, Path(model_path)
 
 
@@ -342,6 +345,44 @@ def readable_summary(key: str, value) -> str:
     if isinstance(value, list):
         return ", ".join(readable(key, item) for item in value) if value else "-"
     return readable(key, value)
+
+
+def limits_against_model(config: DaemonConfig, model, model_path) -> FileFormatError | None:
+    """An over-temperature limit the simulated cryostat is above with the heater off, or None.
+
+    Start-up holds the heater off until both temperatures are below their limits; a limit at or
+    below the cryostat's heater-off temperature would hold it off for the whole run, and one
+    below the top of the cooler's oscillation at T5 would stop the run at its first peak.
+
+    Parameters
+    ----------
+    config : DaemonConfig
+    model : cryod.model.CryostatModel
+        The simulated cryostat.
+    model_path : str or pathlib.Path
+        Named in the message.
+
+    Returns
+    -------
+    cryod.yaml_source.FileFormatError or None
+        Naming the configuration's file, line and key.
+    """
+    operating_point = model.operating_point
+    stage_peak_K = operating_point.ptc_stage_temperature_K + sum(abs(amplitude) for _, amplitude, _
+                                                                 in model.ptc.components())
+    if config.safety.ptc_stage_max_K <= stage_peak_K:
+        return located_error(config, "safety.ptc_stage_max_K",
+                             f"{config.safety.ptc_stage_max_K:g} K: the simulated cryostat's PTC stage is at "
+                             f"{operating_point.ptc_stage_temperature_K:g} K with the heater off, up to "
+                             f"{stage_peak_K:.3f} K with the cooler's oscillation (model {model_path}), so the "
+                             f"heater would never regulate: held off while T5 is above the limit, stopped "
+                             f"(over_temperature) at the first peak above it")
+    if config.safety.flange_max_K <= operating_point.flange_temperature_K:
+        return located_error(config, "safety.flange_max_K",
+                             f"{config.safety.flange_max_K:g} K: the simulated cryostat's flange is at "
+                             f"{operating_point.flange_temperature_K:g} K with the heater off (model "
+                             f"{model_path}), so the heater would never regulate: held off for the whole run")
+    return None
 
 
 def _cpu_seconds() -> float:

@@ -12,7 +12,8 @@
 
 Errors go to stderr with a non-zero exit code: 2 for unusable input (a bad
 configuration, a bad command line), the daemon's fault codes otherwise
-(docs/operations.md).
+(docs/operations.md); 141 (as for SIGPIPE), quietly, when whatever reads the
+output stops reading it.
 """
 
 from __future__ import annotations
@@ -20,11 +21,13 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
+import signal
 import sys
 from pathlib import Path
 
 from cryod import __version__
-from cryod.argument_types import positive
+from cryod.argument_types import positive, whole_number
 from cryod.service.commands import COMMANDS, socket_usage
 from cryod.service.discovery import SERVICE_CONFIG as DEFAULT_CONFIG
 
@@ -70,7 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--setpoint", type=positive, default=None, metavar="K", help="setpoint in K (overrides the config)")
     simulate.add_argument("--sim-model", type=Path, default=None, metavar="PATH",
                           help="model file of the simulated cryostat (the controller keeps its config)")
-    simulate.add_argument("--seed", type=int, default=None, metavar="N", help="sensor-noise seed (overrides the config)")
+    simulate.add_argument("--seed", type=whole_number, default=None, metavar="N",
+                          help="sensor-noise seed (overrides the config)")
     simulate.add_argument("--no-feedforward", action="store_true",
                           help="PI alone: the feedforward locked to the cooler starts switched off")
     simulate.add_argument("--data-dir", type=Path, default=None, metavar="PATH",
@@ -130,7 +134,28 @@ def _run_model_tool(name: str, argv: list[str]) -> int:
     return module.run(parser.parse_args(argv))
 
 
+#: Exit code when the reader of the output went away (``cryod ctl status | head -2``): as a Unix tool killed
+#: by SIGPIPE, 128 + 13.
+READER_GONE = 128 + signal.SIGPIPE
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one cryod command line; the exit code.
+
+    When whatever reads the output stops reading (``cryod ctl status | head -2``), the command
+    ends quietly with :data:`READER_GONE`, as Unix tools do, instead of a traceback.
+    """
+    try:
+        code = _main(argv)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # nothing more can reach the reader; send what Python would flush at exit nowhere
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return READER_GONE
+    return code
+
+
+def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] in {name for name, _, _ in MODEL_TOOLS}:
         return _run_model_tool(argv[0], argv[1:])
@@ -215,6 +240,9 @@ def _ctl(args) -> int:
         return 3
     try:
         reply = send_command(path, " ".join(args.words))
+    except ValueError as error:
+        print(f"cryod ctl: {error}", file=sys.stderr)
+        return 2
     except (ConnectionError, OSError) as error:
         print(f"cryod ctl: {error}", file=sys.stderr)
         return 3

@@ -37,6 +37,10 @@ from drivers.thermometer_pair import PairReading
 
 log = logging.getLogger("cryod.loop")
 
+#: Commands carried out at one tick boundary at most; the rest wait, in order, for the next ticks
+#: (many clients of the control socket at once cannot stretch a tick).
+COMMANDS_PER_TICK = 8
+
 
 # ---------------------------------------------------------------------------
 # what the loop needs from the instruments
@@ -515,7 +519,7 @@ class ControlLoop:
 
     # -- commands ----------------------------------------------------------------------
     def _apply_commands(self) -> None:
-        while True:
+        for _ in range(COMMANDS_PER_TICK):
             try:
                 command = self.commands.get_nowait()
             except queue.Empty:

@@ -5,6 +5,7 @@ import os
 import subprocess
 import sys
 import time
+import types
 
 import numpy as np
 import pytest
@@ -47,14 +48,14 @@ def running_dry_run(tmp_path, monkeypatch):
     while not socket_path.exists():
         assert process.poll() is None and time.monotonic() < deadline, process.communicate()[1][-2000:]
         time.sleep(0.05)
-    yield socket_path
+    yield types.SimpleNamespace(socket=socket_path, process=process)
     process.terminate()
     process.wait(timeout=30)
 
 
 def test_a_script_steps_the_setpoint_and_waits_until_stable(running_dry_run):
     flange = cryod.connect()
-    assert flange.socket == running_dry_run
+    assert flange.socket == running_dry_run.socket
     while flange.status()["state"] != "closed":          # holding until its first valid readings
         time.sleep(0.05)
     status = flange.ramp(0.0)
@@ -120,3 +121,25 @@ def test_simulate_from_python_gives_the_summary_and_a_record_numpy_and_pandas_re
     assert model.ptc.angular_frequency_rad_s == pytest.approx(10.83, abs=0.05)
     with pytest.raises(cryod.SimulationNotStarted, match="--setpoint 50 K is outside"):
         cryod.simulate(10.0, setpoint_K=50.0, data_dir=tmp_path / "x", socket=tmp_path / "x.sock")
+
+
+def test_operator_actions_reach_the_journal_and_the_record_with_who_sent_them(running_dry_run, tmp_path):
+    import pwd
+
+    flange = cryod.connect()
+    while flange.status()["state"] != "closed":
+        time.sleep(0.05)
+    flange.setpoint(5.05)
+    with pytest.raises(cryod.CommandRefused):
+        flange.manual(10.0)                                   # above R I_max^2
+    flange.heater_off()
+    process = running_dry_run.process
+    process.terminate()
+    journal = process.communicate(timeout=60)[1]
+    who = f"uid {os.getuid()} ({pwd.getpwuid(os.getuid()).pw_name}), pid {os.getpid()}"
+    assert f"command setpoint accepted: setpoint 5.05 K (by {who})" in journal
+    assert f"<4>cryod.loop: command manual refused: " in journal and journal.count(f"(by {who})") == 3
+    assert "command heater-off accepted" in journal
+    (path,) = (tmp_path / "data").glob("cryod-*.csv")
+    events = [text for _, text in cryod.read_record(path).events]
+    assert f"event: command: setpoint accepted: setpoint 5.05 K (by {who})" in events

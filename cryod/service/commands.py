@@ -53,6 +53,8 @@ class Command:
     ok: bool = False
     message: str = ""
     on_answer: Callable[[], None] | None = field(default=None, repr=False, compare=False)
+    #: Who asked: ``uid 1000 (alice), pid 4242`` for the control socket, ``SIGHUP`` for a reload signal.
+    sender: str = ""
 
     def answer(self, ok: bool, message: str) -> None:
         self.ok, self.message = ok, message

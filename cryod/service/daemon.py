@@ -161,8 +161,11 @@ class Daemon:
             if self.loop is not None:
                 self.notifier.status(self.loop.status.one_line())
 
-    def reload(self) -> Command:
-        """Validate the configuration file again and hand it to the loop (keeps the old one if bad)."""
+    def reload(self, sender: str = "SIGHUP") -> Command:
+        """Validate the configuration file again and hand it to the loop (keeps the old one if bad).
+
+        ``sender`` says who asked, in the journal and the record (a signal: ``systemctl reload``
+        or ``kill -HUP``)."""
         self.notifier.reloading()
         try:
             new = self.reload_config()
@@ -181,16 +184,16 @@ class Daemon:
                 command.answer(False, "reload refused: the daemon is still waiting for its instruments; "
                                       "restart it to change the configuration")
             else:
-                command = wait_for(self.loop.submit(Command("reload", new)), 10.0)
+                command = wait_for(self.loop.submit(Command("reload", new, sender=sender)), 10.0)
         if command.ok:
             self.config = new
-            log.info("%s", command.message)
+            log.info("%s (by %s)", command.message, sender)
         else:
-            log.error("%s", command.message)
+            log.error("%s (by %s)", command.message, sender)
             if self.datalog is not None and not command.message.startswith("kept the running"):
                 message = command.message                       # the loop's are written by it
-                self.datalog.put(Event("command", message if message.startswith("reload refused")
-                                       else f"reload refused: {message}"))
+                self.datalog.put(Event("command", (message if message.startswith("reload refused")
+                                                   else f"reload refused: {message}") + f" (by {sender})"))
         self.notifier.reloaded(command.message)
         return command
 

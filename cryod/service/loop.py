@@ -525,7 +525,11 @@ class ControlLoop:
             except queue.Empty:
                 return
             ok, message = apply_command(self, command)
-            self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}")
+            sender = f" (by {command.sender})" if command.sender else ""
+            self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}{sender}")
+            if command.name != "reload":              # the daemon's reload says it in the journal itself
+                log.log(logging.INFO if ok else logging.WARNING, "command %s %s: %s%s", command.name,
+                        "accepted" if ok else "refused", message, sender)
             self._answers.append((command, ok, message))
 
     def _answer_commands(self) -> None:

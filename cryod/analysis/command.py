@@ -1,7 +1,7 @@
 """``cryod analyze RECORD [--model MODEL] [--out DIR] [--json]``.
 
-Writes into DIR (default ``<record name>-analysis`` next to the working
-directory): ``report.md``, the figures, ``extended-model.yaml`` (always
+Writes into DIR (default ``<record name>-analysis`` beside the record;
+an existing analysis there is kept unless ``--force``): ``report.md``, the figures, ``extended-model.yaml`` (always
 loadable by :func:`cryod.model.load_model`: the base model plus the fitted
 effect, or the base model unchanged when the cause is ``none`` or
 ``unexplained``) and ``analysis.json`` (the same object ``--json`` prints).
@@ -43,7 +43,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     parser.add_argument("--model", default=str(DEFAULT_MODEL_PATH),
                         help="base model file (default: the shipped model)")
     parser.add_argument("--out", default=None,
-                        help="directory for the report, figures and extended model (default: <record>-analysis)")
+                        help="directory for the report, figures and extended model (default: <record>-analysis "
+                             "beside the record)")
+    parser.add_argument("--force", action="store_true", help="replace an earlier analysis in that directory")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object on stdout")
     parser.add_argument("--no-figures", action="store_true", help="skip the figures (faster)")
     return parser
@@ -60,7 +62,13 @@ def run(args: argparse.Namespace) -> int:
     except (RecordFormatError, FileFormatError) as error:
         print(f"cryod analyze: {error}", file=sys.stderr)
         return 2
-    out = Path(args.out) if args.out else Path(f"{record_path.stem}-analysis")
+    name = record_path.name.removesuffix(".gz").removesuffix(".csv")
+    out = Path(args.out) if args.out else record_path.with_name(f"{name}-analysis")
+    earlier = [out / item for item in ("analysis.json", "report.md", EXTENDED_MODEL_NAME) if (out / item).exists()]
+    if earlier and not getattr(args, "force", False):
+        print(f"cryod analyze: {out} holds an earlier analysis ({earlier[0].name}); give --force to replace it "
+              f"or --out for another directory", file=sys.stderr)
+        return 2
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as error:

@@ -28,6 +28,7 @@ Examples
 
 from __future__ import annotations
 
+import gzip
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -138,10 +139,14 @@ def read_record(path: str | Path) -> Record:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        if path.suffix == ".gz":            # a finished day's record, compressed (cryod.records.compression)
+            with gzip.open(path, "rt", encoding="utf-8") as stream:
+                text = stream.read()
+        else:
+            text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise RecordFormatError(str(path), None, "file not found") from None
-    except (OSError, UnicodeDecodeError) as error:
+    except (OSError, EOFError, UnicodeDecodeError) as error:
         raise RecordFormatError(str(path), None, f"cannot read: {error}") from None
     return read_record_text(text, str(path))
 

@@ -16,16 +16,16 @@ import json
 import math
 import sys
 
+from cryod.control.lab_inputs import InputsNotUsable, lab_inputs
 from cryod.argument_types import not_negative, number, positive
 
-from cryod.config import EXAMPLE_CONFIG_PATH, load_config
+from cryod.config import EXAMPLE_CONFIG_PATH
 from cryod.control.feedforward_limit import (
     DEFAULT_AVERAGING_TIME_S, MEASURES, REPORTED_HARMONICS, SWEEP_MAX_CURRENTS_A, SWEEP_RESISTANCES_OHM,
     SWEEP_SETPOINTS_K, FeedforwardLimit, FeedforwardLimitError, SweepPoint, feedforward_limit, limit_sweep,
 )
 from cryod.control.feedforward_limit_range import LimitRange, limit_range
-from cryod.model import DEFAULT_MODEL_PATH, load_model
-from cryod.yaml_source import FileFormatError
+from cryod.model import DEFAULT_MODEL_PATH
 
 PROGRAM = "cryod feedforward-limit"
 
@@ -65,17 +65,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
 def run(args: argparse.Namespace) -> int:
     """Compute and print the limit; returns the exit status."""
     try:
-        config = load_config(args.config)
-        model = load_model(args.model)
-    except (FileFormatError, OSError) as error:
+        inputs = lab_inputs(args)
+    except InputsNotUsable as error:
         print(f"{PROGRAM}: {error}", file=sys.stderr)
         return 2
-    setpoint = args.setpoint if args.setpoint is not None else config.control.setpoint_K
-    if setpoint is None:
-        print(f"{PROGRAM}: {args.config} sets no setpoint: give --setpoint K", file=sys.stderr)
-        return 2
-    resistance = args.heater_ohm if args.heater_ohm is not None else config.heater.resistance_ohm
-    current = args.max_current if args.max_current is not None else config.heater.max_current_A
+    config, model, setpoint = inputs.config, inputs.model, inputs.setpoint_K
+    resistance, current = inputs.heater_ohm, inputs.max_current_A
     period = args.period if args.period is not None else config.loop.period_s
     options = {"period_s": period, "heater_delay_s": args.heater_delay, "measure": args.measure,
                "averaging_time_s": args.averaging_time}

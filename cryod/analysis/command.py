@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from cryod.analysis.discrepancies import find_discrepancies
+from cryod.analysis.model_uncertainty import model_uncertainty_check, report_section
 from cryod.analysis.pipeline import analyze
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.report import write_report
@@ -120,7 +121,12 @@ def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Pat
         made = make_figures(analysis, segments, out)
         analysis.timings_s["figures"] = time.perf_counter() - moment
     analysis.timings_s["total"] = time.perf_counter() - started
-    write_report(analysis, discrepancies, extended, segments, made, model_path_out, out)
+    report_path = write_report(analysis, discrepancies, extended, segments, made, model_path_out, out)
     summary = json_summary(analysis, discrepancies, model_path_out)
+    check = model_uncertainty_check(analysis)      # only for a model that states its uncertainty
+    if check is not None:
+        summary["model_uncertainty"] = check
+        with Path(report_path).open("a", encoding="utf-8") as report:
+            report.write(report_section(check))
     (out / "analysis.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     return summary

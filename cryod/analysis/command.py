@@ -23,12 +23,12 @@ from pathlib import Path
 from cryod.analysis.discrepancies import find_discrepancies
 from cryod.analysis.model_uncertainty import model_uncertainty_check, report_section
 from cryod.analysis.pipeline import analyze
-from cryod.analysis.record_data import RecordData
+from cryod.analysis.record_data import read_record_data
 from cryod.analysis.report import write_report
 from cryod.analysis.segments import find_segments
 from cryod.analysis.summary import json_summary, model_header
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
-from cryod.records.record import RecordFormatError, read_record
+from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError
 
 EXTENDED_MODEL_NAME = "extended-model.yaml"
@@ -56,9 +56,8 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     record_path = Path(args.record)
     try:
-        record = read_record(record_path)
+        data = read_record_data(record_path)
         model = load_model(args.model)
-        data = RecordData.from_record(record)
     except (RecordFormatError, FileFormatError) as error:
         print(f"cryod analyze: {error}", file=sys.stderr)
         return 2

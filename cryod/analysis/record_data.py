@@ -19,10 +19,11 @@ Examples
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from cryod.records.record import Record, RecordFormatError
+from cryod.records.record import Record, RecordFormatError, read_record
 
 #: Shortest record the analysis accepts (s) and fewest samples.
 MINIMUM_DURATION_S = 120.0
@@ -36,6 +37,8 @@ RESISTANCE_KEYS = ("heater_resistance_ohm", "heater_resistance", "heater_resista
 CURRENT_LIMIT_KEYS = ("heater_current_limit_A", "heater_max_current_A", "heater_current_max_A",
                       "heater_current_limit")
 POWER_LIMIT_KEYS = ("heater_max_W", "heater_limit_W", "heater_power_limit_W", "heater_max_power_W")
+#: Columns the analysis reads besides the required ones (the others are skipped unread).
+ANALYSED_COLUMNS = ("T2_sample_s", "T5_sample_s", "heater_set_s")
 
 
 @dataclass(frozen=True)
@@ -134,6 +137,18 @@ class RecordData:
                    heater_change_instants(record, time_s))
 
 
+def read_record_data(path: str | Path) -> RecordData:
+    """Read a record file for analysis: the required columns and :data:`ANALYSED_COLUMNS`, checked.
+
+    Raises
+    ------
+    cryod.records.record.RecordFormatError
+        The file cannot be read as a record, or cannot be analysed (the
+        file, the line or row and what is wrong named).
+    """
+    return RecordData.from_record(read_record(path, columns=ANALYSED_COLUMNS))
+
+
 #: Sample instants of the two thermometers further apart than this (s) are worth a note.
 SAMPLE_INSTANT_TOLERANCE_S = 0.001
 
@@ -213,5 +228,5 @@ def saturation_fraction(heater_w: np.ndarray, limit_w: float | None) -> tuple[fl
     return at_zero, at_limit
 
 
-__all__ = ["RecordData", "fit_block_mask", "block_length_s", "heater_limit_from_metadata",
+__all__ = ["ANALYSED_COLUMNS", "RecordData", "read_record_data", "fit_block_mask", "block_length_s", "heater_limit_from_metadata",
            "saturation_fraction"]

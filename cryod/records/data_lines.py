@@ -35,8 +35,8 @@ import numpy as np
 
 from cryod.records.columns import REQUIRED
 
-#: Lines converted at a time: about 3 MB of daemon text.
-CHUNK_ROWS = 8192
+#: Lines converted at a time: about 300 kB of daemon text, 4 MB while split into fields.
+CHUNK_ROWS = 1024
 #: Names of the columns every record has (see :mod:`cryod.records.columns`).
 REQUIRED_NAMES = tuple(column.name for column in REQUIRED)
 

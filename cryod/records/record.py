@@ -165,7 +165,10 @@ def read_record(path: str | Path, columns: Iterable[str] | None = None) -> Recor
 
     try:
         return _read_lines(open_lines, str(path), columns, size)
-    except (OSError, EOFError, UnicodeDecodeError) as error:
+    except UnicodeDecodeError:
+        line, reason = _first_line_not_utf8(path)
+        raise RecordFormatError(str(path), line, reason) from None
+    except (OSError, EOFError) as error:
         raise RecordFormatError(str(path), None, f"cannot read: {error}") from None
 
 
@@ -178,6 +181,18 @@ def _text_size(path: Path) -> int | None:
         stream.seek(max(size - 4, 0))
         stated = int.from_bytes(stream.read(4), "little")
     return stated if stated > size else None
+
+
+def _first_line_not_utf8(path: Path) -> tuple[int | None, str]:
+    """The first line of a file that is not UTF-8 text, and what is wrong with it."""
+    with (gzip.open(path, "rb") if path.suffix == ".gz" else path.open("rb")) as stream:
+        for number, line in enumerate(stream, start=1):
+            try:
+                line.decode("utf-8")
+            except UnicodeDecodeError as error:
+                return number, (f"not UTF-8 text: byte 0x{line[error.start]:02x} at character {error.start + 1} "
+                                f"(a damaged file, or not a cryod record)")
+    return None, "not UTF-8 text"
 
 
 def read_record_text(text: str, source: str = "<record>", columns: Iterable[str] | None = None) -> Record:

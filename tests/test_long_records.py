@@ -185,3 +185,45 @@ def test_analyze_says_which_stretch_it_analysed(tmp_path, capsys, monkeypatch):
     assert "analysed 0.17 h of the record's 0.44 h" in capsys.readouterr().err
     assert cli.main(["analyze", str(path), "--max-duration", "0", "--out", str(tmp_path / "out")]) == 0
     assert seen["data"].duration_s == pytest.approx(1600.0, abs=0.1)
+
+
+# -- a long record through the commands, as a lab runs them (slow) ------------------------------------------
+@pytest.mark.slow
+def test_a_six_hour_record_with_a_hidden_effect_is_analysed_and_identified_in_bounded_memory(tmp_path,
+                                                                                          reference_model):
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from cryod.model import DeadTime
+    from cryod.records.record import write_record
+    from simulated_hw.measurement_programs import make_record
+
+    made = make_record(reference_model.with_effects(dead_time=DeadTime(1.5)), "pi_only", duration_s=6 * 3600.0,
+                       seed=5)
+    path = write_record(tmp_path / "six-hours.csv", made.columns, made.metadata)
+
+    def measured(*arguments):
+        child = subprocess.Popen([sys.executable, "-m", "cryod.cli", *arguments], cwd=tmp_path,
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=dict(os.environ, MPLBACKEND="Agg"))
+        stdout = child.stdout.read()
+        stderr = child.stderr.read()
+        _, status, usage = os.wait4(child.pid, 0)
+        child.returncode = os.waitstatus_to_exitcode(status)
+        return child.returncode, stdout.decode(), stderr.decode(), usage.ru_utime + usage.ru_stime, \
+            usage.ru_maxrss / 1024.0
+
+    status, stdout, stderr, cpu_s, peak_MB = measured("analyze", str(path), "--json", "--out", "analysis")
+    assert status == 0, stderr
+    assert json.loads(stdout)["cause"] == "dead_time"
+    assert "analysed 2.00 h of the record's 6.00 h: t = 0.0 s to 7200.0 s" in stderr
+    # two hours of it, with figures: about 265 MB and 18 s of CPU; the whole record took 580 MB and 52 s
+    assert peak_MB < 400.0 and cpu_s < 40.0, (peak_MB, cpu_s)
+
+    status, stdout, stderr, cpu_s, peak_MB = measured("identify", str(path), "--json", "--out", "identified.yaml")
+    assert status == 0, stderr
+    assert json.loads(stdout)["heater_to_ptc_stage_time_constant_s"] == pytest.approx(135.0, rel=0.01)
+    # all six hours: about 245 MB and 14 s of CPU; 400 MB and 40 s when the whole text was read and both
+    # thermometers were fitted on one weighted design matrix
+    assert peak_MB < 350.0 and cpu_s < 30.0, (peak_MB, cpu_s)

@@ -2,7 +2,7 @@
 
 Every candidate cause is fitted by replaying the record tens of times, so the
 analysis costs time and memory in proportion to the record's length (about
-15 s of CPU and 90 MB per hour of 12.5 Hz record). What names a cause is the
+10 s of CPU and 80 MB per hour of 12.5 Hz record). What names a cause is the
 cooler's line, seen everywhere, and how the temperatures follow the heater's
 changes; hours of steady regulation add little to either. A record longer than
 :data:`ANALYSIS_WINDOW_S` is therefore analysed on the stretch of that length

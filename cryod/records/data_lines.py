@@ -148,24 +148,7 @@ def _read(lines: Iterator[str], names, first_line_number, wanted, expected_chara
         chunk = list(itertools.islice(lines, CHUNK_ROWS))
         if not chunk:
             break
-        data, data_lines = [], []
-        for offset, line in enumerate(chunk):
-            number = line_number + offset
-            terminated = line.endswith("\n")
-            line = line.rstrip("\r\n")
-            if not line.strip():
-                continue
-            if line.startswith("#"):
-                events.append((rows + len(data), line[1:].strip()))
-                continue
-            if line.count(",") != count - 1:
-                if not terminated:
-                    warnings.append(f"line {number}: last line cut short, dropped")
-                    continue
-                raise DataLineError(number, f"expected {count} fields (the header's columns), "
-                                            f"got {line.count(',') + 1}")
-            data.append(line)
-            data_lines.append(number)
+        data, data_lines = _sort_lines(chunk, line_number, count, rows, events, warnings)
         line_number += len(chunk)
         # a last line without its newline: a killed writer's, perhaps cut inside a number
         unterminated = bool(data) and not chunk[-1].endswith("\n") and data_lines[-1] == line_number - 1
@@ -178,7 +161,8 @@ def _read(lines: Iterator[str], names, first_line_number, wanted, expected_chara
                 last = bad.index == len(data) - 1
                 if unterminated and last and (bad.name in REQUIRED_NAMES or rows + len(data) > 1):
                     warnings.append(f"line {data_lines[-1]}: last line cut short, dropped")
-                    data.pop(), data_lines.pop()
+                    data.pop()
+                    data_lines.pop()
                     unterminated = False
                     continue
                 if bad.name in REQUIRED_NAMES:
@@ -209,6 +193,29 @@ def _read(lines: Iterator[str], names, first_line_number, wanted, expected_chara
         else:
             columns[name] = np.empty(0)
     return DataTable(columns, events, warnings)
+
+
+def _sort_lines(chunk: list[str], line_number: int, count: int, rows: int, events: list, warnings: list):
+    """The chunk's data lines (newline taken off) and their line numbers; events and a cut-short
+    last line go to ``events`` and ``warnings``, blank lines nowhere."""
+    data, data_lines = [], []
+    for offset, line in enumerate(chunk):
+        number = line_number + offset
+        terminated = line.endswith("\n")
+        line = line.rstrip("\r\n")
+        if not line.strip():
+            continue
+        if line.startswith("#"):
+            events.append((rows + len(data), line[1:].strip()))
+            continue
+        if line.count(",") != count - 1:
+            if not terminated:
+                warnings.append(f"line {number}: last line cut short, dropped")
+                continue
+            raise DataLineError(number, f"expected {count} fields (the header's columns), got {line.count(',') + 1}")
+        data.append(line)
+        data_lines.append(number)
+    return data, data_lines
 
 
 class _NotANumber(Exception):

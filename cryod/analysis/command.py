@@ -23,12 +23,14 @@ from pathlib import Path
 from cryod.analysis.discrepancies import find_discrepancies
 from cryod.analysis.model_uncertainty import model_uncertainty_check, report_section
 from cryod.analysis.pipeline import analyze
-from cryod.analysis.record_data import RecordData
+from cryod.analysis.record_data import analysed_stretch, read_record_data
+from cryod.analysis.record_window import ANALYSIS_WINDOW_S
+from cryod.argument_types import not_negative
 from cryod.analysis.report import write_report
 from cryod.analysis.segments import find_segments
 from cryod.analysis.summary import json_summary, model_header
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
-from cryod.records.record import RecordFormatError, read_record
+from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError
 
 EXTENDED_MODEL_NAME = "extended-model.yaml"
@@ -48,6 +50,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     parser.add_argument("--force", action="store_true", help="replace an earlier analysis in that directory")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object on stdout")
     parser.add_argument("--no-figures", action="store_true", help="skip the figures (faster)")
+    parser.add_argument("--max-duration", type=not_negative, default=ANALYSIS_WINDOW_S, metavar="S",
+                        help=f"a longer record is analysed on the stretch of S seconds where the heater moves most "
+                             f"(default {ANALYSIS_WINDOW_S:.0f}); 0: the whole record")
     return parser
 
 
@@ -56,9 +61,8 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     record_path = Path(args.record)
     try:
-        record = read_record(record_path)
+        whole = read_record_data(record_path)
         model = load_model(args.model)
-        data = RecordData.from_record(record)
     except (RecordFormatError, FileFormatError) as error:
         print(f"cryod analyze: {error}", file=sys.stderr)
         return 2
@@ -69,6 +73,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"cryod analyze: {out} holds an earlier analysis ({earlier[0].name}); give --force to replace it "
               f"or --out for another directory", file=sys.stderr)
         return 2
+    data = analysed_stretch(whole, getattr(args, "max_duration", ANALYSIS_WINDOW_S))
+    if data is not whole:
+        print(f"cryod analyze: {record_path}: {data.notes[-1]} (--max-duration 0: the whole record)",
+              file=sys.stderr)
+    del whole
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as error:

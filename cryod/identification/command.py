@@ -31,7 +31,7 @@ import logging
 import sys
 from pathlib import Path
 
-from cryod.analysis.record_data import RecordData
+from cryod.analysis.record_data import read_record_data
 from cryod.analysis.summary import plain
 from cryod.argument_types import not_negative, number, positive
 from cryod.identification.experiment import ExperimentPlan
@@ -40,7 +40,7 @@ from cryod.identification.model_fit import ModelIdentification, identify_model
 from cryod.identification.record_check import describe, record_problems
 from cryod.identification.uncertainty import BOOTSTRAP_REPLICATES
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
-from cryod.records.record import RecordFormatError, read_record
+from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError
 
 PROGRAM = "cryod identify"
@@ -284,7 +284,7 @@ def run(args: argparse.Namespace) -> int:
             return status
         record_paths = list(acquisition.record_paths)
     try:
-        records = [RecordData.from_record(read_record(path)) for path in record_paths]
+        records = [read_record_data(path) for path in record_paths]
     except (RecordFormatError, FileFormatError) as error:
         print(f"{PROGRAM}: {error}", file=sys.stderr)
         return 2

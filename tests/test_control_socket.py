@@ -263,7 +263,7 @@ def test_cryod_ctl_ends_quietly_when_its_reader_goes_away(served):
         assert (result.returncode, result.stderr) == (READER_GONE, "")
     piped = subprocess.run(f"{sys.executable} -m cryod.cli ctl --socket {path} status | head -2", shell=True,
                            capture_output=True, text=True, cwd=REPOSITORY, timeout=60)
-    assert piped.stdout == "key_00: 0.0\nkey_01: 1.0\n" and piped.stderr == ""
+    assert piped.stdout == "key_00: 0\nkey_01: 1\n" and piped.stderr == ""      # values printed as readable()
 
 
 # -- numbers ------------------------------------------------------------------------------------------------

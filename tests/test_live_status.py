@@ -70,11 +70,19 @@ def test_status_text_has_units_and_sensible_precision():
                                               "faults": {"connection_lost": 1}, "last_fault": "x"})
 
 
+def private_runtime(tmp_path) -> dict:
+    """An environment whose per-user runtime directory is the test's own (its dry run's socket goes there)."""
+    runtime = tmp_path / "runtime"
+    runtime.mkdir(mode=0o700, exist_ok=True)
+    return dict(os.environ, XDG_RUNTIME_DIR=str(runtime))
+
+
 def run_in_pseudo_terminal(argv, cwd, columns=0) -> tuple[int, str]:
     """Run a command with stdout and stderr on a new pseudo-terminal; its exit code and all it drew."""
     master, slave = pty.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, columns, 0, 0))
-    process = subprocess.Popen(argv, stdin=slave, stdout=slave, stderr=slave, cwd=cwd, close_fds=True)
+    process = subprocess.Popen(argv, stdin=slave, stdout=slave, stderr=slave, cwd=cwd, close_fds=True,
+                               env=private_runtime(cwd))
     os.close(slave)
     drawn = b""
     while True:
@@ -107,7 +115,8 @@ def test_a_terminal_gets_a_live_status_line_with_progress_and_a_pipe_gets_none(t
     assert "cryod.datalog: data log: writing" in drawn                 # the log still shows, above the line
     assert "duration_s: 900.0" in drawn                               # and the summary after it
 
-    piped = subprocess.run(SIMULATE, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    piped = subprocess.run(SIMULATE, cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                           env=private_runtime(tmp_path))
     assert piped.returncode == 0
     assert "\r" not in piped.stderr and "left" not in piped.stderr
 

@@ -53,6 +53,8 @@ class Command:
     ok: bool = False
     message: str = ""
     on_answer: Callable[[], None] | None = field(default=None, repr=False, compare=False)
+    #: Who asked: ``uid 1000 (alice), pid 4242`` for the control socket, ``SIGHUP`` for a reload signal.
+    sender: str = ""
 
     def answer(self, ok: bool, message: str) -> None:
         self.ok, self.message = ok, message
@@ -106,6 +108,19 @@ def _manual(loop: "ControlLoop", value: float) -> str:
         raise CommandRefused(str(error)) from None
     loop.follow_regulator()
     return f"open loop, heater {value:g} W"
+
+
+def _modulate(loop: "ControlLoop", value) -> str:
+    from cryod.control.regulator import HeaterModulation
+
+    try:
+        modulation = value if isinstance(value, HeaterModulation) else HeaterModulation(*value)
+        loop.regulator.set_modulated(modulation)
+    except (ValueError, TypeError) as error:
+        raise CommandRefused(str(error)) from None
+    loop.follow_regulator()
+    return (f"open loop, heater {modulation.mean_w:g} +- {modulation.amplitude_w:g} W at "
+            f"{modulation.angular_frequency_rad_s:g} rad/s")
 
 
 def _feedforward(loop: "ControlLoop", value: str) -> str:
@@ -176,6 +191,8 @@ COMMANDS: dict[str, CommandSpec] = {spec.name: spec for spec in (
     CommandSpec("feedforward", "on|off|status", "switch the feedforward locked to the cooler (fades in or out), "
                 "or show its state", _feedforward, parse=_choice("on", "off", "status")),
     CommandSpec("reload", None, "apply a validated configuration (SIGHUP)", _reload, from_socket=False),
+    CommandSpec("modulate", "(MEAN_W, AMPLITUDE_W, RAD_S)", "open loop, heater modulated about a mean "
+                "(cryod identify --acquire)", _modulate, from_socket=False),
 )}
 
 

@@ -31,6 +31,7 @@ import os
 import pwd
 import socket
 import stat
+import struct
 import threading
 import time
 from pathlib import Path
@@ -106,7 +107,7 @@ class ControlSocketServer:
         answered = wait_for(self.submit(command), self.reply_timeout_s)
         return {"ok": answered.ok, "message": answered.message, "status": self.status()}
 
-    async def _reply_to_line(self, raw: bytes) -> dict:
+    async def _reply_to_line(self, raw: bytes, sender: str = "") -> dict:
         if len(raw) > MAX_LINE:
             return {"ok": False, "message": f"command longer than {MAX_LINE} bytes refused"}
         try:
@@ -127,6 +128,7 @@ class ControlSocketServer:
                 pass
 
         command.on_answer = wake
+        command.sender = sender
         self.submit(command)
         if not command.done.is_set():
             try:
@@ -160,7 +162,7 @@ class ControlSocketServer:
         self.most_clients = max(self.most_clients, self.clients)
         try:
             line = await self._read_line(reader)
-            reply = line if isinstance(line, dict) else await self._reply_to_line(line)
+            reply = line if isinstance(line, dict) else await self._reply_to_line(line, peer(writer))
             await self._send(writer, reply)
         except asyncio.CancelledError:          # the daemon is stopping: say so, without waiting for the client
             writer.write(b'{"ok": false, "message": "the daemon is stopping; nothing more is answered"}\n')
@@ -261,6 +263,21 @@ class ControlSocketServer:
             self.path.unlink()
         except FileNotFoundError:
             pass
+
+
+def peer(writer: asyncio.StreamWriter) -> str:
+    """Who is at the other end of a Unix socket connection (the kernel's word: SO_PEERCRED)."""
+    connection = writer.get_extra_info("socket")
+    try:
+        pid, uid, _ = struct.unpack("3i", connection.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED,
+                                                                 struct.calcsize("3i")))
+    except (AttributeError, OSError):
+        return "an unknown peer"
+    try:
+        name = pwd.getpwuid(uid).pw_name
+    except KeyError:
+        name = "no user name"
+    return f"uid {uid} ({name}), pid {pid}"
 
 
 def _resolve(future: asyncio.Future | None) -> None:

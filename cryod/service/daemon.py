@@ -161,28 +161,39 @@ class Daemon:
             if self.loop is not None:
                 self.notifier.status(self.loop.status.one_line())
 
-    def reload(self) -> Command:
-        """Validate the configuration file again and hand it to the loop (keeps the old one if bad)."""
+    def reload(self, sender: str = "SIGHUP") -> Command:
+        """Validate the configuration file again and hand it to the loop (keeps the old one if bad).
+
+        ``sender`` says who asked, in the journal and the record (a signal: ``systemctl reload``
+        or ``kill -HUP``)."""
         self.notifier.reloading()
         try:
             new = self.reload_config()
         except (FileFormatError, ValueError) as error:
             command = Command("reload")
             command.answer(False, f"reload refused, keeping the running configuration: {error}")
+        except Exception as error:          # a file the checks did not foresee: refused all the same
+            log.exception("reading the configuration for the reload failed")
+            command = Command("reload")
+            command.answer(False, f"reload refused, keeping the running configuration: reading "
+                                  f"{self.config.source or 'the configuration'} failed: {type(error).__name__}: "
+                                  f"{str(error)[:300]}")
         else:
             if self.loop is None:
                 command = Command("reload")
                 command.answer(False, "reload refused: the daemon is still waiting for its instruments; "
                                       "restart it to change the configuration")
             else:
-                command = wait_for(self.loop.submit(Command("reload", new)), 10.0)
+                command = wait_for(self.loop.submit(Command("reload", new, sender=sender)), 10.0)
         if command.ok:
             self.config = new
-            log.info("%s", command.message)
+            log.info("%s (by %s)", command.message, sender)
         else:
-            log.error("%s", command.message)
+            log.error("%s (by %s)", command.message, sender)
             if self.datalog is not None and not command.message.startswith("kept the running"):
-                self.datalog.put(Event("command", f"reload refused: {command.message}"))   # the loop's are written by it
+                message = command.message                       # the loop's are written by it
+                self.datalog.put(Event("command", (message if message.startswith("reload refused")
+                                                   else f"reload refused: {message}") + f" (by {sender})"))
         self.notifier.reloaded(command.message)
         return command
 
@@ -196,7 +207,11 @@ class Daemon:
     def _status(self) -> dict:
         if self.loop is None:
             return {"state": "waiting", "message": self._waiting, "heater_W": None}
-        return self.loop.status.as_dict()
+        status = self.loop.status.as_dict()
+        # figures over the recent past, computed on this (the socket's) thread
+        status["T2_average_K"] = self.live_view.flange_average_K()
+        status["line_amplitude_K"] = self.live_view.line_amplitude_K()
+        return status
 
     # -- the run --------------------------------------------------------------------
     def run(self, duration_s: float | None = None) -> RunResult:
@@ -228,7 +243,8 @@ class Daemon:
                                    lambda t: wall_start + (t - clock_start), config.loop.period_s,
                                    config.data.fsync_interval_s, warn_free_bytes=int(config.data.warn_free_MB * 1e6),
                                    min_free_bytes=int(config.data.min_free_MB * 1e6),
-                                   on_failure=self._on_data_log_failure, **self.datalog_options)
+                                   on_failure=self._on_data_log_failure,
+                                   compress_finished=config.data.compress_finished, **self.datalog_options)
             self.datalog.start()
             control_socket = ControlSocketServer(config.control_socket.path, config.control_socket.mode,
                                                  config.control_socket.owner, config.control_socket.group,

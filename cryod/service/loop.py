@@ -162,10 +162,12 @@ class ControlLoop:
         self.last_fault: Fault | None = None
         self.status = Status(target_K=config.control.setpoint_K, ramp_K_per_min=config.control.ramp_K_per_min)
         self.commands: queue.SimpleQueue[Command] = queue.SimpleQueue()
+        self._answers: list[tuple[Command, bool, str]] = []
         self.exit_code: int | None = None
         self._stop_reason: str | None = None
         self._outside_fault: Fault | None = None
         self._valid_in_a_row = 0
+        self._hold_reported = False         # a reading above a limit kept the heater off (said once per hold)
         self._regulating = False            # the loop has left its start-up hold at least once
         # a fault episode: from a first recoverable fault until the loop has run clean for
         # safety.recovery_timeout_s; the recovery timeout counts from its start, and every resume
@@ -217,6 +219,7 @@ class ControlLoop:
                     break
                 self.clock.sleep_until(deadline)
                 self._tick(deadline)
+                self._answer_commands()         # after the tick: the reply's status shows the command's effect
                 self.watchdog()                 # every tick that returns: a call that hangs trips it
                 now = self.clock.now()
                 missed = int((now - deadline) // self.period_s) if now > deadline + self.period_s else 0
@@ -244,6 +247,7 @@ class ControlLoop:
             self._stop(ExitCode.EXCEPTION, Fault(FaultCause.EXCEPTION, f"{type(error).__name__}: {error}"))
             raise
         finally:
+            self._answer_commands()
             self.regulator.close()
             if manage_gc:
                 self._gc.stop()
@@ -294,6 +298,8 @@ class ControlLoop:
         row.T2_K, row.T5_K = flange_K, stage_K
         over = self.checks.check_temperatures(flange_K, stage_K)
         if self.state.waits_for_readings:
+            if over is not None:
+                self._report_hold(over, flange_K)
             self._count_valid(over is None, reading, row)
             return
         if over is not None:
@@ -330,9 +336,12 @@ class ControlLoop:
         self.emit(row)
         closed = self.state is LoopState.CLOSED
         ramp = self.regulator.ramp
+        # the target once a setpoint is asked for (also while holding for valid readings), the setpoint in use
+        # only while regulating
+        aiming = closed or self.regulator.mode is RegulatorMode.CLOSED
         # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
         self._latest = (row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
-                        ramp.setpoint_K if closed else None, ramp.target_K if closed else None,
+                        ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
                         ramp.rate_K_per_min, self.last_fault, row.control)
         self._status = None
 
@@ -368,6 +377,7 @@ class ControlLoop:
             if self.state is LoopState.CLOSED and not self._regulating:
                 self.regulator.close_loop(reading.trigger_time_s, row.T2_K, row.T5_K, present_power_w=0.0)
             self._regulating = True
+            self._hold_reported = False
             note = ""
             if self._episode_start_s is not None:
                 self._resumes_in_episode += 1
@@ -377,6 +387,17 @@ class ControlLoop:
                         f"after another fault {self.readings_to_resume()} valid readings)")
             self._event("resumed", f"{waiting_for} valid readings after {previous}; state {self.state}{note}")
         self._finish_row(row)
+
+    def _report_hold(self, over: Fault, flange_K: float) -> None:
+        """Say once per hold why the heater stays off: a temperature above its limit (journal and record)."""
+        if self._hold_reported:
+            return
+        self._hold_reported = True
+        key = "safety.flange_max_K" if flange_K > self.checks.flange_max_K else "safety.ptc_stage_max_K"
+        message = (f"heater held off while {self.state}: {over.message} ({key}); it stays off until the "
+                   f"temperature is below the limit")
+        log.warning("%s", message)
+        self._event("holding", message)
 
     def readings_to_resume(self) -> int:
         """Valid readings in a row the loop needs before it resumes: ``safety.valid_readings_to_resume``,
@@ -504,7 +525,17 @@ class ControlLoop:
             except queue.Empty:
                 return
             ok, message = apply_command(self, command)
-            self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}")
+            sender = f" (by {command.sender})" if command.sender else ""
+            self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}{sender}")
+            if command.name != "reload":              # the daemon's reload says it in the journal itself
+                log.log(logging.INFO if ok else logging.WARNING, "command %s %s: %s%s", command.name,
+                        "accepted" if ok else "refused", message, sender)
+            self._answers.append((command, ok, message))
+
+    def _answer_commands(self) -> None:
+        """Answer the commands applied this tick, now that its status is published."""
+        answers, self._answers = self._answers, []
+        for command, ok, message in answers:
             command.answer(ok, message)
 
     def reload(self, new: DaemonConfig) -> str:

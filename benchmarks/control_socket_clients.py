@@ -84,13 +84,18 @@ def main() -> None:
     parser.add_argument("--clients", type=int, default=100)
     parser.add_argument("--phase-s", type=float, default=20.0, help="length of each phase, s")
     parser.add_argument("--phases", type=int, default=3, help="pairs of (quiet, clients) phases")
+    parser.add_argument("--speed", default="1", help="the daemon's --speed (below 1 gives its loop more room on a "
+                                                     "loaded machine)")
+    parser.add_argument("--nice", type=int, default=0,
+                        help="niceness of the daemon (negative, as root: less disturbed by other work on the machine)")
     arguments = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "c.sock"
         daemon = subprocess.Popen(
-            [sys.executable, "-m", "cryod.cli", "--simulate", "--data-dir", f"{folder}/data", "--socket", str(path)],
-            cwd=folder, env=dict(os.environ, PYTHONPATH=str(REPOSITORY)),
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            [sys.executable, "-m", "cryod.cli", "--simulate", "--speed", arguments.speed, "--data-dir", f"{folder}/data",
+             "--socket", str(path)],
+            cwd=folder, env=dict(os.environ, PYTHONPATH=str(REPOSITORY)), stdout=subprocess.DEVNULL,
+            stderr=open(Path(folder) / "stderr.txt", "w"), preexec_fn=lambda: os.nice(arguments.nice))
         try:
             end = time.monotonic() + 60.0
             while time.monotonic() < end:
@@ -125,9 +130,14 @@ def main() -> None:
                                "ticks": (before["ticks"], after["ticks"]), "cpu_s": cpu_s, "wall_s": wall_s,
                                "overruns": after["overruns"] - before["overruns"],
                                "missed_deadlines": after["missed_deadlines"] - before["missed_deadlines"]})
-        finally:
-            daemon.terminate()
+        except (OSError, SystemExit):
             daemon.wait(30)
+            raise SystemExit(f"the daemon stopped (exit {daemon.returncode}): "
+                             f"{Path(folder, 'stderr.txt').read_text()[-1500:]}") from None
+        finally:
+            if daemon.poll() is None:
+                daemon.terminate()
+                daemon.wait(30)
         records = [read_record(file) for file in sorted(Path(folder, "data").glob("cryod-*.csv"))]
     record = records[0]
     lateness, cycle = record.columns["lateness_ms"], record.columns["cycle_ms"]

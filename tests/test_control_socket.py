@@ -197,6 +197,28 @@ def test_cryod_ctl_waits_while_the_backlog_is_full(tmp_path):
         listener.close()
 
 
+def test_a_client_waiting_for_the_loop_is_told_when_the_daemon_stops(tmp_path, capfd):
+    """Before: it waited for the reply timeout; an asyncio server also printed the cancelled task's traceback."""
+    with_the_loop = threading.Event()                  # a loop that never answers
+
+    def submit(command):
+        with_the_loop.set()
+        return command
+
+    server = ControlSocketServer(tmp_path / "control.sock", 0o660, None, None, submit, dict)
+    server.start()
+    result = {}
+    client = threading.Thread(target=lambda: result.update(reply=send_command(server.path, "setpoint 5")))
+    client.start()
+    assert with_the_loop.wait(5.0)
+    started = time.monotonic()
+    server.stop()
+    client.join(5.0)
+    assert time.monotonic() - started < 1.0
+    assert result["reply"] == {"ok": False, "message": "the daemon is stopping; nothing more is answered"}
+    assert "Traceback" not in capfd.readouterr().err
+
+
 # -- lines ------------------------------------------------------------------------------------------------
 def test_a_one_megabyte_line_is_refused_and_cryod_ctl_shows_the_refusal(served, capsys):
     """Before: cryod ctl died with 'Broken pipe' (exit 3) instead of showing the daemon's refusal."""

@@ -164,6 +164,9 @@ class ControlSocketServer:
             line = await self._read_line(reader)
             reply = line if isinstance(line, dict) else await self._reply_to_line(line, peer(writer))
             await self._send(writer, reply)
+        except asyncio.CancelledError:          # the daemon is stopping: say so, without waiting for the client
+            writer.write(b'{"ok": false, "message": "the daemon is stopping; nothing more is answered"}\n')
+            writer.close()
         except Exception as error:              # one client's trouble never ends the socket
             log.warning("control socket: a client's command failed: %s: %s", type(error).__name__, error)
             await self._send(writer, {"ok": False, "message": f"internal error: {type(error).__name__}"})
@@ -246,7 +249,8 @@ class ControlSocketServer:
             await asyncio.gather(*clients, return_exceptions=True)
 
     def stop(self) -> None:
-        """Stop serving (clients waiting for an answer are cut off) and remove the socket file."""
+        """Stop serving (clients waiting for the loop's answer are told the daemon is stopping) and remove
+        the socket file."""
         if self._thread is None:
             return
         try:

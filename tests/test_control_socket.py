@@ -341,3 +341,39 @@ def test_the_loop_carries_out_at_most_a_few_commands_a_tick_in_order(reference_m
             per_tick.append(rows)
     assert collections.Counter(per_tick) == {101: 8, 102: 8, 103: 4}
     assert all(command.ok for command in flood) and loop.regulator.ramp.rate_K_per_min == pytest.approx(0.9)
+
+
+def test_a_heater_off_never_waits_behind_a_flood_and_what_was_sent_before_it_is_superseded(reference_model):
+    """Before: a heater-off queued behind 256 commands waited 32 ticks (2.6 s), and setpoints sent before it
+    ran first."""
+    config = load_config(CONFIG / "cryod.yaml")
+    curves = (load_calibration(CONFIG / "calibration" / "X186279.340"),
+              load_calibration(CONFIG / "calibration" / "X207058.340"))
+    clock = VirtualClock()
+    instruments = DirectInstruments(SimulatedCryostat(reference_model, clock, seed=2), *curves, clock)
+    items = []
+    loop = ControlLoop(config, instruments, *curves, clock, emit=items.append)
+    before = [Command("setpoint", 5.0 + 0.001 * index) for index in range(40)]
+    off = Command("heater-off")
+    after = [Command("ramp", 0.5), Command("ramp", 0.25)]
+
+    def measure():
+        if instruments.measurements == 100:
+            for command in (*before, off, *after):
+                loop.submit(command)
+        return DirectInstruments.measure(instruments)
+
+    instruments.measure = measure
+    assert loop.run(duration_s=10.0, manage_gc=False) == 0
+    rows, applied_at = 0, {}
+    for item in items:
+        if isinstance(item, Row):
+            rows += 1
+        elif item.kind == "command":
+            applied_at.setdefault(item.message.split(" ")[0], rows)
+    assert applied_at["heater-off"] == 101                             # at the first tick after it was sent
+    assert all(not command.ok and "superseded by a heater-off" in command.message for command in before)
+    assert off.ok and all(command.ok for command in after)             # what came after it, in order
+    assert loop.regulator.ramp.rate_K_per_min == 0.25 and loop.heater_w == 0.0
+    states = [item.state for item in items if isinstance(item, Row)]
+    assert set(states[101:]) == {"off"}                               # and stayed off to the end

@@ -16,9 +16,9 @@ handles faults (:mod:`cryod.service.faults`) and does the I/O.
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
-import queue
 from dataclasses import dataclass, replace
 from typing import Callable, Protocol
 
@@ -161,7 +161,8 @@ class ControlLoop:
         self.last_commanded_w = 0.0         # the last power sent to the supply
         self.last_fault: Fault | None = None
         self.status = Status(target_K=config.control.setpoint_K, ramp_K_per_min=config.control.ramp_K_per_min)
-        self.commands: queue.SimpleQueue[Command] = queue.SimpleQueue()
+        # appended by any thread, taken by the loop's (deque's append and popleft are atomic)
+        self.commands: collections.deque[Command] = collections.deque()
         self._answers: list[tuple[Command, bool, str]] = []
         self.exit_code: int | None = None
         self._stop_reason: str | None = None
@@ -185,7 +186,7 @@ class ControlLoop:
     # -- from other threads ---------------------------------------------------
     def submit(self, command: Command) -> Command:
         """Queue a command for the next tick boundary (thread-safe)."""
-        self.commands.put(command)
+        self.commands.append(command)
         return command
 
     def request_stop(self, reason: str) -> None:
@@ -519,18 +520,33 @@ class ControlLoop:
 
     # -- commands ----------------------------------------------------------------------
     def _apply_commands(self) -> None:
+        """Carry out up to :data:`COMMANDS_PER_TICK` queued commands, in order. A ``heater-off``
+        never waits behind others: when one is queued, the commands sent before it are refused as
+        superseded (none of them may turn the heater back on after it) and it is carried out now."""
+        commands = self.commands
+        if not commands:
+            return
+        if len(commands) > COMMANDS_PER_TICK:
+            last_off = max((index for index, command in enumerate(list(commands)) if command.name == "heater-off"),
+                           default=None)
+            for _ in range(last_off or 0):
+                superseded = commands.popleft()
+                self._record_command(superseded, False, "superseded by a heater-off sent after it")
         for _ in range(COMMANDS_PER_TICK):
             try:
-                command = self.commands.get_nowait()
-            except queue.Empty:
+                command = commands.popleft()
+            except IndexError:
                 return
-            ok, message = apply_command(self, command)
-            sender = f" (by {command.sender})" if command.sender else ""
-            self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}{sender}")
-            if command.name != "reload":              # the daemon's reload says it in the journal itself
-                log.log(logging.INFO if ok else logging.WARNING, "command %s %s: %s%s", command.name,
-                        "accepted" if ok else "refused", message, sender)
-            self._answers.append((command, ok, message))
+            self._record_command(command, *apply_command(self, command))
+
+    def _record_command(self, command: Command, ok: bool, message: str) -> None:
+        """The command's event, journal line and answer (sent after the tick)."""
+        sender = f" (by {command.sender})" if command.sender else ""
+        self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}{sender}")
+        if command.name != "reload":              # the daemon's reload says it in the journal itself
+            log.log(logging.INFO if ok else logging.WARNING, "command %s %s: %s%s", command.name,
+                    "accepted" if ok else "refused", message, sender)
+        self._answers.append((command, ok, message))
 
     def _answer_commands(self) -> None:
         """Answer the commands applied this tick, now that its status is published."""

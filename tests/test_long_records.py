@@ -227,3 +227,17 @@ def test_a_six_hour_record_with_a_hidden_effect_is_analysed_and_identified_in_bo
     # all six hours: about 245 MB and 14 s of CPU; 400 MB and 40 s when the whole text was read and both
     # thermometers were fitted on one weighted design matrix
     assert peak_MB < 350.0 and cpu_s < 30.0, (peak_MB, cpu_s)
+
+
+def test_identify_fits_the_stretch_asked_for_and_says_so(tmp_path, capsys, reference_model):
+    from cryod import cli
+    from cryod.records.record import write_record
+    from simulated_hw.measurement_programs import make_record
+
+    made = make_record(reference_model, "pi_only", duration_s=2400.0, seed=4)
+    path = write_record(tmp_path / "pi.csv", made.columns, made.metadata)
+    status = cli.main(["identify", str(path), "--max-duration", "1200", "--bootstrap", "0", "--max-terms", "2",
+                       "--out", str(tmp_path / "model.yaml")])
+    stderr = capsys.readouterr().err
+    assert status == 0, stderr
+    assert "pi.csv: fitted 0.33 h of the record's 0.67 h: t = 0.0 s to 1200.0 s" in stderr

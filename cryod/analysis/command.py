@@ -25,10 +25,10 @@ from cryod.analysis.model_uncertainty import model_uncertainty_check, report_sec
 from cryod.analysis.pipeline import analyze
 from cryod.analysis.record_data import analysed_stretch, read_record_data
 from cryod.analysis.record_window import ANALYSIS_WINDOW_S
-from cryod.argument_types import not_negative
 from cryod.analysis.report import write_report
 from cryod.analysis.segments import find_segments
 from cryod.analysis.summary import json_summary, model_header
+from cryod.argument_types import not_negative
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
 from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError

@@ -31,7 +31,7 @@ import logging
 import sys
 from pathlib import Path
 
-from cryod.analysis.record_data import read_record_data
+from cryod.analysis.record_data import analysed_stretch, read_record_data
 from cryod.analysis.summary import plain
 from cryod.argument_types import not_negative, number, positive
 from cryod.identification.experiment import ExperimentPlan
@@ -70,6 +70,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     parser.add_argument("--bootstrap", type=int, default=BOOTSTRAP_REPLICATES, metavar="N",
                         help=f"block-bootstrap refits checking the uncertainties (default {BOOTSTRAP_REPLICATES}; "
                              "0: the fit's covariance only)")
+    parser.add_argument("--max-duration", type=not_negative, default=0.0, metavar="S",
+                        help="fit only the stretch of S seconds of each record where the heater moves most (bounds "
+                             "time and memory on day-long records; default 0: every record whole)")
     parser.add_argument("--report", default=None, metavar="DIR",
                         help="write figures and report.md here (default with --acquire: <out>-report)")
     parser.add_argument("--no-figures", action="store_true", help="report without figures")
@@ -288,6 +291,11 @@ def run(args: argparse.Namespace) -> int:
     except (RecordFormatError, FileFormatError) as error:
         print(f"{PROGRAM}: {error}", file=sys.stderr)
         return 2
+    stretches = [analysed_stretch(data, getattr(args, "max_duration", 0.0)) for data in records]
+    for path, data, part in zip(record_paths, records, stretches):
+        if part is not data:
+            print(f"{PROGRAM}: {path}: {part.notes[-1].replace('analysed', 'fitted', 1)}", file=sys.stderr)
+    records = stretches
     found_per_record = [record_problems(data, base) for data in records]
     if any(not any(p.startswith("no heater step") for p in found) for found in found_per_record):
         # another record has the step: one without (a hold for the line) only adds to the fit

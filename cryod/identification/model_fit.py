@@ -203,12 +203,16 @@ def identify_model(records: list[RecordData], base: CryostatModel, *, harmonics:
     try:
         flange_selection = select_terms(flange_channel, max_terms=max_terms,
                                         base_time_constants_s=base.heater_to_thermometer.time_constants_s)
+        flange_channel.forget_responses()       # a long record's heater responses: one channel's at a time
         stage_selection = select_terms(stage_channel, max_terms=max_terms,
                                        base_time_constants_s=base.heater_to_ptc_stage.time_constants_s)
+        stage_channel.forget_responses()
     except StepFitError as error:
         raise IdentificationError(str(error)) from None
     flange = _channel_result(flange_channel, flange_selection, replicates, block_s, seed)
+    flange_channel.forget_responses()
     stage = _channel_result(stage_channel, stage_selection, replicates, block_s, None if seed is None else seed + 1)
+    stage_channel.forget_responses()
     line = prepared[0].line
     noise = (_measured_noise(records, flange.residual_K, line.angular_frequency_rad_s),
              _measured_noise(records, stage.residual_K, line.angular_frequency_rad_s))

@@ -37,6 +37,7 @@ Examples
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -58,6 +59,8 @@ BIC_MARGIN = 10.0
 MAX_EVALUATIONS_PER_PARAMETER = 40
 #: Two time constants closer than this ratio count as one (a degenerate fit).
 MERGED_RATIO = 1.05
+#: Heater responses kept per record (each one float per row): a fit's current time constants and the last ones.
+KEPT_RESPONSES = 2 * MAX_TERMS
 
 
 class StepFitError(ValueError):
@@ -104,12 +107,19 @@ class ChannelRecord:
     def elapsed_s(self) -> np.ndarray:
         return self.time_s - self.time_s[0]
 
+    def with_target(self, target_K: np.ndarray) -> "ChannelRecord":
+        """The same record with another target (a bootstrap's), sharing the heater responses kept."""
+        record = dataclasses.replace(self, target_K=target_K, valid=self.valid.copy())
+        record._responses = self._responses
+        return record
+
     def response(self, time_constant_s: float) -> np.ndarray:
-        """:func:`heater_response`, kept for the last few time constants asked for (a fit asks again and again)."""
+        """:func:`heater_response`, kept for the last :data:`KEPT_RESPONSES` time constants asked for (a fit
+        asks again and again; records that differ only in their target share them, :meth:`with_target`)."""
         key = float(time_constant_s)
         found = self._responses.get(key)
         if found is None:
-            if len(self._responses) >= 16:
+            if len(self._responses) >= KEPT_RESPONSES:
                 self._responses.pop(next(iter(self._responses)))
             found = self._responses[key] = heater_response(self, key)
         return found
@@ -160,18 +170,23 @@ class StepChannel:
         count = taus.size
         others = len(self.other_names)
         columns = count + others + count * len(self.records)
-        blocks, targets = [], []
-        for index, record in enumerate(self.records):
-            rows = record.valid if masks is None else (record.valid & masks[index])
-            block = np.zeros((int(np.count_nonzero(rows)), columns))
+        selected = [record.valid if masks is None else (record.valid & masks[index])
+                    for index, record in enumerate(self.records)]
+        sizes = [int(np.count_nonzero(rows)) for rows in selected]
+        # column by column (Fortran order): what a QR factorisation works on, without a copy
+        design = np.zeros((sum(sizes), columns), order="F")
+        target = np.empty(sum(sizes))
+        start = 0
+        for index, (record, rows, size) in enumerate(zip(self.records, selected, sizes)):
+            block = slice(start, start + size)
             elapsed = record.elapsed_s[rows]
             for i, tau in enumerate(taus):
-                block[:, i] = record.response(tau)[rows]
-                block[:, count + others + count * index + i] = np.exp(-elapsed / tau)
-            block[:, count:count + others] = record.other_columns[rows]
-            blocks.append(block)
-            targets.append(record.target_K[rows])
-        return np.vstack(blocks), np.concatenate(targets)
+                design[block, i] = record.response(tau)[rows]
+                design[block, count + others + count * index + i] = np.exp(-elapsed / tau)
+            design[block, count:count + others] = record.other_columns[rows]
+            target[block] = record.target_K[rows]
+            start += size
+        return design, target
 
     def prediction_derivative(self, time_constants_s, coefficients, index: int, masks=None) -> np.ndarray:
         """d(design @ coefficients) / d tau_index over the rows of :meth:`design` (K/s).
@@ -193,6 +208,11 @@ class StepChannel:
             pieces.append(coefficients[index] * response
                           + amplitude * elapsed / tau ** 2 * np.exp(-elapsed / tau))
         return np.concatenate(pieces)
+
+    def forget_responses(self) -> None:
+        """Let go of the heater responses the records keep (one float per row each)."""
+        for record in self.records:
+            record._responses.clear()
 
     def has_heater_change(self) -> bool:
         return any(np.ptp(r.heater_w) > 0.0 for r in self.records)
@@ -247,8 +267,18 @@ class TermFit:
         return float(self.coefficients[self.count + index])
 
 
-def least_squares_solution(design: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def least_squares_solution(design: np.ndarray, target: np.ndarray, *,
+                           overwrite_design: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Linear least squares by a QR factorisation of the column-scaled design.
+
+    Parameters
+    ----------
+    design : numpy.ndarray
+        rows x columns.
+    target : numpy.ndarray
+    overwrite_design : bool
+        Scale and factorise ``design`` in place (it is left scaled and
+        destroyed): no copy of a long record's design.
 
     Returns
     -------
@@ -258,14 +288,20 @@ def least_squares_solution(design: np.ndarray, target: np.ndarray) -> tuple[np.n
     """
     scale = np.linalg.norm(design, axis=0)
     scale[scale == 0.0] = 1.0
-    scaled = design / scale
-    q, r = np.linalg.qr(scaled)
+    if overwrite_design:
+        design /= scale
+        scaled = design
+    else:
+        scaled = design / scale
+    q, r = linalg.qr(scaled, mode="economic", overwrite_a=True, check_finite=False)
     diagonal = np.abs(np.diag(r))
     if diagonal.size and diagonal.min() > 1e-10 * diagonal.max():
         return linalg.solve_triangular(r, q.T @ target) / scale, q
-    u, singular, _ = np.linalg.svd(scaled, full_matrices=False)
-    solution, *_ = np.linalg.lstsq(scaled, target, rcond=None)
-    return solution / scale, u[:, singular > 1e-10 * singular.max()]
+    # rank-deficient: the minimum-norm solution from the SVD of R (scaled = Q R = (Q U) S V^T)
+    u, singular, vt = np.linalg.svd(r)
+    kept = singular > np.finfo(float).eps * max(scaled.shape) * singular.max()
+    solution = vt[kept].T @ ((u[:, kept].T @ (q.T @ target)) / singular[kept])
+    return solution / scale, q @ u[:, singular > 1e-10 * singular.max()]
 
 
 def _solve(channel: StepChannel, taus, masks=None):
@@ -290,14 +326,17 @@ def fit_terms(channel: StepChannel, start_time_constants_s, masks=None) -> TermF
     def solved(log_taus):
         key = tuple(log_taus)
         if last.get("key") != key:
+            last.clear()                      # the previous evaluation's arrays go before the next are made
             design, target = channel.design(np.exp(log_taus), masks)
-            solution, basis = least_squares_solution(design, target)
-            last.update(key=key, design=design, target=target, solution=solution, basis=basis)
+            solution, basis = least_squares_solution(design, target, overwrite_design=True)
+            del design
+            # the residual is what the design's columns leave of the target: its projection off them
+            target -= basis @ (basis.T @ target)
+            last.update(key=key, residual=target, solution=solution, basis=basis)
         return last
 
     def residual(log_taus):
-        found = solved(log_taus)
-        return (found["target"] - found["design"] @ found["solution"]) * 1e3   # mK: scaled for the tolerances
+        return solved(log_taus)["residual"] * 1e3           # mK: scaled for the tolerances
 
     def jacobian(log_taus):
         # variable projection (Kaufman): d r / d log tau_k = -P (d D / d tau_k) c tau_k, P the projection
@@ -305,11 +344,12 @@ def fit_terms(channel: StepChannel, start_time_constants_s, masks=None) -> TermF
         found = solved(log_taus)
         taus = np.exp(log_taus)
         basis = found["basis"]
-        columns = []
+        columns = np.empty((basis.shape[0], taus.size), order="F")
         for k in range(taus.size):
             change = channel.prediction_derivative(taus, found["solution"], k, masks) * taus[k]
-            columns.append(-(change - basis @ (basis.T @ change)) * 1e3)
-        return np.column_stack(columns)
+            change -= basis @ (basis.T @ change)
+            columns[:, k] = change * -1e3
+        return columns
 
     result = optimize.least_squares(residual, start, jac=jacobian, bounds=(low, high), method="trf", x_scale=1.0,
                                     max_nfev=MAX_EVALUATIONS_PER_PARAMETER * (start.size + 1))

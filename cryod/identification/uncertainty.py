@@ -27,7 +27,6 @@ Examples
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -102,15 +101,19 @@ def prediction_jacobian(channel: StepChannel, fit: TermFit) -> np.ndarray:
     """Derivatives of the prediction (valid rows) by ``[taus, coefficients]``."""
     taus = fit.time_constants_s
     design, _ = channel.design(taus)
-    columns = [None] * taus.size
+    jacobian = np.empty((design.shape[0], taus.size + design.shape[1]), order="F")
+    jacobian[:, taus.size:] = design
+    del design
     for i, tau in enumerate(taus):
         step = DIFFERENCE_STEP * tau
         upper, lower = taus.copy(), taus.copy()
         upper[i] += step
         lower[i] -= step
-        difference = (channel.design(upper)[0] - channel.design(lower)[0]) / (2.0 * step)
-        columns[i] = difference @ fit.coefficients
-    return np.column_stack(columns + [design])
+        difference = channel.design(upper)[0]
+        difference -= channel.design(lower)[0]
+        difference /= 2.0 * step
+        jacobian[:, i] = difference @ fit.coefficients
+    return jacobian
 
 
 def fit_covariance(channel: StepChannel, fit: TermFit) -> tuple[np.ndarray, float]:
@@ -159,7 +162,7 @@ def block_bootstrap(channel: StepChannel, fit: TermFit, replicates: int = BOOTST
             made = prediction[rows] + _resampled(residual[rows], int(round(block_s / interval)), generator)
             target_K = np.full(record.time_s.size, np.nan)
             target_K[record.valid] = made
-            records.append(dataclasses.replace(record, target_K=target_K, valid=record.valid.copy()))
+            records.append(record.with_target(target_K))
         trial = StepChannel(channel.name, records, channel.other_names)
         try:
             refit = fit_terms(trial, fit.time_constants_s)

@@ -3,10 +3,14 @@
 Run: PYTHONPATH=. python3 benchmarks/analysis_speed.py [--repeat N] [--no-figures]
 
 For each hidden cause (and a clean record) an identification-style record of
-one hour is simulated and written to a temporary directory; ``cryod analyze``
-is then timed on it as a user runs it (reading the file, every candidate,
-discrepancies, figures, report, model file), best of N. Printed: one row per
-record with the named cause and the time of each step.
+one hour is simulated on a cryostat whose base parameters are off the shipped
+model's by up to 5 % (:func:`simulated_hw.hidden_effects.perturbed_base`) and
+written to a temporary directory; ``cryod analyze`` is then timed on it as a
+user runs it (reading the file, recalibration, every candidate, naming the
+causes, discrepancies, figures, report, model file), best of N. Printed: one
+row per record with the named cause, the wall time of each step and the
+process's CPU time (the machine is shared: CPU time is what the analysis
+itself costs).
 """
 
 from __future__ import annotations
@@ -26,12 +30,17 @@ from cryod.model import (
     load_model,
 )
 from cryod.records.record import write_record
+from simulated_hw.hidden_effects import perturbed_base
 from simulated_hw.measurement_programs import make_record
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def cases(model):
+    return {name: perturbed_base(hidden, seed=index)[0] for index, (name, hidden) in enumerate(_hidden(model).items())}
+
+
+def _hidden(model):
     return {
         "none": model,
         "sensor_lag": model.with_effects(sensor_lag=SensorLag(0.3)),
@@ -51,8 +60,9 @@ def main() -> None:
     args = parser.parse_args()
     model = load_model(ROOT / "config" / "model.yaml")
     print(f"python {platform.python_version()}, {platform.machine()}, one hour at 12.5 Hz, best of {args.repeat}")
-    print("| hidden | named | total (s) | of which: candidates (s) | discrepancies (s) | figures (s) |")
-    print("|---|---|---|---|---|---|")
+    print("| hidden | named | total (s) | CPU (s) | of which: recalibration (s) | candidates (s) | naming (s) | "
+          "discrepancies (s) | figures (s) |")
+    print("|---|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as directory:
         for name, hidden in cases(model).items():
             path = Path(directory) / f"{name}.csv"
@@ -61,23 +71,25 @@ def main() -> None:
             best = None
             for attempt in range(args.repeat):
                 out = Path(directory) / f"{name}-{attempt}"
-                started = time.perf_counter()
+                started, cpu = time.perf_counter(), time.process_time()
                 argv = ["analyze", str(path), "--out", str(out), "--json"] + (["--no-figures"] if args.no_figures else [])
                 buffer = io.StringIO()
                 with contextlib.redirect_stdout(buffer):
                     status = cli.main(argv)
-                elapsed = time.perf_counter() - started
+                elapsed, cpu = time.perf_counter() - started, time.process_time() - cpu
                 if status != 0:
                     raise SystemExit(f"cryod analyze failed on {path}")
                 result = json.loads(buffer.getvalue())
                 timings = _timings(out / "report.md")
                 if best is None or elapsed < best[0]:
-                    best = (elapsed, result["cause"], timings)
-            elapsed, cause, timings = best
-            candidates = sum(v for k, v in timings.items() if k not in ("discrepancies", "figures", "total",
-                                                                         "base replay and noise"))
-            print(f"| {name} | {cause} | {elapsed:.2f} | {candidates:.2f} | {timings.get('discrepancies', 0):.2f} | "
-                  f"{timings.get('figures', 0):.2f} |")
+                    best = (elapsed, cpu, "+".join(c["cause"] for c in result["causes"]) or result["cause"], timings)
+            elapsed, cpu, cause, timings = best
+            steps = ("discrepancies", "figures", "total", "base replay and noise", "recalibration",
+                     "naming the causes")
+            candidates = sum(v for k, v in timings.items() if k not in steps and "next cause" not in k)
+            print(f"| {name} | {cause} | {elapsed:.2f} | {cpu:.2f} | {timings.get('recalibration', 0):.2f} | "
+                  f"{candidates:.2f} | {timings.get('naming the causes', 0):.2f} | "
+                  f"{timings.get('discrepancies', 0):.2f} | {timings.get('figures', 0):.2f} |")
 
 
 def _timings(report: Path) -> dict:

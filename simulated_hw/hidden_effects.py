@@ -17,6 +17,9 @@ Examples
 from __future__ import annotations
 
 import dataclasses
+import math
+
+import numpy as np
 
 from cryod.model import (
     CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, OperatingPoint,
@@ -82,6 +85,71 @@ def other_day(model: CryostatModel, variant: int) -> CryostatModel:
     return model
 
 
+#: How far the truth's base parameters are moved from the shipped model's by :func:`perturbed_base`:
+#: each gain and time constant by up to this fraction, the line's phase by up to this many rad.
+PERTURBATION_FRACTION = 0.05
+PERTURBATION_LINE_PHASE_RAD = 0.05
+
+
+def perturbed_base(model: CryostatModel, seed: int, fraction: float = PERTURBATION_FRACTION,
+                   line_phase_rad: float = PERTURBATION_LINE_PHASE_RAD) -> tuple[CryostatModel, dict]:
+    """The same kind of cryostat with its base parameters off by a few percent, as real ones are.
+
+    Each gain and time constant of the model's structure is multiplied by a
+    factor drawn uniformly from ``1 +- fraction``: G1's static gain, its zero's
+    and its pole's time constants, G2's time constant, G3's gain and time
+    constant, the link's static gain. The line's phase on T2 is moved by up to
+    ``line_phase_rad`` through the link's time constant. The model must have
+    the shipped structure (G1 one zero and one pole, G2, G3 and the link first
+    order).
+
+    Parameters
+    ----------
+    model : CryostatModel
+    seed : int
+        Seed of the draw.
+    fraction : float
+        Largest relative change of a gain or a time constant.
+    line_phase_rad : float
+        Largest change of the line's phase on T2 (rad).
+
+    Returns
+    -------
+    model : CryostatModel
+    changes : dict
+        The factor applied to each parameter (and the line's phase change in rad).
+
+    Examples
+    --------
+    >>> from cryod.model import load_model
+    >>> model, changes = perturbed_base(load_model(), seed=3)
+    >>> all(abs(factor - 1.0) <= 0.05 for name, factor in changes.items() if name != "line_phase_rad")
+    True
+    """
+    from cryod.model.transfer_function import TransferFunction
+
+    generator = np.random.default_rng(seed)
+    names = ("flange_gain", "flange_zero_time_constant", "flange_time_constant", "thermometer_time_constant",
+             "stage_gain", "stage_time_constant", "link_gain")
+    factors = {name: float(1.0 + generator.uniform(-fraction, fraction)) for name in names}
+    shift = float(generator.uniform(-line_phase_rad, line_phase_rad))
+    (zero, gain), (pole, _) = model.heater_to_flange.numerator, model.heater_to_flange.denominator
+    gain_new = gain * factors["flange_gain"]
+    zero_time = zero / gain * factors["flange_zero_time_constant"]
+    heater_to_flange = TransferFunction((zero_time * gain_new, gain_new), (pole * factors["flange_time_constant"], 1.0))
+    thermometer = TransferFunction.first_order_lag(model.flange_to_thermometer.denominator[0]
+                                                   * factors["thermometer_time_constant"])
+    stage = TransferFunction.first_order_lag(model.heater_to_ptc_stage.denominator[0] * factors["stage_time_constant"],
+                                             model.heater_to_ptc_stage.dc_gain * factors["stage_gain"])
+    omega = model.ptc.angular_frequency_rad_s
+    link_time = model.ptc_to_flange.denominator[0]
+    link_time = math.tan(math.atan(omega * link_time) - shift) / omega
+    link = TransferFunction.first_order_lag(link_time, model.ptc_to_flange.dc_gain * factors["link_gain"])
+    changed = dataclasses.replace(model, heater_to_flange=heater_to_flange, flange_to_thermometer=thermometer,
+                                  heater_to_ptc_stage=stage, ptc_to_flange=link)
+    return changed, {**factors, "line_phase_rad": shift}
+
+
 def hidden_model(model: CryostatModel, cause: str, magnitude: int, variant: int = 0):
     """(model with the effect, truth) for a cause and a magnitude index (0, 1, 2), on day ``variant``."""
     changes, truth = MAGNITUDES[cause][magnitude]
@@ -89,6 +157,28 @@ def hidden_model(model: CryostatModel, cause: str, magnitude: int, variant: int 
     if "harmonics" in changes:
         return model.with_ptc(harmonics=changes["harmonics"]), truth
     return model.with_effects(**changes), truth
+
+
+#: The causes by the part of the cryostat they change; two effects from different groups are told apart.
+EFFECT_GROUPS = {
+    "heater path": ("dead_time", "heater_nonlinearity", "heat_capacity_temperature"),
+    "link and thermometers": ("sensor_lag", "link_dynamics"),
+    "cooler": ("ptc_harmonics", "ptc_frequency_drift"),
+}
+
+
+def combined_model(model: CryostatModel, causes: dict, variant: int = 0):
+    """(model with several effects, {cause: truth}) for ``{cause: magnitude index}``, on day ``variant``."""
+    model = other_day(model, variant)
+    truths = {}
+    for cause, magnitude in causes.items():
+        changes, truth = MAGNITUDES[cause][magnitude]
+        if "harmonics" in changes:
+            model = model.with_ptc(harmonics=changes["harmonics"])
+        else:
+            model = model.with_effects(**changes)
+        truths[cause] = truth
+    return model, truths
 
 
 def within(fitted, true, relative: float = 0.2) -> bool:

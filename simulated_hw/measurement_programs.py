@@ -1,6 +1,6 @@
 """Measurement programs run on the simulated cryostat: the records the model tools are tested on.
 
-Two kinds, as in the lab:
+Three kinds, as in the lab:
 
 * :func:`identification_program`: open-loop heater holds and steps at 4.23 K,
   heater modulation at the PTC line and away from it, a PI segment to 5 K,
@@ -8,6 +8,10 @@ Two kinds, as in the lab:
   analysis knows leaves a mark on one of them.
 * :func:`pi_only_program`: the paper's Fig. 6, PI from the zero-heater
   operating point to 5 K and held there.
+* ``"feedforward"``: the same PI with the daemon's adaptive feedforward
+  (:mod:`cryod.control.feedforward`) running from the start, as the service
+  regulates; its controller model is the one given (the shipped model in the
+  lab), not the cryostat's.
 
 :func:`make_record` runs a program on a model (with any hidden effect in it)
 and returns the cryod-log columns and metadata, ready for
@@ -42,7 +46,7 @@ RECORD_GAINS = PiGains(proportional_w_per_K=0.4, integral_w_per_K_s=0.01)
 #: Angular frequency of the heater modulation away from the line (rad/s).
 OFF_LINE_MODULATION_RAD_S = 2.5
 
-PROTOCOLS = ("identification", "pi_only")
+PROTOCOLS = ("identification", "pi_only", "feedforward")
 
 
 def _modulation(mean_w: float, amplitude_w: float, angular_frequency_rad_s: float) -> Callable[[float], float]:
@@ -94,7 +98,7 @@ def make_record(model: CryostatModel, protocol: str, *, duration_s: float = 3600
                 unrecorded_heat_w: Callable[[float], float] | None = None,
                 flange_offset_K: Callable[[np.ndarray], np.ndarray] | None = None,
                 period_s: float = 0.08, timing_jitter_s: float = 0.0,
-                setpoint_K: float = 5.0) -> SimulatedRecordColumns:
+                setpoint_K: float = 5.0, controller_model: CryostatModel | None = None) -> SimulatedRecordColumns:
     """Run a protocol on the simulated cryostat.
 
     Parameters
@@ -102,7 +106,7 @@ def make_record(model: CryostatModel, protocol: str, *, duration_s: float = 3600
     model : CryostatModel
         The cryostat, with whatever effect it should have.
     protocol : str
-        ``"identification"`` or ``"pi_only"``.
+        ``"identification"``, ``"pi_only"`` or ``"feedforward"``.
     duration_s : float
     seed : int
         Sensor-noise seed.
@@ -113,20 +117,28 @@ def make_record(model: CryostatModel, protocol: str, *, duration_s: float = 3600
     period_s, timing_jitter_s : float
         Loop period and the largest lateness of a trigger (s).
     setpoint_K : float
-        Setpoint of the PI-only protocol.
+        Setpoint of the PI-only and feedforward protocols.
+    controller_model : CryostatModel, optional
+        The feedforward's model (default: ``model`` itself).
 
     Returns
     -------
     SimulatedRecordColumns
     """
+    more_terms = ()
     if protocol == "identification":
         segments = identification_program(model, duration_s)
-    elif protocol == "pi_only":
+    elif protocol in ("pi_only", "feedforward"):
         segments = pi_only_program(setpoint_K)
+        if protocol == "feedforward":
+            from cryod.control.feedforward import FeedforwardSettings
+
+            more_terms = (("feedforward", FeedforwardSettings(model=controller_model or model, period_s=period_s)),)
     else:
         raise ValueError(f"unknown protocol {protocol!r}; known: {', '.join(PROTOCOLS)}")
     run = run_program(model, segments, duration_s, gains=RECORD_GAINS, heater_max_w=HEATER_MAX_W, seed=seed,
-                      unrecorded_heat_w=unrecorded_heat_w, period_s=period_s, timing_jitter_s=timing_jitter_s)
+                      unrecorded_heat_w=unrecorded_heat_w, period_s=period_s, timing_jitter_s=timing_jitter_s,
+                      more_terms=more_terms)
     columns = run.columns()
     if flange_offset_K is not None:
         columns["T2_K"] = columns["T2_K"] + flange_offset_K(columns["time_s"])

@@ -1,5 +1,10 @@
 """The analysis finds effects hidden in simulated records: the cause, its parameters within 20 %, a gain above 1.
 
+The records come from cryostats whose base parameters are off the shipped
+model's by up to 5 % (gains, time constants) and 0.05 rad (the line's phase),
+as real ones are (:func:`simulated_hw.hidden_effects.perturbed_base`): the
+analysis recalibrates them and names the cause on top.
+
 Default run: one realistic magnitude of each cause, each in one protocol, plus
 clean records and disturbances outside the list. ``pytest -m slow``: every
 cause x both protocols x three magnitudes, clean records and every
@@ -13,8 +18,8 @@ import pytest
 
 from cryod.model import load_model, save_model
 from tests.hidden_effects import (
-    DISTURBANCES, DURATIONS_S, MAGNITUDES, SLOW_DURATIONS_S, analysed, analysed_case, base_model, hidden_model,
-    other_day, parameter_errors, within,
+    CROSS_GROUP_PAIRS, DISTURBANCES, DURATIONS_S, MAGNITUDES, SLOW_DURATIONS_S, analysed, analysed_case, base_model,
+    other_day, parameter_errors, real_model, two_effect_model, within,
 )
 
 FAST_CASES = [
@@ -32,8 +37,9 @@ def _check_found(analysis, cause, truth):
     assert analysis.cause == cause, analysis.decision.reason
     for name, (fitted, true) in parameter_errors(analysis, cause, truth).items():
         assert within(fitted, true), f"{name}: fitted {fitted}, true {true}"
-    assert analysis.decision.gain.ratio > 1.0
-    assert analysis.decision.gain.ratio == pytest.approx(analysis.scores[cause].gain.ratio)
+    assert analysis.cause_names == [cause]
+    assert analysis.causes[0].gain.ratio > 1.0 and analysis.decision.gain.ratio > 1.0
+    assert analysis.decision.gain.extended < 1.1          # the extended model leaves the noise, or nearly
     with tempfile.TemporaryDirectory() as directory:          # the extended model survives its file
         loaded = load_model(save_model(analysis.extended_model, Path(directory) / "extended.yaml"))
     assert loaded.effect_names() == [cause]
@@ -46,10 +52,23 @@ def test_hidden_effect_is_found(cause, protocol):
 
 
 @pytest.mark.parametrize("protocol", ["identification", "pi_only"])
-def test_clean_record_gives_none(protocol):
+def test_clean_record_gives_none_with_the_recalibration(protocol):
+    """Base parameters off by a few percent and nothing else: none, the recalibration reported and applied."""
     analysis = analysed_case("none", 1, protocol, DURATIONS_S[protocol])
     assert analysis.cause == "none", analysis.decision.reason
-    assert analysis.decision.gain.ratio == 1.0
+    assert analysis.causes == [] and analysis.recalibrated
+    assert "parameters differ" in analysis.decision.reason
+    assert analysis.decision.gain.ratio > 5.0 and analysis.decision.gain.extended < 1.05
+    assert analysis.recalibration_gain.ratio == pytest.approx(analysis.decision.gain.ratio, rel=0.05)
+    assert analysis.extended_model is not analysis.base_model and not analysis.extended_model.effect_names()
+
+
+@pytest.mark.parametrize("protocol", ["identification", "pi_only"])
+def test_record_of_the_model_itself_keeps_the_model(protocol):
+    """The shipped parameters exactly (another day): none, nothing recalibrated, the base model kept."""
+    analysis = analysed_case("none", 1, protocol, DURATIONS_S[protocol], perturbation=None)
+    assert analysis.cause == "none", analysis.decision.reason
+    assert not analysis.recalibrated and analysis.decision.gain.ratio == 1.0
     assert analysis.extended_model is analysis.base_model
 
 
@@ -57,15 +76,30 @@ def test_clean_record_gives_none(protocol):
                                                    ("thermometer drift", "identification")])
 def test_disturbance_outside_the_list_is_unexplained(disturbance, protocol):
     duration = DURATIONS_S[protocol]
-    analysis = analysed(other_day(base_model(), 2), protocol, duration, 3, **DISTURBANCES[disturbance](duration))
+    model, _ = real_model("none", 0, variant=2, perturbation=5)
+    analysis = analysed(model, protocol, duration, 3, **DISTURBANCES[disturbance](duration))
     assert analysis.cause == "unexplained", analysis.decision.reason
     assert analysis.decision.base.present
 
 
+#: Catalog cases at the edge of what a record with its base parameters off can tell (docs/analysis.md, Limits).
+KNOWN_LIMITS = {
+    ("dead_time", "pi_only", 0): "a 0.2 s dead time on a PI-only record is, within the noise, a fraction of a "
+                                 "second more of G2's 26.5 s time constant, which the recalibration takes",
+    ("sensor_lag", "pi_only", 0): "at the line alone a 0.03 s lag and a link whose gain matches within the "
+                                  "recalibration's 10 % are a tie on a PI-only record",
+    ("link_dynamics", "identification", 2): "w tau = 6.5: the line's phase near -pi/2 fixes g/tau, a 0.05 rad "
+                                            "error of the base phase moves tau by a third",
+    ("link_dynamics", "pi_only", 2): "w tau = 6.5: the line's phase near -pi/2 fixes g/tau, a 0.05 rad error of "
+                                     "the base phase moves tau by a third",
+}
+EVERY_CASE = [pytest.param(cause, protocol, magnitude, marks=[pytest.mark.xfail(
+    reason=KNOWN_LIMITS[(cause, protocol, magnitude)], strict=False)] if (cause, protocol, magnitude) in KNOWN_LIMITS
+    else []) for cause in sorted(MAGNITUDES) for protocol in ("identification", "pi_only") for magnitude in (0, 1, 2)]
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("magnitude", [0, 1, 2])
-@pytest.mark.parametrize("protocol", ["identification", "pi_only"])
-@pytest.mark.parametrize("cause", sorted(MAGNITUDES))
+@pytest.mark.parametrize("cause, protocol, magnitude", EVERY_CASE)
 def test_every_cause_protocol_and_magnitude(cause, protocol, magnitude):
     analysis = analysed_case(cause, magnitude, protocol, SLOW_DURATIONS_S[protocol], seed=2)
     _check_found(analysis, cause, MAGNITUDES[cause][magnitude][1])
@@ -84,7 +118,8 @@ def test_clean_records_of_other_days_give_none(protocol, variant):
 @pytest.mark.parametrize("disturbance", sorted(DISTURBANCES))
 def test_every_disturbance_is_unexplained(disturbance, protocol):
     duration = SLOW_DURATIONS_S[protocol]
-    analysis = analysed(other_day(base_model(), 1), protocol, duration, 5, **DISTURBANCES[disturbance](duration))
+    model, _ = real_model("none", 0, variant=1, perturbation=6)
+    analysis = analysed(model, protocol, duration, 5, **DISTURBANCES[disturbance](duration))
     assert analysis.cause == "unexplained", analysis.decision.reason
 
 
@@ -97,7 +132,7 @@ def test_effects_with_sampling_jitter_and_another_period(cause):
     from cryod.records.record import Record
     from simulated_hw.measurement_programs import make_record
 
-    model, truth = hidden_model(cause, 1, variant=1)
+    model, truth = real_model(cause, 1, variant=1, perturbation=7)
     record = make_record(model, "identification", duration_s=2400.0, seed=6, period_s=0.1, timing_jitter_s=0.02)
     analysis = analyze(RecordData.from_record(Record(record.metadata, record.columns, source="jittered")),
                        base_model())
@@ -112,7 +147,7 @@ def test_record_cut_in_the_middle_of_a_transient(cause):
     from cryod.records.record import Record
     from simulated_hw.measurement_programs import make_record
 
-    model, truth = (other_day(base_model(), 0), {}) if cause == "none" else hidden_model(cause, 1)
+    model, truth = real_model(cause, 1, variant=0, perturbation=8)
     record = make_record(model, "identification", duration_s=1500.0, seed=9)
     start = record.columns["time_s"] >= 270.0          # the 10 mW step is at 237 s
     columns = {name: values[start] for name, values in record.columns.items()}
@@ -133,7 +168,7 @@ def test_rows_without_a_reading_are_left_out():
     from cryod.records.record import Record
     from simulated_hw.measurement_programs import make_record
 
-    model, truth = hidden_model("dead_time", 1, variant=3)
+    model, truth = real_model("dead_time", 1, variant=3, perturbation=9)
     record = make_record(model, "pi_only", duration_s=900.0, seed=10)
     columns = dict(record.columns)
     generator = np.random.default_rng(0)
@@ -142,3 +177,40 @@ def test_rows_without_a_reading_are_left_out():
     data = RecordData.from_record(Record(record.metadata, columns, source="gaps"))
     assert any("left out" in note for note in data.notes)
     _check_found(analyze(data, base_model()), "dead_time", truth)
+
+
+# -- two effects at once ---------------------------------------------------------------------
+TWO_EFFECT_CASES = [
+    (("dead_time", "ptc_harmonics"), "identification"),          # heater path + cooler
+    (("heater_nonlinearity", "link_dynamics"), "pi_only"),       # heater path + link
+]
+
+
+def _check_both_found(analysis, truths):
+    assert set(analysis.cause_names) == set(truths), analysis.decision.reason
+    assert analysis.cause == analysis.cause_names[0]
+    for cause, truth in truths.items():
+        for name, (fitted, true) in parameter_errors(analysis, cause, truth).items():
+            assert within(fitted, true), f"{cause} {name}: fitted {fitted}, true {true}"
+    improvements = [named.score.improvement for named in analysis.causes]
+    assert improvements == sorted(improvements, reverse=True)          # strongest first
+    assert analysis.decision.gain.extended < 1.1
+    with tempfile.TemporaryDirectory() as directory:
+        loaded = load_model(save_model(analysis.extended_model, Path(directory) / "extended.yaml"))
+    assert set(loaded.effect_names()) == set(truths)
+
+
+@pytest.mark.parametrize("causes, protocol", TWO_EFFECT_CASES)
+def test_two_effects_at_once_are_both_named(causes, protocol):
+    model, truths = two_effect_model(causes, variant=1, perturbation=21)
+    analysis = analysed(model, protocol, DURATIONS_S[protocol], 4)
+    _check_both_found(analysis, truths)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("protocol", ["identification", "pi_only"])
+@pytest.mark.parametrize("causes", CROSS_GROUP_PAIRS)
+def test_every_pair_from_different_groups(causes, protocol):
+    model, truths = two_effect_model(causes, variant=2, perturbation=23)
+    analysis = analysed(model, protocol, SLOW_DURATIONS_S[protocol], 5)
+    _check_both_found(analysis, truths)

@@ -43,7 +43,15 @@ def test_analyze_writes_report_figures_model_and_json(dead_time_record, tmp_path
     status, out, err = _analyze(capsys, dead_time_record, "--out", tmp_path / "analysis", "--json")
     assert status == 0, err
     result = json.loads(out)
-    assert set(result) == {"cause", "discrepancies", "extended_model", "gain", "candidates"}
+    assert set(result) == {"cause", "causes", "recalibrated", "discrepancies", "extended_model", "gain",
+                           "candidates"}
+    assert [named["cause"] for named in result["causes"]] == ["dead_time"]
+    assert {"parameters", "explained_fraction", "gain"} <= set(result["causes"][0])
+    assert {row["parameter"] for row in result["recalibrated"]["parameters"]} >= {
+        "heater_to_flange static gain", "flange_to_thermometer time constant", "line gain on T2",
+        "line phase on T2", "operating point T2_0", "T2 white noise rms"}
+    assert all({"shipped", "fitted", "uncertainty", "significance"} <= set(row)
+               for row in result["recalibrated"]["parameters"])
     assert result["cause"] == "dead_time" and result["cause"] in CAUSES
     assert all(set(d) == {"quantity", "model", "measured", "significance"} for d in result["discrepancies"])
     assert max(d["significance"] for d in result["discrepancies"]) > 100.0

@@ -43,6 +43,7 @@ import numpy as np
 from scipy import optimize
 
 from cryod.analysis.ptc_line import PtcLine, measurable_orders
+from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD, LINK_PARAMETERS
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replay, Replayer
 from cryod.model import (
@@ -72,6 +73,13 @@ class FitContext:
     noise_rms_K: tuple[float, float]
     fit_mask: np.ndarray
     held_out_mask: np.ndarray
+    #: The base model's link before recalibration: the link cause is measured against it, since a link that
+    #: differs is what the recalibration of the link's gain and time scale moved towards (None: the model's own).
+    link_reference: TransferFunction | None = None
+    #: The recalibration the context's model carries (None: the base model as given).
+    recalibrated: object = None
+    #: The model whose heater part of T5 is taken out before the line is measured in it (None: ``base_model``).
+    line_model: CryostatModel | None = None
 
     def fit_chi_square(self, replay: Replay) -> float:
         """Weighted sum of squares of both thermometers on the fit samples."""
@@ -107,6 +115,12 @@ class CandidateFit:
         How the fit went, in words.
     parameter_count : int
         Parameters actually fitted (decides a tie between candidates).
+    effect : EffectForm or None
+        The effect as a vector of numbers, for refitting it jointly with the
+        recalibration (:mod:`cryod.analysis.refinement`); None when the
+        effect is measured (the cooler's own line) or has no such form.
+    excluded : tuple of str
+        Recalibration parameters this cause replaces (left out of its replays).
     """
 
     cause: str
@@ -116,6 +130,37 @@ class CandidateFit:
     line: PtcLine
     note: str = ""
     parameter_count: int = 1
+    effect: "EffectForm | None" = None
+    excluded: tuple = ()
+
+
+@dataclass(frozen=True)
+class EffectForm:
+    """An effect as numbers: its values, their bounds and steps, and how to put it into a model.
+
+    Attributes
+    ----------
+    values : tuple of float
+    lower, upper : tuple of float
+        Bounds of each value.
+    steps : tuple of float
+        Forward-difference step of each value.
+    apply : callable
+        ``apply(model, values)``: the model with the effect at these values.
+    describe : callable
+        ``describe(model)``: the fitted parameters (a dict) of a model with the effect.
+    """
+
+    values: tuple
+    lower: tuple
+    upper: tuple
+    steps: tuple
+    apply: object
+    describe: object
+
+
+def _effect_parameters(name: str):
+    return lambda model: dataclasses.asdict(getattr(model.effects, name))
 
 
 def _scalar_search(objective, grid, bounds, tolerance):
@@ -166,7 +211,9 @@ def fit_sensor_lag(context: FitContext) -> CandidateFit:
     measured in T5 is the source lagged by tau5, so with the flange lag alone
     the model's line on T2 is off by exactly the factor F = 1 + j w tau5;
     F is a linear least-squares coefficient (:func:`line_factor`), and
-    ``tau5 = tan(arg F) / w`` (0 below 1e-4 rad). A pair of thermometers lagging
+    ``tau5 = tan(arg F) / w`` (0 below 1e-4 rad, or below the recalibration's
+    tolerance on the line's phase when the model is recalibrated: that much is
+    the recalibration's). A pair of thermometers lagging
     alike leaves the line alone and shows only in the heater's paths.
     """
     omega = context.base_line.angular_frequency_rad_s
@@ -177,11 +224,14 @@ def fit_sensor_lag(context: FitContext) -> CandidateFit:
             return context.base_model
         return context.base_model.with_effects(sensor_lag=SensorLag(max(tau, 1e-9), stage))
 
+    # with a recalibration, a phase within its tolerance is the recalibration's, not a second thermometer's
+    smallest = LINE_PHASE_TOLERANCE_RAD if context.recalibrated is not None else STAGE_LAG_SMALLEST_PHASE_RAD
+
     def replay_at(tau):
         flange_only = model(tau)
         factor, replay = line_factor(context, flange_only)
         angle = cmath.phase(factor)
-        stage = float(min(math.tan(angle) / omega, 30.0)) if STAGE_LAG_SMALLEST_PHASE_RAD < angle < math.pi / 2 else 0.0
+        stage = float(min(math.tan(angle) / omega, 30.0)) if smallest < angle < math.pi / 2 else 0.0
         stage_taus[tau] = stage
         return replay if stage == 0.0 else context.replayer.replay(model(tau, stage), context.base_line)
 
@@ -189,9 +239,17 @@ def fit_sensor_lag(context: FitContext) -> CandidateFit:
     tau = _scalar_search(objective, np.geomspace(0.01, 20.0, 15), (0.0, 30.0), 1e-6)
     best = objective.replay(tau)
     stage = stage_taus[float(tau)]
+    if stage > 0.0:
+        effect = EffectForm((tau, stage), (1e-6, 0.0), (30.0, 30.0), (1e-3, 1e-3),
+                            lambda base, v: base.with_effects(sensor_lag=SensorLag(v[0], v[1])),
+                            _effect_parameters("sensor_lag"))
+    else:
+        effect = EffectForm((tau,), (1e-6,), (30.0,), (1e-3,),
+                            lambda base, v: base.with_effects(sensor_lag=SensorLag(v[0], 0.0)),
+                            _effect_parameters("sensor_lag"))
     return CandidateFit("sensor_lag", {"flange_thermometer_time_constant_s": tau,
                                        "ptc_stage_thermometer_time_constant_s": stage},
-                        model(tau, stage), best, context.base_line, parameter_count=1 + (stage > 0.0))
+                        model(tau, stage), best, context.base_line, parameter_count=1 + (stage > 0.0), effect=effect)
 
 
 def fit_dead_time(context: FitContext) -> CandidateFit:
@@ -204,8 +262,11 @@ def fit_dead_time(context: FitContext) -> CandidateFit:
     grid = np.concatenate([np.arange(0.05, 2.0, 0.1), np.geomspace(2.0, longest, 10)])
     objective = _CachedObjective(context, model, context.base_line)
     delay = _scalar_search(objective, grid, (0.0, longest), 1e-5)
+    effect = EffectForm((delay,), (0.0,), (longest,), (2e-3,),
+                        lambda base, v: base.with_effects(dead_time=DeadTime(max(v[0], 0.0))),
+                        _effect_parameters("dead_time"))
     return CandidateFit("dead_time", {"heater_to_flange_s": delay}, model(delay), objective.replay(delay),
-                        context.base_line)
+                        context.base_line, effect=effect)
 
 
 def fit_heat_capacity_temperature(context: FitContext) -> CandidateFit:
@@ -220,9 +281,16 @@ def fit_heat_capacity_temperature(context: FitContext) -> CandidateFit:
 
     objective = _CachedObjective(context, model, context.base_line)
     exponent = _scalar_search(objective, [-4.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 4.0], (-6.0, 6.0), 1e-5)
+    point = context.base_replay.operating_point
+    effect = EffectForm(
+        (exponent,), (-6.0,), (6.0,), (1e-2,),
+        lambda base, v: dataclasses.replace(base, operating_point=point).with_effects(
+            heat_capacity_temperature=HeatCapacityTemperature(v[0], reference)),
+        _effect_parameters("heat_capacity_temperature"))
     return CandidateFit("heat_capacity_temperature",
                         {"exponent": exponent, "reference_temperature_K": reference},
-                        model(exponent, context.base_model), objective.replay(exponent), context.base_line)
+                        model(exponent, context.base_model), objective.replay(exponent), context.base_line,
+                        effect=effect)
 
 
 def fit_heater_nonlinearity(context: FitContext) -> CandidateFit:
@@ -236,20 +304,25 @@ def fit_heater_nonlinearity(context: FitContext) -> CandidateFit:
     squared = replayer.simulate(quiet, data.heater_w ** 2, settled ** 2)
     point = quiet.operating_point
     columns = (squared.flange_K - point.flange_temperature_K, squared.ptc_stage_K - point.ptc_stage_temperature_K)
-    base_simulation = replayer.simulate(context.base_line.applied_to(context.base_model))
+    base_simulation = replayer.simulate(context.base_line.applied_to(context.base_model),
+                                        cycle=context.base_line.cycle)
     linear = replayer.replay_simulated(context.base_line.applied_to(context.base_model), base_simulation.flange_K,
-                                       base_simulation.ptc_stage_K, shared_columns=columns)
+                                       base_simulation.ptc_stage_K, shared_columns=columns,
+                                       basis=replayer.basis(context.base_line))
     found = already + float(linear.shared_coefficients[0])
     coefficient = float(np.clip(found, -1.0, 10.0))
     model = context.base_model.with_effects(heater_nonlinearity=HeaterNonlinearity(coefficient))
     note = "" if coefficient == found else f"least squares gave {found:.4g} /W, held to the model's range -1..10 /W"
+    effect = EffectForm((coefficient,), (-1.0,), (10.0,), (1e-2,),
+                        lambda base, v: base.with_effects(heater_nonlinearity=HeaterNonlinearity(v[0])),
+                        _effect_parameters("heater_nonlinearity"))
     return CandidateFit("heater_nonlinearity", {"quadratic_coefficient_per_W": coefficient}, model,
-                        replayer.replay(model, context.base_line), context.base_line, note)
+                        replayer.replay(model, context.base_line), context.base_line, note, effect=effect)
 
 
-def _ptc_fundamental_on_flange(model: CryostatModel, elapsed_s: np.ndarray) -> np.ndarray:
-    """Complex T2 response to the PTC fundamental, Z(t): T2's line is Re(Z) (K)."""
-    drive = PtcDrive(model)
+def _ptc_fundamental_on_flange(model: CryostatModel, elapsed_s: np.ndarray, cycle=None) -> np.ndarray:
+    """Complex T2 response to the PTC fundamental, Z(t): T2's line is Re(Z) (K); ``cycle``: the measured one."""
+    drive = PtcDrive(model, cycle)
     path = PtcPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
     phase, frequency = drive.cycle.phase_and_frequency(elapsed_s)
     component = drive.components[0]
@@ -284,27 +357,40 @@ def line_factor(context: FitContext, model: CryostatModel | None = None) -> tupl
     """
     data = context.data
     aligned = context.base_line.applied_to(model if model is not None else context.base_model)
-    response = _ptc_fundamental_on_flange(aligned, data.elapsed_s)
-    simulated = context.replayer.simulate(aligned)
+    cycle = context.base_line.cycle
+    response = _ptc_fundamental_on_flange(aligned, data.elapsed_s, cycle)
+    simulated = context.replayer.simulate(aligned, cycle=cycle)
+    basis = context.replayer.basis(context.base_line, without=LINK_PARAMETERS)
     linear = context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K,
                                                shared_columns=(np.column_stack([response.real, -response.imag]),
-                                                               np.zeros((data.time_s.size, 2))))
+                                                               np.zeros((data.time_s.size, 2))), basis=basis)
     return (complex(1.0 + linear.shared_coefficients[0], linear.shared_coefficients[1]),
-            context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K))
+            context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K, basis=basis))
 
 
 def fit_link_dynamics(context: FitContext) -> CandidateFit:
-    """PTC-to-flange path: complex factor at the line by linear least squares, then its physical form."""
+    """PTC-to-flange path: complex factor at the line by linear least squares, then its physical form.
+
+    The factor is measured against the base model's link before recalibration
+    (:attr:`FitContext.link_reference`), with the recalibration of the link
+    left out: it and this cause are the same freedom at the line.
+    """
     base = context.base_model
-    factor, _ = line_factor(context)
+    if context.link_reference is not None:
+        base = dataclasses.replace(base, ptc_to_flange=context.link_reference)
+    factor, _ = line_factor(context, base)
     omega = context.base_line.angular_frequency_rad_s
     note = ""
     inverse = 1.0 / factor if factor != 0 else complex(math.inf)
     tau = inverse.imag / (omega * inverse.real) if inverse.real > 0 else -1.0
+    effect = None
     if base.effects.link_dynamics is None and inverse.real > 0 and tau >= 0.0:
         gain = 1.0 / inverse.real
         model = base.with_effects(link_dynamics=LinkDynamics(tau, gain))
         parameters = {"time_constant_s": tau, "gain_factor": gain}
+        effect = EffectForm((tau, gain), (0.0, 1e-3), (30.0, 100.0), (1e-4, 1e-3),
+                            lambda reference, v: reference.with_effects(link_dynamics=LinkDynamics(max(v[0], 0.0), v[1])),
+                            _effect_parameters("link_dynamics"))
     else:
         link_at_line = factor * base.ptc_to_flange.frequency_response(omega)
         if base.effects.link_dynamics is not None:
@@ -321,8 +407,9 @@ def fit_link_dynamics(context: FitContext) -> CandidateFit:
                       "factor_at_line_gain": abs(factor), "factor_at_line_phase_rad": cmath.phase(factor)}
         note = ("the measured line leads the model's by {:.3f} rad: no lag g/(tau s + 1) gives that, so the "
                 "PTC-to-flange link itself is refitted".format(cmath.phase(factor)))
-    return CandidateFit("link_dynamics", parameters, model, context.replayer.replay(model, context.base_line),
-                        context.base_line, note, parameter_count=2)
+    return CandidateFit("link_dynamics", parameters, model,
+                        context.replayer.replay(model, context.base_line, basis_without=LINK_PARAMETERS),
+                        context.base_line, note, parameter_count=2, effect=effect, excluded=LINK_PARAMETERS)
 
 
 def fit_ptc_harmonics(context: FitContext) -> CandidateFit:
@@ -330,9 +417,9 @@ def fit_ptc_harmonics(context: FitContext) -> CandidateFit:
     base = context.base_model
     orders = measurable_orders(context.base_line.angular_frequency_rad_s, context.data.sample_interval_s)
     orders = tuple(sorted(set(orders) | set(context.base_line.orders)))
-    line = context.replayer.stage_line(base, orders=orders, drift=base.effects.ptc_frequency_drift is not None,
+    line = context.replayer.stage_line(context.line_model or base, orders=orders,
                                        angular_frequency_rad_s=context.base_line.angular_frequency_rad_s,
-                                       significant_only=True)
+                                       significant_only=True, measured_phase=context.base_line.cycle is not None)
     parameters = {}
     for component in line.components[1:]:
         parameters[f"order_{component.order}_amplitude_K"] = component.amplitude_K
@@ -343,10 +430,16 @@ def fit_ptc_harmonics(context: FitContext) -> CandidateFit:
 
 
 def fit_ptc_frequency_drift(context: FitContext) -> CandidateFit:
-    """The cooler's frequency changing over the record, from T5's phase."""
+    """The cooler's frequency changing over the record: the record replayed at the phase measured in T5.
+
+    The phase is followed sample by sample (:func:`cryod.analysis.ptc_line.measured_cycle`);
+    the drift's parameters are the model's form fitted to it
+    (:func:`cryod.analysis.ptc_line.fit_drift_to_phase`).
+    """
     base = context.base_model
-    line = context.replayer.stage_line(base, orders=context.base_line.orders, drift=True,
-                                       angular_frequency_rad_s=context.base_line.angular_frequency_rad_s)
+    line = context.replayer.stage_line(context.line_model or base, orders=context.base_line.orders,
+                                       angular_frequency_rad_s=context.base_line.angular_frequency_rad_s,
+                                       measured_phase=True)
     drift = line.drift
     parameters = dataclasses.asdict(drift)
     parameters["angular_frequency_at_start_rad_s"] = line.angular_frequency_rad_s

@@ -7,7 +7,8 @@ effect, or the base model unchanged when the cause is ``none`` or
 ``unexplained``) and ``analysis.json`` (the same object ``--json`` prints).
 
 Exit status: 0 done; 2 the record or the model cannot be used (the message
-names the file, the line and what is wrong); 1 the analysis itself failed.
+names the file, the line and what is wrong, or what the record is missing for
+an analysis: :mod:`cryod.analysis.usability`); 1 the analysis itself failed.
 The record is only read, never changed.
 """
 
@@ -28,6 +29,7 @@ from cryod.analysis.record_window import ANALYSIS_WINDOW_S
 from cryod.analysis.report import write_report
 from cryod.analysis.segments import find_segments
 from cryod.analysis.summary import json_summary, model_header
+from cryod.analysis.usability import check_usable
 from cryod.argument_types import not_negative
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
 from cryod.records.record import RecordFormatError
@@ -63,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         whole = read_record_data(record_path)
         model = load_model(args.model)
+        check_usable(whole)
     except (RecordFormatError, FileFormatError) as error:
         print(f"cryod analyze: {error}", file=sys.stderr)
         return 2
@@ -110,17 +113,19 @@ def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Pat
     frequency = analysis.base_line.angular_frequency_rad_s
     discrepancies = find_discrepancies(data, model, analysis.base_replay, analysis.noise_rms_K, frequency, segments)
     extended = []
-    if analysis.cause in analysis.fits:
+    if analysis.extended:
         extended = find_discrepancies(data, analysis.extended_model, analysis.extended_replay, analysis.noise_rms_K,
                                       frequency, segments)
     analysis.timings_s["discrepancies"] = time.perf_counter() - moment
     model_path_out = out / EXTENDED_MODEL_NAME
     extended_model = analysis.extended_model
-    if analysis.cause in analysis.fits:
+    if analysis.extended:
         base_name = model.name or "model"
+        added = [named.cause for named in analysis.causes] if analysis.cause not in ("none", "unexplained") else []
+        what = " + ".join((["recalibrated"] if analysis.recalibrated else []) + added)
         extended_model = dataclasses.replace(
-            extended_model, name=f"{base_name} + {analysis.cause}",
-            description=f"{model.description} Extended by cryod analyze with {analysis.cause} fitted to "
+            extended_model, name=f"{base_name} + {what}",
+            description=f"{model.description} Extended by cryod analyze ({what}) fitted to "
                         f"{record_path.name}.".strip())
     save_model(extended_model, model_path_out, header=model_header(analysis, record_path, model_path))
     made = {}

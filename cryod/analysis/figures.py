@@ -63,6 +63,12 @@ def _smooth(values: np.ndarray, samples: int) -> np.ndarray:
     return ndimage.uniform_filter1d(filled, samples, mode="nearest")
 
 
+def _extended_label(analysis: Analysis) -> str:
+    """What the extended model adds: the recalibration and the causes named."""
+    added = analysis.cause_names if analysis.cause not in ("none", "unexplained") else []
+    return " + ".join((["recalibrated"] if analysis.recalibrated else []) + added) or analysis.cause
+
+
 def _shade_segments(axis, analysis: Analysis, segments, legend: bool = False) -> None:
     """Shade each segment by its kind; with ``legend``, add the kinds present to the axis' legend."""
     for segment in segments:
@@ -87,14 +93,15 @@ def overview(analysis: Analysis, segments, path: Path) -> Path:
     figure, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True, gridspec_kw={"height_ratios": [2, 2, 1]})
     t = data.time_s
     curves = [("measured", data.flange_K), ("base", base.flange_K)]
-    if analysis.cause in analysis.fits:
+    if analysis.extended:
         curves.append(("extended", extended.flange_K))
     for name, values in curves:
         axes[0].plot(*_thin(t, _smooth(values, samples)), color=COLOURS[name], **CURVE_STYLE[name],
-                     label={"measured": "measured", "base": "base model", "extended": f"extended ({analysis.cause})"}[name])
+                     label={"measured": "measured", "base": "base model",
+                            "extended": f"extended ({_extended_label(analysis)})"}[name])
     axes[0].set_ylabel("T2 (K), line averaged out")
     for name, replay in (("base", base), ("extended", extended)):
-        if name == "extended" and analysis.cause not in analysis.fits:
+        if name == "extended" and not analysis.extended:
             continue
         axes[1].plot(*_thin(t, 1e3 * _smooth(replay.flange_residual_K, samples)), color=COLOURS[name], lw=0.8,
                      label=f"{'base' if name == 'base' else 'extended'} model: measured - replayed")
@@ -123,8 +130,8 @@ def residual_spectrum(analysis: Analysis, path: Path) -> Path:
             (axes[1], "T5", analysis.noise_rms_K[1], analysis.base_replay.ptc_stage_residual_K,
              analysis.extended_replay.ptc_stage_residual_K)):
         for label, values, colour in (("base model", base_values, COLOURS["base"]),
-                                      (f"extended ({analysis.cause})", extended_values, COLOURS["extended"])):
-            if label.startswith("extended") and analysis.cause not in analysis.fits:
+                                      (f"extended ({_extended_label(analysis)})", extended_values, COLOURS["extended"])):
+            if label.startswith("extended") and not analysis.extended:
                 continue
             values = values[data.valid]
             frequency, density = signal.welch(values - values.mean(), fs=sampling,
@@ -177,7 +184,7 @@ def ptc_line(analysis: Analysis, path: Path) -> Path:
     axis.plot(t, 1e3 * (data.flange_K[window] - slow), "o", ms=3, color=COLOURS["measured"], label="T2 measured")
     axis.plot(t, 1e3 * (analysis.base_replay.flange_K[window] - slow), "-", color=COLOURS["base"],
               label="T2 base model")
-    if analysis.cause in analysis.fits:
+    if analysis.extended:
         axis.plot(t, 1e3 * (analysis.extended_replay.flange_K[window] - slow), "-", color=COLOURS["extended"],
                   label=f"T2 extended ({analysis.cause})")
     axis.set_ylabel("T2 less its one-period average (mK)")
@@ -224,7 +231,7 @@ def steps(analysis: Analysis, segments, path: Path) -> Path | None:
                   **CURVE_STYLE["measured"], label="measured")
         axis.plot(t, 1e3 * _smooth(analysis.base_replay.flange_K, samples)[window], color=COLOURS["base"],
                   **CURVE_STYLE["base"], label="base")
-        if analysis.cause in analysis.fits:
+        if analysis.extended:
             axis.plot(t, 1e3 * _smooth(analysis.extended_replay.flange_K, samples)[window],
                       color=COLOURS["extended"], **CURVE_STYLE["extended"], label="extended")
         axis.set_title(f"{1e3 * step.before_w:.1f} -> {1e3 * step.after_w:.1f} mW at {step.time_s:.0f} s", fontsize=9)
@@ -243,7 +250,7 @@ def correlation(analysis: Analysis, path: Path) -> Path:
     figure, axes = plt.subplots(1, 2, figsize=(11, 4))
     for name, replay, colour in (("base", analysis.base_replay, COLOURS["base"]),
                                  ("extended", analysis.extended_replay, COLOURS["extended"])):
-        if name == "extended" and analysis.cause not in analysis.fits:
+        if name == "extended" and not analysis.extended:
             continue
         residual = replay.flange_residual_K[valid] - np.mean(replay.flange_residual_K[valid])
         heater = data.heater_w[valid] - np.mean(data.heater_w[valid])

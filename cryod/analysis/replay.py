@@ -12,7 +12,9 @@ alike:
 * the state at the first sample, which need not be a settled one (a record
   cut from a longer log starts in the middle of a transient): the amplitude
   of each of the T2 heater path's modes (they decay with the model's own time
-  constants), and for T5 the heater power its path had settled at. That
+  constants; a penalty of width :data:`INITIAL_STATE_WIDTH_K` prefers a settled
+  start where the record cannot tell, e.g. a PI record whose start looks like a
+  step of a different static gain), and for T5 the heater power its path had settled at. That
   power, found with the base model, becomes the settled power of every later
   replay (:attr:`Replayer.initial_heater_power_w`), so that models whose time
   constants depend on temperature start from the right state: a PI record that
@@ -32,11 +34,12 @@ Examples
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy import optimize
 
-from cryod.analysis.ptc_line import PtcLine, estimate_ptc_line
+from cryod.analysis.ptc_line import PtcLine, estimate_ptc_line, measured_cycle
 from cryod.analysis.record_data import RecordData
 from cryod.model import CryostatModel, OperatingPoint
 from cryod.model.dynamics import flange_transfer_functions, simulate, stage_transfer_functions
@@ -80,6 +83,131 @@ def stage_release_response(model: CryostatModel, elapsed_s) -> np.ndarray:
     return _release_response(stage_heater, np.asarray(elapsed_s, dtype=float))
 
 
+#: The T2 modes' amplitudes at the first sample are free, with a penalty (a / width)^2 that prefers a settled
+#: start where the record cannot tell (a record starting inside a transient shows it at thousands of sigma).
+INITIAL_STATE_WIDTH_K = 0.01
+
+
+@dataclass(frozen=True)
+class LinearBasis:
+    """A linearised change of the model, fitted jointly with the nuisance parameters of every replay.
+
+    The recalibration (:mod:`cryod.analysis.recalibration`) hands one to the
+    :class:`Replayer`: the change of the predicted T2 and T5 per unit of each
+    of its parameters, taken at the parameters' present values. A replay then
+    fits the parameters' changes by the same weighted least squares as the
+    operating point and the initial state, held within their bounds, with a
+    penalty ``sum((value / width)^2)`` that decides between fits the data
+    cannot tell apart (the smaller change is taken).
+
+    Attributes
+    ----------
+    names : tuple of str
+    flange_columns, stage_columns : numpy.ndarray
+        n x p: change of T2 and of T5 (K) per unit change of each parameter.
+    values : numpy.ndarray
+        The parameters' values where the columns were taken (the fit finds the change from these).
+    lower, upper : numpy.ndarray
+        Bounds on each parameter's value.
+    widths : numpy.ndarray
+        Width of each parameter's penalty (same units as the value).
+    """
+
+    names: tuple
+    flange_columns: np.ndarray
+    stage_columns: np.ndarray
+    values: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    widths: np.ndarray
+
+    def without(self, names) -> "LinearBasis | None":
+        """The same basis without the named parameters (None if nothing is left)."""
+        keep = [index for index, name in enumerate(self.names) if name not in set(names)]
+        if not keep:
+            return None
+        return LinearBasis(tuple(self.names[i] for i in keep), self.flange_columns[:, keep],
+                           self.stage_columns[:, keep], self.values[keep], self.lower[keep], self.upper[keep],
+                           self.widths[keep])
+
+
+def solve_with_basis(gram: np.ndarray, basis_index: slice | None = None, basis: LinearBasis | None = None):
+    """Linear least squares from the normal equations, the basis's coefficients bounded and penalised.
+
+    Parameters
+    ----------
+    gram : numpy.ndarray
+        ``[A b]^T [A b]`` of the weighted design A (m x n) and target b: (n + 1) x (n + 1).
+    basis_index : slice, optional
+        The columns of A that are the basis's.
+    basis : LinearBasis, optional
+
+    Returns
+    -------
+    solution : numpy.ndarray
+    penalty : float
+        The basis's penalty at the solution.
+    normal_inverse : numpy.ndarray
+        Inverse of ``A^T A`` (the covariance of the solution for unit-variance rows); NaN if singular.
+
+    Notes
+    -----
+    The columns are scaled to unit norm first; the residuals are computed by the
+    caller from the design itself, so the normal equations only choose the
+    coefficients.
+    """
+    count = gram.shape[0] - 1
+    normal, right = gram[:count, :count].copy(), gram[:count, count].copy()
+    scale = np.sqrt(np.diag(normal))
+    scale[scale <= 0.0] = 1.0
+    data_normal = normal / np.outer(scale, scale)
+    normal = data_normal.copy()
+    right /= scale
+    if basis is not None:
+        columns = np.arange(count)[basis_index]
+        widths = basis.widths * scale[columns]
+        normal[columns, columns] += 1.0 / widths ** 2
+        right[columns] -= basis.values * scale[columns] / widths ** 2
+    solution = _solve_symmetric(normal, right)
+    if basis is not None:
+        change = solution[basis_index] / scale[basis_index]
+        lower, upper = basis.lower - basis.values, basis.upper - basis.values
+        if np.any(change < lower - 1e-12) or np.any(change > upper + 1e-12):
+            low, high = np.full(count, -np.inf), np.full(count, np.inf)
+            low[basis_index] = np.minimum(lower, 0.0) * scale[basis_index]
+            high[basis_index] = np.maximum(upper, 0.0) * scale[basis_index]
+            factor = _cholesky_factor(normal)
+            target = np.linalg.solve(factor.T, right)
+            solution = optimize.lsq_linear(factor, target, bounds=(low, high), method="bvls").x
+    solution = solution / scale
+    penalty = 0.0
+    if basis is not None:
+        penalty = float(np.sum(((basis.values + solution[basis_index]) / basis.widths) ** 2))
+    try:
+        inverse = np.linalg.inv(data_normal) / np.outer(scale, scale)
+    except np.linalg.LinAlgError:
+        inverse = np.full((count, count), np.nan)
+    return solution, penalty, inverse
+
+
+def _cholesky_factor(normal: np.ndarray) -> np.ndarray:
+    """Upper triangular R with R^T R = normal (a little ridge if it is singular)."""
+    try:
+        return np.linalg.cholesky(normal).T
+    except np.linalg.LinAlgError:
+        ridge = 1e-12 * np.trace(normal) / normal.shape[0]
+        return np.linalg.cholesky(normal + ridge * np.eye(normal.shape[0])).T
+
+
+def _solve_symmetric(normal: np.ndarray, right: np.ndarray) -> np.ndarray:
+    try:
+        factor = np.linalg.cholesky(normal)
+        return np.linalg.solve(factor.T, np.linalg.solve(factor, right))
+    except np.linalg.LinAlgError:
+        solution, *_ = np.linalg.lstsq(normal, right, rcond=1e-13)
+        return solution
+
+
 @dataclass(frozen=True)
 class Replay:
     """A model's prediction of one record.
@@ -97,6 +225,16 @@ class Replay:
     initial_power_offset_w : float
         Settled power of T5's heater path before the record, less the power
         the replay assumed (W).
+    basis : LinearBasis or None
+        The linearised model change fitted alongside, if any.
+    initial_mode_amplitudes_K : numpy.ndarray
+        Fitted amplitude of each column of :func:`flange_mode_columns` (the T2 state at the first sample).
+    basis_change : numpy.ndarray
+        Its fitted change of each parameter (already in the predictions).
+    penalty : float
+        The basis's penalty at that change (noise-variance units, like a chi-square).
+    normal_inverse : numpy.ndarray or None
+        Inverse normal matrix of the fit (nuisance, shared, basis columns in that order).
     """
 
     model: CryostatModel
@@ -106,6 +244,11 @@ class Replay:
     ptc_stage_residual_K: np.ndarray
     shared_coefficients: np.ndarray
     initial_power_offset_w: float = 0.0
+    basis: LinearBasis | None = None
+    initial_mode_amplitudes_K: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    basis_change: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    penalty: float = 0.0
+    normal_inverse: np.ndarray | None = None
 
     @property
     def operating_point(self) -> OperatingPoint:
@@ -131,6 +274,10 @@ class Replayer:
         self.noise_rms_K = noise_rms_K
         #: Heater power the cryostat had settled at before the first sample (W); None: the first sample's.
         self.initial_heater_power_w: float | None = None
+        self._measured_cycle = None
+        #: Makes the linearised model change fitted in every replay: ``basis_for(line)`` gives a
+        #: :class:`LinearBasis` for the line replayed, or None (see :mod:`cryod.analysis.recalibration`).
+        self.basis_for = None
 
     def settle_from(self, replay: Replay) -> None:
         """Take the settled power before the record from a replay's T5 initial-state estimate."""
@@ -139,32 +286,55 @@ class Replayer:
 
     # -- the line ----------------------------------------------------------
     def stage_line(self, model: CryostatModel, *, orders=(1,), drift: bool = False,
-                   angular_frequency_rad_s: float | None = None, significant_only: bool = False) -> PtcLine:
-        """Measure the PTC line in T5 less the model's heater-driven part, on the fit samples."""
+                   angular_frequency_rad_s: float | None = None, significant_only: bool = False,
+                   measured_phase: bool = False) -> PtcLine:
+        """Measure the PTC line in T5 less the model's heater-driven part, on the fit samples.
+
+        ``measured_phase``: at the cooler's phase followed sample by sample in
+        T5 (:func:`cryod.analysis.ptc_line.measured_cycle`, measured once per
+        record) instead of a frequency of the model's form; ``drift`` is then
+        the form fitted to that phase.
+        """
         data = self.data
         quiet = model.with_ptc(ptc_stage_amplitude_K=0.0, harmonics=()).with_effects(ptc_frequency_drift=None)
         heater_part = self.simulate(quiet).ptc_stage_K - quiet.operating_point.ptc_stage_temperature_K
         release = stage_release_response(model, data.elapsed_s)
         valid = data.valid
         baseline = np.column_stack([np.ones(valid.sum()), release[valid]])
+        cycle = None
+        if measured_phase:
+            if self._measured_cycle is None:
+                nominal = angular_frequency_rad_s or model.ptc.angular_frequency_rad_s
+                self._measured_cycle = measured_cycle(data.elapsed_s[valid], (data.ptc_stage_K - heater_part)[valid],
+                                                      nominal)
+            cycle = self._measured_cycle
         return estimate_ptc_line(
             data.elapsed_s[valid], data.ptc_stage_K[valid] - heater_part[valid], baseline,
             mask=self.fit_mask[valid], orders=orders, drift=drift,
-            angular_frequency_rad_s=angular_frequency_rad_s, significant_only=significant_only)
+            angular_frequency_rad_s=angular_frequency_rad_s, significant_only=significant_only, cycle=cycle)
 
     # -- replay ------------------------------------------------------------
-    def simulate(self, model: CryostatModel, heater_power_w=None, initial_heater_power_w=None):
+    def simulate(self, model: CryostatModel, heater_power_w=None, initial_heater_power_w=None, cycle=None):
         """The simulator on the record's instants (no noise).
 
         By default driven by the record's heater, settled at
-        :attr:`initial_heater_power_w` before the first sample.
+        :attr:`initial_heater_power_w` before the first sample; ``cycle``: the
+        cooler's phase measured in the record, instead of the model's.
         """
         if heater_power_w is None:
             heater_power_w, initial_heater_power_w = self.data.heater_w, self.initial_heater_power_w
         return simulate(model, self.data.time_s, heater_power_w, initial_heater_power_w=initial_heater_power_w,
-                        heater_change_s=self.data.heater_change_s)
+                        heater_change_s=self.data.heater_change_s, ptc_cycle=cycle)
 
-    def replay(self, model: CryostatModel, line: PtcLine | None = None, shared_columns=None) -> Replay:
+    def basis(self, line: PtcLine | None, without=()) -> LinearBasis | None:
+        """The linearised model change fitted in replays with ``line`` (None: none), less ``without``."""
+        if self.basis_for is None:
+            return None
+        basis = self.basis_for(line)
+        return basis.without(without) if basis is not None and without else basis
+
+    def replay(self, model: CryostatModel, line: PtcLine | None = None, shared_columns=None, *,
+               basis_without=(), basis: LinearBasis | None | bool = True) -> Replay:
         """Predict the record with ``model`` (and the measured ``line``).
 
         Parameters
@@ -176,40 +346,68 @@ class Replayer:
             (T2 columns, T5 columns), each n x m: extra regressors whose m
             coefficients are fitted jointly on both thermometers, weighted by
             their noise (e.g. a linear effect's response).
+        basis_without : sequence of str
+            Parameters of the replayer's linearised model change left out of this replay.
+        basis : LinearBasis, bool or None
+            True: the replayer's own (:meth:`basis`); None or False: none; or this one.
 
         Returns
         -------
         Replay
         """
         aligned = line.applied_to(model) if line is not None else model
-        simulated = self.simulate(aligned)
-        return self.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K, shared_columns)
+        simulated = self.simulate(aligned, cycle=line.cycle if line is not None else None)
+        if basis is True:
+            basis = self.basis(line, basis_without)
+        return self.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K, shared_columns,
+                                     basis=basis or None)
 
     def replay_simulated(self, aligned: CryostatModel, flange_K: np.ndarray, stage_K: np.ndarray,
-                         shared_columns=None) -> Replay:
-        """Fit the nuisance parameters to a simulation already made."""
+                         shared_columns=None, basis: LinearBasis | None = None) -> Replay:
+        """Fit the nuisance parameters (and ``basis``'s changes, if given) to a simulation already made."""
         data = self.data
         stage_release = stage_release_response(aligned, data.elapsed_s)
         modes = flange_mode_columns(aligned, data.elapsed_s, data.sample_interval_s)
         count = data.time_s.size
         flange_columns = 1 + modes.shape[1]                 # offset, mode amplitudes
-        flange_design = np.column_stack([np.ones(count), modes, np.zeros((count, 2))])
-        stage_design = np.column_stack([np.zeros((count, flange_columns)), np.ones(count), stage_release])
         shared = 0
+        flange_extra = stage_extra = None
         if shared_columns is not None:
             flange_extra = np.asarray(shared_columns[0], dtype=float).reshape(count, -1)
             stage_extra = np.asarray(shared_columns[1], dtype=float).reshape(count, -1)
             shared = flange_extra.shape[1]
-            flange_design = np.column_stack([flange_design, flange_extra])
-            stage_design = np.column_stack([stage_design, stage_extra])
-        flange_weight, stage_weight = 1.0 / self.noise_rms_K[0], 1.0 / self.noise_rms_K[1]
+        basis_count = len(basis.names) if basis is not None else 0
+        start = flange_columns + 2 + shared
+        basis_index = slice(start, start + basis_count) if basis is not None else None
+        columns = start + basis_count
         rows = self.fit_mask
-        design = np.vstack([flange_design[rows] * flange_weight, stage_design[rows] * stage_weight])
-        target = np.concatenate([(data.flange_K - flange_K)[rows] * flange_weight,
-                                 (data.ptc_stage_K - stage_K)[rows] * stage_weight])
-        solution, *_ = np.linalg.lstsq(design, target, rcond=None)
-        flange_predicted = flange_K + flange_design @ solution
-        stage_predicted = stage_K + stage_design @ solution
+        flange_rows = np.zeros((int(np.count_nonzero(rows)), columns + 1))
+        stage_rows = np.zeros_like(flange_rows)
+        flange_rows[:, 0] = 1.0
+        flange_rows[:, 1:flange_columns] = modes[rows]
+        stage_rows[:, flange_columns] = 1.0
+        stage_rows[:, flange_columns + 1] = stage_release[rows]
+        if shared:
+            flange_rows[:, flange_columns + 2:start] = flange_extra[rows]
+            stage_rows[:, flange_columns + 2:start] = stage_extra[rows]
+        if basis is not None:
+            flange_rows[:, basis_index] = basis.flange_columns[rows]
+            stage_rows[:, basis_index] = basis.stage_columns[rows]
+        flange_rows[:, columns] = (data.flange_K - flange_K)[rows]
+        stage_rows[:, columns] = (data.ptc_stage_K - stage_K)[rows]
+        gram = (flange_rows.T @ flange_rows) / self.noise_rms_K[0] ** 2 \
+            + (stage_rows.T @ stage_rows) / self.noise_rms_K[1] ** 2
+        modes_index = np.arange(1, flange_columns)
+        gram[modes_index, modes_index] += 1.0 / INITIAL_STATE_WIDTH_K ** 2
+        solution, penalty, normal_inverse = solve_with_basis(gram, basis_index, basis)
+        flange_predicted = flange_K + solution[0] + modes @ solution[1:flange_columns]
+        stage_predicted = stage_K + solution[flange_columns] + stage_release * solution[flange_columns + 1]
+        if shared:
+            flange_predicted = flange_predicted + flange_extra @ solution[flange_columns + 2:start]
+            stage_predicted = stage_predicted + stage_extra @ solution[flange_columns + 2:start]
+        if basis is not None:
+            flange_predicted = flange_predicted + basis.flange_columns @ solution[basis_index]
+            stage_predicted = stage_predicted + basis.stage_columns @ solution[basis_index]
         point = aligned.operating_point
         estimated = OperatingPoint(point.flange_temperature_K + float(solution[0]),
                                    point.ptc_stage_temperature_K + float(solution[flange_columns]))
@@ -221,4 +419,9 @@ class Replayer:
             ptc_stage_residual_K=data.ptc_stage_K - stage_predicted,
             shared_coefficients=solution[flange_columns + 2:flange_columns + 2 + shared],
             initial_power_offset_w=float(solution[flange_columns + 1]),
+            basis=basis,
+            initial_mode_amplitudes_K=solution[1:flange_columns],
+            basis_change=solution[basis_index] if basis is not None else np.zeros(0),
+            penalty=penalty,
+            normal_inverse=normal_inverse,
         )

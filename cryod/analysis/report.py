@@ -34,12 +34,62 @@ def _discrepancy_table(rows: list[Discrepancy]) -> list[str]:
     return lines
 
 
+def _named(analysis: Analysis) -> list:
+    return analysis.causes if analysis.cause not in ("none", "unexplained") else []
+
+
+def _extension_text(analysis: Analysis) -> str:
+    parts = (["recalibrated"] if analysis.recalibrated else []) + \
+        [f"{named.cause}: {format_parameters(named.fit.parameters)}" for named in _named(analysis)]
+    if not parts:
+        return ", unchanged: no effect is added)."
+    return " " + "; ".join(parts) + ")."
+
+
+def _recalibration_section(analysis: Analysis) -> list[str]:
+    from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD, TOLERANCE
+    from cryod.analysis.summary import recalibration_rows
+
+    rows = recalibration_rows(analysis)
+    if not rows:
+        return []
+    gain = analysis.recalibration_gain
+    state = ("applied: every cause below is fitted on top of it" if analysis.recalibrated else
+             "not applied: the base model as given shows no discrepancy")
+    lines = ["", "## Recalibration", "",
+             f"The base model's own parameters refitted on the fit blocks, within {100 * TOLERANCE:g} % "
+             f"(gains, time constants) and {LINE_PHASE_TOLERANCE_RAD:g} rad (the line's phase on T2); "
+             f"{state}. Held-out residual {_number(gain.base)} -> {_number(gain.extended)} times the noise "
+             f"(gain {_number(gain.ratio)}).", "",
+             "| parameter | shipped | fitted | uncertainty | significance (sigma) |", "|---|---|---|---|---|"]
+    for row in rows:
+        mark = " (at its tolerance)" if row["at_tolerance"] else ""
+        unit = f" {row['unit']}" if row["unit"] else ""
+        lines.append(f"| {row['parameter']}{unit} | {_number(row['shipped'])} | {_number(row['fitted'])}{mark} | "
+                     f"{_number(row['uncertainty'])} | {_number(row['significance'])} |")
+    return lines
+
+
+def _causes_section(analysis: Analysis) -> list[str]:
+    named = _named(analysis)
+    if not named:
+        return []
+    lines = ["", "## Causes named", "",
+             "Each one refitted with the recalibration, in the order it was added (the strongest first).", "",
+             "| cause | fitted parameters | explained | gain | significance (sigma) |", "|---|---|---|---|---|"]
+    for cause in named:
+        lines.append(f"| {cause.cause} | {format_parameters(cause.fit.parameters)} | "
+                     f"{100 * cause.explained_fraction:.1f} % | {cause.gain.ratio:.4g} | "
+                     f"{cause.score.significance:.3g} |")
+    return lines
+
+
 def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_discrepancies: list[Discrepancy],
                  segments, figures: dict[str, Path], model_path: Path, directory: Path) -> Path:
     """Write ``report.md`` into ``directory``; figure links are relative to it."""
     data, decision = analysis.data, analysis.decision
     line = analysis.base_line
-    point = analysis.base_replay.operating_point
+    point = analysis.extended_replay.operating_point
     at_zero, at_limit = saturation_fraction(data.heater_w, data.heater_limit_w)
     intervals = np.diff(data.time_s)
     lines = [
@@ -53,8 +103,7 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
         "judged on the others.",
         "",
         f"**Extended model:** `{model_path.name}` (base model `{analysis.base_model.name or analysis.base_model.source}`"
-        + (f" plus {analysis.cause}: {format_parameters(analysis.fits[analysis.cause].parameters)})."
-           if analysis.cause in analysis.fits else ", unchanged: no effect is added)."),
+        + _extension_text(analysis),
         "",
         "## The record",
         "",
@@ -62,7 +111,7 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
         "|---|---|",
         f"| duration | {data.duration_s:.1f} s, {data.time_s.size} samples |",
         f"| sample interval | median {1e3 * data.sample_interval_s:.2f} ms, rms jitter {1e3 * np.std(intervals):.3f} ms |",
-        f"| operating point (estimated) | T2_0 = {point.flange_temperature_K:.5f} K, "
+        f"| operating point (estimated with the extended model) | T2_0 = {point.flange_temperature_K:.5f} K, "
         f"T5_0 = {point.ptc_stage_temperature_K:.5f} K |",
         f"| PTC line in T5 | {line.angular_frequency_rad_s:.5f} +- {line.frequency_uncertainty_rad_s:.1e} rad/s, "
         f"{1e3 * line.fundamental.amplitude_K:.3f} mK, "
@@ -78,6 +127,8 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
         setpoint = f"{segment.setpoint_K:.4f}" if math.isfinite(segment.setpoint_K) else "-"
         lines.append(f"| {segment.kind} | {segment.start_s:.1f} | {segment.stop_s:.1f} | "
                      f"{1e3 * segment.mean_heater_w:.3f} | {setpoint} |")
+    lines += _recalibration_section(analysis)
+    lines += _causes_section(analysis)
     listed = [d for d in discrepancies if d.significance >= LISTED_SIGNIFICANCE][:LISTED_MOST]
     lines += ["", "## What the base model gets wrong", "",
               f"Quantities whose model and measured values differ by {LISTED_SIGNIFICANCE:g} standard errors or more "
@@ -85,7 +136,8 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
               ""]
     lines += _discrepancy_table(listed) if listed else ["None: the base model agrees with the record within the noise."]
     lines += ["", "## Candidates", "",
-              f"Each cause fitted on the fit blocks and judged on the held-out ones. A candidate counts from "
+              f"Each cause fitted on the fit blocks (with the recalibration refitted alongside) and judged on the "
+              f"held-out ones against the recalibrated model. A candidate counts from "
               f"{CANDIDATE_SIGMA:g} sigma and an improvement of {CANDIDATE_MINIMUM_IMPROVEMENT:g}; the record shows a "
               f"discrepancy when the base model's held-out excess is above {DISCREPANCY_SIGMA:g} sigma and "
               f"{100 * DISCREPANCY_FRACTION_OF_NOISE:g} % of the noise power; a cause is named when it removes "
@@ -100,7 +152,7 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
         lines.append(f"| {mark} | {format_parameters(fit.parameters)} | {score.improvement:.4g} | "
                      f"{score.significance:.3g} | {100 * score.explained_fraction:.1f} % | {score.gain.ratio:.4g} | "
                      f"{fit.note} |")
-    if analysis.cause in analysis.fits:
+    if analysis.extended:
         remaining = [d for d in extended_discrepancies if d.significance >= LISTED_SIGNIFICANCE][:10]
         lines += ["", "## What the extended model still gets wrong", ""]
         lines += _discrepancy_table(remaining) if remaining else ["Nothing above 3 standard errors."]

@@ -1,11 +1,17 @@
 """The analysis as plain data: the ``--json`` object and the extended model file's provenance header.
 
-JSON keys (``cryod analyze --json``): ``cause`` (one of :data:`CAUSES`),
-``discrepancies`` (list of {quantity, model, measured, significance}),
-``extended_model`` (path of the model file written), ``gain`` ({metric, base,
-extended, ratio}), ``candidates`` (list, one per cause tried: {cause, score,
-parameters, significance, explained_fraction, gain_ratio}; ``score`` is the
-held-out improvement over the base model in noise-variance units).
+JSON keys (``cryod analyze --json``): ``cause`` (one of :data:`CAUSES`: the
+strongest cause named), ``causes`` (list, strongest first, of every cause
+named: {cause, parameters, explained_fraction, gain, significance, score};
+empty for ``none`` and ``unexplained``), ``recalibrated`` ({applied,
+parameters: list of {parameter, unit, shipped, fitted, uncertainty,
+significance, at_tolerance}, gain, tolerance}), ``discrepancies`` (list of
+{quantity, model, measured, significance}), ``extended_model`` (path of the
+model file written), ``gain`` ({metric, base, extended, ratio}: the base model
+as given against the extended one), ``candidates`` (list, one per cause tried
+on the recalibrated model: {cause, score, parameters, significance,
+explained_fraction, gain_ratio}; ``score`` is the held-out improvement in
+noise-variance units).
 """
 
 from __future__ import annotations
@@ -51,10 +57,70 @@ def candidates_summary(analysis: Analysis) -> list[dict]:
     return plain(rows)
 
 
+def causes_summary(analysis: Analysis) -> list[dict]:
+    """Every cause named, strongest first, with what it brought when added."""
+    if analysis.cause in ("none", "unexplained"):
+        return []
+    return plain([{
+        "cause": named.cause,
+        "parameters": named.fit.parameters,
+        "explained_fraction": named.explained_fraction,
+        "gain": named.gain.as_dict(),
+        "significance": named.score.significance,
+        "score": named.score.improvement,
+    } for named in analysis.causes])
+
+
+def recalibration_rows(analysis: Analysis) -> list[dict]:
+    """Each recalibrated quantity: the structure's parameters, the operating point and the noise."""
+    recalibration = analysis.final_recalibration or analysis.recalibration
+    if recalibration is None:
+        return []
+    rows = [row.as_dict() for row in recalibration.table()]
+    replay = analysis.extended_replay if analysis.recalibrated else recalibration.replay
+    shipped_point = analysis.base_model.operating_point
+    point = replay.operating_point
+    covariance = replay.normal_inverse
+    modes = replay.initial_mode_amplitudes_K.size
+    errors = (math.sqrt(covariance[0, 0]) if covariance is not None else math.nan,
+              math.sqrt(covariance[1 + modes, 1 + modes]) if covariance is not None else math.nan)
+    for name, shipped, fitted, error in (
+            ("operating point T2_0", shipped_point.flange_temperature_K, point.flange_temperature_K, errors[0]),
+            ("operating point T5_0", shipped_point.ptc_stage_temperature_K, point.ptc_stage_temperature_K,
+             errors[1])):
+        rows.append({"parameter": name, "unit": "K", "shipped": shipped, "fitted": fitted, "uncertainty": error,
+                     "significance": abs(fitted - shipped) / error if error > 0 else math.inf,
+                     "at_tolerance": False})
+    count = int(np.count_nonzero(analysis.data.valid))
+    noise = analysis.base_model.sensor_noise
+    for name, shipped, fitted in (("T2 white noise rms", noise.flange_thermometer_rms_K, analysis.noise_rms_K[0]),
+                                  ("T5 white noise rms", noise.ptc_stage_thermometer_rms_K, analysis.noise_rms_K[1])):
+        error = fitted * 1.25 / math.sqrt(2.0 * max(count, 1))
+        rows.append({"parameter": name, "unit": "K", "shipped": shipped, "fitted": fitted, "uncertainty": error,
+                     "significance": abs(fitted - shipped) / error if error > 0 else math.inf,
+                     "at_tolerance": False})
+    return plain(rows)
+
+
+def recalibration_summary(analysis: Analysis) -> dict:
+    """The ``recalibrated`` object of the JSON."""
+    from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD, TOLERANCE
+
+    gain = analysis.recalibration_gain
+    return plain({
+        "applied": analysis.recalibrated,
+        "parameters": recalibration_rows(analysis),
+        "gain": gain.as_dict() if gain is not None else None,
+        "tolerance": {"relative": TOLERANCE, "line_phase_rad": LINE_PHASE_TOLERANCE_RAD},
+    })
+
+
 def json_summary(analysis: Analysis, discrepancies, extended_model_path: Path) -> dict:
     """The ``--json`` object."""
     return {
         "cause": analysis.cause,
+        "causes": causes_summary(analysis),
+        "recalibrated": recalibration_summary(analysis),
         "discrepancies": [plain(d.as_dict()) for d in discrepancies],
         "extended_model": str(extended_model_path),
         "gain": plain(analysis.decision.gain.as_dict()),
@@ -84,8 +150,13 @@ def model_header(analysis: Analysis, record_path: Path, base_model_path: Path) -
         f"Base model: {base_model_path}",
         f"Cause: {analysis.cause}: {decision.reason}",
     ]
-    if analysis.cause in analysis.fits:
-        lines.append(f"Fitted effect: {analysis.cause}: {format_parameters(analysis.fits[analysis.cause].parameters)}")
+    if analysis.recalibrated:
+        changed = ", ".join(f"{row.parameter} {row.shipped:.6g} -> {row.fitted:.6g} {row.unit}".rstrip()
+                            for row in (analysis.final_recalibration or analysis.recalibration).table())
+        lines.append(f"Recalibrated (base model's parameters refitted to the record): {changed}")
+    for named in (analysis.causes if analysis.cause not in ("none", "unexplained") else []):
+        lines.append(f"Fitted effect: {named.cause}: {format_parameters(named.fit.parameters)}")
+    if analysis.extended:
         lines.append(f"Gain on held-out data: {decision.gain.ratio:.4g} ({decision.gain.metric}: "
                      f"base {decision.gain.base:.4g}, extended {decision.gain.extended:.4g})")
     else:

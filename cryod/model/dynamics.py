@@ -86,17 +86,20 @@ class CryostatPlant:
         Instant at which the plant starts (PTC phase reference).
     initial_heater_power_w : float
         Heater power the plant is in steady state with at the start.
+    ptc_cycle : optional
+        The cooler's phase and frequency over time, instead of the model's own
+        (:class:`~cryod.model.ptc_cycle.MeasuredPtcCycle`: a record's).
     """
 
     def __init__(self, model: CryostatModel, start_time_s: float = 0.0,
-                 initial_heater_power_w: float = 0.0):
+                 initial_heater_power_w: float = 0.0, ptc_cycle=None):
         self.model = model
         self.start_time_s = float(start_time_s)
         self.time_s = float(start_time_s)
         effects = model.effects
         flange_heater, flange_ptc = flange_transfer_functions(model)
         stage_heater, stage_oscillation = stage_transfer_functions(model)
-        drive = self.drive = PtcDrive(model)
+        drive = self.drive = PtcDrive(model, ptc_cycle)
         self.flange_heater = HeaterPath(flange_heater)
         self.stage_heater = HeaterPath(stage_heater)
         self.flange_ptc = PtcPath(drive, flange_ptc, input_is_heat=True)
@@ -202,7 +205,7 @@ class SimulatedRecord:
 
 
 def simulate(model: CryostatModel, time_s, heater_power_w, *, initial_heater_power_w: float | None = None,
-             noise: bool = False, seed: int | None = None, heater_change_s=None) -> SimulatedRecord:
+             noise: bool = False, seed: int | None = None, heater_change_s=None, ptc_cycle=None) -> SimulatedRecord:
     """Simulate T2 and T5 at the instants of a record.
 
     Parameters
@@ -224,6 +227,9 @@ def simulate(model: CryostatModel, time_s, heater_power_w, *, initial_heater_pow
         When each ``heater_power_w`` took effect (s), if not at its sample
         instant: the daemon sets the heater some tens of ms after the readings
         (the ``heater_set_s`` column). Each must lie between its sample and the next.
+    ptc_cycle : optional
+        The cooler's phase and frequency over time instead of the model's own
+        (:class:`~cryod.model.ptc_cycle.MeasuredPtcCycle`: the phase measured in a record).
 
     Returns
     -------
@@ -252,7 +258,7 @@ def simulate(model: CryostatModel, time_s, heater_power_w, *, initial_heater_pow
         if heater_change_s.shape != time_s.shape or np.any(heater_change_s < time_s) \
                 or np.any(heater_change_s[:-1] >= time_s[1:]):
             raise ValueError("heater_change_s must have one instant per sample, each between its sample and the next")
-    plant = CryostatPlant(model, float(time_s[0]) if time_s.size else 0.0, initial_heater_power_w)
+    plant = CryostatPlant(model, float(time_s[0]) if time_s.size else 0.0, initial_heater_power_w, ptc_cycle)
     flange, stage = _simulate_whole(plant, time_s, heater_power_w, heater_change_s)
     if noise:
         generator = np.random.default_rng(seed)

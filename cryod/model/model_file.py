@@ -224,6 +224,7 @@ def _effects(section: Section) -> Effects:
             rate_rad_s_per_hour=drift.number("rate_rad_s_per_hour", 0.0),
             wander_amplitude_rad_s=drift.number("wander_amplitude_rad_s", 0.0, minimum=0.0),
             wander_period_s=drift.number("wander_period_s", 3600.0, minimum=0.0, exclusive_minimum=True),
+            wander_phase_rad=drift.number("wander_phase_rad", 0.0),
         )
         drift.finish()
     section.finish()

@@ -132,18 +132,19 @@ class HeaterNonlinearity:
 class PtcFrequencyDrift:
     """The cooler's angular frequency varies over time.
 
-    ``omega(t) = omega_0 + rate * t / 3600 + wander_amplitude * sin(2 pi t / wander_period)``.
+    ``omega(t) = omega_0 + rate * t / 3600 + wander_amplitude * sin(2 pi t / wander_period + wander_phase)``.
     """
 
     rate_rad_s_per_hour: float = 0.0
     wander_amplitude_rad_s: float = 0.0
     wander_period_s: float = 3600.0
+    wander_phase_rad: float = 0.0
 
     def angular_frequency_offset(self, time_s):
         """omega(t) - omega_0 in rad/s."""
         return (self.rate_rad_s_per_hour * np.asarray(time_s) / 3600.0
                 + self.wander_amplitude_rad_s
-                * np.sin(2.0 * math.pi * np.asarray(time_s) / self.wander_period_s))
+                * np.sin(2.0 * math.pi * np.asarray(time_s) / self.wander_period_s + self.wander_phase_rad))
 
     def phase_offset(self, time_s):
         """Integral of the frequency offset from 0 to t, in rad."""
@@ -151,7 +152,7 @@ class PtcFrequencyDrift:
         period = self.wander_period_s
         return (0.5 * self.rate_rad_s_per_hour * time_s ** 2 / 3600.0
                 + self.wander_amplitude_rad_s * period / (2.0 * math.pi)
-                * (1.0 - np.cos(2.0 * math.pi * time_s / period)))
+                * (math.cos(self.wander_phase_rad) - np.cos(2.0 * math.pi * time_s / period + self.wander_phase_rad)))
 
 
 @dataclass(frozen=True)

@@ -42,11 +42,16 @@ class _PtcComponent:
 
 
 class PtcDrive:
-    """The cooler's oscillation: its cycle, and the heat it drives into the flange."""
+    """The cooler's oscillation: its cycle, and the heat it drives into the flange.
 
-    def __init__(self, model: CryostatModel):
+    ``cycle`` replaces the model's own (a :class:`~cryod.model.ptc_cycle.MeasuredPtcCycle`
+    when a record is replayed with the phase measured in it).
+    """
+
+    def __init__(self, model: CryostatModel, cycle=None):
         ptc = model.ptc
-        self.cycle = PtcCycle(ptc.angular_frequency_rad_s, model.effects.ptc_frequency_drift)
+        self.cycle = cycle if cycle is not None else PtcCycle(ptc.angular_frequency_rad_s,
+                                                              model.effects.ptc_frequency_drift)
         self.components = [
             _PtcComponent(
                 order=order,

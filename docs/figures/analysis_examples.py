@@ -3,8 +3,9 @@
 Run: PYTHONPATH=. python3 docs/figures/analysis_examples.py
 
 1. The walk-through: a one-hour identification-style record of a cryostat whose
-   flange thermometer lags by 0.3 s (another day: PTC phase and line of its
-   own), analysed with the shipped model; ``cryod analyze`` output goes to
+   flange thermometer lags by 0.3 s and whose base parameters are a few percent
+   off the shipped model's (another day: PTC phase and line of its own),
+   analysed with the shipped model; ``cryod analyze`` output goes to
    docs/figures/analysis-example/.
 2. The paper's own measurements: Table 1 regenerated as a record, analysed with
    the printed model (docs/figures/analysis-paper-printed/) and the shipped one.
@@ -40,6 +41,7 @@ from cryod.model import (  # noqa: E402
 )
 from cryod.analysis.paper_table1 import regenerated_record  # noqa: E402
 from cryod.records.record import write_record  # noqa: E402
+from simulated_hw.hidden_effects import perturbed_base  # noqa: E402
 from simulated_hw.measurement_programs import make_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -71,8 +73,17 @@ def relative_paths(directory: Path, *prefixes: Path) -> None:
 
 
 def summary(title: str, result: dict) -> None:
-    print(f"\n== {title}: cause {result['cause']}, gain {result['gain']['ratio']:.4g} "
-          f"(base {result['gain']['base']:.4g}, extended {result['gain']['extended']:.4g})")
+    print(f"\n== {title}: cause {result['cause']}, causes {[c['cause'] for c in result['causes']]}, "
+          f"gain {result['gain']['ratio']:.4g} (base {result['gain']['base']:.4g}, "
+          f"extended {result['gain']['extended']:.4g})")
+    recalibrated = result["recalibrated"]
+    print(f"   recalibration applied: {recalibrated['applied']}, gain {recalibrated['gain']['ratio']:.4g}")
+    for row in recalibrated["parameters"]:
+        print(f"   {row['parameter']:40s} shipped {row['shipped']:.6g} fitted {row['fitted']:.6g} "
+              f"+- {row['uncertainty']:.2g} ({row['significance']:.3g} sigma){' at tolerance' if row['at_tolerance'] else ''}")
+    for row in result["causes"]:
+        print(f"   cause {row['cause']}: {row['parameters']}, explains {100 * row['explained_fraction']:.1f} %, "
+              f"gain {row['gain']['ratio']:.4g}")
     for row in result["discrepancies"][:6]:
         print(f"   {row['significance']:12.4g} sigma  model {row['model']:.6g}  measured {row['measured']:.6g}  "
               f"{row['quantity']}")
@@ -84,7 +95,9 @@ def summary(title: str, result: dict) -> None:
 def walk_through(work: Path, model) -> None:
     day = dataclasses.replace(model, operating_point=OperatingPoint(4.215, 3.331)).with_ptc(
         phase_rad=-1.2, angular_frequency_rad_s=10.78, ptc_stage_amplitude_K=0.118)
-    record = make_record(day.with_effects(sensor_lag=SensorLag(0.3)), "identification", duration_s=3600.0, seed=21)
+    truth, changes = perturbed_base(day.with_effects(sensor_lag=SensorLag(0.3)), seed=21)
+    print("\n== walk-through: base parameters of the truth: " + ", ".join(f"{k} {v:.4f}" for k, v in changes.items()))
+    record = make_record(truth, "identification", duration_s=3600.0, seed=21)
     path = work / "lagging-thermometer.csv"
     write_record(path, record.columns, record.metadata)
     out = HERE / "analysis-example"

@@ -52,7 +52,8 @@ def model_uncertainty_check(analysis, draws: int = DEFAULT_DRAWS, seed: int | No
         return None
     context = analysis.context
     mask = context.held_out_mask
-    base = base_discrepancy(context)
+    # the model as given, before the analysis recalibrated it: its discrepancy is what its uncertainty must cover
+    base = analysis.base_discrepancy if analysis.base_discrepancy is not None else base_discrepancy(context)
     flange, stage = [], []
     for drawn in model.uncertainty.sampled_models(model, draws, seed):
         replay = context.replayer.replay(drawn, analysis.base_line)

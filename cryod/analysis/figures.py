@@ -24,6 +24,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
 import numpy as np  # noqa: E402
+from cryod.figure_files import save_figure, thin  # noqa: E402
 from scipy import ndimage, signal  # noqa: E402
 
 from cryod.analysis.decision import CANDIDATE_SIGMA  # noqa: E402
@@ -35,22 +36,10 @@ from cryod.analysis.segments import find_steps  # noqa: E402
 from cryod.records.quick_look import folded_frequency, mark_cooler_harmonics  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
-#: Most points drawn per curve.
-MOST_POINTS = 4000
 COLOURS = {"measured": "black", "base": "tab:red", "extended": "tab:blue"}
 SEGMENT_COLOURS = {"closed loop": "tab:green", "hold": "tab:gray", "modulated": "tab:orange"}
 
 
-def _save(figure, path: Path) -> Path:
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
-
-
-def _thin(*arrays):
-    step = max(1, arrays[0].size // MOST_POINTS)
-    return [array[::step] for array in arrays]
 
 
 def _period_samples(analysis: Analysis) -> int:
@@ -96,26 +85,26 @@ def overview(analysis: Analysis, segments, path: Path) -> Path:
     if analysis.extended:
         curves.append(("extended", extended.flange_K))
     for name, values in curves:
-        axes[0].plot(*_thin(t, _smooth(values, samples)), color=COLOURS[name], **CURVE_STYLE[name],
+        axes[0].plot(*thin(t, _smooth(values, samples)), color=COLOURS[name], **CURVE_STYLE[name],
                      label={"measured": "measured", "base": "base model",
                             "extended": f"extended ({_extended_label(analysis)})"}[name])
     axes[0].set_ylabel("T2 (K), line averaged out")
     for name, replay in (("base", base), ("extended", extended)):
         if name == "extended" and not analysis.extended:
             continue
-        axes[1].plot(*_thin(t, 1e3 * _smooth(replay.flange_residual_K, samples)), color=COLOURS[name], lw=0.8,
+        axes[1].plot(*thin(t, 1e3 * _smooth(replay.flange_residual_K, samples)), color=COLOURS[name], lw=0.8,
                      label=f"{'base' if name == 'base' else 'extended'} model: measured - replayed")
     noise = 1e3 * analysis.noise_rms_K[0] / math.sqrt(samples)
     axes[1].axhspan(-3 * noise, 3 * noise, color="k", alpha=0.1, label="+-3 x noise (smoothed)")
     axes[1].set_ylabel("T2 residual (mK)")
     axes[1].legend(loc="best", fontsize=8)
-    axes[2].plot(*_thin(t, 1e3 * data.heater_w), color="tab:purple", lw=0.8)
+    axes[2].plot(*thin(t, 1e3 * data.heater_w), color="tab:purple", lw=0.8)
     axes[2].set_ylabel("heater (mW)")
     axes[2].set_xlabel("time (s)")
     for index, axis in enumerate(axes):
         _shade_segments(axis, analysis, segments, legend=index == 0)
     axes[0].set_title(f"{Path(data.source).name}: cause {analysis.cause}")
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def residual_spectrum(analysis: Analysis, path: Path) -> Path:
@@ -146,7 +135,7 @@ def residual_spectrum(analysis: Analysis, path: Path) -> Path:
         axis.set_ylabel(f"{name} residual (K/sqrt(Hz))")
         axis.legend(loc="best", fontsize=8)
     axes[1].set_xlabel("frequency (Hz); dashed: the cooler's harmonics (purple: folded by the sampling)")
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def heater_modulation_hz(heater_w: np.ndarray, sample_hz: float, cooler_hz: float) -> float | None:
@@ -194,7 +183,7 @@ def ptc_line(analysis: Analysis, path: Path) -> Path:
     twin.set_ylabel("T5 (K)", color="tab:cyan")
     axis.legend(loc="upper left", fontsize=8)
     axis.set_title("PTC line where the base model misses it most")
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def candidates(analysis: Analysis, path: Path) -> Path:
@@ -212,7 +201,7 @@ def candidates(analysis: Analysis, path: Path) -> Path:
     axis.set_xlabel("held-out improvement over the base model (noise-variance units, symlog)")
     axis.set_title(f"candidates (blue: named; counts from {CANDIDATE_SIGMA:g} sigma)")
     axis.legend(loc="upper left", fontsize=8)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def steps(analysis: Analysis, segments, path: Path) -> Path | None:
@@ -240,7 +229,7 @@ def steps(analysis: Analysis, segments, path: Path) -> Path | None:
     for axis in list(axes.flat)[len(found):]:
         axis.set_visible(False)
     axes.flat[0].legend(fontsize=8)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def correlation(analysis: Analysis, path: Path) -> Path:
@@ -268,7 +257,7 @@ def correlation(analysis: Analysis, path: Path) -> Path:
     axes[0].set_ylabel("T2 residual autocorrelation")
     axes[1].set_xlabel("lag behind the heater (s, + half a sample for the log axis)")
     axes[1].set_ylabel("correlation with the heater")
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def make_figures(analysis: Analysis, segments, directory: Path) -> dict[str, Path]:

@@ -21,23 +21,13 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
 import numpy as np  # noqa: E402
+from cryod.figure_files import save_figure, thin  # noqa: E402
 from scipy import ndimage  # noqa: E402
 
 from cryod.identification.model_fit import ChannelResult, ModelIdentification  # noqa: E402
 
-MOST_POINTS = 4000
 
 
-def _save(figure, path: Path) -> Path:
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
-
-
-def _thin(*arrays):
-    step = max(1, arrays[0].size // MOST_POINTS)
-    return [np.asarray(array)[::step] for array in arrays]
 
 
 def _period_average(values: np.ndarray, samples: int) -> np.ndarray:
@@ -56,7 +46,7 @@ def _channel_figure(result: ModelIdentification, channel: ChannelResult, index: 
     residual = channel.residual_K[index]
     figure, (top, middle, bottom) = plt.subplots(3, 1, figsize=(9.0, 8.0), sharex=True,
                                                  gridspec_kw={"height_ratios": [3, 1, 2]})
-    t, m, f = _thin(elapsed, _period_average(measured, samples), _period_average(fitted, samples))
+    t, m, f = thin(elapsed, _period_average(measured, samples), _period_average(fitted, samples))
     top.plot(t, m, color="black", lw=1.2, label=f"{quantity} measured (cooler-period average)")
     top.plot(t, f, color="tab:red", lw=1.0, ls="--", label=f"fit: {channel.fit.count} term(s), "
              + ", ".join(f"{tau:.4g} s" for tau in channel.fit.time_constants_s))
@@ -64,11 +54,11 @@ def _channel_figure(result: ModelIdentification, channel: ChannelResult, index: 
     top.set_title(title)
     top.legend(loc="best", fontsize=8)
     top.grid(alpha=0.3)
-    t, heater = _thin(elapsed, data.heater_w)
+    t, heater = thin(elapsed, data.heater_w)
     middle.step(t, heater * 1e3, where="post", color="tab:orange")
     middle.set_ylabel("heater (mW)")
     middle.grid(alpha=0.3)
-    t, raw, smooth = _thin(elapsed, residual, _period_average(residual, samples))
+    t, raw, smooth = thin(elapsed, residual, _period_average(residual, samples))
     unit, scale = ("uK", 1e6) if np.nanmax(np.abs(residual)) < 2e-3 else ("mK", 1e3)
     bottom.plot(t, raw * scale, color="0.7", lw=0.4, label="residual")
     bottom.plot(t, smooth * scale, color="tab:blue", lw=1.0, label="residual, cooler-period average")
@@ -79,7 +69,7 @@ def _channel_figure(result: ModelIdentification, channel: ChannelResult, index: 
     bottom.set_xlabel("time since the record's start (s)")
     bottom.legend(loc="best", fontsize=8)
     bottom.grid(alpha=0.3)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def line_figure(result: ModelIdentification, path: Path, periods: float = 6.0) -> Path:
@@ -116,7 +106,7 @@ def line_figure(result: ModelIdentification, path: Path, periods: float = 6.0) -
     bottom.set_xlabel("time since the record's start (s)")
     bottom.legend(fontsize=8, loc="upper right")
     bottom.grid(alpha=0.3)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def terms_figure(result: ModelIdentification, path: Path) -> Path:
@@ -139,7 +129,7 @@ def terms_figure(result: ModelIdentification, path: Path) -> Path:
         axis.set_title(f"heater to {name}: {channel.fit.count} term(s) chosen by the BIC", fontsize=9)
         axis.legend(fontsize=8)
         axis.grid(alpha=0.3, which="both")
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def make_figures(result: ModelIdentification, out: Path) -> dict[str, Path]:

@@ -2,15 +2,18 @@
 
     cryod run --config PATH [--check]           the service
     cryod --simulate [--config PATH] [...]      the same daemon on the simulated cryostat
-    cryod ctl [--socket PATH] COMMAND           talk to the running daemon
+    cryod simulate [...]                        the same as cryod --simulate
+    cryod ctl [--socket PATH] COMMAND           talk to the running daemon (found by itself)
     cryod analyze RECORD [...]                  what the simulation gets wrong, and why
     cryod identify RECORD [...]                 fit a model from measured records
     cryod feedforward-limit [...]               the feedforward's physical limit for a heater
     cryod tune [...]                            PI gains from the model, compared
+    cryod plot RECORD                           a quick look at a record (PNG beside it)
 
 Errors go to stderr with a non-zero exit code: 2 for unusable input (a bad
 configuration, a bad command line), the daemon's fault codes otherwise
-(docs/operations.md).
+(docs/operations.md); 141 (as for SIGPIPE), quietly, when whatever reads the
+output stops reading it.
 """
 
 from __future__ import annotations
@@ -18,14 +21,15 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
+import signal
 import sys
 from pathlib import Path
 
 from cryod import __version__
-from cryod.argument_types import positive
+from cryod.argument_types import positive, whole_number
 from cryod.service.commands import COMMANDS, socket_usage
-
-DEFAULT_CONFIG = Path("/etc/cryod/cryod.yaml")
+from cryod.service.discovery import SERVICE_CONFIG as DEFAULT_CONFIG
 
 #: Model tools with a module of their own (``configure_parser(parser)``, ``run(args) -> int``).
 MODEL_TOOLS = (
@@ -34,6 +38,7 @@ MODEL_TOOLS = (
     ("feedforward-limit", "cryod.control.feedforward_limit_command",
      "the least cooler-synchronous oscillation any heater waveform can leave, and what would change it"),
     ("tune", "cryod.control.tuning_command", "PI gains for the lab's model and heater, beside the configured ones"),
+    ("plot", "cryod.records.quick_look", "a quick look at a record: temperatures, heater, cooler line, spectrum"),
 )
 
 
@@ -56,25 +61,27 @@ def build_parser() -> argparse.ArgumentParser:
     simulate = parser.add_argument_group("dry run on the simulated cryostat (cryod --simulate ...)")
     simulate.add_argument("--simulate", action="store_true",
                           help="run the daemon against simulated instruments and a simulated cryostat")
-    simulate.add_argument("--config", type=Path, default=None,
+    simulate.add_argument("--config", type=Path, default=None, metavar="PATH",
                           help="daemon configuration (default: the documented example config/cryod.yaml)")
-    simulate.add_argument("--duration", type=positive, default=None,
+    simulate.add_argument("--duration", type=positive, default=None, metavar="S",
                           help="simulated seconds to run (default: until stopped)")
     simulate.add_argument("--speed", type=_speed, default=1.0,
                           help="simulated seconds per real second, or 'max' for virtual time (default 1)")
     simulate.add_argument("--json", action="store_true", help="print one summary object on stdout at the end")
-    simulate.add_argument("--window", type=positive, default=300.0,
+    simulate.add_argument("--window", type=positive, default=300.0, metavar="S",
                           help="length of the metrics window at the end, s (default 300)")
-    simulate.add_argument("--setpoint", type=float, default=None, help="setpoint in K (overrides the config)")
-    simulate.add_argument("--sim-model", type=Path, default=None,
+    simulate.add_argument("--setpoint", type=positive, default=None, metavar="K", help="setpoint in K (overrides the config)")
+    simulate.add_argument("--sim-model", type=Path, default=None, metavar="PATH",
                           help="model file of the simulated cryostat (the controller keeps its config)")
-    simulate.add_argument("--seed", type=int, default=None, help="sensor-noise seed (overrides the config)")
+    simulate.add_argument("--seed", type=whole_number, default=None, metavar="N",
+                          help="sensor-noise seed (overrides the config)")
     simulate.add_argument("--no-feedforward", action="store_true",
                           help="PI alone: the feedforward locked to the cooler starts switched off")
-    simulate.add_argument("--data-dir", type=Path, default=None,
+    simulate.add_argument("--data-dir", type=Path, default=None, metavar="PATH",
                           help="where the data log goes (default ./cryod-simulate/data)")
-    simulate.add_argument("--socket", type=Path, default=None,
-                          help="control socket (default ./cryod-simulate/control.sock)")
+    simulate.add_argument("--socket", type=Path, default=None, metavar="PATH",
+                          help="control socket (default: this user's, $XDG_RUNTIME_DIR/cryod/simulate.sock, "
+                               "where `cryod ctl` looks)")
     simulate.add_argument("--transport", choices=("tcp", "in-process"), default=None,
                           help="drivers to simulated instruments over TCP on 127.0.0.1 (default, or "
                                "in-process with --speed max)")
@@ -82,27 +89,42 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", metavar="COMMAND")
     run = commands.add_parser("run", help="run the service on the real instruments",
                               description="Run the daemon on the real instruments (under systemd: Type=notify).")
-    run.add_argument("--config", type=Path, default=DEFAULT_CONFIG, dest="run_config",
+    run.add_argument("--config", type=Path, default=DEFAULT_CONFIG, dest="run_config", metavar="PATH",
                      help=f"daemon configuration (default {DEFAULT_CONFIG})")
     run.add_argument("--check", action="store_true",
                      help="only validate the configuration and the calibration files, then exit")
-    run.add_argument("--duration", type=positive, default=None, dest="run_duration",
+    run.add_argument("--duration", type=positive, default=None, dest="run_duration", metavar="S",
                      help="stop after this many seconds (default: until SIGTERM)")
 
     ctl = commands.add_parser("ctl", help="talk to the running daemon",
                               description="Send one command to the running daemon's control socket.")
-    ctl.add_argument("--socket", type=Path, default=None, dest="ctl_socket",
-                     help="control socket path (default: from --config)")
-    ctl.add_argument("--config", type=Path, default=DEFAULT_CONFIG, dest="ctl_config",
-                     help=f"take the socket path from this configuration (default {DEFAULT_CONFIG})")
+    ctl.add_argument("--socket", type=Path, default=None, dest="ctl_socket", metavar="PATH",
+                     help="control socket path (default: the service's, from its configuration, if it runs, "
+                          "else this user's cryod --simulate)")
+    ctl.add_argument("--config", type=Path, default=None, dest="ctl_config", metavar="PATH",
+                     help=f"take the socket path from this configuration (the service's is {DEFAULT_CONFIG})")
     ctl.add_argument("--json", action="store_true", dest="ctl_json", help="print the raw JSON reply")
     ctl.add_argument("words", nargs="+", metavar="COMMAND", help=socket_usage())
     ctl.epilog = "commands:\n" + "\n".join(f"  {spec.usage:<20} {spec.help}" for spec in COMMANDS.values()
                                             if spec.from_socket)
     ctl.formatter_class = argparse.RawDescriptionHelpFormatter
+    commands.add_parser("simulate", help="the same as cryod --simulate (its options follow)", add_help=False)
     for name, _, summary in MODEL_TOOLS:      # listed here, loaded only when used (see main)
         commands.add_parser(name, help=summary, add_help=False)
     return parser
+
+
+#: Options of the dry run (``--simulate``), which mean nothing to the commands.
+SIMULATE_ONLY = ("config", "duration", "speed", "json", "window", "setpoint", "sim_model", "seed",
+                 "no_feedforward", "data_dir", "socket", "transport")
+
+
+def _misplaced_simulate_options(parser: argparse.ArgumentParser, args) -> list[str]:
+    """Dry-run options given without --simulate (``cryod --duration 5 run``), as on the command line."""
+    given = [name for name in SIMULATE_ONLY if getattr(args, name) != parser.get_default(name)]
+    if args.command == "ctl" and "socket" in given and args.ctl_socket is None:
+        given.remove("socket")            # cryod --socket PATH ctl ...: the socket of the daemon to talk to
+    return ["--" + name.replace("_", "-") for name in given]
 
 
 def _run_model_tool(name: str, argv: list[str]) -> int:
@@ -112,14 +134,41 @@ def _run_model_tool(name: str, argv: list[str]) -> int:
     return module.run(parser.parse_args(argv))
 
 
+#: Exit code when the reader of the output went away (``cryod ctl status | head -2``): as a Unix tool killed
+#: by SIGPIPE, 128 + 13.
+READER_GONE = 128 + signal.SIGPIPE
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one cryod command line; the exit code.
+
+    When whatever reads the output stops reading (``cryod ctl status | head -2``), the command
+    ends quietly with :data:`READER_GONE`, as Unix tools do, instead of a traceback.
+    """
+    try:
+        code = _main(argv)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # nothing more can reach the reader; send what Python would flush at exit nowhere
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return READER_GONE
+    return code
+
+
+def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] in {name for name, _, _ in MODEL_TOOLS}:
         return _run_model_tool(argv[0], argv[1:])
+    if argv and argv[0] == "simulate":
+        argv = ["--simulate", *argv[1:]]
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.simulate and args.command:
         parser.error("--simulate runs the daemon itself; do not combine it with a command")
+    misplaced = [] if args.simulate else _misplaced_simulate_options(parser, args)
+    if misplaced:
+        parser.error(f"{', '.join(misplaced)}: option(s) of the dry run (cryod --simulate {misplaced[0]} ...); "
+                     f"a command's own options go after it (cryod {args.command or 'COMMAND'} --help)")
     if args.simulate:
         from cryod.service.simulation import run_simulation
 
@@ -134,37 +183,45 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run_service(args) -> int:
     from cryod.service.daemon import Daemon, config_or_exit
-    from cryod.service.instruments import open_instruments, check_calibrations
+    from cryod.service.instruments import open_instruments, check_calibrations, check_instrument_support
     from cryod.service.clock import MonotonicClock
     from cryod.service.logs import ServiceLogging
+
+    from cryod.service.status_line import StatusLine
 
     config = config_or_exit(args.run_config, sys.stderr)
     if config is None:
         return 2
-    problem = check_calibrations(config)
+    problem = check_calibrations(config) or check_instrument_support(config)
     if problem:
         print(f"cryod: {problem}", file=sys.stderr)
         return 2
     if args.check:
         print(f"{args.run_config}: configuration and calibration files are valid")
         return 0
-    logging_service = ServiceLogging()
+    daemon = Daemon(config, open_instruments, MonotonicClock())
+    status_line = StatusLine(daemon.live_view, sys.stderr, duration_s=args.run_duration)   # a terminal only
+    logging_service = ServiceLogging(stream=status_line.log_stream)
     logging_service.start()
+    status_line.start()
     try:
-        result = Daemon(config, open_instruments, MonotonicClock()).run(args.run_duration)
+        result = daemon.run(args.run_duration)
     except Exception as error:
         print(f"cryod: stopped: {type(error).__name__}: {error}", file=sys.stderr)
         return 1
     finally:
+        status_line.stop()
         logging_service.stop()
     return result.exit_code
 
 
 def _ctl(args) -> int:
     from cryod.service.control_socket import send_command
+    from cryod.service.discovery import find_daemon_socket
+    from cryod.yaml_source import FileFormatError
 
-    path = args.ctl_socket
-    if path is None:
+    path = args.ctl_socket or args.socket
+    if path is None and args.ctl_config is not None:
         from cryod.service.daemon import config_or_exit
 
         config = config_or_exit(args.ctl_config, sys.stderr)
@@ -172,15 +229,32 @@ def _ctl(args) -> int:
             return 2
         path = config.control_socket.path
     try:
+        if path is None:
+            path = find_daemon_socket()
+    except FileFormatError as error:
+        print(f"cryod ctl: the service's configuration is not usable to find its socket: {error}; "
+              f"give --socket PATH", file=sys.stderr)
+        return 2
+    except ConnectionError as error:
+        print(f"cryod ctl: {error}", file=sys.stderr)
+        return 3
+    try:
         reply = send_command(path, " ".join(args.words))
+    except ValueError as error:
+        print(f"cryod ctl: {error}", file=sys.stderr)
+        return 2
     except (ConnectionError, OSError) as error:
         print(f"cryod ctl: {error}", file=sys.stderr)
         return 3
     if args.ctl_json:
         print(json.dumps(reply))
     elif reply.get("message") == "status" and reply.get("ok"):
+        from cryod.service.readable import readable
+
         for key, value in reply["status"].items():
-            print(f"{key}: {value}")
+            if key == "time_s":
+                key = "daemon_clock_s"          # the daemon's monotonic clock, not a date
+            print(f"{key}: {readable(key, value)}")
     else:
         print(reply.get("message", ""), file=sys.stdout if reply.get("ok") else sys.stderr)
     return 0 if reply.get("ok") else 1

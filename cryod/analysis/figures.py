@@ -4,7 +4,8 @@
   residuals, the heater; segments shaded. Smoothed over one line period so the
   slow behaviour is visible; the line itself is in ``ptc_line.png``.
 * ``residual_spectrum.png``: spectra of the T2 and T5 residuals of both
-  models, with the measured noise floor and the line's harmonics.
+  models, with the measured noise floor and the cooler's harmonics labelled
+  (those above the Nyquist frequency where the sampling folds them).
 * ``ptc_line.png``: a few line periods of T2, measured and replayed, where the
   base model misses the line most.
 * ``candidates.png``: each candidate's held-out improvement and significance.
@@ -23,6 +24,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
 import numpy as np  # noqa: E402
+from cryod.figure_files import save_figure, thin  # noqa: E402
 from scipy import ndimage, signal  # noqa: E402
 
 from cryod.analysis.decision import CANDIDATE_SIGMA  # noqa: E402
@@ -31,23 +33,13 @@ from cryod.analysis.discrepancies import (  # noqa: E402
 )
 from cryod.analysis.pipeline import Analysis  # noqa: E402
 from cryod.analysis.segments import find_steps  # noqa: E402
+from cryod.records.quick_look import folded_frequency, mark_cooler_harmonics  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 
-#: Most points drawn per curve.
-MOST_POINTS = 4000
 COLOURS = {"measured": "black", "base": "tab:red", "extended": "tab:blue"}
 SEGMENT_COLOURS = {"closed loop": "tab:green", "hold": "tab:gray", "modulated": "tab:orange"}
 
 
-def _save(figure, path: Path) -> Path:
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
-
-
-def _thin(*arrays):
-    step = max(1, arrays[0].size // MOST_POINTS)
-    return [array[::step] for array in arrays]
 
 
 def _period_samples(analysis: Analysis) -> int:
@@ -66,9 +58,21 @@ def _extended_label(analysis: Analysis) -> str:
     return " + ".join((["recalibrated"] if analysis.recalibrated else []) + added) or analysis.cause
 
 
-def _shade_segments(axis, analysis: Analysis, segments) -> None:
+def _shade_segments(axis, analysis: Analysis, segments, legend: bool = False) -> None:
+    """Shade each segment by its kind; with ``legend``, add the kinds present to the axis' legend."""
     for segment in segments:
         axis.axvspan(segment.start_s, segment.stop_s, color=SEGMENT_COLOURS[segment.kind], alpha=0.08, lw=0)
+    if legend:
+        handles, labels = axis.get_legend_handles_labels()
+        for kind in dict.fromkeys(segment.kind for segment in segments):
+            handles.append(Patch(color=SEGMENT_COLOURS[kind], alpha=0.25, lw=0))
+            labels.append(f"segment: {kind}")
+        axis.legend(handles, labels, loc="best", fontsize=8)
+
+
+#: How each curve is drawn: the measurement on top, solid; the models under it, dashed.
+CURVE_STYLE = {"measured": {"lw": 1.3, "zorder": 4}, "base": {"lw": 0.9, "ls": "--", "zorder": 3},
+               "extended": {"lw": 0.9, "ls": ":", "zorder": 3}}
 
 
 def overview(analysis: Analysis, segments, path: Path) -> Path:
@@ -81,31 +85,33 @@ def overview(analysis: Analysis, segments, path: Path) -> Path:
     if analysis.extended:
         curves.append(("extended", extended.flange_K))
     for name, values in curves:
-        axes[0].plot(*_thin(t, _smooth(values, samples)), color=COLOURS[name], lw=1.0,
-                     label={"measured": "measured", "base": "base model", "extended": f"extended ({_extended_label(analysis)})"}[name])
+        axes[0].plot(*thin(t, _smooth(values, samples)), color=COLOURS[name], **CURVE_STYLE[name],
+                     label={"measured": "measured", "base": "base model",
+                            "extended": f"extended ({_extended_label(analysis)})"}[name])
     axes[0].set_ylabel("T2 (K), line averaged out")
-    axes[0].legend(loc="best", fontsize=8)
     for name, replay in (("base", base), ("extended", extended)):
         if name == "extended" and not analysis.extended:
             continue
-        axes[1].plot(*_thin(t, 1e3 * _smooth(replay.flange_residual_K, samples)), color=COLOURS[name], lw=0.8,
+        axes[1].plot(*thin(t, 1e3 * _smooth(replay.flange_residual_K, samples)), color=COLOURS[name], lw=0.8,
                      label=f"{'base' if name == 'base' else 'extended'} model: measured - replayed")
     noise = 1e3 * analysis.noise_rms_K[0] / math.sqrt(samples)
     axes[1].axhspan(-3 * noise, 3 * noise, color="k", alpha=0.1, label="+-3 x noise (smoothed)")
     axes[1].set_ylabel("T2 residual (mK)")
     axes[1].legend(loc="best", fontsize=8)
-    axes[2].plot(*_thin(t, 1e3 * data.heater_w), color="tab:purple", lw=0.8)
+    axes[2].plot(*thin(t, 1e3 * data.heater_w), color="tab:purple", lw=0.8)
     axes[2].set_ylabel("heater (mW)")
     axes[2].set_xlabel("time (s)")
-    for axis in axes:
-        _shade_segments(axis, analysis, segments)
+    for index, axis in enumerate(axes):
+        _shade_segments(axis, analysis, segments, legend=index == 0)
     axes[0].set_title(f"{Path(data.source).name}: cause {analysis.cause}")
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def residual_spectrum(analysis: Analysis, path: Path) -> Path:
     data = analysis.data
     sampling = 1.0 / data.sample_interval_s
+    modulation_hz = heater_modulation_hz(data.heater_w[data.valid], sampling,
+                                         analysis.base_line.angular_frequency_rad_s / (2.0 * math.pi))
     figure, axes = plt.subplots(2, 1, figsize=(10, 7.5), sharex=True)
     for axis, name, noise, base_values, extended_values in (
             (axes[0], "T2", analysis.noise_rms_K[0], analysis.base_replay.flange_residual_K,
@@ -121,13 +127,34 @@ def residual_spectrum(analysis: Analysis, path: Path) -> Path:
                                               nperseg=int(min(4096, max(256, values.size // 8))))
             axis.loglog(frequency[1:], np.sqrt(density[1:]), color=colour, lw=0.8, label=label)
         axis.axhline(noise * math.sqrt(2.0 / sampling), color="k", ls="--", lw=0.8, label="measured white noise")
-        for order in range(1, 4):
-            axis.axvline(order * analysis.base_line.angular_frequency_rad_s / (2.0 * math.pi), color="tab:gray",
-                         ls=":", lw=0.8)
+        mark_cooler_harmonics(axis, analysis.base_line.angular_frequency_rad_s / (2.0 * math.pi), sampling)
+        if modulation_hz is not None:
+            axis.axvline(modulation_hz, color="tab:orange", lw=0.8, ls="--", alpha=0.7)
+            axis.annotate(f"heater modulation {modulation_hz:.3g} Hz", (modulation_hz, 0.03),
+                          xycoords=("data", "axes fraction"), rotation=90, fontsize=7, va="bottom", ha="right")
         axis.set_ylabel(f"{name} residual (K/sqrt(Hz))")
         axis.legend(loc="best", fontsize=8)
-    axes[1].set_xlabel("frequency (Hz); dotted: PTC line and harmonics")
-    return _save(figure, path)
+    axes[1].set_xlabel("frequency (Hz); dashed: the cooler's harmonics (purple: folded by the sampling)")
+    return save_figure(figure, path)
+
+
+def heater_modulation_hz(heater_w: np.ndarray, sample_hz: float, cooler_hz: float) -> float | None:
+    """The frequency of a heater modulation in the record (Hz), or None: the strongest of the heater
+    spectrum's peaks above 50 mHz that stand 30 times over their neighbourhood, the cooler's harmonics
+    (which the feedforward plays) left out."""
+    if heater_w.size < 512:
+        return None
+    frequency, density = signal.welch(heater_w - heater_w.mean(), fs=sample_hz,
+                                      nperseg=int(min(4096, heater_w.size // 4)))
+    level = np.log10(np.maximum(density, np.max(density) * 1e-15 + 1e-30))
+    peaks, _ = signal.find_peaks(level, prominence=math.log10(30.0))
+    harmonics = [folded_frequency(order * cooler_hz, sample_hz) for order in range(1, 7)]
+    best = None
+    for peak in peaks:
+        near_cooler = min(abs(frequency[peak] - h) for h in harmonics) < 0.03
+        if frequency[peak] > 0.05 and not near_cooler and (best is None or density[peak] > best[1]):
+            best = (float(frequency[peak]), density[peak])      # the strongest: a square wave's fundamental
+    return None if best is None else best[0]
 
 
 def ptc_line(analysis: Analysis, path: Path) -> Path:
@@ -156,7 +183,7 @@ def ptc_line(analysis: Analysis, path: Path) -> Path:
     twin.set_ylabel("T5 (K)", color="tab:cyan")
     axis.legend(loc="upper left", fontsize=8)
     axis.set_title("PTC line where the base model misses it most")
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def candidates(analysis: Analysis, path: Path) -> Path:
@@ -174,7 +201,7 @@ def candidates(analysis: Analysis, path: Path) -> Path:
     axis.set_xlabel("held-out improvement over the base model (noise-variance units, symlog)")
     axis.set_title(f"candidates (blue: named; counts from {CANDIDATE_SIGMA:g} sigma)")
     axis.legend(loc="upper left", fontsize=8)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def steps(analysis: Analysis, segments, path: Path) -> Path | None:
@@ -189,25 +216,26 @@ def steps(analysis: Analysis, segments, path: Path) -> Path | None:
     for axis, step in zip(axes.flat, found):
         window = slice(max(step.before.start_index, step.index - 60 * samples), step.after.stop_index)
         t = data.time_s[window] - step.time_s
-        axis.plot(t, 1e3 * _smooth(data.flange_K, samples)[window], color=COLOURS["measured"], lw=1.0,
-                  label="measured")
-        axis.plot(t, 1e3 * _smooth(analysis.base_replay.flange_K, samples)[window], color=COLOURS["base"], lw=0.9,
-                  label="base")
+        axis.plot(t, 1e3 * _smooth(data.flange_K, samples)[window], color=COLOURS["measured"],
+                  **CURVE_STYLE["measured"], label="measured")
+        axis.plot(t, 1e3 * _smooth(analysis.base_replay.flange_K, samples)[window], color=COLOURS["base"],
+                  **CURVE_STYLE["base"], label="base")
         if analysis.extended:
             axis.plot(t, 1e3 * _smooth(analysis.extended_replay.flange_K, samples)[window],
-                      color=COLOURS["extended"], lw=0.9, ls="--", label="extended")
+                      color=COLOURS["extended"], **CURVE_STYLE["extended"], label="extended")
         axis.set_title(f"{1e3 * step.before_w:.1f} -> {1e3 * step.after_w:.1f} mW at {step.time_s:.0f} s", fontsize=9)
         axis.set_xlabel("time after the step (s)")
         axis.set_ylabel("T2 (mK)")
     for axis in list(axes.flat)[len(found):]:
         axis.set_visible(False)
     axes.flat[0].legend(fontsize=8)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def correlation(analysis: Analysis, path: Path) -> Path:
     data = analysis.data
     valid = data.valid
+    interval = data.sample_interval_s
     figure, axes = plt.subplots(1, 2, figsize=(11, 4))
     for name, replay, colour in (("base", analysis.base_replay, COLOURS["base"]),
                                  ("extended", analysis.extended_replay, COLOURS["extended"])):
@@ -215,21 +243,21 @@ def correlation(analysis: Analysis, path: Path) -> Path:
             continue
         residual = replay.flange_residual_K[valid] - np.mean(replay.flange_residual_K[valid])
         heater = data.heater_w[valid] - np.mean(data.heater_w[valid])
-        axes[0].plot(WHITENESS_LAGS, autocorrelation_at(residual, WHITENESS_LAGS), "o-", color=colour, ms=3,
-                     label=f"{name} model")
+        axes[0].plot(np.asarray(WHITENESS_LAGS) * interval, autocorrelation_at(residual, WHITENESS_LAGS), "o-",
+                     color=colour, ms=3, label=f"{name} model")
         cross = cross_correlation_at(residual, heater, CROSS_CORRELATION_LAGS)
         if cross is not None:
-            axes[1].semilogx(np.asarray(CROSS_CORRELATION_LAGS[:cross.size]) + 0.5, cross, "o-", color=colour, ms=3,
-                             label=f"{name} model")
+            axes[1].semilogx((np.asarray(CROSS_CORRELATION_LAGS[:cross.size]) + 0.5) * interval, cross, "o-",
+                             color=colour, ms=3, label=f"{name} model")
     band = 3.0 / math.sqrt(max(np.count_nonzero(valid), 1))
     for axis in axes:
         axis.axhspan(-band, band, color="k", alpha=0.1, label="+-3/sqrt(N): white noise")
         axis.legend(fontsize=8)
-    axes[0].set_xlabel("lag (samples)")
+    axes[0].set_xlabel(f"lag (s; one sample is {interval * 1e3:.0f} ms)")
     axes[0].set_ylabel("T2 residual autocorrelation")
-    axes[1].set_xlabel("lag (samples, + 0.5)")
+    axes[1].set_xlabel("lag behind the heater (s, + half a sample for the log axis)")
     axes[1].set_ylabel("correlation with the heater")
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def make_figures(analysis: Analysis, segments, directory: Path) -> dict[str, Path]:

@@ -18,11 +18,14 @@ Examples
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from cryod.records.record import Record, RecordFormatError
+from cryod.analysis.record_window import busiest_stretch
+from cryod.records.record import Record, RecordFormatError, read_record
 
 #: Shortest record the analysis accepts (s) and fewest samples.
 MINIMUM_DURATION_S = 120.0
@@ -36,6 +39,8 @@ RESISTANCE_KEYS = ("heater_resistance_ohm", "heater_resistance", "heater_resista
 CURRENT_LIMIT_KEYS = ("heater_current_limit_A", "heater_max_current_A", "heater_current_max_A",
                       "heater_current_limit")
 POWER_LIMIT_KEYS = ("heater_max_W", "heater_limit_W", "heater_power_limit_W", "heater_max_power_W")
+#: Columns the analysis reads besides the required ones (the others are skipped unread).
+ANALYSED_COLUMNS = ("T2_sample_s", "T5_sample_s", "heater_set_s")
 
 
 @dataclass(frozen=True)
@@ -94,6 +99,17 @@ class RecordData:
         """Samples with both temperatures present."""
         return np.isfinite(self.flange_K) & np.isfinite(self.ptc_stage_K)
 
+    def stretch(self, start: int, stop: int) -> "RecordData":
+        """The samples ``[start, stop)`` alone, with a note saying which they are."""
+        part = slice(start, stop)          # copies, so that the rest of the record can be freed
+        note = (f"analysed {(self.time_s[stop - 1] - self.time_s[start]) / 3600.0:.2f} h of the record's "
+                f"{self.duration_s / 3600.0:.2f} h: t = {self.time_s[start]:.1f} s to {self.time_s[stop - 1]:.1f} s")
+        return dataclasses.replace(
+            self, time_s=self.time_s[part].copy(), flange_K=self.flange_K[part].copy(),
+            ptc_stage_K=self.ptc_stage_K[part].copy(), heater_w=self.heater_w[part].copy(),
+            setpoint_K=self.setpoint_K[part].copy(), notes=self.notes + [note],
+            heater_change_s=None if self.heater_change_s is None else self.heater_change_s[part].copy())
+
     @classmethod
     def from_record(cls, record: Record) -> "RecordData":
         """Check a record for analysis.
@@ -132,6 +148,38 @@ class RecordData:
             notes.append(f"heater limit {limit:.4g} W from the record's metadata")
         return cls(time_s, flange, stage, heater, np.asarray(record.setpoint_K, dtype=float), limit, source, notes,
                    heater_change_instants(record, time_s))
+
+
+def read_record_data(path: str | Path, max_duration_s: float | None = None) -> RecordData:
+    """Read a record file for analysis: the required columns and :data:`ANALYSED_COLUMNS`, checked.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+    max_duration_s : float, optional
+        A record longer than this (s) is cut to the stretch of this length
+        where the heater moves most
+        (:func:`cryod.analysis.record_window.busiest_stretch`), with a note
+        saying which; None or 0: the whole record.
+
+    Raises
+    ------
+    cryod.records.record.RecordFormatError
+        The file cannot be read as a record, or cannot be analysed (the
+        file, the line or row and what is wrong named).
+    """
+    return analysed_stretch(RecordData.from_record(read_record(path, columns=ANALYSED_COLUMNS)), max_duration_s)
+
+
+def analysed_stretch(data: RecordData, max_duration_s: float | None) -> RecordData:
+    """``data`` itself, or, if longer than ``max_duration_s`` (s), its stretch of that length where the
+    heater moves most (:func:`cryod.analysis.record_window.busiest_stretch`), with a note saying which."""
+    if not max_duration_s or data.duration_s <= max_duration_s:
+        return data
+    start, stop = busiest_stretch(data.time_s, data.heater_w, max_duration_s, data.valid)
+    part = data.stretch(start, stop)
+    part.notes[-1] += f", the {max_duration_s / 3600.0:.2f} h where the heater's 10 s means vary most"
+    return part
 
 
 #: Sample instants of the two thermometers further apart than this (s) are worth a note.
@@ -213,5 +261,5 @@ def saturation_fraction(heater_w: np.ndarray, limit_w: float | None) -> tuple[fl
     return at_zero, at_limit
 
 
-__all__ = ["RecordData", "fit_block_mask", "block_length_s", "heater_limit_from_metadata",
+__all__ = ["ANALYSED_COLUMNS", "RecordData", "analysed_stretch", "read_record_data", "fit_block_mask", "block_length_s", "heater_limit_from_metadata",
            "saturation_fraction"]

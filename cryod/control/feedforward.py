@@ -294,16 +294,16 @@ class FeedforwardTerm:
     required = False
     rides_on_feedback = True
     columns = (
-        Column("ff_W", "W", "feedforward heater part (locked to the cooler)"),
+        Column("ff_W", "W", "feedforward heater part (locked to the cooler)", "{:.6e}"),
         Column("ff_phase_rad", "rad", "cooler phase at the T2 reading (T5's fundamental is A cos(phase))",
                "{:.4f}"),
         Column("ff_frequency_rad_s", "rad/s", "cooler angular frequency tracked from T5", "{:.5f}"),
         Column("ff_locked", "", "1 when the phase tracker is locked to the cooler", "{:.0f}"),
         Column("ff_line_K", "K", "amplitude of T2's part synchronous with the cooler as estimated at the last "
-                                 "learning step (sqrt of the sum of the harmonics' squared amplitudes)"),
+                                 "learning step (sqrt of the sum of the harmonics' squared amplitudes)", "{:.4e}"),
         Column("ff_scale", "", "fade of the waveform, 0 (off) to 1 (on)", "{:.3f}"),
         Column("ff_limit_K", "K", "the physical limit at this setpoint: the least synchronous T2 any heater "
-                                  "waveform can leave (feedforward-limit; empty until computed)"),
+                                  "waveform can leave (feedforward-limit; empty until computed)", "{:.4e}"),
         Column("ff_authority", "", "largest fundamental the heater can give over the one the line needs "
                                    "(below 1: authority-limited)", "{:.4f}"),
     )

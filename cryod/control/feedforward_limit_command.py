@@ -16,15 +16,16 @@ import json
 import math
 import sys
 
+from cryod.control.lab_inputs import InputsNotUsable, lab_inputs
 from cryod.argument_types import not_negative, number, positive
 
-from cryod.config import EXAMPLE_CONFIG_PATH, load_config
+from cryod.config import EXAMPLE_CONFIG_PATH
 from cryod.control.feedforward_limit import (
     DEFAULT_AVERAGING_TIME_S, MEASURES, REPORTED_HARMONICS, SWEEP_MAX_CURRENTS_A, SWEEP_RESISTANCES_OHM,
     SWEEP_SETPOINTS_K, FeedforwardLimit, FeedforwardLimitError, SweepPoint, feedforward_limit, limit_sweep,
 )
-from cryod.model import DEFAULT_MODEL_PATH, load_model
-from cryod.yaml_source import FileFormatError
+from cryod.control.feedforward_limit_range import LimitRange, limit_range
+from cryod.model import DEFAULT_MODEL_PATH
 
 PROGRAM = "cryod feedforward-limit"
 
@@ -64,17 +65,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
 def run(args: argparse.Namespace) -> int:
     """Compute and print the limit; returns the exit status."""
     try:
-        config = load_config(args.config)
-        model = load_model(args.model)
-    except (FileFormatError, OSError) as error:
+        inputs = lab_inputs(args)
+    except InputsNotUsable as error:
         print(f"{PROGRAM}: {error}", file=sys.stderr)
         return 2
-    setpoint = args.setpoint if args.setpoint is not None else config.control.setpoint_K
-    if setpoint is None:
-        print(f"{PROGRAM}: {args.config} sets no setpoint: give --setpoint K", file=sys.stderr)
-        return 2
-    resistance = args.heater_ohm if args.heater_ohm is not None else config.heater.resistance_ohm
-    current = args.max_current if args.max_current is not None else config.heater.max_current_A
+    config, model, setpoint = inputs.config, inputs.model, inputs.setpoint_K
+    resistance, current = inputs.heater_ohm, inputs.max_current_A
     period = args.period if args.period is not None else config.loop.period_s
     options = {"period_s": period, "heater_delay_s": args.heater_delay, "measure": args.measure,
                "averaging_time_s": args.averaging_time}
@@ -83,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
     except FeedforwardLimitError as error:
         print(f"{PROGRAM}: {error}", file=sys.stderr)
         return 2
+    spread = limit_range(model, setpoint, resistance, current, period, heater_delay_s=args.heater_delay,
+                         measure=args.measure, averaging_time_s=args.averaging_time)
     held = {"setpoint_K": setpoint, "heater_resistance_ohm": resistance, "max_current_A": current}
     sweeps = {
         "setpoint": limit_sweep(model, "setpoint", SWEEP_SETPOINTS_K, **held, **options),
@@ -92,10 +90,11 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         summary = limit.summary()
         summary["model"] = str(args.model)
+        summary["ptc_periodic_limit_range"] = spread.summary() if spread is not None else None
         summary["sweeps"] = {name: [_sweep_row(row) for row in rows] for name, rows in sweeps.items()}
         print(json.dumps(summary))
     else:
-        print(report(limit, sweeps, model_path=str(args.model)))
+        print(report(limit, sweeps, model_path=str(args.model), spread=spread))
     return 0
 
 
@@ -117,8 +116,8 @@ def _mw(value_W: float) -> str:
     return f"{value_W * 1e3:.1f} mW"
 
 
-def report(limit: FeedforwardLimit, sweeps: dict, model_path: str = "") -> str:
-    """The table printed by the command."""
+def report(limit: FeedforwardLimit, sweeps: dict, model_path: str = "", spread: LimitRange | None = None) -> str:
+    """The table printed by the command (with the limit's range over the model's uncertainty when it states one)."""
     ratio = limit.open_line_K / limit.ptc_periodic_limit_K if limit.ptc_periodic_limit_K > 0 else math.inf
     lines = [
         f"Physical limit of the cooler-locked feedforward ({limit.measure} measure: harmonics 1-{REPORTED_HARMONICS} "
@@ -140,6 +139,8 @@ def report(limit: FeedforwardLimit, sweeps: dict, model_path: str = "") -> str:
         f"  best sinusoid                 {_mk(limit.best_sinusoid_K)}",
         f"  limit (best waveform)         {_mk(limit.ptc_periodic_limit_K)}"
         + (f"  ({ratio:.1f}x below the open line)" if math.isfinite(ratio) else "  (the line can be cancelled)"),
+        "  limit, model's uncertainty    " + (spread.describe() if spread is not None else
+                                            "not stated (the model file has no uncertainty section)"),
         "  limit per harmonic 1-6        " + "  ".join(f"{v * 1e3:.3f}" for v in limit.limit_harmonics_K) + " mK",
         f"  whole waveform, harmonics 1-{limit.harmonics:<2d} {_mk(limit.whole_periodic_limit_K)}"
         + (f"; no waveform of any shape goes below {_mk(limit.lower_bound_K)}" if limit.lower_bound_K is not None

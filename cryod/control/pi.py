@@ -179,8 +179,8 @@ class PiTerm:
 
     name = "pi"
     required = True
-    columns = (Column("pi_proportional_W", "W", "PI proportional part, Kp * (setpoint - T2)"),
-               Column("pi_integral_W", "W", "PI integral part"))
+    columns = (Column("pi_proportional_W", "W", "PI proportional part, Kp * (setpoint - T2)", "{:.6e}"),
+               Column("pi_integral_W", "W", "PI integral part", "{:.6e}"))
 
     def __init__(self, gains: PiGains, output_max: float):
         self.controller = PiController(gains, 0.0, output_max)

@@ -2,7 +2,8 @@
 
 Each tick it turns the readings into the heater power for the coming period:
 
-1. in mode ``off`` the power is 0 W; in ``manual`` it is the power set by hand;
+1. in mode ``off`` the power is 0 W; in ``manual`` it is the power set by hand (a constant, or a
+   sinusoid about a mean: :class:`HeaterModulation`, for identification experiments);
 2. in ``closed`` the setpoint ramp advances, every control term
    (:mod:`cryod.control.terms`) gives its part, the sum is held within the
    heater's range (0 to R * I_max**2: the heater can only heat and its current
@@ -108,6 +109,33 @@ class HeaterCurrentOutput:
         return math.sqrt(power_w / self.resistance_ohm)
 
 
+class HeaterModulation:
+    """A heater power ``mean_w + amplitude_w * sin(w (t - t0))`` in W, t0 the first instant it is asked for.
+
+    Examples
+    --------
+    >>> modulation = HeaterModulation(0.02, 0.01, angular_frequency_rad_s=math.pi / 2)
+    >>> modulation.power_w(10.0), round(modulation.power_w(11.0), 6)
+    (0.02, 0.03)
+    """
+
+    def __init__(self, mean_w: float, amplitude_w: float, angular_frequency_rad_s: float):
+        if not (math.isfinite(mean_w) and math.isfinite(amplitude_w) and amplitude_w >= 0.0
+                and angular_frequency_rad_s > 0.0 and math.isfinite(angular_frequency_rad_s)):
+            raise ValueError(f"a heater modulation needs a finite mean, an amplitude >= 0 and an angular frequency "
+                             f"> 0, got {mean_w!r} W, {amplitude_w!r} W, {angular_frequency_rad_s!r} rad/s")
+        self.mean_w = float(mean_w)
+        self.amplitude_w = float(amplitude_w)
+        self.angular_frequency_rad_s = float(angular_frequency_rad_s)
+        self.start_s: float | None = None
+
+    def power_w(self, time_s: float) -> float:
+        """The power at ``time_s`` (s); the first call sets the start of the phase."""
+        if self.start_s is None:
+            self.start_s = time_s
+        return self.mean_w + self.amplitude_w * math.sin(self.angular_frequency_rad_s * (time_s - self.start_s))
+
+
 class RegulatorStep(NamedTuple):
     """One tick's result.
 
@@ -152,6 +180,7 @@ class Regulator:
         self.ramp = SetpointRamp(control.setpoint_K or 0.0, control.ramp_K_per_min)
         self.mode = RegulatorMode.CLOSED if control.setpoint_K is not None else RegulatorMode.OFF
         self.manual_power_w = 0.0
+        self.modulation: HeaterModulation | None = None      # manual mode: a sinusoid instead of a constant
         self._feedback_offset_K = 0.0       # T2 less what the feedback terms saw of it, last tick
 
     # -- the cycle ---------------------------------------------------------------
@@ -179,6 +208,8 @@ class Regulator:
             tick = term.condition(tick)
         self._feedback_offset_K = tick.flange_K - tick.flange_feedback_K
         if self.mode is RegulatorMode.MANUAL:
+            if self.modulation is not None:
+                return RegulatorStep(self.modulation.power_w(time_s), math.nan, False, {})
             return RegulatorStep(self.manual_power_w, math.nan, False, {})
         if self.mode is RegulatorMode.OFF:
             return RegulatorStep(0.0, math.nan, False, {})
@@ -227,6 +258,19 @@ class Regulator:
             raise ValueError(f"heater power {power_w:g} W refused: outside 0..{self.output.max_power_w:g} W "
                              f"(R * I_max^2)")
         self.manual_power_w = float(power_w)
+        self.modulation = None
+        self.mode = RegulatorMode.MANUAL
+
+    def set_modulated(self, modulation: "HeaterModulation") -> None:
+        """Open loop with the heater following ``modulation`` (its phase counted from the next step);
+        refused when it leaves the heater's range."""
+        low, high = modulation.mean_w - modulation.amplitude_w, modulation.mean_w + modulation.amplitude_w
+        if not (0.0 <= low and high <= self.output.max_power_w):
+            raise ValueError(f"heater modulation {modulation.mean_w:g} +- {modulation.amplitude_w:g} W refused: "
+                             f"outside 0..{self.output.max_power_w:g} W (R * I_max^2)")
+        self.manual_power_w = modulation.mean_w
+        self.modulation = HeaterModulation(modulation.mean_w, modulation.amplitude_w,
+                                           modulation.angular_frequency_rad_s)
         self.mode = RegulatorMode.MANUAL
 
     def close(self) -> None:
@@ -242,6 +286,7 @@ class Regulator:
     def switch_off(self) -> None:
         """Heater at 0 W until the loop is closed again."""
         self.manual_power_w = 0.0
+        self.modulation = None
         self.mode = RegulatorMode.OFF
 
     # -- configuration -------------------------------------------------------------------

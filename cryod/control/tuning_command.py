@@ -15,12 +15,12 @@ import argparse
 import json
 import sys
 
+from cryod.control.lab_inputs import InputsNotUsable, lab_inputs
 from cryod.argument_types import not_negative, number, positive
-from cryod.config import EXAMPLE_CONFIG_PATH, load_config
+from cryod.config import EXAMPLE_CONFIG_PATH
 from cryod.control.pi import PiGains
 from cryod.control.tuning import StepPerformance, Tolerances, TuningError, step_performance, suggest_gains
-from cryod.model import DEFAULT_MODEL_PATH, load_model
-from cryod.yaml_source import FileFormatError
+from cryod.model import DEFAULT_MODEL_PATH
 
 PROGRAM = "cryod tune"
 #: The paper's gains, in the units docs/control.md argues for.
@@ -61,17 +61,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
 def run(args: argparse.Namespace) -> int:
     """Search, compare and print; returns the exit status."""
     try:
-        config = load_config(args.config)
-        model = load_model(args.model)
-    except (FileFormatError, OSError) as error:
+        inputs = lab_inputs(args)
+    except InputsNotUsable as error:
         print(f"{PROGRAM}: {error}", file=sys.stderr)
         return 2
-    setpoint = args.setpoint if args.setpoint is not None else config.control.setpoint_K
-    if setpoint is None:
-        print(f"{PROGRAM}: {args.config} sets no setpoint: give --setpoint K", file=sys.stderr)
-        return 2
-    resistance = args.heater_ohm if args.heater_ohm is not None else config.heater.resistance_ohm
-    current = args.max_current if args.max_current is not None else config.heater.max_current_A
+    config, model, setpoint = inputs.config, inputs.model, inputs.setpoint_K
+    resistance, current = inputs.heater_ohm, inputs.max_current_A
     heater_max_w = resistance * current ** 2
     tolerances = Tolerances(overshoot_K=args.max_overshoot * 1e-3, phase_margin_deg=args.min_phase_margin)
     options = {"start_heater_w": args.from_power, "duration_s": args.duration, "period_s": config.loop.period_s}

@@ -108,61 +108,112 @@ def _lag_response(time_s: np.ndarray, heater_w: np.ndarray, time_constant_s: flo
 
 
 class _Problem:
-    """The variable-projection least-squares problem over all records."""
+    """The variable-projection least-squares problem over all records.
+
+    The heater-to-T2 and heater-to-T5 parts share no coefficient, so each is
+    its own problem: T2's residuals depend on (tau_a, tau_b) alone, T5's on
+    tau_3 alone. Each part's linear coefficients are solved on a design
+    matrix of its own (samples x its coefficients); the responses to the
+    heater are kept for the last few time constants, as the Jacobian moves one
+    time constant at a time. Coefficients, in
+    the order of :attr:`solution`: r_a, r_b, k3, Re d, Im d, T2_0, T5_0, then
+    per record the amplitudes of the three free decays.
+    """
+
+    #: Heater responses kept (each one float per sample of each record).
+    KEPT_RESPONSES = 8
 
     def __init__(self, prepared: list[_Prepared], noise_rms_K: tuple[float, float]):
         self.prepared = prepared
         self.noise_rms_K = noise_rms_K
         self.valid = [p.data.valid for p in prepared]
+        self.counts = [int(np.count_nonzero(valid)) for valid in self.valid]
         self.solution = None
+        self._responses: dict[tuple[int, float], np.ndarray] = {}
+        self._flange: tuple | None = None      # ((tau_a, tau_b), coefficients, residual in K)
+        self._stage: tuple | None = None       # (tau_3, coefficients, residual in K)
 
-    def design(self, time_constants):
-        tau_a, tau_b, tau_3 = time_constants
+    def _response(self, index: int, time_constant_s: float) -> np.ndarray:
+        """Record ``index``'s response to its heater through 1/(tau s + 1), on its valid samples."""
+        key = (index, time_constant_s)
+        if key not in self._responses:
+            if len(self._responses) >= self.KEPT_RESPONSES * len(self.prepared):
+                del self._responses[next(iter(self._responses))]
+            data = self.prepared[index].data
+            self._responses[key] = _lag_response(data.time_s, data.heater_w, time_constant_s)[self.valid[index]]
+        return self._responses[key]
+
+    def _solve_flange(self, tau_a: float, tau_b: float):
+        """T2 = r_a x_a + r_b x_b + Re(d B e^{j..}) + T2_0 + per record, its two decays."""
+        if self._flange is not None and self._flange[0] == (tau_a, tau_b):
+            return self._flange
         records = len(self.prepared)
-        shared = 5          # r_a, r_b, k3, Re d, Im d
-        columns = shared + 2 + 3 * records
-        blocks, targets = [], []
-        flange_weight, stage_weight = 1.0 / self.noise_rms_K[0], 1.0 / self.noise_rms_K[1]
-        for index, (prepared, valid) in enumerate(zip(self.prepared, self.valid)):
-            data = prepared.data
-            t, heater, elapsed = data.time_s, data.heater_w, data.elapsed_s
-            count = int(np.count_nonzero(valid))
-            flange = np.zeros((count, columns))
-            stage = np.zeros((count, columns))
-            flange[:, 0] = _lag_response(t, heater, tau_a)[valid]
-            flange[:, 1] = _lag_response(t, heater, tau_b)[valid]
-            stage[:, 2] = _lag_response(t, heater, tau_3)[valid]
-            flange[:, 3] = prepared.line_phasor.real[valid]
-            flange[:, 4] = -prepared.line_phasor.imag[valid]
-            flange[:, 5] = 1.0
-            stage[:, 6] = 1.0
-            base = shared + 2 + 3 * index
-            flange[:, base] = np.exp(-elapsed[valid] / tau_a)
-            flange[:, base + 1] = np.exp(-elapsed[valid] / tau_b)
-            stage[:, base + 2] = np.exp(-elapsed[valid] / tau_3)
-            blocks += [flange * flange_weight, stage * stage_weight]
-            targets += [data.flange_K[valid] * flange_weight, prepared.stage_without_line[valid] * stage_weight]
-        return np.vstack(blocks), np.concatenate(targets)
+        design = np.zeros((sum(self.counts), 5 + 2 * records))
+        target = np.empty(design.shape[0])
+        start = 0
+        for index, (prepared, valid, count) in enumerate(zip(self.prepared, self.valid, self.counts)):
+            rows = slice(start, start + count)
+            elapsed = prepared.data.elapsed_s[valid]
+            design[rows, 0] = self._response(index, tau_a)
+            design[rows, 1] = self._response(index, tau_b)
+            design[rows, 2] = prepared.line_phasor.real[valid]
+            design[rows, 3] = -prepared.line_phasor.imag[valid]
+            design[rows, 4] = 1.0
+            design[rows, 5 + 2 * index] = np.exp(-elapsed / tau_a)
+            design[rows, 6 + 2 * index] = np.exp(-elapsed / tau_b)
+            target[rows] = prepared.data.flange_K[valid]
+            start += count
+        coefficients, *_ = np.linalg.lstsq(design, target, rcond=None)
+        target -= design @ coefficients
+        self._flange = ((tau_a, tau_b), coefficients, target)
+        return self._flange
 
-    def residual(self, log_time_constants) -> np.ndarray:
-        design, target = self.design(np.exp(log_time_constants))
-        solution, *_ = np.linalg.lstsq(design, target, rcond=None)
+    def _solve_stage(self, tau_3: float):
+        """T5 less its line = k3 x_3 + T5_0 + per record, its decay."""
+        if self._stage is not None and self._stage[0] == tau_3:
+            return self._stage
+        records = len(self.prepared)
+        design = np.zeros((sum(self.counts), 2 + records))
+        target = np.empty(design.shape[0])
+        start = 0
+        for index, (prepared, valid, count) in enumerate(zip(self.prepared, self.valid, self.counts)):
+            rows = slice(start, start + count)
+            design[rows, 0] = self._response(index, tau_3)
+            design[rows, 1] = 1.0
+            design[rows, 2 + index] = np.exp(-prepared.data.elapsed_s[valid] / tau_3)
+            target[rows] = prepared.stage_without_line[valid]
+            start += count
+        coefficients, *_ = np.linalg.lstsq(design, target, rcond=None)
+        target -= design @ coefficients
+        self._stage = (tau_3, coefficients, target)
+        return self._stage
+
+    def _solve(self, time_constants):
+        tau_a, tau_b, tau_3 = (float(t) for t in time_constants)
+        _, flange, flange_residual = self._solve_flange(tau_a, tau_b)
+        _, stage, stage_residual = self._solve_stage(tau_3)
+        records = len(self.prepared)
+        solution = np.empty(7 + 3 * records)
+        solution[[0, 1, 3, 4, 5]] = flange[:5]
+        solution[[2, 6]] = stage[:2]
+        solution[7::3], solution[8::3], solution[9::3] = flange[5::2], flange[6::2], stage[2:]
         self.solution = solution
-        return target - design @ solution
+        return flange_residual, stage_residual
+
+    def flange_residual(self, log_time_constants) -> np.ndarray:
+        """T2's residuals in units of its noise, for log(tau_a), log(tau_b)."""
+        tau_a, tau_b = np.exp(log_time_constants)
+        return self._solve_flange(float(tau_a), float(tau_b))[2] / self.noise_rms_K[0]
+
+    def stage_residual(self, log_time_constants) -> np.ndarray:
+        """T5's residuals in units of its noise, for log(tau_3)."""
+        return self._solve_stage(float(np.exp(log_time_constants[0])))[2] / self.noise_rms_K[1]
 
     def split_residuals(self, time_constants):
         """Per record: (T2 residual, T5 residual) in K on its valid samples."""
-        design, target = self.design(time_constants)
-        solution, *_ = np.linalg.lstsq(design, target, rcond=None)
-        residual = target - design @ solution
-        self.solution = solution
-        out, start = [], 0
-        for valid in self.valid:
-            count = int(np.count_nonzero(valid))
-            out.append((residual[start:start + count] * self.noise_rms_K[0],
-                        residual[start + count:start + 2 * count] * self.noise_rms_K[1]))
-            start += 2 * count
-        return out
+        flange, stage = self._solve(time_constants)
+        bounds = np.cumsum([0] + self.counts)
+        return [(flange[start:end], stage[start:end]) for start, end in zip(bounds[:-1], bounds[1:])]
 
 
 def identify(records: list[RecordData], base: CryostatModel, harmonics: bool = True) -> Identification:
@@ -198,20 +249,24 @@ def identify(records: list[RecordData], base: CryostatModel, harmonics: bool = T
     stage_taus = base.heater_to_ptc_stage.time_constants_s
     if len(taus) != 2 or len(stage_taus) != 1:
         taus, stage_taus = [20.0, 200.0], [100.0]
-    start = np.log([taus[0], taus[1], stage_taus[0]])
     problem = _Problem(prepared, (base.sensor_noise.flange_thermometer_rms_K,
                                   base.sensor_noise.ptc_stage_thermometer_rms_K))
     bounds = (np.log(TIME_CONSTANT_BOUNDS_S[0]), np.log(TIME_CONSTANT_BOUNDS_S[1]))
-    result = None
+    flange_start, stage_start = np.log(taus), np.log(stage_taus)
     for _ in range(2):                      # second pass with the noise measured in the first pass's residuals
-        result = optimize.least_squares(problem.residual, start, bounds=bounds, x_scale=1.0, method="trf",
-                                        max_nfev=200)
-        if not np.all(np.isfinite(result.x)):
-            raise IdentificationError(f"the fit did not converge: {result.message}")
-        start = result.x
-        residuals = problem.split_residuals(np.exp(result.x))
+        # T2's part and T5's part share no coefficient: two problems, each with its own residuals
+        flange = optimize.least_squares(problem.flange_residual, flange_start, bounds=bounds, x_scale=1.0,
+                                        method="trf", max_nfev=200)
+        stage = optimize.least_squares(problem.stage_residual, stage_start, bounds=bounds, x_scale=1.0,
+                                       method="trf", max_nfev=200)
+        for result in (flange, stage):
+            if not np.all(np.isfinite(result.x)):
+                raise IdentificationError(f"the fit did not converge: {result.message}")
+        flange_start, stage_start = flange.x, stage.x
+        time_constants = np.exp(np.concatenate([flange.x, stage.x]))
+        residuals = problem.split_residuals(time_constants)
         problem.noise_rms_K = _measured_noise(prepared, residuals)
-    return _assemble(prepared, problem, np.exp(result.x), residuals, base)
+    return _assemble(prepared, problem, time_constants, residuals, base)
 
 
 def _measured_noise(prepared: list[_Prepared], residuals) -> tuple[float, float]:

@@ -27,6 +27,7 @@ from cryod.model.parameters import (
     PtcFrequencyDrift, PtcHarmonic, PtcSource, SensorLag, SensorNoise,
 )
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
+from cryod.model.uncertainty import ModelUncertainty, UncertaintyError, check_consistent, inconsistencies
 from cryod.yaml_source import Section
 
 MODEL_FORMAT = "cryod-model v1"
@@ -101,8 +102,9 @@ def model_from_section(top: Section) -> CryostatModel:
             ptc_stage_thermometer_rms_K=noise_section.number("ptc_stage_thermometer_rms_K", 0.3e-3, minimum=0.0),
         )
         noise_section.finish()
+    uncertainty_section = top.section("uncertainty", None)
     top.finish()
-    return CryostatModel(
+    model = CryostatModel(
         operating_point=operating_point,
         ptc=ptc,
         effects=effects,
@@ -112,6 +114,33 @@ def model_from_section(top: Section) -> CryostatModel:
         source=top.source,
         **loaded,
     )
+    if uncertainty_section is not None:
+        model = dataclasses.replace(model, uncertainty=_uncertainty(uncertainty_section, model))
+    return model
+
+
+def _uncertainty(section: Section, model: CryostatModel) -> ModelUncertainty:
+    """The optional ``uncertainty`` section: each fitted parameter's value, standard uncertainty and
+    correlation row; the model's transfer functions must follow from the values."""
+    method = section.text("method", "")
+    items = section.sections("parameters")
+    names, values, sigmas, rows = [], [], [], []
+    for item in items:
+        names.append(item.text("name"))
+        values.append(item.number("value"))
+        sigmas.append(item.number("standard_uncertainty", minimum=0.0))
+        rows.append(item.numbers("correlation"))
+        item.finish()
+    section.finish()
+    for index, (item, row) in enumerate(zip(items, rows)):
+        if len(row) != len(items):
+            raise item.error("correlation", f"needs {len(items)} coefficients, one per parameter, got {len(row)}")
+    try:
+        uncertainty = ModelUncertainty(tuple(names), tuple(values), tuple(sigmas), tuple(map(tuple, rows)), method)
+        check_consistent(model, uncertainty)
+    except UncertaintyError as error:
+        raise section.error("parameters", str(error)) from None
+    return uncertainty
 
 
 def _transfer_function(functions: Section, key: str, units: str) -> TransferFunction:
@@ -230,6 +259,18 @@ def model_to_dict(model: CryostatModel) -> dict:
     if effects:
         data["effects"] = effects
     data["sensor_noise"] = dataclasses.asdict(model.sensor_noise)
+    if model.uncertainty is not None and not inconsistencies(model, model.uncertainty):
+        # (a model changed after identification keeps no uncertainty: the stated one was of other values)
+        stated = model.uncertainty
+        data["uncertainty"] = {
+            **({"method": stated.method} if stated.method else {}),
+            "parameters": [
+                {"name": name, "value": value, "standard_uncertainty": sigma,
+                 "correlation": list(row)}
+                for name, value, sigma, row in zip(stated.names, stated.values, stated.standard_uncertainties,
+                                                   stated.correlation)
+            ],
+        }
     return data
 
 

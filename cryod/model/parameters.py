@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cryod.model.transfer_function import TransferFunction
+from cryod.model.uncertainty import ModelUncertainty
 
 #: Names of the optional effects, as used in the model file and by ``cryod analyze``.
 EFFECT_NAMES = (
@@ -193,6 +194,8 @@ class CryostatModel:
     name: str = ""
     description: str = ""
     source: str = ""
+    #: The identified parameters' values, standard uncertainties and correlation (None: not stated).
+    uncertainty: ModelUncertainty | None = None
 
     # -- derived paths (the observable products) ----------------------------
     @property

@@ -86,9 +86,9 @@ PTC_STAGE_SAMPLE_TIME = Column("T5_sample_s", "s", "since the record start, the 
                                "{:.5f}", is_time=True)
 HEATER_SET_TIME = Column("heater_set_s", "s", "since the record start, when this row's heater power was set "
                                              "(the supply's write returned)", "{:.5f}", is_time=True)
-TRIGGER_SKEW = Column("trigger_skew_ms", "ms", "PTC-stage trigger minus flange trigger (0: simultaneous)")
-LATENESS = Column("lateness_ms", "ms", "tick start after its deadline")
-CYCLE = Column("cycle_ms", "ms", "tick start to row")
+TRIGGER_SKEW = Column("trigger_skew_ms", "ms", "PTC-stage trigger minus flange trigger (0: simultaneous)", "{:.3f}")
+LATENESS = Column("lateness_ms", "ms", "tick start after its deadline", "{:.2f}")
+CYCLE = Column("cycle_ms", "ms", "tick start to row", "{:.2f}")
 STATE = Column("state", "", "loop state: holding, closed, closed-limited (heater at a limit), manual, off, "
                             "recovering, fault:<cause>")
 #: The loop's columns before the control terms' and after them.

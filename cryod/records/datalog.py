@@ -11,7 +11,8 @@ line is dropped by the reader and everything before it is kept.
 One file per UTC day, ``cryod-YYYY-MM-DD.csv``, each a complete record with
 its own header (``time_s`` counts from that file's start). An existing file
 is never opened for writing again: a restart the same day writes
-``cryod-YYYY-MM-DD.2.csv``, and so on.
+``cryod-YYYY-MM-DD.2.csv``, and so on. Files of finished days are compressed
+to ``.csv.gz`` (:mod:`cryod.records.compression`).
 
 A lab must not regulate unrecorded for hours. The free space of the data
 directory is checked when a file opens and every ``FREE_SPACE_CHECK_ROWS``
@@ -36,6 +37,7 @@ from pathlib import Path
 from typing import Callable, Mapping
 
 from cryod.records.columns import Event, Row, RowSchema
+from cryod.records.compression import compress_in_background
 from cryod.records.record import format_header
 
 log = logging.getLogger("cryod.datalog")
@@ -89,13 +91,16 @@ class DataLog:
         write, too little space): the caller stops what must not run unrecorded.
     free_space : callable
         Free bytes of a directory (:func:`free_bytes`; tests give a fake disk).
+    compress_finished : bool
+        Compress the records of days before the one being written (:mod:`cryod.records.compression`)
+        when a day's file opens.
     """
 
     def __init__(self, directory: Path, schema: RowSchema, metadata: Mapping[str, object],
                  monotonic_to_wall: Callable[[float], float], period_s: float, fsync_interval_s: float = 2.0, *,
                  warn_free_bytes: int = 0, min_free_bytes: int = 0,
                  on_failure: Callable[[str], None] | None = None,
-                 free_space: Callable[[Path], int] = free_bytes):
+                 free_space: Callable[[Path], int] = free_bytes, compress_finished: bool = False):
         self.directory = Path(directory)
         self.schema = schema
         self.metadata = dict(metadata)
@@ -119,6 +124,8 @@ class DataLog:
         self.failure: str | None = None          # why the log could not go on (on_failure was called with it)
         self._warned = False
         self._rows_since_check = 0
+        self.compress_finished = compress_finished
+        self._compressing: threading.Thread | None = None
 
     # -- producer side (any thread, never blocks) ------------------------------
     def put(self, item: Row | Event) -> None:
@@ -152,6 +159,8 @@ class DataLog:
         self._queue.put(_STOP)
         self._thread.join(timeout_s)
         self._thread = None
+        if self._compressing is not None:      # an interrupted compression is redone at the next start
+            self._compressing.join(timeout_s)
 
     # -- writer thread -------------------------------------------------------------
     def _run(self) -> None:
@@ -232,6 +241,8 @@ class DataLog:
         self.paths.append(path)
         log.info("data log: writing %s", path)
         self.check_free_space()
+        if self.compress_finished and (self._compressing is None or not self._compressing.is_alive()):
+            self._compressing = compress_in_background(self.directory, day)
 
     # -- free space --------------------------------------------------------------------
     def check_free_space(self) -> None:
@@ -277,7 +288,7 @@ class DataLog:
     def _free_path(self, day: str) -> Path:
         candidate = self.directory / f"cryod-{day}.csv"
         number = 2
-        while candidate.exists():
+        while candidate.exists() or candidate.with_name(candidate.name + ".gz").exists():
             candidate = self.directory / f"cryod-{day}.{number}.csv"
             number += 1
         return candidate

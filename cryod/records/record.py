@@ -28,7 +28,9 @@ Examples
 
 from __future__ import annotations
 
-import math
+import contextlib
+import gzip
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Mapping
@@ -36,6 +38,7 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from cryod.records.columns import REQUIRED, format_field
+from cryod.records.data_lines import DataLineError, read_data_lines
 
 MAGIC = "# cryod-log v1"
 #: Names of the columns every record has, first and in this order (declared in :mod:`cryod.records.columns`).
@@ -119,12 +122,20 @@ class Record:
                       [], list(self.warnings), self.source)
 
 
-def read_record(path: str | Path) -> Record:
+def read_record(path: str | Path, columns: Iterable[str] | None = None) -> Record:
     """Read a cryod-log v1 file.
+
+    The data lines are read a chunk at a time into one float array per
+    column (:mod:`cryod.records.data_lines`): memory holds the numbers, not
+    the text, whatever the record's length.
 
     Parameters
     ----------
     path : str or pathlib.Path
+    columns : iterable of str, optional
+        Read only these columns besides the required ones (a name the record
+        does not have is passed over); the others are skipped unconverted.
+        None: every column.
 
     Returns
     -------
@@ -133,113 +144,117 @@ def read_record(path: str | Path) -> Record:
     Raises
     ------
     RecordFormatError
-        Not a cryod-log v1 file, a required column missing, or a bad value in
-        a required column (file, line and column named).
+        Not a cryod-log v1 file, a required column missing, a line with the
+        wrong number of fields, or a bad value in a required column (file,
+        line and column named).
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        size = _text_size(path)
+        if path.is_dir():
+            raise IsADirectoryError(f"{path} is a directory")
     except FileNotFoundError:
         raise RecordFormatError(str(path), None, "file not found") from None
-    except (OSError, UnicodeDecodeError) as error:
+    except OSError as error:
         raise RecordFormatError(str(path), None, f"cannot read: {error}") from None
-    return read_record_text(text, str(path))
+
+    def open_lines():
+        if path.suffix == ".gz":            # a finished day's record, compressed (cryod.records.compression)
+            return gzip.open(path, "rt", encoding="utf-8")
+        return path.open(encoding="utf-8")
+
+    try:
+        return _read_lines(open_lines, str(path), columns, size)
+    except UnicodeDecodeError:
+        line, reason = _first_line_not_utf8(path)
+        raise RecordFormatError(str(path), line, reason) from None
+    except (OSError, EOFError) as error:
+        raise RecordFormatError(str(path), None, f"cannot read: {error}") from None
 
 
-def read_record_text(text: str, source: str = "<record>") -> Record:
+def _text_size(path: Path) -> int | None:
+    """Characters of text in the file, near enough to size the columns (None: not known)."""
+    size = path.stat().st_size
+    if path.suffix != ".gz":
+        return size
+    with path.open("rb") as stream:           # gzip's last four bytes: the text's length modulo 2**32
+        stream.seek(max(size - 4, 0))
+        stated = int.from_bytes(stream.read(4), "little")
+    return stated if stated > size else None
+
+
+def _first_line_not_utf8(path: Path) -> tuple[int | None, str]:
+    """The first line of a file that is not UTF-8 text, and what is wrong with it."""
+    with (gzip.open(path, "rb") if path.suffix == ".gz" else path.open("rb")) as stream:
+        for number, line in enumerate(stream, start=1):
+            try:
+                line.decode("utf-8")
+            except UnicodeDecodeError as error:
+                return number, (f"not UTF-8 text: byte 0x{line[error.start]:02x} at character {error.start + 1} "
+                                f"(a damaged file, or not a cryod record)")
+    return None, "not UTF-8 text"
+
+
+def read_record_text(text: str, source: str = "<record>", columns: Iterable[str] | None = None) -> Record:
     """Like :func:`read_record`, from text."""
-    lines = text.split("\n")
-    ends_cleanly = text.endswith("\n")
-    if lines and lines[-1] == "":
-        lines.pop()
-    if not lines or lines[0].strip() != MAGIC:
-        first = lines[0][:60] if lines else ""
-        raise RecordFormatError(source, 1, f"not a cryod-log v1 record (first line should be '{MAGIC}', got {first!r})")
+    return _read_lines(lambda: io.StringIO(text, newline=None), source, columns, len(text))
+
+
+def _read_lines(open_lines, source: str, columns: Iterable[str] | None, size: int | None) -> Record:
+    wanted = None if columns is None else set(columns)
+    with contextlib.closing(open_lines()) as stream:
+        metadata, names, header_line, header_characters = _read_header(stream, source)
+    count = header_line
+
+    def data_lines():
+        stream = open_lines()
+        try:
+            for _ in range(count):
+                stream.readline()
+            yield from stream
+        finally:
+            stream.close()
+
+    try:
+        table = read_data_lines(data_lines, names, first_line_number=header_line + 1, wanted=wanted,
+                                expected_characters=None if size is None else max(size - header_characters, 0))
+    except DataLineError as error:
+        raise RecordFormatError(source, error.line, error.reason) from None
+    return Record(metadata, table.columns, table.events, table.warnings, source)
+
+
+def _read_header(stream, source: str) -> tuple[dict[str, str], list[str], int, int]:
+    """Metadata, column names, the header's line number and the characters up to its end."""
+    first = stream.readline()
+    characters = len(first)
+    if first.strip() != MAGIC:
+        raise RecordFormatError(source, 1, f"not a cryod-log v1 record (first line should be '{MAGIC}', "
+                                           f"got {first.rstrip(chr(10))[:60]!r})")
     metadata: dict[str, str] = {}
-    index = 1
-    while index < len(lines) and lines[index].startswith("#"):
-        body = lines[index][1:].rstrip("\r")
+    number = 1
+    while True:
+        line = stream.readline()
+        number += 1
+        characters += len(line)
+        if not line:
+            raise RecordFormatError(source, number, "no column header line after the metadata")
+        if not line.startswith("#"):
+            break
+        body = line[1:].rstrip("\r\n")
         if ":" in body:
             key, value = body.split(":", 1)
             # "# key: value": drop the one separating space, keep any indentation after it
             key, value = key.strip(), (value[1:] if value.startswith(" ") else value).rstrip()
             # a multi-line value is written as repeated lines with the same key
             metadata[key] = f"{metadata[key]}\n{value}" if key in metadata else value
-        index += 1
-    if index >= len(lines):
-        raise RecordFormatError(source, index + 1, "no column header line after the metadata")
-    header_line = index + 1
-    names = [name.strip() for name in lines[index].rstrip("\r").split(",")]
+    names = [name.strip() for name in line.rstrip("\r\n").split(",")]
     for required in REQUIRED_COLUMNS:
         if required not in names:
-            raise RecordFormatError(source, header_line, f"required column '{required}' is missing "
-                                                         f"(columns: {', '.join(names)})")
+            raise RecordFormatError(source, number, f"required column '{required}' is missing "
+                                                    f"(columns: {', '.join(names)})")
     if len(set(names)) != len(names):
-        raise RecordFormatError(source, header_line, "a column name appears twice")
-    rows: list[list[str]] = []
-    row_lines: list[int] = []
-    events: list[tuple[int, str]] = []
-    warnings: list[str] = []
-    for number, line in enumerate(lines[index + 1:], start=header_line + 1):
-        line = line.rstrip("\r")
-        if not line.strip():
-            continue
-        if line.startswith("#"):
-            events.append((len(rows), line[1:].strip()))
-            continue
-        fields = line.split(",")
-        is_last = number == len(lines)
-        if len(fields) != len(names):
-            if is_last and not ends_cleanly:
-                warnings.append(f"line {number}: last line cut short, dropped")
-                continue
-            raise RecordFormatError(source, number, f"expected {len(names)} fields, got {len(fields)}")
-        rows.append(fields)
-        row_lines.append(number)
-    if rows and not ends_cleanly and not _row_is_numeric(rows[-1], names):
-        warnings.append(f"line {row_lines[-1]}: last line cut short, dropped")
-        rows.pop()
-        row_lines.pop()
-    columns = {}
-    for position, name in enumerate(names):
-        raw = [row[position].strip() for row in rows]
-        values = _to_numbers(raw)
-        if values is None:
-            if name in REQUIRED_COLUMNS:
-                bad = next(i for i, item in enumerate(raw) if not _is_number(item))
-                raise RecordFormatError(source, row_lines[bad], f"column '{name}': not a number: {raw[bad]!r}")
-            values = np.array(raw, dtype=str)
-        columns[name] = values
-    time_column = columns["time_s"]
-    if np.any(np.isnan(time_column)):
-        bad = int(np.flatnonzero(np.isnan(time_column))[0])
-        raise RecordFormatError(source, row_lines[bad], "column 'time_s': empty")
-    steps = np.diff(time_column)
-    if np.any(steps <= 0.0):
-        bad = int(np.flatnonzero(steps <= 0.0)[0]) + 1
-        raise RecordFormatError(source, row_lines[bad], "column 'time_s': time does not increase")
-    return Record(metadata, columns, events, warnings, source)
-
-
-def _is_number(text: str) -> bool:
-    if text == "":
-        return True
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-def _row_is_numeric(fields: list[str], names: list[str]) -> bool:
-    return all(_is_number(fields[names.index(name)].strip()) for name in REQUIRED_COLUMNS)
-
-
-def _to_numbers(raw: list[str]) -> np.ndarray | None:
-    try:
-        return np.array([float(item) if item else math.nan for item in raw], dtype=float)
-    except ValueError:
-        return None
+        raise RecordFormatError(source, number, "a column name appears twice")
+    return metadata, names, number, characters
 
 
 # ---------------------------------------------------------------------------

@@ -14,24 +14,24 @@ Examples
 >>> parse_command("setpoint 1_5")
 Traceback (most recent call last):
 ...
-ValueError: 'setpoint': '1_5' is not a number (plain decimal digits only, e.g. 5.2 or 2.5e-3); usage: setpoint K
+ValueError: 'setpoint' argument K: '1_5' is not a number (plain decimal digits only, e.g. 5.2 or 2.5e-3); usage: setpoint K
 """
 
 from __future__ import annotations
 
-import math
 import re
 import threading
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable
 
+from cryod.argument_types import plain_decimal, shown
 from cryod.control.regulator import RegulatorMode
 
 if TYPE_CHECKING:
     from cryod.service.loop import ControlLoop
 
-#: A plain decimal number: optional sign, digits with an optional point, optional exponent (ASCII only).
-_PLAIN_NUMBER = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
+#: The words of a command line: separated by ASCII space or tabs only (not by other scripts' spaces).
+_WORD = re.compile(r"[^ \t\n\r\v\f]+")
 
 
 class CommandRefused(ValueError):
@@ -40,17 +40,27 @@ class CommandRefused(ValueError):
 
 @dataclass
 class Command:
-    """A request to the loop, answered at the next tick boundary."""
+    """A request to the loop, answered at the next tick boundary.
+
+    ``on_answer``, when given, is called once the command is answered, on the thread that
+    answers it (the loop's): it must return at once and never raise (the control socket
+    uses it to wake its own thread).
+    """
 
     name: str
     value: object = None
     done: threading.Event = field(default_factory=threading.Event)
     ok: bool = False
     message: str = ""
+    on_answer: Callable[[], None] | None = field(default=None, repr=False, compare=False)
+    #: Who asked: ``uid 1000 (alice), pid 4242`` for the control socket, ``SIGHUP`` for a reload signal.
+    sender: str = ""
 
     def answer(self, ok: bool, message: str) -> None:
         self.ok, self.message = ok, message
         self.done.set()
+        if self.on_answer is not None:
+            self.on_answer()
 
 
 def wait_for(command: Command, timeout_s: float = 5.0) -> Command:
@@ -58,16 +68,6 @@ def wait_for(command: Command, timeout_s: float = 5.0) -> Command:
     if not command.done.wait(timeout_s):
         command.ok, command.message = False, f"no answer from the control loop within {timeout_s:g} s"
     return command
-
-
-def plain_number(text: str) -> float:
-    """A plain decimal number (``5``, ``-0.5``, ``2.5e-3``), or ValueError."""
-    if not _PLAIN_NUMBER.fullmatch(text):
-        raise ValueError("not a number (plain decimal digits only, e.g. 5.2 or 2.5e-3)")
-    value = float(text)
-    if not math.isfinite(value):
-        raise ValueError("not a finite number")
-    return value
 
 
 # -- what each command does to the loop ------------------------------------------------
@@ -108,6 +108,19 @@ def _manual(loop: "ControlLoop", value: float) -> str:
         raise CommandRefused(str(error)) from None
     loop.follow_regulator()
     return f"open loop, heater {value:g} W"
+
+
+def _modulate(loop: "ControlLoop", value) -> str:
+    from cryod.control.regulator import HeaterModulation
+
+    try:
+        modulation = value if isinstance(value, HeaterModulation) else HeaterModulation(*value)
+        loop.regulator.set_modulated(modulation)
+    except (ValueError, TypeError) as error:
+        raise CommandRefused(str(error)) from None
+    loop.follow_regulator()
+    return (f"open loop, heater {modulation.mean_w:g} +- {modulation.amplitude_w:g} W at "
+            f"{modulation.angular_frequency_rad_s:g} rad/s")
 
 
 def _feedforward(loop: "ControlLoop", value: str) -> str:
@@ -151,7 +164,8 @@ class CommandSpec:
     from_socket : bool
         Offered on the control socket (``reload`` comes from SIGHUP).
     parse : callable
-        Argument text to value (ValueError when malformed).
+        Argument text to value (ValueError when malformed); numbers follow the command line's
+        rule, :func:`cryod.argument_types.plain_decimal`.
     """
 
     name: str
@@ -159,7 +173,7 @@ class CommandSpec:
     help: str
     apply: Callable[["ControlLoop", object], str] | None
     from_socket: bool = True
-    parse: Callable[[str], object] = plain_number
+    parse: Callable[[str], object] = plain_decimal
 
     @property
     def usage(self) -> str:
@@ -177,6 +191,8 @@ COMMANDS: dict[str, CommandSpec] = {spec.name: spec for spec in (
     CommandSpec("feedforward", "on|off|status", "switch the feedforward locked to the cooler (fades in or out), "
                 "or show its state", _feedforward, parse=_choice("on", "off", "status")),
     CommandSpec("reload", None, "apply a validated configuration (SIGHUP)", _reload, from_socket=False),
+    CommandSpec("modulate", "(MEAN_W, AMPLITUDE_W, RAD_S)", "open loop, heater modulated about a mean "
+                "(cryod identify --acquire)", _modulate, from_socket=False),
 )}
 
 
@@ -186,11 +202,28 @@ def socket_usage() -> str:
 
 
 def parse_command(line: str) -> Command:
-    """Turn a control-socket line into a :class:`Command`, or raise ValueError with the reason."""
-    words = line.split()
+    """Turn a control-socket line into a :class:`Command`, or raise ValueError with the reason.
+
+    Parameters
+    ----------
+    line : str
+        One command line: the command's name and its argument, if any, separated by ASCII
+        space or tabs.
+
+    Returns
+    -------
+    Command
+
+    Raises
+    ------
+    ValueError
+        Empty, unknown command, wrong number of arguments, or an argument its parser refuses
+        (the message names the command, the argument and what was wrong with it).
+    """
+    words = _WORD.findall(line)
     spec = COMMANDS.get(words[0]) if words else None
     if spec is None or not spec.from_socket:
-        what = "empty command" if not words else f"unknown command {words[0]!r}"
+        what = "empty command" if not words else f"unknown command {shown(words[0])}"
         raise ValueError(f"{what}; commands: {socket_usage()}")
     arguments = words[1:]
     count = 1 if spec.argument else 0
@@ -201,7 +234,8 @@ def parse_command(line: str) -> Command:
     try:
         value = spec.parse(arguments[0])
     except ValueError as error:
-        raise ValueError(f"'{spec.name}': {arguments[0]!r} is {error}; usage: {spec.usage}") from None
+        raise ValueError(f"'{spec.name}' argument {spec.argument}: {shown(arguments[0])} is {error}; "
+                         f"usage: {spec.usage}") from None
     return Command(spec.name, value)
 
 

@@ -1,18 +1,28 @@
 """The local control socket: ``cryod ctl`` talks to the running daemon through it.
 
-A Unix stream socket; one command line in, one JSON line out::
+A Unix stream socket; one command line in, one JSON line out, then the server closes::
 
     status                  -> {"ok": true, "message": "status", "status": {...}}
     setpoint 5.0            -> {"ok": true, "message": "setpoint 5 K", "status": {...}}
+    setpoint 1_5            -> {"ok": false, "message": "'setpoint' argument K: '1_5' is not a number ..."}
 
-The commands are the table in :mod:`cryod.service.commands`. A malformed command is refused here with the reason; the values are checked
-against the configured limits by the loop itself, which refuses anything
-outside them. Commands reach the loop through its queue and take effect at
-the next tick boundary.
+The commands are the table in :mod:`cryod.service.commands`. A malformed command is refused here
+with the reason; the values are checked against the configured limits by the loop itself, which
+refuses anything outside them. Commands reach the loop through its queue and take effect at the
+next tick boundary.
+
+Every connection gets one reply line, whatever it sent: a line longer than :data:`MAX_LINE` bytes,
+text that is not UTF-8, no complete line within :data:`LINE_TIMEOUT_S`, or more than
+:data:`MAX_CLIENTS` connections open at once (``busy``) are refused with the reason. All clients are
+served by one thread with an asyncio event loop, so however many connect, the socket competes with
+the control loop's thread as one thread, not one per client; the kernel holds up to
+:data:`BACKLOG` connections until the server takes them, and a client finding even that full
+waits for its turn (:func:`send_command`).
 """
 
 from __future__ import annotations
 
+import asyncio
 import grp
 import json
 import logging
@@ -20,9 +30,10 @@ import math
 import os
 import pwd
 import socket
-import socketserver
 import stat
+import struct
 import threading
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -30,7 +41,15 @@ from cryod.service.commands import Command, parse_command, wait_for
 
 log = logging.getLogger("cryod.control")
 
+#: Longest command line, bytes (without its newline).
 MAX_LINE = 256
+#: Connections the kernel holds until the server takes them (a full backlog makes a client wait).
+BACKLOG = 256
+#: Connections open at once; one more gets a busy reply at once (each costs a file descriptor, and a
+#: command waiting for the loop: at 8 a tick, 256 commands are answered within 2.6 s).
+MAX_CLIENTS = 256
+#: How long a client has to send its command line, s.
+LINE_TIMEOUT_S = 5.0
 
 
 class ControlSocketServer:
@@ -50,10 +69,15 @@ class ControlSocketServer:
         Returns the loop's current status as a dict.
     reply_timeout_s : float
         How long to wait for the loop's answer.
+    max_clients : int, optional
+        Connections open at once (default :data:`MAX_CLIENTS`); one more gets a busy reply.
+    line_timeout_s : float, optional
+        How long a client has to send its line, s (default :data:`LINE_TIMEOUT_S`).
     """
 
     def __init__(self, path: Path, mode: int, owner: str | None, group: str | None,
-                 submit: Callable[[Command], Command], status: Callable[[], dict], reply_timeout_s: float = 5.0):
+                 submit: Callable[[Command], Command], status: Callable[[], dict], reply_timeout_s: float = 5.0,
+                 max_clients: int | None = None, line_timeout_s: float | None = None):
         self.path = Path(path)
         self.mode = mode
         self.owner = owner
@@ -61,11 +85,19 @@ class ControlSocketServer:
         self.submit = submit
         self.status = status
         self.reply_timeout_s = reply_timeout_s
-        self._server: socketserver.UnixStreamServer | None = None
+        self.max_clients = MAX_CLIENTS if max_clients is None else max_clients
+        self.line_timeout_s = LINE_TIMEOUT_S if line_timeout_s is None else line_timeout_s
+        #: Connections open now, and the most at once since the start.
+        self.clients = 0
+        self.most_clients = 0
+        self._event_loop: asyncio.AbstractEventLoop | None = None
+        self._stopping: asyncio.Future | None = None
+        self._failure: str | None = None
         self._thread: threading.Thread | None = None
 
+    # -- replies ----------------------------------------------------------------------
     def handle_line(self, line: str) -> dict:
-        """The reply to one command line (also used by tests without a socket)."""
+        """The reply to one command line, waiting here for the loop's answer (tests without a socket)."""
         try:
             command = parse_command(line)
         except ValueError as error:
@@ -75,8 +107,84 @@ class ControlSocketServer:
         answered = wait_for(self.submit(command), self.reply_timeout_s)
         return {"ok": answered.ok, "message": answered.message, "status": self.status()}
 
+    async def _reply_to_line(self, raw: bytes, sender: str = "") -> dict:
+        if len(raw) > MAX_LINE:
+            return {"ok": False, "message": f"command longer than {MAX_LINE} bytes refused"}
+        try:
+            command = parse_command(raw.decode("utf-8"))
+        except UnicodeDecodeError:
+            return {"ok": False, "message": "command is not UTF-8 text"}
+        except ValueError as error:
+            return {"ok": False, "message": str(error)}
+        if command.name == "status":
+            return {"ok": True, "message": "status", "status": self.status()}
+        event_loop = asyncio.get_running_loop()
+        answered = event_loop.create_future()
+
+        def wake() -> None:                     # on the loop's thread: hand over, never raise
+            try:
+                event_loop.call_soon_threadsafe(_resolve, answered)
+            except RuntimeError:                # the socket has stopped meanwhile
+                pass
+
+        command.on_answer = wake
+        command.sender = sender
+        self.submit(command)
+        if not command.done.is_set():
+            try:
+                await asyncio.wait_for(answered, self.reply_timeout_s)
+            except asyncio.TimeoutError:
+                pass
+        if not command.done.is_set():
+            return {"ok": False, "message": f"no answer from the control loop within {self.reply_timeout_s:g} s",
+                    "status": self.status()}
+        return {"ok": command.ok, "message": command.message, "status": self.status()}
+
+    async def _read_line(self, reader: asyncio.StreamReader) -> bytes | dict:
+        """The client's line without its newline (its last bytes when it ends without one), or the refusal."""
+        try:
+            return (await asyncio.wait_for(reader.readuntil(b"\n"), self.line_timeout_s))[:-1]
+        except asyncio.IncompleteReadError as ended:
+            return ended.partial
+        except asyncio.LimitOverrunError:
+            return {"ok": False, "message": f"command longer than {MAX_LINE} bytes refused"}
+        except asyncio.TimeoutError:
+            return {"ok": False, "message": f"no complete command line within {self.line_timeout_s:g} s; "
+                                            f"send one line ending in a newline"}
+
+    async def _serve_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if self.clients >= self.max_clients:
+            reply = {"ok": False, "message": f"busy: {self.clients} connections open at once "
+                                             f"(at most {self.max_clients}); try again in a moment"}
+            await self._send(writer, reply)
+            return
+        self.clients += 1
+        self.most_clients = max(self.most_clients, self.clients)
+        try:
+            line = await self._read_line(reader)
+            reply = line if isinstance(line, dict) else await self._reply_to_line(line, peer(writer))
+            await self._send(writer, reply)
+        except asyncio.CancelledError:          # the daemon is stopping: say so, without waiting for the client
+            writer.write(b'{"ok": false, "message": "the daemon is stopping; nothing more is answered"}\n')
+            writer.close()
+        except Exception as error:              # one client's trouble never ends the socket
+            log.warning("control socket: a client's command failed: %s: %s", type(error).__name__, error)
+            await self._send(writer, {"ok": False, "message": f"internal error: {type(error).__name__}"})
+        finally:
+            self.clients -= 1
+
+    async def _send(self, writer: asyncio.StreamWriter, reply: dict) -> None:
+        try:
+            writer.write((json.dumps(finite_or_none(reply)) + "\n").encode("utf-8"))
+            await asyncio.wait_for(writer.drain(), self.line_timeout_s)
+        except (OSError, asyncio.TimeoutError):     # the client went away or does not read: nothing to tell
+            pass
+        finally:
+            writer.close()
+
+    # -- running ----------------------------------------------------------------------
     def start(self) -> None:
-        """Bind (replacing a stale socket file, never another kind of file) and serve."""
+        """Bind (replacing a stale socket file, never another kind of file) and serve from a thread."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if self.path.exists() or self.path.is_symlink():
             if not stat.S_ISSOCK(self.path.lstat().st_mode):
@@ -84,55 +192,97 @@ class ControlSocketServer:
             if _socket_answers(self.path):
                 raise OSError(f"control socket {self.path} is in use by another running daemon")
             self.path.unlink()
-        owner = self
-
-        class Handler(socketserver.StreamRequestHandler):
-            def handle(self):
-                self.connection.settimeout(owner.reply_timeout_s + 5.0)
-                try:
-                    raw = self.rfile.readline(MAX_LINE + 1)
-                except OSError:
-                    return
-                if len(raw) > MAX_LINE:
-                    reply = {"ok": False, "message": f"command longer than {MAX_LINE} bytes refused"}
-                else:
-                    try:
-                        line = raw.decode("utf-8")
-                    except UnicodeDecodeError:
-                        reply = {"ok": False, "message": "command is not UTF-8 text"}
-                    else:
-                        reply = owner.handle_line(line)
-                try:
-                    self.wfile.write((json.dumps(finite_or_none(reply)) + "\n").encode("utf-8"))
-                except OSError:
-                    pass
-
+        listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         old_umask = os.umask(0o177)
         try:
-            self._server = socketserver.ThreadingUnixStreamServer(str(self.path), Handler)
+            listener.bind(str(self.path))
+        except OSError:
+            listener.close()
+            raise
         finally:
             os.umask(old_umask)
-        self._server.daemon_threads = True
-        os.chmod(self.path, self.mode)
-        if self.owner or self.group:
-            uid = pwd.getpwnam(self.owner).pw_uid if self.owner else -1
-            gid = grp.getgrnam(self.group).gr_gid if self.group else -1
-            os.chown(self.path, uid, gid)
-        # polled every 0.1 s for the stop: stopping the daemon waits at most that long for the socket
-        self._thread = threading.Thread(target=self._server.serve_forever, args=(0.1,), name="cryod-control",
-                                        daemon=True)
+        try:
+            os.chmod(self.path, self.mode)
+            if self.owner or self.group:
+                uid = pwd.getpwnam(self.owner).pw_uid if self.owner else -1
+                gid = grp.getgrnam(self.group).gr_gid if self.group else -1
+                os.chown(self.path, uid, gid)
+            listener.listen(BACKLOG)
+        except (OSError, KeyError):
+            listener.close()
+            self.path.unlink(missing_ok=True)
+            raise
+        self._event_loop = asyncio.new_event_loop()
+        ready = threading.Event()
+        self._failure = None
+        self._thread = threading.Thread(target=self._run, args=(listener, ready), name="cryod-control", daemon=True)
         self._thread.start()
+        ready.wait(10.0)
+        if self._failure is not None:
+            self.stop()
+            raise OSError(f"control socket {self.path} could not be served: {self._failure}")
         log.info("control socket: %s (mode %o)", self.path, self.mode)
 
+    def _run(self, listener: socket.socket, ready: threading.Event) -> None:
+        asyncio.set_event_loop(self._event_loop)
+        try:
+            self._event_loop.run_until_complete(self._serve(listener, ready))
+        except Exception as error:              # said by start(), or in the journal once serving
+            self._failure = f"{type(error).__name__}: {error}"
+            log.error("control socket stopped: %s", self._failure)
+        finally:
+            ready.set()
+            self._event_loop.close()
+
+    async def _serve(self, listener: socket.socket, ready: threading.Event) -> None:
+        self._stopping = asyncio.get_running_loop().create_future()
+        server = await asyncio.start_unix_server(self._serve_client, sock=listener, limit=MAX_LINE,
+                                                 backlog=BACKLOG)
+        ready.set()
+        try:
+            await self._stopping
+        finally:
+            server.close()
+            clients = [task for task in asyncio.all_tasks() if task is not asyncio.current_task()]
+            for task in clients:
+                task.cancel()
+            await asyncio.gather(*clients, return_exceptions=True)
+
     def stop(self) -> None:
-        if self._server is not None:
-            self._server.shutdown()
-            self._server.server_close()
-            self._server = None
-            try:
-                self.path.unlink()
-            except FileNotFoundError:
-                pass
+        """Stop serving (clients waiting for the loop's answer are told the daemon is stopping) and remove
+        the socket file."""
+        if self._thread is None:
+            return
+        try:
+            self._event_loop.call_soon_threadsafe(_resolve, self._stopping)
+        except RuntimeError:                    # the event loop has already ended
+            pass
+        self._thread.join(5.0)
+        self._thread = None
+        try:
+            self.path.unlink()
+        except FileNotFoundError:
+            pass
+
+
+def peer(writer: asyncio.StreamWriter) -> str:
+    """Who is at the other end of a Unix socket connection (the kernel's word: SO_PEERCRED)."""
+    connection = writer.get_extra_info("socket")
+    try:
+        pid, uid, _ = struct.unpack("3i", connection.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED,
+                                                                 struct.calcsize("3i")))
+    except (AttributeError, OSError):
+        return "an unknown peer"
+    try:
+        name = pwd.getpwuid(uid).pw_name
+    except KeyError:
+        name = "no user name"
+    return f"uid {uid} ({name}), pid {pid}"
+
+
+def _resolve(future: asyncio.Future | None) -> None:
+    if future is not None and not future.done():
+        future.set_result(None)
 
 
 def finite_or_none(value):
@@ -152,6 +302,8 @@ def _socket_answers(path: Path) -> bool:
     try:
         probe.connect(str(path))
         return True
+    except BlockingIOError:                     # a full backlog: someone is listening
+        return True
     except OSError:
         return False
     finally:
@@ -159,27 +311,72 @@ def _socket_answers(path: Path) -> bool:
 
 
 def send_command(path: Path, line: str, timeout_s: float = 10.0) -> dict:
-    """Client side: send one command line, return the decoded reply.
+    """Client side: send one command line, return the daemon's reply.
+
+    A daemon whose connection backlog is full is waited for (up to ``timeout_s``). When the
+    daemon refuses the line before reading all of it (a line too long) and closes, its reply
+    is still read and returned.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The control socket.
+    line : str
+        One command line (no line breaks inside).
+    timeout_s : float
+        For connecting and for the reply, s.
+
+    Returns
+    -------
+    dict
+        The reply: ``ok``, ``message`` and, for accepted commands, ``status``.
 
     Raises
     ------
+    ValueError
+        ``line`` holds a line break.
     ConnectionError
-        When no daemon listens at ``path``.
+        No daemon listens at ``path``, it stayed busy, or it closed without a reply.
     """
-    client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    client.settimeout(timeout_s)
+    text = line.strip()
+    if "\n" in text or "\r" in text:
+        raise ValueError("a command is one line: it cannot hold a line break")
+    deadline = time.monotonic() + timeout_s
+    while True:
+        client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        client.settimeout(timeout_s)
+        try:
+            client.connect(str(path))
+            break
+        except (FileNotFoundError, ConnectionRefusedError) as error:
+            client.close()
+            raise ConnectionError(f"no cryod daemon listening at {path} ({error.strerror})") from None
+        except PermissionError:
+            client.close()
+            raise ConnectionError(f"not allowed to use {path}: check control_socket.group/mode and your groups") \
+                from None
+        except BlockingIOError:                 # the backlog is full: the daemon is busy, wait for it
+            client.close()
+            if time.monotonic() >= deadline:
+                raise ConnectionError(f"the daemon at {path} stayed busy for {timeout_s:g} s "
+                                      f"(too many clients at once); try again") from None
+            time.sleep(0.02)
     try:
-        client.connect(str(path))
-    except (FileNotFoundError, ConnectionRefusedError) as error:
-        raise ConnectionError(f"no cryod daemon listening at {path} ({error.strerror})") from None
-    except PermissionError:
-        raise ConnectionError(f"not allowed to use {path}: check control_socket.group/mode and your groups") from None
-    try:
-        client.sendall((line.strip() + "\n").encode("utf-8"))
-        stream = client.makefile("rb")
-        raw = stream.readline()
+        try:
+            client.sendall((text + "\n").encode("utf-8"))
+        except (BrokenPipeError, ConnectionResetError):
+            pass                                # refused before reading it all: the reply says why
+        try:
+            raw = client.makefile("rb").readline()
+        except ConnectionResetError:
+            raw = b""
+        except socket.timeout:
+            raise ConnectionError(f"no reply from the daemon at {path} within {timeout_s:g} s") from None
     finally:
         client.close()
     if not raw:
         raise ConnectionError(f"the daemon at {path} closed the connection without a reply")
-    return json.loads(raw.decode("utf-8"))
+    try:
+        return json.loads(raw.decode("utf-8"))
+    except ValueError:
+        raise ConnectionError(f"the reply from {path} is not a cryod reply: {raw[:80]!r}") from None

@@ -11,6 +11,7 @@ listener run beside it and talk to the loop through queues and snapshots.
 
 from __future__ import annotations
 
+import functools
 import logging
 import platform
 import signal
@@ -30,6 +31,7 @@ from cryod.records.columns import Event, RowSchema
 from cryod.service.commands import Command, wait_for
 from cryod.service.faults import ExitCode, Fault, FaultCause
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock
+from cryod.service.live_view import LiveView
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
 from cryod.service.realtime import lock_memory, set_realtime_priority
 from cryod.service.control_socket import ControlSocketServer
@@ -116,6 +118,8 @@ class Daemon:
         self.install_signal_handlers = install_signal_handlers
         self.loop: ControlLoop | None = None
         self.datalog: DataLog | None = None
+        #: The latest row and faults, for the status line and the metrics endpoint.
+        self.live_view = LiveView(config.loop.period_s, cooler_rad_s(config))
         self._reload_wanted = False
         self._stop_reason: str | None = None
         self._waiting = "opening the instruments"
@@ -157,28 +161,39 @@ class Daemon:
             if self.loop is not None:
                 self.notifier.status(self.loop.status.one_line())
 
-    def reload(self) -> Command:
-        """Validate the configuration file again and hand it to the loop (keeps the old one if bad)."""
+    def reload(self, sender: str = "SIGHUP") -> Command:
+        """Validate the configuration file again and hand it to the loop (keeps the old one if bad).
+
+        ``sender`` says who asked, in the journal and the record (a signal: ``systemctl reload``
+        or ``kill -HUP``)."""
         self.notifier.reloading()
         try:
             new = self.reload_config()
         except (FileFormatError, ValueError) as error:
             command = Command("reload")
             command.answer(False, f"reload refused, keeping the running configuration: {error}")
+        except Exception as error:          # a file the checks did not foresee: refused all the same
+            log.exception("reading the configuration for the reload failed")
+            command = Command("reload")
+            command.answer(False, f"reload refused, keeping the running configuration: reading "
+                                  f"{self.config.source or 'the configuration'} failed: {type(error).__name__}: "
+                                  f"{str(error)[:300]}")
         else:
             if self.loop is None:
                 command = Command("reload")
                 command.answer(False, "reload refused: the daemon is still waiting for its instruments; "
                                       "restart it to change the configuration")
             else:
-                command = wait_for(self.loop.submit(Command("reload", new)), 10.0)
+                command = wait_for(self.loop.submit(Command("reload", new, sender=sender)), 10.0)
         if command.ok:
             self.config = new
-            log.info("%s", command.message)
+            log.info("%s (by %s)", command.message, sender)
         else:
-            log.error("%s", command.message)
+            log.error("%s (by %s)", command.message, sender)
             if self.datalog is not None and not command.message.startswith("kept the running"):
-                self.datalog.put(Event("command", f"reload refused: {command.message}"))   # the loop's are written by it
+                message = command.message                       # the loop's are written by it
+                self.datalog.put(Event("command", (message if message.startswith("reload refused")
+                                                   else f"reload refused: {message}") + f" (by {sender})"))
         self.notifier.reloaded(command.message)
         return command
 
@@ -192,7 +207,11 @@ class Daemon:
     def _status(self) -> dict:
         if self.loop is None:
             return {"state": "waiting", "message": self._waiting, "heater_W": None}
-        return self.loop.status.as_dict()
+        status = self.loop.status.as_dict()
+        # figures over the recent past, computed on this (the socket's) thread
+        status["T2_average_K"] = self.live_view.flange_average_K()
+        status["line_amplitude_K"] = self.live_view.line_amplitude_K()
+        return status
 
     # -- the run --------------------------------------------------------------------
     def run(self, duration_s: float | None = None) -> RunResult:
@@ -212,6 +231,7 @@ class Daemon:
             return RunResult(ExitCode.CONFIG, None, [], time.perf_counter() - started)
         instruments: Instruments | None = None
         control_socket: ControlSocketServer | None = None
+        metrics = None
         service = threading.Thread(target=self._service, name="cryod-service", daemon=True)
         previous_handlers = {}
         exit_code = ExitCode.OK
@@ -223,12 +243,24 @@ class Daemon:
                                    lambda t: wall_start + (t - clock_start), config.loop.period_s,
                                    config.data.fsync_interval_s, warn_free_bytes=int(config.data.warn_free_MB * 1e6),
                                    min_free_bytes=int(config.data.min_free_MB * 1e6),
-                                   on_failure=self._on_data_log_failure, **self.datalog_options)
+                                   on_failure=self._on_data_log_failure,
+                                   compress_finished=config.data.compress_finished, **self.datalog_options)
             self.datalog.start()
             control_socket = ControlSocketServer(config.control_socket.path, config.control_socket.mode,
                                                  config.control_socket.owner, config.control_socket.group,
                                                  self._submit, self._status)
             control_socket.start()
+            if config.metrics.address is not None:
+                from cryod.service.metrics_export import MetricsEndpoint
+
+                metrics = MetricsEndpoint(self.live_view, config.metrics.address, config.metrics.cryostat)
+                try:
+                    metrics.start()
+                except OSError as error:      # monitoring is not worth a cryostat: say so and regulate
+                    log.error("no metrics endpoint: %s", error)
+                    metrics = None
+                else:
+                    log.info("Prometheus metrics on http://%s:%d/metrics", metrics.host, metrics.port)
             if self.install_signal_handlers:
                 for number, handler in ((signal.SIGTERM, self._on_stop_signal), (signal.SIGINT, self._on_stop_signal),
                                         (signal.SIGHUP, self._on_reload_signal)):
@@ -241,10 +273,10 @@ class Daemon:
                 exit_code = opened
             else:
                 instruments, flange_curve, stage_curve = opened
-                taps = [self.datalog.put, *self.row_taps]
+                taps = [self.datalog.put, self.live_view, *self.row_taps]
                 self.loop = ControlLoop(config, instruments, flange_curve, stage_curve, self.clock,
-                                        emit=taps[0] if len(taps) == 1 else _fan_out(taps),
-                                        watchdog=self.notifier.watchdog)
+                                        emit=_fan_out(taps), watchdog=self.notifier.watchdog)
+                self.live_view.attach_timing(self.loop.timing.summary)
                 if self._stop_reason:
                     self.loop.request_stop(self._stop_reason)
                 if self.datalog.failure is not None:
@@ -273,6 +305,8 @@ class Daemon:
                                  "could not): %s", error)
             if control_socket is not None:
                 control_socket.stop()
+            if metrics is not None:
+                metrics.stop()
             if self.datalog is not None:
                 self.datalog.stop()
             for number, handler in previous_handlers.items():
@@ -329,6 +363,23 @@ class Daemon:
         level = logging.INFO if exit_code == ExitCode.OK else logging.CRITICAL
         log.log(level, "stopping before the loop ran (exit %d): %s", exit_code, reason)
         self.datalog.put(Event("stop", f"{reason} (exit {int(exit_code)})"))
+
+
+def cooler_rad_s(config: DaemonConfig) -> float:
+    """The cooler's angular frequency (rad/s) in the controller's model (the feedforward's, else the shipped)."""
+    from cryod.model import DEFAULT_MODEL_PATH
+
+    for name, settings in config.control.terms:
+        if name == "feedforward" and getattr(settings, "model", None) is not None:
+            return settings.model.ptc.angular_frequency_rad_s
+    return _model_cooler_rad_s(DEFAULT_MODEL_PATH)
+
+
+@functools.lru_cache(maxsize=4)
+def _model_cooler_rad_s(path) -> float:
+    from cryod.model import load_model
+
+    return load_model(path).ptc.angular_frequency_rad_s
 
 
 def _fan_out(receivers: list[Callable]) -> Callable:

@@ -11,7 +11,9 @@ closed with the heater output off, and the error names the instrument.
 
 from __future__ import annotations
 
+import importlib.util
 import logging
+import sys
 from typing import Callable
 
 from cryod.config import DaemonConfig, DmmSettings, InstrumentAddress
@@ -51,6 +53,32 @@ def check_calibrations(config: DaemonConfig) -> str | None:
     except FileFormatError as error:
         return f"calibration file not usable: {error}"
     return None
+
+
+def check_instrument_support(config: DaemonConfig) -> str | None:
+    """None if this installation can open every configured instrument, else what is missing.
+
+    pyvisa-py reaches a GPIB card only through linux-gpib's Python binding (the
+    ``gpib`` module) or gpib-ctypes; without either, the instruments could never be
+    opened, which is an installation to fix, not an outage to wait out.
+    """
+    instruments = config.instruments
+    if instruments.visa_library != "@py":
+        return None
+    gpib = [(name, address.resource) for name, address in (
+        ("flange_dmm", instruments.flange_dmm), ("ptc_stage_dmm", instruments.ptc_stage_dmm),
+        ("heater_supply", instruments.heater_supply))
+        if address.resource and address.resource.upper().startswith("GPIB")]
+    if not gpib:
+        return None
+    for module in ("gpib", "gpib_ctypes"):
+        if importlib.util.find_spec(module) is not None:
+            return None
+    name, resource = gpib[0]
+    return (f"instruments.{name}: {resource} is on a GPIB card, which pyvisa-py reaches through linux-gpib's "
+            f"Python binding (module 'gpib') or gpib-ctypes, and neither is installed in {sys.prefix}. Install "
+            f"linux-gpib with its Python binding into this environment (docs/operations.md, 'GPIB card'), or "
+            f"use NI-VISA (instruments.visa_library: \"\") or a Prologix adapter")
 
 
 # ---------------------------------------------------------------------------

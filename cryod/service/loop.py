@@ -16,9 +16,9 @@ handles faults (:mod:`cryod.service.faults`) and does the I/O.
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
-import queue
 from dataclasses import dataclass, replace
 from typing import Callable, Protocol
 
@@ -36,6 +36,10 @@ from drivers.errors import InstrumentError
 from drivers.thermometer_pair import PairReading
 
 log = logging.getLogger("cryod.loop")
+
+#: Commands carried out at one tick boundary at most; the rest wait, in order, for the next ticks
+#: (many clients of the control socket at once cannot stretch a tick).
+COMMANDS_PER_TICK = 8
 
 
 # ---------------------------------------------------------------------------
@@ -157,11 +161,14 @@ class ControlLoop:
         self.last_commanded_w = 0.0         # the last power sent to the supply
         self.last_fault: Fault | None = None
         self.status = Status(target_K=config.control.setpoint_K, ramp_K_per_min=config.control.ramp_K_per_min)
-        self.commands: queue.SimpleQueue[Command] = queue.SimpleQueue()
+        # appended by any thread, taken by the loop's (deque's append and popleft are atomic)
+        self.commands: collections.deque[Command] = collections.deque()
+        self._answers: list[tuple[Command, bool, str]] = []
         self.exit_code: int | None = None
         self._stop_reason: str | None = None
         self._outside_fault: Fault | None = None
         self._valid_in_a_row = 0
+        self._hold_reported = False         # a reading above a limit kept the heater off (said once per hold)
         self._regulating = False            # the loop has left its start-up hold at least once
         # a fault episode: from a first recoverable fault until the loop has run clean for
         # safety.recovery_timeout_s; the recovery timeout counts from its start, and every resume
@@ -179,7 +186,7 @@ class ControlLoop:
     # -- from other threads ---------------------------------------------------
     def submit(self, command: Command) -> Command:
         """Queue a command for the next tick boundary (thread-safe)."""
-        self.commands.put(command)
+        self.commands.append(command)
         return command
 
     def request_stop(self, reason: str) -> None:
@@ -213,6 +220,7 @@ class ControlLoop:
                     break
                 self.clock.sleep_until(deadline)
                 self._tick(deadline)
+                self._answer_commands()         # after the tick: the reply's status shows the command's effect
                 self.watchdog()                 # every tick that returns: a call that hangs trips it
                 now = self.clock.now()
                 missed = int((now - deadline) // self.period_s) if now > deadline + self.period_s else 0
@@ -240,6 +248,7 @@ class ControlLoop:
             self._stop(ExitCode.EXCEPTION, Fault(FaultCause.EXCEPTION, f"{type(error).__name__}: {error}"))
             raise
         finally:
+            self._answer_commands()
             self.regulator.close()
             if manage_gc:
                 self._gc.stop()
@@ -290,6 +299,8 @@ class ControlLoop:
         row.T2_K, row.T5_K = flange_K, stage_K
         over = self.checks.check_temperatures(flange_K, stage_K)
         if self.state.waits_for_readings:
+            if over is not None:
+                self._report_hold(over, flange_K)
             self._count_valid(over is None, reading, row)
             return
         if over is not None:
@@ -326,9 +337,12 @@ class ControlLoop:
         self.emit(row)
         closed = self.state is LoopState.CLOSED
         ramp = self.regulator.ramp
+        # the target once a setpoint is asked for (also while holding for valid readings), the setpoint in use
+        # only while regulating
+        aiming = closed or self.regulator.mode is RegulatorMode.CLOSED
         # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
         self._latest = (row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
-                        ramp.setpoint_K if closed else None, ramp.target_K if closed else None,
+                        ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
                         ramp.rate_K_per_min, self.last_fault, row.control)
         self._status = None
 
@@ -364,6 +378,7 @@ class ControlLoop:
             if self.state is LoopState.CLOSED and not self._regulating:
                 self.regulator.close_loop(reading.trigger_time_s, row.T2_K, row.T5_K, present_power_w=0.0)
             self._regulating = True
+            self._hold_reported = False
             note = ""
             if self._episode_start_s is not None:
                 self._resumes_in_episode += 1
@@ -373,6 +388,17 @@ class ControlLoop:
                         f"after another fault {self.readings_to_resume()} valid readings)")
             self._event("resumed", f"{waiting_for} valid readings after {previous}; state {self.state}{note}")
         self._finish_row(row)
+
+    def _report_hold(self, over: Fault, flange_K: float) -> None:
+        """Say once per hold why the heater stays off: a temperature above its limit (journal and record)."""
+        if self._hold_reported:
+            return
+        self._hold_reported = True
+        key = "safety.flange_max_K" if flange_K > self.checks.flange_max_K else "safety.ptc_stage_max_K"
+        message = (f"heater held off while {self.state}: {over.message} ({key}); it stays off until the "
+                   f"temperature is below the limit")
+        log.warning("%s", message)
+        self._event("holding", message)
 
     def readings_to_resume(self) -> int:
         """Valid readings in a row the loop needs before it resumes: ``safety.valid_readings_to_resume``,
@@ -494,13 +520,38 @@ class ControlLoop:
 
     # -- commands ----------------------------------------------------------------------
     def _apply_commands(self) -> None:
-        while True:
+        """Carry out up to :data:`COMMANDS_PER_TICK` queued commands, in order. A ``heater-off``
+        never waits behind others: when one is queued, the commands sent before it are refused as
+        superseded (none of them may turn the heater back on after it) and it is carried out now."""
+        commands = self.commands
+        if not commands:
+            return
+        if len(commands) > COMMANDS_PER_TICK:
+            last_off = max((index for index, command in enumerate(list(commands)) if command.name == "heater-off"),
+                           default=None)
+            for _ in range(last_off or 0):
+                superseded = commands.popleft()
+                self._record_command(superseded, False, "superseded by a heater-off sent after it")
+        for _ in range(COMMANDS_PER_TICK):
             try:
-                command = self.commands.get_nowait()
-            except queue.Empty:
+                command = commands.popleft()
+            except IndexError:
                 return
-            ok, message = apply_command(self, command)
-            self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}")
+            self._record_command(command, *apply_command(self, command))
+
+    def _record_command(self, command: Command, ok: bool, message: str) -> None:
+        """The command's event, journal line and answer (sent after the tick)."""
+        sender = f" (by {command.sender})" if command.sender else ""
+        self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}{sender}")
+        if command.name != "reload":              # the daemon's reload says it in the journal itself
+            log.log(logging.INFO if ok else logging.WARNING, "command %s %s: %s%s", command.name,
+                    "accepted" if ok else "refused", message, sender)
+        self._answers.append((command, ok, message))
+
+    def _answer_commands(self) -> None:
+        """Answer the commands applied this tick, now that its status is published."""
+        answers, self._answers = self._answers, []
+        for command, ok, message in answers:
             command.answer(ok, message)
 
     def reload(self, new: DaemonConfig) -> str:

@@ -17,6 +17,7 @@ GPIB-ETHERNET controller (TCP only).
 
 from __future__ import annotations
 
+import argparse
 import collections
 import contextlib
 import dataclasses
@@ -24,13 +25,15 @@ import json
 import logging
 import resource
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
 
 from cryod.service.clock import MonotonicClock, ScaledClock, VirtualClock
-from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config
-from cryod.service.daemon import Daemon, config_or_exit
+from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config, located_error
+from cryod.service.daemon import Daemon
+from cryod.service.discovery import simulation_socket
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
 from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit, limit_changes
 from cryod.records.columns import Event, Row
@@ -38,6 +41,8 @@ from cryod.records.metrics import regulation_metrics
 from cryod.model import DEFAULT_MODEL_PATH, load_model
 from cryod.service.control_socket import finite_or_none
 from cryod.service.logs import ServiceLogging
+from cryod.service.readable import readable, rounded
+from cryod.service.status_line import StatusLine
 from cryod.yaml_source import FileFormatError
 from drivers.keithley2002 import TriggerSource
 from drivers.pair_triggers import GpibGroupTrigger, HardwareTrigger, PrologixGroupTrigger, SequentialTrigger
@@ -98,7 +103,10 @@ def simulation_config(args, config: DaemonConfig) -> DaemonConfig:
     simulation = dataclasses.replace(simulation, transport=transport,
                                      seed=args.seed if args.seed is not None else simulation.seed)
     data = dataclasses.replace(config.data, directory=args.data_dir or SIMULATION_DIRECTORY / "data")
-    socket_path = args.socket or SIMULATION_DIRECTORY / "control.sock"
+    try:
+        socket_path = args.socket or simulation_socket(create_directory=True)
+    except PermissionError as error:
+        raise ValueError(f"no control socket for the dry run: {error}") from None
     if len(str(socket_path.absolute())) > MAX_SOCKET_PATH:
         raise ValueError(f"control socket path {socket_path.absolute()} is too long for a Unix socket; "
                          f"give a shorter one with --socket")
@@ -181,55 +189,200 @@ def _clock(speed):
     return MonotonicClock() if speed == 1.0 else ScaledClock(speed)
 
 
-def run_simulation(args) -> int:
-    """Run ``cryod --simulate``; returns the exit code."""
+class SimulationNotStarted(ValueError):
+    """The dry run could not start (configuration, calibration, model or command line); says why."""
+
+
+@dataclasses.dataclass
+class SimulationRun:
+    """What a dry run leaves: the exit code, the ``--json`` summary and the data files.
+
+    Attributes
+    ----------
+    exit_code : int
+        0, or the daemon's fault code (docs/operations.md).
+    summary : dict
+        The ``cryod --simulate --json`` object (regulation metrics over the last window, timing, limit).
+    log_paths : list of pathlib.Path
+        The cryod-log v1 files written (``cryod.read_record`` reads them).
+    """
+
+    exit_code: int
+    summary: dict
+    log_paths: list[Path]
+
+
+def prepare_simulation(args) -> tuple[DaemonConfig, object, Path]:
+    """The dry run's configuration, simulated model and its path, or SimulationNotStarted saying why."""
     config_path = args.config or EXAMPLE_CONFIG_PATH
-    config = config_or_exit(config_path, sys.stderr)
-    if config is None:
-        return 2
     try:
-        config = simulation_config(args, config)
+        config = simulation_config(args, load_config(config_path))
+    except FileFormatError as error:
+        raise SimulationNotStarted(f"configuration not usable, nothing was started: {error}") from None
     except ValueError as error:
-        print(f"cryod: {error}", file=sys.stderr)
-        return 2
+        raise SimulationNotStarted(str(error)) from None
     problem = check_calibrations(config)
     if problem:
-        print(f"cryod: {problem}", file=sys.stderr)
-        return 2
+        raise SimulationNotStarted(problem)
     model_path = args.sim_model or config.simulation.model or DEFAULT_MODEL_PATH
     try:
         model = load_model(model_path)
     except FileFormatError as error:
-        print(f"cryod: simulated cryostat model not usable: {error}", file=sys.stderr)
-        return 2
+        raise SimulationNotStarted(f"simulated cryostat model not usable: {error}") from None
+    problem = limits_against_model(config, model, model_path)
+    if problem is not None:
+        raise SimulationNotStarted(f"configuration not usable, nothing was started: {problem}")
+    return config, model, Path(model_path)
+
+
+def execute_simulation(args, stream=None) -> SimulationRun:
+    """Run the daemon on the simulated cryostat as ``args`` say; the log and status line go to ``stream``.
+
+    Raises
+    ------
+    SimulationNotStarted
+        Nothing was started (see :func:`prepare_simulation`).
+    """
+    stream = stream if stream is not None else sys.stderr
+    config, model, model_path = prepare_simulation(args)
+    config_path = args.config or EXAMPLE_CONFIG_PATH
     clock = _clock(args.speed)
     opener = SimulatedInstrumentsOpener(model, config.simulation.seed)
     collector = WindowCollector(args.window, config.loop.period_s)
     metadata = {"simulated": "yes (cryod --simulate)", "simulated_model": str(model_path),
                 "simulation_seed": config.simulation.seed, "simulation_speed": args.speed,
                 "simulation_transport": config.simulation.transport}
-    logging_service = ServiceLogging()
+    daemon = Daemon(config, opener, clock, metadata=metadata, row_taps=[collector],
+                    reload_config=lambda: simulation_config(args, load_config(config_path)),
+                    install_signal_handlers=threading.current_thread() is threading.main_thread())
+    status_line = StatusLine(daemon.live_view, stream, duration_s=args.duration)
+    logging_service = ServiceLogging(stream=status_line.log_stream)
     logging_service.start()
+    status_line.start()
+    log.info("talk to it: cryod ctl %sstatus", "" if args.socket is None else f"--socket {config.control_socket.path} ")
     cpu_start = _cpu_seconds()
     try:
-        daemon = Daemon(config, opener, clock, metadata=metadata, row_taps=[collector],
-                        reload_config=lambda: simulation_config(args, load_config(config_path)))
         result = daemon.run(args.duration)
     except Exception as error:
         logging.getLogger("cryod").critical("simulation stopped: %s: %s", type(error).__name__, error)
-        print(f"cryod: {type(error).__name__}: {error}", file=sys.stderr)
-        return 1
+        raise
     finally:
+        status_line.stop()
         logging_service.stop()
     summary = summarize(result, collector, model.ptc.angular_frequency_rad_s, _cpu_seconds() - cpu_start)
     summary.update(simulated_limit(model, config, result.loop, summary["setpoint_K"]))
     summary["trigger"] = opener.trigger_note
+    return SimulationRun(result.exit_code, summary, list(result.log_paths))
+
+
+def run_simulation(args) -> int:
+    """Run ``cryod --simulate``; prints the summary, returns the exit code."""
+    try:
+        run = execute_simulation(args)
+    except SimulationNotStarted as error:
+        print(f"cryod: {error}", file=sys.stderr)
+        return 2
+    except Exception as error:
+        print(f"cryod: {type(error).__name__}: {error}", file=sys.stderr)
+        return 1
     if args.json:
-        print(json.dumps(finite_or_none(summary)))
+        print(json.dumps(rounded(finite_or_none(run.summary))))
     else:
-        for key, value in summary.items():
-            print(f"{key}: {value}")
-    return result.exit_code
+        for key, value in run.summary.items():
+            print(f"{key}: {readable_summary(key, value)}")
+    return run.exit_code
+
+
+def simulate(duration_s: float, setpoint_K: float | None = None, *, config: str | Path | None = None,
+             sim_model: str | Path | None = None, seed: int | None = None, feedforward: bool = True,
+             data_dir: str | Path | None = None, socket: str | Path | None = None, window_s: float = 300.0,
+             speed: float | str = "max", log_stream=None) -> SimulationRun:
+    """Run the daemon on the simulated cryostat from Python (the same run as ``cryod --simulate``).
+
+    Parameters
+    ----------
+    duration_s : float
+        Simulated seconds to run.
+    setpoint_K : float, optional
+        Setpoint (default: the configuration's).
+    config, sim_model : path, optional
+        Daemon configuration (default: the example) and the simulated cryostat's model (default: the shipped).
+    seed : int, optional
+        Sensor-noise seed.
+    feedforward : bool
+        False: PI alone.
+    data_dir, socket : path, optional
+        Where the record goes (default ./cryod-simulate/data) and the control socket (default: this user's).
+    window_s : float
+        The summary's metrics window (s).
+    speed : float or "max"
+        Simulated seconds per real second; "max" (default) runs on virtual time.
+    log_stream : file, optional
+        Where the daemon's log goes (default stderr).
+
+    Returns
+    -------
+    SimulationRun
+
+    Raises
+    ------
+    SimulationNotStarted
+        A bad configuration, model or argument; nothing ran.
+    """
+    args = argparse.Namespace(config=Path(config) if config else None, duration=float(duration_s), speed=speed,
+                              json=True, window=float(window_s), setpoint=setpoint_K,
+                              sim_model=Path(sim_model) if sim_model else None, seed=seed,
+                              no_feedforward=not feedforward, data_dir=Path(data_dir) if data_dir else None,
+                              socket=Path(socket) if socket else None, transport=None)
+    return execute_simulation(args, stream=log_stream)
+
+
+def readable_summary(key: str, value) -> str:
+    """One summary value as text with its unit (lists item by item, the limit's changes one per line)."""
+    if key == "feedforward_limit_changes":
+        return "".join(f"\n  {change['change']}: {readable('ptc_periodic_limit_K', change['ptc_periodic_limit_K'])}"
+                       f" ({change['limited_by'] or change['problem']})" for change in value) or "-"
+    if isinstance(value, list):
+        return ", ".join(readable(key, item) for item in value) if value else "-"
+    return readable(key, value)
+
+
+def limits_against_model(config: DaemonConfig, model, model_path) -> FileFormatError | None:
+    """An over-temperature limit the simulated cryostat is above with the heater off, or None.
+
+    Start-up holds the heater off until both temperatures are below their limits; a limit at or
+    below the cryostat's heater-off temperature would hold it off for the whole run, and one
+    below the top of the cooler's oscillation at T5 would stop the run at its first peak.
+
+    Parameters
+    ----------
+    config : DaemonConfig
+    model : cryod.model.CryostatModel
+        The simulated cryostat.
+    model_path : str or pathlib.Path
+        Named in the message.
+
+    Returns
+    -------
+    cryod.yaml_source.FileFormatError or None
+        Naming the configuration's file, line and key.
+    """
+    operating_point = model.operating_point
+    stage_peak_K = operating_point.ptc_stage_temperature_K + sum(abs(amplitude) for _, amplitude, _
+                                                                 in model.ptc.components())
+    if config.safety.ptc_stage_max_K <= stage_peak_K:
+        return located_error(config, "safety.ptc_stage_max_K",
+                             f"{config.safety.ptc_stage_max_K:g} K: the simulated cryostat's PTC stage is at "
+                             f"{operating_point.ptc_stage_temperature_K:g} K with the heater off, up to "
+                             f"{stage_peak_K:.3f} K with the cooler's oscillation (model {model_path}), so the "
+                             f"heater would never regulate: held off while T5 is above the limit, stopped "
+                             f"(over_temperature) at the first peak above it")
+    if config.safety.flange_max_K <= operating_point.flange_temperature_K:
+        return located_error(config, "safety.flange_max_K",
+                             f"{config.safety.flange_max_K:g} K: the simulated cryostat's flange is at "
+                             f"{operating_point.flange_temperature_K:g} K with the heater off (model "
+                             f"{model_path}), so the heater would never regulate: held off for the whole run")
+    return None
 
 
 def _cpu_seconds() -> float:

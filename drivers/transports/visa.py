@@ -51,6 +51,10 @@ def resource_manager(visa_library: str = "@py") -> pyvisa.ResourceManager:
     return _resource_managers[visa_library]
 
 
+#: How long a late reply is waited for, to be dropped, before the query after a timeout (s).
+LATE_REPLY_WINDOW_S = 0.05
+
+
 def peer_closed(resource: Any) -> bool:
     """True when the TCP peer has closed the socket under ``resource`` (pyvisa-py sessions only)."""
     sessions = getattr(getattr(resource, "visalib", None), "sessions", {})
@@ -138,6 +142,7 @@ class VisaTransport:
         #: Look at the socket before each operation (see :class:`PrologixInstrument`).
         self.check_peer_before_io = False
         self.resource: Any = None
+        self._reply_owed = False             # a read timed out: its reply may still arrive
         self._open()
 
     # -- connection --------------------------------------------------------------
@@ -167,6 +172,7 @@ class VisaTransport:
 
     def reopen(self) -> None:
         self.close()
+        self._reply_owed = False             # a new connection holds no old reply
         self._open()
 
     @property
@@ -205,11 +211,39 @@ class VisaTransport:
         self._io("write", command)
 
     def read(self) -> str:
-        return self._io("read").strip()
+        try:
+            return self._io("read").strip()
+        except InstrumentTimeout:
+            self._reply_owed = True          # it may still come, and would pass for the next query's
+            raise
 
     def query(self, command: str) -> str:
+        if self._reply_owed:
+            self.discard_late_replies()
         self.write(command)
         return self.read()
+
+    def discard_late_replies(self, window_s: float = LATE_REPLY_WINDOW_S) -> list[str]:
+        """Read and drop what arrives within ``window_s``: the reply to a query that timed out.
+
+        Called before the next query after a read timed out, so that a reply that came late is not
+        taken for the answer to that query (a heater-off confirmed by ``0,"No error"``). Returns
+        what was dropped.
+        """
+        self._reply_owed = False
+        dropped = []
+        if self.resource is None:
+            return dropped
+        self.resource.timeout = window_s * 1000.0
+        try:
+            while len(dropped) < 16:
+                try:
+                    dropped.append(self.resource.read().strip())
+                except (VisaIOError, OSError, UnicodeDecodeError):
+                    break
+        finally:
+            self.resource.timeout = self._timeout_s * 1000.0
+        return dropped
 
     def trigger(self) -> None:
         """GPIB GET to this device (VISA ``viAssertTrigger``); ``*TRG`` on other interfaces."""

@@ -203,3 +203,43 @@ def test_prologix_gpib_usb_path_through_pyserial(real_time_bench):
         assert controller.group_triggers == [(16, 17)]
         flange.close()
         adapter.close()
+
+
+def test_a_reply_that_comes_after_its_timeout_is_not_taken_for_the_next_one():
+    """Before: the late '0,"No error"' of a timed-out query was read as the answer to the next query
+    (a heater-off's output state), and the daemon ended with the heater state UNKNOWN."""
+    import socket as socket_module
+    import threading
+    import time as time_module
+
+    from drivers.errors import InstrumentTimeout
+    from drivers.transports.visa import VisaTransport
+
+    listener = socket_module.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(1)
+
+    def instrument():
+        connection, _ = listener.accept()
+        stream = connection.makefile("rwb", buffering=0)
+        for number, line in enumerate(stream):
+            if line.startswith(b"SYST:ERR?"):
+                time_module.sleep(0.3)                   # busy: the answer comes after the client gave up
+                connection.sendall(b'0,"No error"\n')
+            elif line.startswith(b":OUTP:STAT?"):
+                connection.sendall(b"0\n")
+        connection.close()
+
+    server = threading.Thread(target=instrument, daemon=True)
+    server.start()
+    port = listener.getsockname()[1]
+    transport = VisaTransport(f"TCPIP0::127.0.0.1::{port}::SOCKET", timeout_s=0.1, name="heater supply")
+    try:
+        with pytest.raises(InstrumentTimeout):
+            transport.query("SYST:ERR?")
+        time_module.sleep(0.3)                           # the late reply is now waiting on the socket
+        assert transport.query(":OUTP:STAT?") == "0"     # the reply to this query, not the late one
+        assert transport.query(":OUTP:STAT?") == "0"
+    finally:
+        transport.close()
+        listener.close()

@@ -1,0 +1,161 @@
+"""A Python client of a running cryod, for notebooks and experiment scripts.
+
+It speaks the control socket's protocol (one command line in, one JSON line
+out; :mod:`cryod.service.control_socket`), exactly as ``cryod ctl`` does, and
+finds the daemon the same way (:func:`cryod.service.discovery.find_daemon_socket`)
+when no socket is given. The daemon checks every value against its configured
+limits; a refusal raises :class:`CommandRefused` with the daemon's reason.
+
+Examples
+--------
+A gas-thermometry script that steps the flange and waits for it (not run here)::
+
+    import cryod
+
+    flange = cryod.connect()                        # or cryod.connect("/run/cryod/control.sock")
+    flange.ramp(0.5)                                # K/min
+    flange.setpoint(5.2)
+    flange.wait_until_stable(tolerance_K=50e-6, hold_s=120, timeout_s=3600)
+    print(flange.status()["T2_K"])
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+from cryod.service.control_socket import send_command
+from cryod.service.discovery import find_daemon_socket
+
+
+class CommandRefused(RuntimeError):
+    """The daemon refused a command; the message is its reason."""
+
+
+class NotStable(TimeoutError):
+    """:meth:`DaemonClient.wait_until_stable` ran out of time; the message says how far it got."""
+
+
+class DaemonClient:
+    """Commands and status of one running daemon.
+
+    Parameters
+    ----------
+    socket : str or pathlib.Path, optional
+        The daemon's control socket; by default the one ``cryod ctl`` would find.
+    timeout_s : float
+        How long to wait for each reply (s).
+    """
+
+    def __init__(self, socket: str | Path | None = None, timeout_s: float = 10.0):
+        self.socket = Path(socket) if socket is not None else find_daemon_socket()
+        self.timeout_s = timeout_s
+
+    def __repr__(self) -> str:
+        return f"DaemonClient({str(self.socket)!r})"
+
+    def command(self, line: str) -> dict:
+        """Send one command line; the daemon's reply (``ok``, ``message``, ``status``).
+
+        Raises
+        ------
+        CommandRefused
+            The daemon refused it (the message says why).
+        ConnectionError
+            No daemon answers at :attr:`socket`.
+        """
+        reply = send_command(self.socket, line, timeout_s=self.timeout_s)
+        if not reply.get("ok"):
+            raise CommandRefused(reply.get("message", "refused without a reason"))
+        return reply
+
+    def status(self) -> dict:
+        """The loop's state, ``T2_K``, ``T5_K``, ``heater_W``, ``setpoint_K``, ``target_K``, timing, ...
+
+        Values the daemon does not have are None (e.g. ``setpoint_K`` while the loop is open).
+        """
+        return self.command("status")["status"]
+
+    def setpoint(self, kelvin: float) -> dict:
+        """Regulate to ``kelvin`` (ramped at the configured rate); the status after the command took effect."""
+        return self.command(f"setpoint {_plain(kelvin, 'kelvin')}")["status"]
+
+    def ramp(self, kelvin_per_minute: float) -> dict:
+        """Setpoint ramp rate (K/min; 0 for steps); the status after it took effect."""
+        return self.command(f"ramp {_plain(kelvin_per_minute, 'kelvin_per_minute')}")["status"]
+
+    def heater_off(self) -> dict:
+        """Heater to 0 W and the loop open until a new setpoint."""
+        return self.command("heater-off")["status"]
+
+    def manual(self, watts: float) -> dict:
+        """Open loop at ``watts`` of heater power (within R·I_max²)."""
+        return self.command(f"manual {_plain(watts, 'watts')}")["status"]
+
+    def feedforward(self, on: bool) -> dict:
+        """Switch the feedforward locked to the cooler on or off (it fades in or out)."""
+        return self.command(f"feedforward {'on' if on else 'off'}")["status"]
+
+    def wait_until_stable(self, tolerance_K: float = 1e-4, hold_s: float = 60.0, timeout_s: float = 3600.0,
+                          poll_s: float = 0.5, sleep=time.sleep) -> dict:
+        """Wait until the flange has settled at its setpoint.
+
+        Settled means: the loop is closed, the ramp has reached the target, and for
+        ``hold_s`` of the daemon's clock every status polled (each ``poll_s`` of wall
+        time) had T2 averaged over its last 10 s (``T2_average_K``: 17 cooler periods,
+        so the cooler's 0.5 to 1.8 mK line averages out) within ``tolerance_K`` of the
+        setpoint. Time is the daemon's own clock, so a sped-up dry run settles as fast
+        as it runs.
+
+        Returns
+        -------
+        dict
+            The status that completed the wait.
+
+        Raises
+        ------
+        NotStable
+            ``timeout_s`` of the daemon's clock passed first, or the loop left the closed state
+            (heater off, fault): the message says where T2 was.
+        """
+        settled_since = None
+        start = None
+        error = None
+        while True:
+            status = self.status()
+            now = status.get("time_s")
+            state = str(status.get("state"))
+            if now is None:
+                raise NotStable(f"the daemon is not regulating yet ({status.get('message', state)})")
+            start = now if start is None else start
+            if state.startswith("fault") or state in ("off", "stopped", "manual"):
+                raise NotStable(f"the loop is {state}, not regulating"
+                                + (f" (last fault: {status['last_fault']})" if status.get("last_fault") else ""))
+            setpoint, target, average = status.get("setpoint_K"), status.get("target_K"), status.get("T2_average_K")
+            ramping = setpoint is None or target is None or abs(setpoint - target) > 1e-9
+            error = None if ramping or average is None or not state.startswith("closed") else average - setpoint
+            if error is None or abs(error) > tolerance_K:
+                settled_since = None
+            else:
+                settled_since = now if settled_since is None else settled_since
+                if now - settled_since >= hold_s:
+                    return status
+            if now - start > timeout_s:
+                where = f"T2 averaged over 10 s {error * 1e6:+.1f} µK from the setpoint" if error is not None else \
+                    f"state {state}, setpoint {setpoint}, target {target}"
+                raise NotStable(f"not stable within {tolerance_K * 1e6:g} µK after {timeout_s:g} s: {where}")
+            sleep(poll_s)
+
+
+def connect(socket: str | Path | None = None, timeout_s: float = 10.0) -> DaemonClient:
+    """A :class:`DaemonClient` of the daemon at ``socket`` (default: found as ``cryod ctl`` finds it)."""
+    return DaemonClient(socket, timeout_s)
+
+
+def _plain(value: float, name: str) -> str:
+    """A number as the socket accepts it (plain decimal), or ValueError naming the argument."""
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    return repr(number)

@@ -1,0 +1,153 @@
+"""The daemon's latest state for the eyes of the operator and the lab's monitoring.
+
+:class:`LiveView` is one more listener of the loop's rows and events (a row tap,
+like the data log). On the loop thread it only keeps references and writes two
+numbers into a ring, so it costs the 80 ms cycle nothing worth measuring; the
+figures are computed when someone asks (:meth:`LiveView.snapshot`): the status
+line on the terminal (:mod:`cryod.service.status_line`) and the Prometheus
+endpoint (:mod:`cryod.service.metrics_export`), both on threads of their own.
+
+The cooler line's amplitude on T2 is the feedforward's own estimate
+(``ff_line_K``) when the feedforward runs, otherwise a least-squares fit at the
+cooler's frequency over the last :data:`LINE_WINDOW_S` of T2 readings.
+
+Examples
+--------
+>>> import math
+>>> from cryod.records.columns import Row
+>>> view = LiveView(period_s=0.08, line_rad_s=10.83)
+>>> for tick in range(400):
+...     t = 0.08 * tick
+...     view(Row(time_s=t, lateness_ms=0.1, state="closed", T2_K=5.0 + 0.0015 * math.sin(10.83 * t),
+...              T5_K=3.4, heater_W=0.113, setpoint_K=5.0, T2_sample_s=t))
+>>> snapshot = view.snapshot()
+>>> snapshot["state"], round(snapshot["line_amplitude_K"] * 1e3, 2), round(snapshot["elapsed_s"], 2)
+('closed', 1.5, 31.92)
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+
+from cryod.analysis.line_fit import fit_line
+from cryod.records.columns import Event, Row
+
+#: T2 readings kept for the line's amplitude when the feedforward does not estimate it (s).
+LINE_WINDOW_S = 20.0
+#: T2 is averaged over this much of the recent past (s): about 17 cooler periods, so the line
+#: (1.75 mK at most) leaves less than 20 µK in the average.
+AVERAGE_WINDOW_S = 10.0
+
+
+class LiveView:
+    """Latest row, fault count and a short ring of T2 readings, kept for on-demand figures.
+
+    Parameters
+    ----------
+    period_s : float
+        Loop period (s); sizes the ring.
+    line_rad_s : float
+        The cooler's angular frequency (rad/s) for the line's amplitude.
+    timing : callable, optional
+        Returns the loop's timing summary (``LoopTiming.summary``); attached later with
+        :meth:`attach_timing` when the loop exists after the view.
+    """
+
+    def __init__(self, period_s: float, line_rad_s: float, timing=None):
+        self.period_s = float(period_s)
+        self.line_rad_s = float(line_rad_s)
+        self._timing = timing
+        size = max(int(LINE_WINDOW_S / self.period_s), 16)
+        self._times = np.full(size, np.nan)
+        self._flange = np.full(size, np.nan)
+        self._next = 0
+        self._row: Row | None = None
+        self._first_time_s: float | None = None
+        self._faults: dict[str, int] = {}
+        self._last_fault: str | None = None
+        self._events = 0
+        self._lock = threading.Lock()       # only for the fault counts (events are rare)
+
+    def attach_timing(self, timing) -> None:
+        """Give the loop's timing summary (a callable returning a dict)."""
+        self._timing = timing
+
+    # -- the tap (loop thread) ------------------------------------------------------
+    def __call__(self, item: Row | Event) -> None:
+        if type(item) is Row:
+            if self._first_time_s is None:
+                self._first_time_s = item.time_s
+            index = self._next % self._times.size
+            sample = item.T2_sample_s
+            self._times[index] = sample if sample == sample else item.time_s
+            self._flange[index] = item.T2_K
+            self._next += 1
+            self._row = item
+        else:
+            self._events += 1
+            if item.kind == "fault":
+                cause = item.message.split(":", 1)[0].strip() or "unknown"
+                with self._lock:
+                    self._faults[cause] = self._faults.get(cause, 0) + 1
+                    self._last_fault = item.message
+
+    # -- readers (any thread) -----------------------------------------------------------
+    def line_amplitude_K(self) -> float:
+        """The cooler line's amplitude on T2 now (K), NaN until there is enough to say."""
+        row = self._row
+        if row is not None:
+            estimate = row.control.get("ff_line_K", math.nan)
+            if estimate == estimate and row.control.get("ff_scale", 0.0):
+                return float(estimate)
+        times, flange = self._times.copy(), self._flange.copy()
+        usable = np.isfinite(times) & np.isfinite(flange)
+        if usable.sum() < max(self._times.size // 2, 16):
+            return math.nan
+        return float(fit_line(times[usable], flange[usable], self.line_rad_s).amplitude[0])
+
+    def flange_average_K(self) -> float:
+        """T2 averaged over the last :data:`AVERAGE_WINDOW_S` (K), NaN until there is that much."""
+        times, flange = self._times.copy(), self._flange.copy()
+        usable = np.isfinite(times) & np.isfinite(flange)
+        if not usable.any():
+            return math.nan
+        times, flange = times[usable], flange[usable]
+        recent = times >= times.max() - AVERAGE_WINDOW_S
+        if times.max() - times[recent].min() < AVERAGE_WINDOW_S - 2 * self.period_s:
+            return math.nan
+        return float(np.mean(flange[recent]))
+
+    def faults(self) -> dict[str, int]:
+        """Faults seen since start, by cause."""
+        with self._lock:
+            return dict(self._faults)
+
+    def snapshot(self) -> dict:
+        """The figures of the last row, with units in the keys; empty values are NaN or None.
+
+        Keys: ``time_s`` (the clock time of the last tick), ``elapsed_s`` (since the first
+        row), ``state``, ``T2_K``, ``T2_average_K`` (over the last :data:`AVERAGE_WINDOW_S`),
+        ``T5_K``, ``setpoint_K``, ``error_K`` (T2 minus the setpoint), ``heater_W``,
+        ``line_amplitude_K``, ``lateness_ms``, ``faults`` (count by cause), ``last_fault``,
+        ``ticks``, ``overruns``.
+        """
+        row = self._row
+        nan = math.nan
+        if row is None:
+            return {"time_s": nan, "elapsed_s": 0.0, "state": "starting", "T2_K": nan, "T2_average_K": nan,
+                    "T5_K": nan,
+                    "setpoint_K": nan, "error_K": nan, "heater_W": nan, "line_amplitude_K": nan,
+                    "lateness_ms": nan, "faults": self.faults(), "last_fault": self._last_fault,
+                    "ticks": 0, "overruns": 0}
+        timing = self._timing() if self._timing is not None else {}
+        first = self._first_time_s if self._first_time_s is not None else row.time_s
+        return {"time_s": row.time_s, "elapsed_s": row.time_s - first,
+                "state": str(row.state), "T2_K": row.T2_K, "T2_average_K": self.flange_average_K(),
+                "T5_K": row.T5_K, "setpoint_K": row.setpoint_K,
+                "error_K": row.T2_K - row.setpoint_K, "heater_W": row.heater_W,
+                "line_amplitude_K": self.line_amplitude_K(), "lateness_ms": row.lateness_ms,
+                "faults": self.faults(), "last_fault": self._last_fault,
+                "ticks": timing.get("ticks", self._next), "overruns": timing.get("overruns", 0)}

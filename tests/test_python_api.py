@@ -1,0 +1,145 @@
+"""The public Python API (``import cryod``) against a real running dry run and real records."""
+
+import io
+import os
+import subprocess
+import sys
+import time
+import types
+
+import numpy as np
+import pytest
+
+import cryod
+from tests.conftest import CONFIG, REPOSITORY
+
+
+def test_import_cryod_exposes_the_documented_api_and_stays_light():
+    code = ("import sys, cryod; assert 'numpy' not in sys.modules and 'cryod.service.loop' not in sys.modules; "
+            "print(sorted(cryod.__all__))")
+    names = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    for name in ("connect", "DaemonClient", "read_record", "record_frame", "load_model", "simulate"):
+        assert f"'{name}'" in names
+    with pytest.raises(AttributeError, match="no attribute 'regulate'"):
+        cryod.regulate
+
+
+@pytest.fixture
+def running_dry_run(tmp_path, monkeypatch):
+    """``cryod --simulate`` at 50 times real time in its own process, found by the client without a path."""
+    runtime = tmp_path / "runtime"
+    runtime.mkdir(mode=0o700)
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
+    monkeypatch.setattr("cryod.service.discovery.SERVICE_CONFIG", tmp_path / "no-service.yaml")
+    env = dict(os.environ, PYTHONPATH=str(REPOSITORY), XDG_RUNTIME_DIR=str(runtime))
+    # virtual time, as fast as the CPU allows (several hundred times real time): deterministic regulation on a
+    # loaded test machine; the client measures the hold on the daemon's clock, as it should
+    config = tmp_path / "cryod.yaml"
+    config.write_text((CONFIG / "cryod.yaml").read_text()
+                      # the gains `cryod tune --setpoint 5` suggests for this heater (docs/control.md)
+                      .replace("proportional_W_per_K: 10.0", "proportional_W_per_K: 12.6")
+                      .replace("integral_W_per_K_s: 0.2 ", "integral_W_per_K_s: 4.13 ")
+                      .replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/"))
+    process = subprocess.Popen([sys.executable, "-m", "cryod.cli", "simulate", "--config", str(config), "--speed",
+                                "max", "--duration", "40000", "--data-dir", str(tmp_path / "data")],
+                               env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    socket_path = runtime / "cryod" / "simulate.sock"
+    deadline = time.monotonic() + 60
+    while not socket_path.exists():
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()[1][-2000:]
+        time.sleep(0.05)
+    yield types.SimpleNamespace(socket=socket_path, process=process)
+    process.terminate()
+    process.wait(timeout=30)
+
+
+def test_a_script_steps_the_setpoint_and_waits_until_stable(running_dry_run):
+    flange = cryod.connect()
+    assert flange.socket == running_dry_run.socket
+    while flange.status()["state"] != "closed":          # holding until its first valid readings
+        time.sleep(0.05)
+    status = flange.ramp(0.0)
+    assert status["ramp_K_per_min"] == 0.0
+    status = flange.setpoint(5.01)
+    assert status["target_K"] == 5.01 and status["setpoint_K"] == 5.01     # the reply shows the new setpoint
+    assert flange.status()["setpoint_K"] == 5.01
+    started = time.monotonic()
+    settled = flange.wait_until_stable(tolerance_K=1e-4, hold_s=30.0, timeout_s=900.0, poll_s=0.01)
+    print(f"settled after {time.monotonic() - started:.1f} s of wall time")
+    assert settled["state"] == "closed" and settled["setpoint_K"] == 5.01
+    assert abs(settled["T2_average_K"] - 5.01) <= 1e-4
+    assert abs(settled["T2_K"] - 5.01) < 3e-3                               # one reading: the cooler's line on it
+    with pytest.raises(cryod.CommandRefused, match="outside"):
+        flange.setpoint(50.0)
+    with pytest.raises(ValueError, match="kelvin must be a finite number"):
+        flange.setpoint(float("nan"))
+    assert flange.status()["target_K"] == 5.01                             # a refusal changes nothing
+    flange.heater_off()
+    with pytest.raises(cryod.NotStable, match="the loop is off"):
+        flange.wait_until_stable(timeout_s=60.0, poll_s=0.05)
+
+
+class ScriptedDaemon(cryod.DaemonClient):
+    """A client whose status comes from a list (the daemon's clock in time_s)."""
+
+    def __init__(self, statuses):
+        self.statuses = iter(statuses)
+        self.socket = "scripted"
+        self.timeout_s = 1.0
+
+    def status(self):
+        return next(self.statuses)
+
+
+def test_waiting_asks_the_average_to_stay_within_tolerance_for_the_hold_and_says_how_far_it_got():
+    # the average settles exponentially from 2 mK; the single readings carry the cooler's line
+    statuses = [{"time_s": 1.0 * k, "state": "closed", "setpoint_K": 5.0, "target_K": 5.0,
+                 "T2_K": 5.0 + 1.5e-3 * np.sin(0.7 * k), "T2_average_K": 5.0 + 2e-3 * np.exp(-k / 20.0)}
+                for k in range(400)]
+    settled = ScriptedDaemon(statuses).wait_until_stable(tolerance_K=1e-4, hold_s=60.0, sleep=lambda s: None)
+    first_within = int(np.ceil(20.0 * np.log(2e-3 / 1e-4)))               # 60 s
+    assert settled["time_s"] == first_within + 60
+    offset = [dict(status, T2_average_K=status["T2_average_K"] + 5e-4) for status in statuses]
+    with pytest.raises(cryod.NotStable, match=r"averaged over 10 s \+50\d\.\d µK from the setpoint"):
+        ScriptedDaemon(offset).wait_until_stable(tolerance_K=2e-4, hold_s=60.0, timeout_s=300.0,
+                                                 sleep=lambda s: None)
+
+
+def test_simulate_from_python_gives_the_summary_and_a_record_numpy_and_pandas_read(tmp_path):
+    log = io.StringIO()
+    run = cryod.simulate(120.0, setpoint_K=5.0, data_dir=tmp_path / "data", socket=tmp_path / "c.sock",
+                         window_s=60.0, log_stream=log)
+    assert run.exit_code == 0 and run.summary["ticks"] == 1500
+    assert "data log: writing" in log.getvalue()
+    record = cryod.read_record(run.log_paths[0])
+    assert len(record) == 1500 and np.nanmax(record.setpoint_K) == 5.0
+    frame = cryod.record_frame(record)
+    assert list(frame.columns[:5]) == ["time_s", "T2_K", "T5_K", "heater_W", "setpoint_K"]
+    assert np.array_equal(frame["T2_K"].to_numpy(), record.flange_K, equal_nan=True)
+    assert frame.attrs["metadata"]["simulated"].startswith("yes")
+    model = cryod.load_model()
+    assert model.ptc.angular_frequency_rad_s == pytest.approx(10.83, abs=0.05)
+    with pytest.raises(cryod.SimulationNotStarted, match="--setpoint 50 K is outside"):
+        cryod.simulate(10.0, setpoint_K=50.0, data_dir=tmp_path / "x", socket=tmp_path / "x.sock")
+
+
+def test_operator_actions_reach_the_journal_and_the_record_with_who_sent_them(running_dry_run, tmp_path):
+    import pwd
+
+    flange = cryod.connect()
+    while flange.status()["state"] != "closed":
+        time.sleep(0.05)
+    flange.setpoint(5.05)
+    with pytest.raises(cryod.CommandRefused):
+        flange.manual(10.0)                                   # above R I_max^2
+    flange.heater_off()
+    process = running_dry_run.process
+    process.terminate()
+    journal = process.communicate(timeout=60)[1]
+    who = f"uid {os.getuid()} ({pwd.getpwuid(os.getuid()).pw_name}), pid {os.getpid()}"
+    assert f"command setpoint accepted: setpoint 5.05 K (by {who})" in journal
+    assert f"<4>cryod.loop: command manual refused: " in journal and journal.count(f"(by {who})") == 3
+    assert "command heater-off accepted" in journal
+    (path,) = (tmp_path / "data").glob("cryod-*.csv")
+    events = [text for _, text in cryod.read_record(path).events]
+    assert f"event: command: setpoint accepted: setpoint 5.05 K (by {who})" in events

@@ -1,0 +1,70 @@
+"""``cryod plot RECORD``: the quick look at a record, on a record the daemon wrote and on a known signal."""
+
+import io
+
+import matplotlib.image
+import numpy as np
+import pytest
+
+import cryod
+from cryod.cli import main
+from cryod.records.quick_look import cooler_frequency, line_amplitudes
+from cryod.records.record import write_record
+
+
+def known_record(path, line_K=1e-3, rad_s=10.9):
+    t = np.arange(0.0, 900.0, 0.08)
+    rng = np.random.default_rng(1)
+    columns = {"time_s": t, "T2_K": 5.0 + line_K * np.sin(rad_s * t + 0.4) + 2e-5 * rng.standard_normal(t.size),
+               "T5_K": 3.6 + 0.12 * np.sin(rad_s * t + 1.5), "heater_W": np.full(t.size, 0.2),
+               "setpoint_K": np.full(t.size, 5.0)}
+    return write_record(path, columns, {"site": "test"})
+
+
+def test_the_line_is_found_on_T5_and_measured_on_T2_block_by_block(tmp_path):
+    record = cryod.read_record(known_record(tmp_path / "known.csv"))
+    rad_s = cooler_frequency(record.time_s, record.ptc_stage_K, 10.83)
+    assert rad_s == pytest.approx(10.9, abs=1e-4)
+    centres, amplitudes = line_amplitudes(record.time_s, record.flange_K, rad_s)
+    assert centres.size == 30 and np.allclose(amplitudes, 1e-3, rtol=0.01)
+
+
+def test_cryod_plot_draws_a_daemon_record_beside_it_and_keeps_an_existing_figure(tmp_path, capsys):
+    run = cryod.simulate(600.0, data_dir=tmp_path / "data", socket=tmp_path / "c.sock", log_stream=io.StringIO())
+    record_path = run.log_paths[0]
+    assert main(["plot", str(record_path)]) == 0
+    figure = record_path.with_suffix(".png")
+    assert capsys.readouterr().out.strip() == str(figure)
+    image = matplotlib.image.imread(figure)
+    assert image.shape[0] > 1000 and image.shape[1] > 1000          # six panels
+    before = figure.stat().st_mtime_ns
+    assert main(["plot", str(record_path)]) == 2
+    assert "exists; give --force" in capsys.readouterr().err and figure.stat().st_mtime_ns == before
+    assert main(["plot", str(record_path), "--force"]) == 0
+
+
+@pytest.mark.parametrize("text, message", [
+    ("# cryod-log v1\ntime_s,T2_K,heater_W,setpoint_K\n0.0,4.23,0.0,\n", "T5_K"),
+    ("# cryod-log v1\ntime_s,T2_K,T5_K,heater_W,setpoint_K\n0.08,4.23,3.3,0,\n", "1 row(s), nothing to plot"),
+])
+def test_records_that_cannot_be_plotted_say_why(tmp_path, capsys, text, message):
+    path = tmp_path / "bad.csv"
+    path.write_text(text)
+    assert main(["plot", str(path)]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "bad.png").exists()
+
+
+def test_spectral_lines_are_named_where_sampling_puts_them():
+    from cryod.analysis.figures import heater_modulation_hz
+    from cryod.records.quick_look import folded_frequency
+
+    assert folded_frequency(1.7237, 12.5) == pytest.approx(1.7237)
+    assert folded_frequency(6 * 1.7237, 12.5) == pytest.approx(12.5 - 6 * 1.7237)   # 10.34 Hz shows at 2.16 Hz
+    t = np.arange(0.0, 1200.0, 0.08)
+    steps = np.where(t > 300.0, 0.03, 0.0) + np.where(t > 800.0, 0.05, 0.0)
+    modulated = steps + np.where((t > 400) & (t < 600), 0.01 * np.sign(np.sin(2 * np.pi * 0.4 * t)), 0.0)
+    feedforward = steps + 0.1 * (1 + np.cos(2 * np.pi * 1.7237 * t))          # the cooler's line: not a modulation
+    assert heater_modulation_hz(modulated, 12.5, 1.7237) == pytest.approx(0.4, abs=0.01)
+    assert heater_modulation_hz(steps, 12.5, 1.7237) is None
+    assert heater_modulation_hz(feedforward, 12.5, 1.7237) is None

@@ -26,8 +26,16 @@ heater_nonlinearity          quadratic coefficient k: the delivered power P + k 
                              (response of both thermometers to P^2)
 ptc_harmonics                harmonics of T5 up to order 5 (aliased ones too), kept if above 5
                              standard errors (linear fit of T5)
-ptc_frequency_drift          rate (and wander) from T5's phase track, refined on T5
+ptc_frequency_drift          the record replayed at the phase measured sample by sample in T5;
+                             rate (and wander) are the model's form fitted to that phase
 ===========================  ===================================================================
+
+When the base model is recalibrated (:mod:`cryod.analysis.recalibration`),
+every replay also fits the recalibration linearised about the model
+(:attr:`cryod.analysis.replay.Replayer.basis_for`): a cause and the
+recalibration are fitted together. The link cause replaces the line's gain and
+phase on T2, which it leaves out. Each fit that has numbers of its own says so
+(:class:`EffectForm`), for the joint refit of :mod:`cryod.analysis.refinement`.
 
 The score of each is on the held-out blocks (:mod:`cryod.analysis.decision`).
 """
@@ -43,7 +51,7 @@ import numpy as np
 from scipy import optimize
 
 from cryod.analysis.ptc_line import PtcLine, measurable_orders
-from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD, LINK_PARAMETERS
+from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD, LINK_PARAMETERS, RecalibratedBase
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replay, Replayer
 from cryod.model import (
@@ -77,7 +85,7 @@ class FitContext:
     #: differs is what the recalibration of the link's gain and time scale moved towards (None: the model's own).
     link_reference: TransferFunction | None = None
     #: The recalibration the context's model carries (None: the base model as given).
-    recalibrated: object = None
+    recalibrated: RecalibratedBase | None = None
     #: The model whose heater part of T5 is taken out before the line is measured in it (None: ``base_model``).
     line_model: CryostatModel | None = None
 

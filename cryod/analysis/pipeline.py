@@ -538,10 +538,6 @@ def _strained(replay: Replay) -> bool:
     return bool(np.any(np.abs(values) > EXPECTED_SPREAD))
 
 
-def _present(excess: float, terms: int) -> bool:
-    return BaseDiscrepancy(terms, terms + excess, excess, excess / math.sqrt(2.0 * terms)).present
-
-
 def _already_in(cause: str, model: CryostatModel) -> bool:
     return cause in model.effect_names()
 

@@ -27,13 +27,13 @@ import dataclasses
 import json
 import math
 import multiprocessing
-import os
 import tempfile
 import time
 from pathlib import Path
 
-for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_variable, "1")          # one core per process: the machine has two, shared
+from cryod.blas_threads import use_one_blas_thread
+
+use_one_blas_thread()          # one core per process: the machine has two, shared
 
 import numpy as np  # noqa: E402
 

@@ -26,10 +26,14 @@ import signal
 import sys
 from pathlib import Path
 
-from cryod import __version__
-from cryod.argument_types import positive, whole_number
-from cryod.service.commands import COMMANDS, socket_usage
-from cryod.service.discovery import SERVICE_CONFIG as DEFAULT_CONFIG
+from cryod.blas_threads import use_one_blas_thread
+
+use_one_blas_thread()          # before numpy is imported: see cryod/blas_threads.py
+
+from cryod import __version__  # noqa: E402
+from cryod.argument_types import positive, whole_number  # noqa: E402
+from cryod.service.commands import COMMANDS, socket_usage  # noqa: E402
+from cryod.service.discovery import SERVICE_CONFIG as DEFAULT_CONFIG  # noqa: E402
 
 #: Model tools with a module of their own (``configure_parser(parser)``, ``run(args) -> int``).
 MODEL_TOOLS = (

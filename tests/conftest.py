@@ -4,7 +4,11 @@ from pathlib import Path
 
 import pytest
 
-from cryod.model import load_model
+from cryod.blas_threads import use_one_blas_thread
+
+use_one_blas_thread()          # as the command line does, before numpy is imported
+
+from cryod.model import load_model  # noqa: E402
 
 REPOSITORY = Path(__file__).resolve().parent.parent
 CONFIG = REPOSITORY / "config"

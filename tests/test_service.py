@@ -1,5 +1,6 @@
 """Data log, control socket, systemd notify and journald logging."""
 
+import json
 import logging
 import os
 import socket
@@ -17,6 +18,7 @@ from cryod.service.commands import Command, parse_command
 from cryod.service.control_socket import ControlSocketServer, send_command
 from cryod.service.logs import JournalFormatter
 from cryod.service.notify import SystemdNotifier
+from tests.conftest import CONFIG
 
 
 SCHEMA = RowSchema(REQUIRED + (STATE,))
@@ -199,3 +201,65 @@ def test_the_writers_fast_path_writes_what_each_column_formats():
         schema.columns, (0.08, 4.2306589, None, 0.0, None, "closed", 0.09, 0.30000000000000004))) + "\n"
     assert schema.format_row(row, origin_s=10.0) == expected == \
         "0.0800,4.2306589,,0.000000e+00,,closed,0.09000,0.30000000000000004\n"
+
+
+REALTIME_RUN = '''
+import dataclasses, json, os, sys, threading
+from cryod.config import load_config
+from cryod.model import load_model
+from cryod.records.columns import Row
+from cryod.service.clock import VirtualClock
+from cryod.service.daemon import Daemon
+from cryod.service.notify import SystemdNotifier
+from cryod.service.simulation import SimulatedInstrumentsOpener
+
+config = load_config(sys.argv[1])
+config = dataclasses.replace(
+    config, loop=dataclasses.replace(config.loop, realtime_priority=20, lock_memory=True),
+    data=dataclasses.replace(config.data, directory=sys.argv[2] + "/data"),
+    control_socket=dataclasses.replace(config.control_socket, path=sys.argv[2] + "/control.sock"),
+    simulation=dataclasses.replace(config.simulation, transport="in-process"))
+policies = {}
+
+def tap(item):
+    if isinstance(item, Row):
+        names = {thread.native_id: thread.name for thread in threading.enumerate()}
+        for task in os.listdir("/proc/self/task"):
+            try:
+                policies[names.get(int(task), "other")] = os.sched_getscheduler(int(task))
+            except OSError:
+                pass
+
+def locked_kB():
+    return next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmLck"))
+
+before = os.sched_getscheduler(0)
+daemon = Daemon(config, SimulatedInstrumentsOpener(load_model(), seed=4), VirtualClock(),
+                notifier=SystemdNotifier({}), row_taps=[tap], install_signal_handlers=False)
+result = daemon.run(30.0)
+print(json.dumps({"exit": int(result.exit_code), "before": before, "after": os.sched_getscheduler(0),
+                  "policies": policies, "locked_kB": locked_kB()}))
+'''
+
+
+def test_a_real_time_run_keeps_its_workers_at_normal_priority_and_gives_everything_back(tmp_path):
+    """Threads the loop thread starts inherit its SCHED_FIFO: the feedforward's limit ran at the loop's
+    priority, and the process stayed SCHED_FIFO with its memory locked after the run (tests, cryod.simulate)."""
+    try:
+        probe = subprocess.run([sys.executable, "-c", "import os; os.sched_setscheduler(0, os.SCHED_FIFO, "
+                                "os.sched_param(1))"], capture_output=True)
+    except OSError:
+        pytest.skip("no real-time scheduling here")
+    if probe.returncode != 0:
+        pytest.skip("real-time priority not permitted here")
+    output = subprocess.run([sys.executable, "-c", REALTIME_RUN, str(CONFIG / "cryod.yaml"), str(tmp_path)],
+                            capture_output=True, text=True, timeout=120)
+    assert output.returncode == 0, output.stderr[-2000:]
+    run = json.loads(output.stdout.splitlines()[-1])
+    assert run["exit"] == 0
+    assert run["policies"]["MainThread"] == os.SCHED_FIFO            # the loop thread
+    workers = {name: policy for name, policy in run["policies"].items() if name.startswith("cryod-feedforward")}
+    assert "cryod-feedforward-limit_0" in workers                    # the limit was computed during the run
+    assert set(workers.values()) == {os.SCHED_OTHER}, workers
+    assert run["after"] == run["before"] == os.SCHED_OTHER
+    assert run["locked_kB"] == 0

@@ -75,6 +75,7 @@ from cryod.control.feedforward_limit import FeedforwardLimitError, limit_changes
 from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
 from cryod.records.columns import Column
+from cryod.service.realtime import at_normal_priority
 from cryod.yaml_source import FileFormatError, Section
 
 #: Loop period the plant response assumes when the settings do not say (s).
@@ -563,7 +564,8 @@ class FeedforwardTerm:
         if tick.time_s - self._limit_wanted[1] < LIMIT_AFTER_S:
             return
         if self._limit_executor is None:
-            self._limit_executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cryod-feedforward-limit")
+            self._limit_executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cryod-feedforward-limit",
+                                                      initializer=at_normal_priority)
         result = self._limit_executor.submit(_limit_report, self.settings.controller_model, setpoint, self.output_max,
                                              self.settings.period_s, self.setting_delay_s)
         self._limit_asked = (result, setpoint, tick.time_s + LIMIT_TAKEN_AFTER_S)

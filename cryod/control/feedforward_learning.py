@@ -33,12 +33,15 @@ import threading
 import weakref
 from typing import Any, Callable
 
+from cryod.service.realtime import at_normal_priority
+
 _GAP = object()
 _STOP = object()
 
 
 def _work(inbox: queue.SimpleQueue, estimator, results: dict, ready: threading.Condition) -> None:
     """The worker thread: readings into the estimator, steps computed in their turn."""
+    at_normal_priority()         # started by the loop thread on a reload: never at the loop's priority
     while True:
         item = inbox.get()
         if item is _STOP:

@@ -33,7 +33,7 @@ from cryod.service.faults import ExitCode, Fault, FaultCause
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock
 from cryod.service.live_view import LiveView
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
-from cryod.service.realtime import lock_memory, set_realtime_priority
+from cryod.service.realtime import RealtimeSession
 from cryod.service.control_socket import ControlSocketServer
 from cryod.service.notify import SystemdNotifier
 from cryod.yaml_source import FileFormatError
@@ -231,6 +231,7 @@ class Daemon:
             return RunResult(ExitCode.CONFIG, None, [], time.perf_counter() - started)
         instruments: Instruments | None = None
         control_socket: ControlSocketServer | None = None
+        realtime: RealtimeSession | None = None
         metrics = None
         service = threading.Thread(target=self._service, name="cryod-service", daemon=True)
         previous_handlers = {}
@@ -281,20 +282,20 @@ class Daemon:
                     self.loop.request_stop(self._stop_reason)
                 if self.datalog.failure is not None:
                     self.loop.fail(Fault(FaultCause.DATA_LOG_FAILED, self.datalog.failure))
-                problem = set_realtime_priority(config.loop.realtime_priority)
-                if problem:
+                realtime = RealtimeSession(config.loop.realtime_priority, config.loop.lock_memory)
+                realtime.start()
+                for problem in realtime.problems:
                     log.warning("%s", problem)
                 if config.loop.lock_memory:
-                    problem, figure = lock_memory()
-                    if problem:
-                        log.warning("%s", problem)
-                    log.info("memory: %s", figure or "no figure on this system")
+                    log.info("memory: %s", realtime.memory or "no figure on this system")
                 self.notifier.status(f"running: holding the heater off until "
                                      f"{config.safety.valid_readings_to_resume} valid readings")
                 log.info("cryod %s: loop period %.0f ms, data in %s, control socket %s", __version__,
                          config.loop.period_s * 1e3, config.data.directory, config.control_socket.path)
                 exit_code = self.loop.run(duration_s)
         finally:
+            if realtime is not None:
+                realtime.end()
             self._service_stop = True
             self._service_wake.set()
             if instruments is not None:

@@ -2,6 +2,13 @@
 
 Each is used when the system permits it; when it does not, the reason is
 returned for the log and the daemon carries on.
+
+Linux threads inherit the scheduling of the thread that starts them, so a
+worker the loop thread starts (the feedforward's limit, its learning, the
+compression of a finished day) would run at the loop's real-time priority and
+compete with it: such workers call :func:`at_normal_priority` first. A run
+leaves the process as it found it (:class:`RealtimeSession`), which matters
+when the daemon runs inside another program (the tests, ``cryod.simulate``).
 """
 
 from __future__ import annotations
@@ -28,6 +35,70 @@ def set_realtime_priority(priority: int) -> str | None:
     except (PermissionError, OSError) as error:
         return f"real-time priority {priority} not permitted ({error.strerror or error}); running at normal priority"
     return None
+
+
+def at_normal_priority() -> None:
+    """Put the calling thread back on normal scheduling if it inherited a real-time one."""
+    if not hasattr(os, "sched_getscheduler"):
+        return
+    try:
+        if os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR):
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:              # lowering one's own priority is always permitted; nothing else to do
+        pass
+
+
+def unlock_memory() -> None:
+    """Undo :func:`lock_memory` (``munlockall``)."""
+    name = ctypes.util.find_library("c")
+    if name is not None:
+        ctypes.CDLL(name, use_errno=True).munlockall()
+
+
+class RealtimeSession:
+    """The loop thread's real-time priority and memory locking for one run, undone at its end.
+
+    Parameters
+    ----------
+    priority : int
+        SCHED_FIFO priority for the calling thread; 0 leaves it as it is.
+    lock : bool
+        Lock the process's memory (:func:`lock_memory`).
+    """
+
+    def __init__(self, priority: int, lock: bool):
+        self.priority = priority
+        self.lock = lock
+        self.problems: list[str] = []        #: what could not be done, for the log
+        self.memory = ""                     #: the memory figure after locking
+        self._saved = None
+        self._locked = False
+
+    def start(self) -> None:
+        """Raise the calling thread's priority and lock memory as asked."""
+        if hasattr(os, "sched_getscheduler"):
+            self._saved = (os.sched_getscheduler(0), os.sched_getparam(0))
+        problem = set_realtime_priority(self.priority)
+        if problem:
+            self.problems.append(problem)
+        if self.lock:
+            problem, self.memory = lock_memory()
+            self._locked = problem is None
+            if problem:
+                self.problems.append(problem)
+
+    def end(self) -> None:
+        """Give back the calling thread's earlier scheduling and unlock memory if it was locked here."""
+        if self._saved is not None:
+            policy, parameters = self._saved
+            try:
+                os.sched_setscheduler(0, policy, parameters)
+            except OSError:
+                pass
+            self._saved = None
+        if self._locked:
+            unlock_memory()
+            self._locked = False
 
 
 def lock_memory() -> tuple[str | None, str]:

@@ -83,7 +83,11 @@ class WindowCollector:
 
 
 def simulation_config(args, config: DaemonConfig) -> DaemonConfig:
-    """The configuration with the command line's overrides (setpoint, seed, paths, transport)."""
+    """The configuration with the command line's overrides (setpoint, seed, paths, transport).
+
+    A run faster than real time (``--speed`` other than 1) keeps no deadlines:
+    it neither takes real-time priority nor locks memory.
+    """
     control = config.control
     if args.setpoint is not None:
         if not control.setpoint_min_K <= args.setpoint <= control.setpoint_max_K:
@@ -111,8 +115,11 @@ def simulation_config(args, config: DaemonConfig) -> DaemonConfig:
         raise ValueError(f"control socket path {socket_path.absolute()} is too long for a Unix socket; "
                          f"give a shorter one with --socket")
     control_socket = dataclasses.replace(config.control_socket, path=socket_path, owner=None, group=None)
+    loop = config.loop
+    if args.speed != 1.0:       # faster than real time has no deadlines to keep: no real-time priority
+        loop = dataclasses.replace(loop, realtime_priority=0, lock_memory=False)
     return dataclasses.replace(config, control=control, simulation=simulation, data=data,
-                               control_socket=control_socket)
+                               control_socket=control_socket, loop=loop)
 
 
 class SimulatedInstrumentsOpener:

@@ -97,6 +97,17 @@ class DaemonClient:
         """Switch the feedforward locked to the cooler on or off (it fades in or out)."""
         return self.command(f"feedforward {'on' if on else 'off'}")["status"]
 
+    def reload(self) -> dict:
+        """Have the daemon read its configuration file again (as ``systemctl reload``); the status after it.
+
+        Raises
+        ------
+        CommandRefused
+            The file is not valid, or a change in it needs a restart: the message says which
+            and the daemon keeps the configuration it runs on.
+        """
+        return self.command("reload")["status"]
+
     def wait_until_stable(self, tolerance_K: float = 1e-4, hold_s: float = 60.0, timeout_s: float = 3600.0,
                           poll_s: float = 0.5, sleep=time.sleep) -> dict:
         """Wait until the flange has settled at its setpoint.

@@ -9,6 +9,9 @@ with the heater off.
 """
 
 import dataclasses
+import os
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -18,6 +21,7 @@ from cryod.config import load_config
 from cryod.records.columns import Row
 from cryod.records.record import read_record
 from cryod.service.clock import VirtualClock
+from cryod.service.control_socket import send_command
 from cryod.service.daemon import Daemon
 from cryod.service.notify import SystemdNotifier
 from tests.conftest import CONFIG
@@ -32,14 +36,18 @@ def config_file(tmp_path, text=None):
     return path
 
 
-def daemon_from_file(tmp_path, path, row_actions, reload_config=None):
-    """The daemon on the configuration read from ``path`` (data and socket moved into tmp_path);
-    ``row_actions[n](daemon)`` runs after the n-th row, on the loop's thread."""
-    config = load_config(path)
-    config = dataclasses.replace(
+def moved(config, tmp_path):
+    """``config`` with its data and socket in tmp_path, on the in-process simulated bench."""
+    return dataclasses.replace(
         config, data=dataclasses.replace(config.data, directory=tmp_path / "data"),
         control_socket=dataclasses.replace(config.control_socket, path=tmp_path / "control.sock"),
         simulation=dataclasses.replace(config.simulation, transport="in-process"))
+
+
+def daemon_from_file(tmp_path, path, row_actions, reload_config=None):
+    """The daemon on the configuration read from ``path`` (data and socket moved into tmp_path);
+    ``row_actions[n](daemon)`` runs after the n-th row, on the loop's thread."""
+    config = moved(load_config(path), tmp_path)
     drill = FaultDrill(tmp_path, {}, config=config)
     rows = []
     answers = []
@@ -140,3 +148,46 @@ def test_simulate_refuses_a_limit_the_cryostat_is_above_with_the_heater_off(tmp_
     assert f"nothing was started: {path}:{line_of(text, new.strip())}: {key}: " in error
     assert "the heater would never regulate: held off" in error
     assert not (tmp_path / "data").exists()
+
+
+def test_cryod_ctl_reload_applies_a_good_file_refuses_a_bad_one_and_says_who_asked(tmp_path):
+    """An operator in the socket's group cannot signal a daemon run by root: the socket's ``reload`` does
+    what SIGHUP does, and its client gets the answer (the refusal with file, line and key)."""
+    path = config_file(tmp_path)
+    replies = {}
+    asking = []
+
+    def reload_over_the_socket(name, old, new):
+        def action(daemon):
+            text = path.read_text()
+            assert old in text
+            path.write_text(text.replace(old, new, 1))
+            asking.append(threading.Thread(target=lambda: replies.update(
+                {name: send_command(tmp_path / "control.sock", "reload", timeout_s=20.0)})))
+            asking[-1].start()
+        return action
+
+    def until_answered(name):
+        def action(daemon):          # the loop keeps ticking, slowly, until the client has its answer
+            if name not in replies:
+                time.sleep(0.002)
+        return action
+
+    actions = {row: until_answered("good") for row in range(101, 390)}
+    actions.update({row: until_answered("bad") for row in range(401, 740)})
+    actions[100] = reload_over_the_socket("good", "    proportional_W_per_K: 10.0", "    proportional_W_per_K: 12.0")
+    actions[400] = reload_over_the_socket("bad", "  max_current_A: 0.1", "  max_current_A: " + "1" * 400)
+    daemon, _ = daemon_from_file(tmp_path, path, actions, reload_config=lambda: moved(load_config(path), tmp_path))
+    result = daemon.run(60.0)
+    for thread in asking:
+        thread.join(20.0)
+    assert result.exit_code == 0
+    good, bad = replies["good"], replies["bad"]
+    assert good["ok"] and good["message"] == f"configuration reloaded from {path}"
+    assert daemon.loop.regulator.term("pi").controller.gains.proportional_w_per_K == 12.0
+    assert not bad["ok"]
+    assert f"{path}:{line_of(EXAMPLE, 'max_current_A:')}: heater.max_current_A" in bad["message"]
+    assert "keeping the running configuration" in bad["message"]
+    events = [text for _, text in read_record(result.log_paths[0]).events if "reload" in text]
+    assert len(events) == 2
+    assert all(f"(by uid {os.getuid()}" in event for event in events), events

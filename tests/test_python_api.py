@@ -132,14 +132,22 @@ def test_operator_actions_reach_the_journal_and_the_record_with_who_sent_them(ru
     flange.setpoint(5.05)
     with pytest.raises(cryod.CommandRefused):
         flange.manual(10.0)                                   # above R I_max^2
-    flange.heater_off()
+    off = flange.heater_off()["state"]
+    config = tmp_path / "cryod.yaml"
+    config.write_text(config.read_text().replace("integral_W_per_K_s: 4.13 ", "integral_W_per_K_s: 4.0 "))
+    assert flange.reload()["state"] == off                     # the heater stays off: a reload is not a setpoint
+    config.write_text(config.read_text().replace("period_s: 0.08", "period_s: 0.1"))
+    with pytest.raises(cryod.CommandRefused, match="need a restart"):
+        flange.reload()
     process = running_dry_run.process
     process.terminate()
     journal = process.communicate(timeout=60)[1]
     who = f"uid {os.getuid()} ({pwd.getpwuid(os.getuid()).pw_name}), pid {os.getpid()}"
     assert f"command setpoint accepted: setpoint 5.05 K (by {who})" in journal
-    assert f"<4>cryod.loop: command manual refused: " in journal and journal.count(f"(by {who})") == 3
+    assert f"<4>cryod.loop: command manual refused: " in journal and journal.count(f"(by {who})") == 5
     assert "command heater-off accepted" in journal
+    assert f"<6>cryod.daemon: configuration reloaded from {config} (by {who})" in journal
+    assert f"<3>cryod.daemon: kept the running configuration: changes to loop need a restart" in journal
     (path,) = (tmp_path / "data").glob("cryod-*.csv")
     events = [text for _, text in cryod.read_record(path).events]
     assert f"event: command: setpoint accepted: setpoint 5.05 K (by {who})" in events

@@ -145,6 +145,9 @@ def _choice(*choices: str) -> Callable[[str], str]:
 
 
 def _reload(loop: "ControlLoop", value) -> str:
+    if value is None:          # the socket's "reload": the daemon reads the file and hands the result here
+        raise CommandRefused("reload needs the configuration the daemon has read and checked; "
+                             "ask the daemon (cryod ctl reload), not the loop")
     return loop.reload(value)
 
 
@@ -162,7 +165,7 @@ class CommandSpec:
         ``apply(loop, value) -> message``, run on the loop thread; raises
         :class:`CommandRefused`. None: answered by the socket itself (``status``).
     from_socket : bool
-        Offered on the control socket (``reload`` comes from SIGHUP).
+        Offered on the control socket (``modulate`` is for ``cryod identify --acquire`` only).
     parse : callable
         Argument text to value (ValueError when malformed); numbers follow the command line's
         rule, :func:`cryod.argument_types.plain_decimal`.
@@ -190,7 +193,8 @@ COMMANDS: dict[str, CommandSpec] = {spec.name: spec for spec in (
     CommandSpec("manual", "W", "open loop at W (at most R * I_max^2)", _manual),
     CommandSpec("feedforward", "on|off|status", "switch the feedforward locked to the cooler (fades in or out), "
                 "or show its state", _feedforward, parse=_choice("on", "off", "status")),
-    CommandSpec("reload", None, "apply a validated configuration (SIGHUP)", _reload, from_socket=False),
+    CommandSpec("reload", None, "read the configuration file again and apply it if it is valid and needs no "
+                "restart (as systemctl reload)", _reload),
     CommandSpec("modulate", "(MEAN_W, AMPLITUDE_W, RAD_S)", "open loop, heater modulated about a mean "
                 "(cryod identify --acquire)", _modulate, from_socket=False),
 )}

@@ -11,6 +11,7 @@ listener run beside it and talk to the loop through queues and snapshots.
 
 from __future__ import annotations
 
+import collections
 import functools
 import logging
 import platform
@@ -121,6 +122,7 @@ class Daemon:
         #: The latest row and faults, for the status line and the metrics endpoint.
         self.live_view = LiveView(config.loop.period_s, cooler_rad_s(config))
         self._reload_wanted = False
+        self._socket_reloads: collections.deque[Command] = collections.deque()   # "reload" from the socket
         self._stop_reason: str | None = None
         self._waiting = "opening the instruments"
         self._service_stop = False
@@ -154,18 +156,24 @@ class Daemon:
             self._service_wake.wait(1.0)
             self._service_wake.clear()
             if self._service_stop:
+                while self._socket_reloads:
+                    self._socket_reloads.popleft().answer(False, "reload refused: the daemon is stopping")
                 return
             if self._reload_wanted:
                 self._reload_wanted = False
                 self.reload()
+            while self._socket_reloads:
+                asked = self._socket_reloads.popleft()
+                done = self.reload(asked.sender or "the control socket")
+                asked.answer(done.ok, done.message)
             if self.loop is not None:
                 self.notifier.status(self.loop.status.one_line())
 
     def reload(self, sender: str = "SIGHUP") -> Command:
         """Validate the configuration file again and hand it to the loop (keeps the old one if bad).
 
-        ``sender`` says who asked, in the journal and the record (a signal: ``systemctl reload``
-        or ``kill -HUP``)."""
+        ``sender`` says who asked, in the journal and the record: a signal (``systemctl reload``
+        or ``kill -HUP``), or the control socket's client (``cryod ctl reload``)."""
         self.notifier.reloading()
         try:
             new = self.reload_config()
@@ -199,6 +207,11 @@ class Daemon:
 
     # -- the control socket before the loop runs ---------------------------------
     def _submit(self, command: Command) -> Command:
+        if command.name == "reload" and command.value is None:
+            # read and checked on the service thread, as for SIGHUP; answered when the loop has taken it
+            self._socket_reloads.append(command)
+            self._service_wake.set()
+            return command
         if self.loop is None:
             command.answer(False, f"not running yet: {self._waiting}; commands are taken once the loop runs")
             return command

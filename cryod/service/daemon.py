@@ -162,10 +162,12 @@ class Daemon:
             if self._reload_wanted:
                 self._reload_wanted = False
                 self.reload()
-            while self._socket_reloads:
-                asked = self._socket_reloads.popleft()
-                done = self.reload(asked.sender or "the control socket")
-                asked.answer(done.ok, done.message)
+            if self._socket_reloads:        # those asked for meanwhile share one reading of the file
+                asked = [self._socket_reloads.popleft() for _ in range(len(self._socket_reloads))]
+                done = self.reload(", ".join(dict.fromkeys(command.sender or "the control socket"
+                                                           for command in asked)))
+                for command in asked:
+                    command.answer(done.ok, done.message)
             if self.loop is not None:
                 self.notifier.status(self.loop.status.one_line())
 

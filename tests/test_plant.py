@@ -227,3 +227,43 @@ def test_time_cannot_go_backwards_and_heater_cannot_cool(reference_model):
     cryostat = SimulatedCryostat(reference_model, VirtualClock())
     with pytest.raises(ValueError, match="negative"):
         cryostat.set_heater_power(-0.01)
+
+
+@pytest.mark.parametrize("count", [0, 1, 63, 64, 65, 1000, 4097])
+@pytest.mark.parametrize("kind", [float, complex])
+def test_the_recurrence_scan_equals_the_sequential_loop(count, kind):
+    from cryod.model.heater_path import linear_recurrence
+
+    generator = np.random.default_rng(count)
+    factors = np.exp(-generator.uniform(0.0, 3.0, count) * (1.0 + (0.7j if kind is complex else 0.0)))
+    factors[generator.random(count) < 0.05] = 0.0            # a decay complete within one interval
+    offsets = generator.normal(size=count) * (1.0 + (1j if kind is complex else 0.0))
+    start = kind(0.3)
+    expected = [start]
+    for factor, offset in zip(factors, offsets):
+        expected.append(factor * expected[-1] + offset)
+    assert linear_recurrence(factors, offsets, start) == pytest.approx(np.array(expected), rel=1e-12, abs=1e-13)
+
+
+def test_a_heat_capacity_replay_asked_again_is_the_same_and_a_changed_one_is_not(quiet_reference_model):
+    """The fixed point of the heat-capacity effect is kept for the analysis's repeated replays of one record."""
+    from cryod.model import dynamics
+
+    generator = np.random.default_rng(5)
+    times = np.cumsum(generator.uniform(0.07, 0.09, 5000))
+    powers = np.repeat(generator.uniform(0.0, 0.15, 50), 100)
+
+    def replay(exponent):
+        model = quiet_reference_model.with_effects(heat_capacity_temperature=HeatCapacityTemperature(exponent, 4.23))
+        return simulate(model, times, powers, initial_heater_power_w=0.02).flange_K
+
+    dynamics._TIME_SCALED_RUNS.clear()
+    first = replay(1.5)
+    assert len(dynamics._TIME_SCALED_RUNS) == 1
+    again = replay(1.5)
+    assert len(dynamics._TIME_SCALED_RUNS) == 1                  # served from what was kept
+    np.testing.assert_array_equal(again, first)
+    other = replay(1.6)
+    assert len(dynamics._TIME_SCALED_RUNS) == 2 and np.max(np.abs(other - first)) > 1e-5
+    dynamics._TIME_SCALED_RUNS.clear()
+    np.testing.assert_array_equal(replay(1.5), first)            # and it is what a fresh run gives

@@ -73,7 +73,7 @@ def test_parse_command_refuses_malformed_input():
     for line, reason in [("", "empty"), ("warm", "unknown command"), ("setpoint", "takes 1 argument"),
                          ("setpoint five", "not a number"), ("ramp nan", "not a number"), ("ramp 1e999", "finite"),
                          ("setpoint 1_5", "plain decimal"), ("setpoint \u0665", "not a number"),
-                         ("heater-off now", "takes 0"), ("reload", "unknown command")]:
+                         ("heater-off now", "takes 0"), ("reload now", "takes 0"), ("modulate 1 2 3", "unknown command")]:
         with pytest.raises(ValueError, match=reason):
             parse_command(line)
 

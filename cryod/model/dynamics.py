@@ -31,6 +31,7 @@ Examples
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import threading
 from collections import OrderedDict
@@ -47,8 +48,13 @@ from cryod.model.transfer_function import TransferFunction
 # ---------------------------------------------------------------------------
 # the plant
 # ---------------------------------------------------------------------------
+@functools.lru_cache(maxsize=64)
 def flange_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, TransferFunction]:
-    """(heater to flange thermometer, PTC heat to flange thermometer) with link and sensor effects."""
+    """(heater to flange thermometer, PTC heat to flange thermometer) with link and sensor effects.
+
+    Kept for the last models asked for (models and transfer functions are immutable): the analysis
+    builds a plant for the same model many times.
+    """
     effects = model.effects
     heater = model.flange_to_thermometer * model.heater_to_flange
     link = model.ptc_to_flange
@@ -64,6 +70,7 @@ def flange_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, T
     return heater, ptc
 
 
+@functools.lru_cache(maxsize=64)
 def stage_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, TransferFunction]:
     """(heater to PTC-stage thermometer, stage oscillation to PTC-stage thermometer)."""
     heater = model.heater_to_ptc_stage

@@ -18,6 +18,7 @@ Examples
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -110,12 +111,12 @@ class TransferFunction:
         """Degree of the denominator (number of states)."""
         return len(self.denominator) - 1
 
-    @property
+    @functools.cached_property
     def poles(self) -> np.ndarray:
-        """Poles in 1/s (complex array)."""
-        if self.order == 0:
-            return np.zeros(0, dtype=complex)
-        return np.roots(self.denominator).astype(complex)
+        """Poles in 1/s (complex array, read-only: found once per transfer function)."""
+        poles = np.zeros(0, dtype=complex) if self.order == 0 else np.roots(self.denominator).astype(complex)
+        poles.setflags(write=False)
+        return poles
 
     @property
     def time_constants_s(self) -> list[float]:

@@ -267,3 +267,12 @@ def test_a_heat_capacity_replay_asked_again_is_the_same_and_a_changed_one_is_not
     assert len(dynamics._TIME_SCALED_RUNS) == 2 and np.max(np.abs(other - first)) > 1e-5
     dynamics._TIME_SCALED_RUNS.clear()
     np.testing.assert_array_equal(replay(1.5), first)            # and it is what a fresh run gives
+
+
+def test_a_model_built_with_a_list_still_simulates(reference_model):
+    """The plant's transfer functions are kept per model; a model with unhashable parts is simply not kept."""
+    listed = reference_model.with_ptc(harmonics=[PtcHarmonic(2, 0.002, 0.3)])
+    kept = reference_model.with_ptc(harmonics=(PtcHarmonic(2, 0.002, 0.3),))
+    times = np.arange(0.0, 50.0, 0.08)
+    np.testing.assert_array_equal(simulate(listed, times, np.full(times.size, 0.1)).flange_K,
+                                  simulate(kept, times, np.full(times.size, 0.1)).flange_K)

@@ -48,7 +48,21 @@ from cryod.model.transfer_function import TransferFunction
 # ---------------------------------------------------------------------------
 # the plant
 # ---------------------------------------------------------------------------
-@functools.lru_cache(maxsize=64)
+def _kept_per_model(function):
+    """Keep ``function(model)`` for the last 64 models (a model built with unhashable parts is not kept)."""
+    kept = functools.lru_cache(maxsize=64)(function)
+
+    @functools.wraps(function)
+    def wrapper(model):
+        try:
+            hash(model)
+        except TypeError:
+            return function(model)
+        return kept(model)
+    return wrapper
+
+
+@_kept_per_model
 def flange_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, TransferFunction]:
     """(heater to flange thermometer, PTC heat to flange thermometer) with link and sensor effects.
 
@@ -70,7 +84,7 @@ def flange_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, T
     return heater, ptc
 
 
-@functools.lru_cache(maxsize=64)
+@_kept_per_model
 def stage_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, TransferFunction]:
     """(heater to PTC-stage thermometer, stage oscillation to PTC-stage thermometer)."""
     heater = model.heater_to_ptc_stage

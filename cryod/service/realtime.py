@@ -4,9 +4,9 @@ Each is used when the system permits it; when it does not, the reason is
 returned for the log and the daemon carries on.
 
 Linux threads inherit the scheduling of the thread that starts them, so a
-worker the loop thread starts (the feedforward's limit, its learning, the
-compression of a finished day) would run at the loop's real-time priority and
-compete with it: such workers call :func:`at_normal_priority` first. A run
+worker the loop thread starts (the feedforward's limit, its learning after a
+reload) would run at the loop's real-time priority and compete with it: such
+workers call :func:`at_normal_priority` first. A run
 leaves the process as it found it (:class:`RealtimeSession`), which matters
 when the daemon runs inside another program (the tests, ``cryod.simulate``).
 """

@@ -243,3 +243,34 @@ def test_a_reply_that_comes_after_its_timeout_is_not_taken_for_the_next_one():
     finally:
         transport.close()
         listener.close()
+
+
+def test_a_late_reply_through_a_prologix_controller_is_not_taken_for_the_next_one(real_time_bench, monkeypatch):
+    """The late-reply rule holds behind a Prologix controller too: the reply to a ``++read`` that came
+    after the client gave up is dropped, and the next query gets its own answer. Two guards do it:
+    pyvisa-py's Prologix session reads stale input away before each write, and the transport's own
+    drain after a timeout (the test passes with either alone)."""
+    from simulated_hw.prologix_server import PrologixServer
+
+    slow = {"reads": 1}
+    take = PrologixServer._take_output
+
+    def late_output(state):
+        if slow["reads"]:
+            slow["reads"] -= 1
+            time.sleep(0.3)                       # the instrument answers after the client's timeout
+        return take(state)
+
+    monkeypatch.setattr(PrologixServer, "_take_output", staticmethod(late_output))
+    with real_time_bench.serve_prologix() as controller:
+        adapter = PrologixAdapter(controller.interface_resource_name, timeout_s=0.1)
+        heater = adapter.instrument(PROLOGIX_ADDRESSES["heater"], name="heater")
+        try:
+            with pytest.raises(InstrumentTimeout):
+                heater.query("SYST:ERR?")
+            time.sleep(0.3)                       # the late '0,"No error"' now waits on the socket
+            assert "MODEL 6221" in heater.query("*IDN?")
+            assert "MODEL 6221" in heater.query("*IDN?")
+        finally:
+            heater.close()
+            adapter.close()

@@ -85,8 +85,9 @@ class WindowCollector:
 def simulation_config(args, config: DaemonConfig) -> DaemonConfig:
     """The configuration with the command line's overrides (setpoint, seed, paths, transport).
 
-    A run faster than real time (``--speed`` other than 1) keeps no deadlines:
-    it neither takes real-time priority nor locks memory.
+    A run on any clock but real time (``--speed`` other than 1) is a computation,
+    not a service keeping deadlines: it neither takes real-time priority nor
+    locks memory.
     """
     control = config.control
     if args.setpoint is not None:
@@ -116,7 +117,7 @@ def simulation_config(args, config: DaemonConfig) -> DaemonConfig:
                          f"give a shorter one with --socket")
     control_socket = dataclasses.replace(config.control_socket, path=socket_path, owner=None, group=None)
     loop = config.loop
-    if args.speed != 1.0:       # faster than real time has no deadlines to keep: no real-time priority
+    if args.speed != 1.0:       # not real time: no real-time priority, no locked memory
         loop = dataclasses.replace(loop, realtime_priority=0, lock_memory=False)
     return dataclasses.replace(config, control=control, simulation=simulation, data=data,
                                control_socket=control_socket, loop=loop)

@@ -94,3 +94,19 @@ def test_the_command_refuses_them_with_exit_2_and_writes_nothing(case, good, ref
     assert status == 2 and captured.out == ""
     assert captured.err.startswith(f"cryod analyze: {path}: ")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_wandering_cooler_on_jittered_instants_is_a_line_not_noise():
+    """One frequency over the whole record smeared a wandering cooler into the residual: a 10 Hz record
+    with 20 ms of trigger jitter and a +-1 % wander was refused as 'T5 shows no line' (6.7 times the noise)."""
+    generator = np.random.default_rng(3)
+    time_s = np.cumsum(0.1 + generator.uniform(0.0, 0.02, 24000))
+    phase = 10.83 * time_s + 0.01 * 10.83 * 900.0 / (2 * np.pi) * (1 - np.cos(2 * np.pi * time_s / 900.0))
+    stage = 3.34 + 0.12 * np.sin(phase) + generator.normal(0.0, 3e-4, time_s.size)
+    data = RecordData(time_s, 4.23 + 0 * time_s, stage, 0.1 + 0.01 * (time_s > 600), np.full(time_s.size, np.nan),
+                      source="wandering.csv")
+    check_usable(data)                                   # no refusal
+    flat = RecordData(time_s, 4.23 + 0 * time_s, 3.34 + generator.normal(0.0, 3e-4, time_s.size),
+                      0.1 + 0.01 * (time_s > 600), np.full(time_s.size, np.nan), source="flat.csv")
+    with pytest.raises(UnusableRecordError, match="shows no line"):
+        check_usable(flat)

@@ -36,15 +36,20 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy import optimize
 
 from cryod.analysis.line_fit import fit_line
-from cryod.analysis.noise import white_noise_rms
 from cryod.analysis.ptc_line import coarse_line_frequency
 from cryod.analysis.record_data import RecordData
 from cryod.records.record import RecordFormatError
 
 #: At least this fraction of the rows must have both temperatures.
 LEAST_VALID_FRACTION = 0.5
+#: The line in T5 is measured in blocks this long (s): a cooler wandering by 1 % over 10 minutes moves
+#: its phase by under 0.1 rad within one beyond what one frequency follows.
+LINE_BLOCK_S = 30.0
+#: At most this many blocks, spread over the record.
+LINE_BLOCKS = 24
 #: The cooler's line in T5 must be at least this many times T5's noise rms, and above this (K) in any case.
 LEAST_LINE_OVER_NOISE = 10.0
 SMALLEST_LINE_K = 1e-9
@@ -102,14 +107,11 @@ def _check_cooler_line(data: RecordData, source: str) -> None:
     valid = data.valid
     elapsed, stage = data.elapsed_s[valid], data.ptc_stage_K[valid]
     try:
-        frequency = coarse_line_frequency(elapsed, stage)
+        coarse_line_frequency(elapsed, stage)
     except ValueError:
         raise UnusableRecordError(source, None, "T5_K is sampled too coarsely or too briefly to find the cooler's "
                                   "line in it") from None
-    fit = fit_line(elapsed, stage, frequency, trend_order=3)
-    residual = stage - np.polyval(np.polyfit(elapsed, stage, 3), elapsed)
-    noise = white_noise_rms(residual, data.sample_interval_s, frequency)
-    amplitude = fit.amplitude[0]
+    amplitude, noise, frequency = _line_and_noise(elapsed, stage)
     if not math.isfinite(noise) or (amplitude >= LEAST_LINE_OVER_NOISE * noise and amplitude > SMALLEST_LINE_K):
         return
     raise UnusableRecordError(
@@ -118,6 +120,46 @@ def _check_cooler_line(data: RecordData, source: str) -> None:
         f"({1e6 * noise:.3g} uK rms); the analysis replays the cooler's oscillation as T5 shows it and needs it at "
         f"least {LEAST_LINE_OVER_NOISE:g} times the noise (was the cooler running? is T5 the second-stage "
         "thermometer?)")
+
+
+def _line_and_noise(elapsed: np.ndarray, stage: np.ndarray) -> tuple[float, float, float]:
+    """The line's amplitude, what its fit leaves (rms) and its frequency: medians over blocks.
+
+    Up to :data:`LINE_BLOCKS` blocks of :data:`LINE_BLOCK_S`, spread over the
+    record, are each fitted at their own frequency (the spectrum's peak,
+    refined by least squares), at the true sample instants: a cooler whose
+    frequency wanders keeps its whole amplitude within a block, where one
+    frequency over an hour smears it into the residual, and jittered instants
+    stay where they were taken.
+    """
+    starts = np.arange(elapsed[0], elapsed[-1] - LINE_BLOCK_S, LINE_BLOCK_S)
+    if starts.size > LINE_BLOCKS:
+        starts = starts[np.linspace(0, starts.size - 1, LINE_BLOCKS).round().astype(int)]
+    found = []
+    for start in starts:
+        inside = (elapsed >= start) & (elapsed < start + LINE_BLOCK_S)
+        if np.count_nonzero(inside) < 64:
+            continue
+        time_s, values = elapsed[inside], stage[inside]
+        try:
+            coarse = coarse_line_frequency(time_s, values)
+        except ValueError:
+            continue
+        half_bin = math.pi / LINE_BLOCK_S
+
+        def left(frequency):
+            return fit_line(time_s, values, frequency, orders=3, trend_order=2).residual_rms
+
+        best = optimize.minimize_scalar(left, bounds=(coarse - half_bin, coarse + half_bin), method="bounded",
+                                        options={"xatol": 1e-4})
+        fit = fit_line(time_s, values, float(best.x), orders=3, trend_order=2)
+        found.append((fit.amplitude[0], fit.residual_rms, float(best.x)))
+    if not found:                   # shorter than a block: the whole record at one frequency
+        frequency = coarse_line_frequency(elapsed, stage)
+        fit = fit_line(elapsed, stage, frequency, orders=3, trend_order=3)
+        return fit.amplitude[0], fit.residual_rms, frequency
+    amplitude, noise, frequency = np.median(np.array(found), axis=0)
+    return float(amplitude), float(noise), float(frequency)
 
 
 def _check_heater_not_saturated(data: RecordData, source: str) -> None:

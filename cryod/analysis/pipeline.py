@@ -429,12 +429,7 @@ def _follow(analysis: Analysis, replayer: Replayer, context: FitContext, base: B
         path.reasons.append(f"{best.cause} removes {100.0 * best.improvement / recalibrated_base.excess:.1f} % "
                             f"({best.significance:.1f} sigma)")
         remaining.remove(best.cause)
-        path.named_effects = others + ([NamedEffect(best.cause, fit.effect, tuple(fit.excluded))]
-                                       if fit.effect is not None else [])
-        path.recalibration_base = refined_base
-        path.context = _context_on(analysis.data, replayer, refined_base, fit.extended_model, fit.line, fit.replay,
-                                   context.noise_rms_K, masks, fit.extended_model, named=path.named_effects)
-        path.base = base_discrepancy(path.context)
+        _settle(path, analysis, replayer, masks, best.cause, fit, refined_base, others)
         if len(path.causes) > 1:
             _drop_unneeded(analysis, replayer, path, masks)
         if not path.base.present or len(path.causes) == MOST_CAUSES:
@@ -446,6 +441,18 @@ def _pair_up(causes: list, earlier: list, others: list):
     """Each named cause with its refitted effect (None for causes without an effect form)."""
     refitted = dict(zip([id(named) for named in earlier], others))
     return [(named, refitted.get(id(named))) for named in causes]
+
+
+def _settle(path: _Path, analysis: Analysis, replayer: Replayer, masks, cause: str, fit, refined_base,
+            others) -> None:
+    """The path on the model ``fit`` extends (``cause`` refitted with the other named effects ``others`` and the
+    recalibration ``refined_base``): its named effects, recalibration, fit context and discrepancy."""
+    path.named_effects = others + ([NamedEffect(cause, fit.effect, tuple(fit.excluded))]
+                                   if fit.effect is not None else [])
+    path.recalibration_base = refined_base
+    path.context = _context_on(analysis.data, replayer, refined_base, fit.extended_model, fit.line, fit.replay,
+                               path.context.noise_rms_K, masks, fit.extended_model, named=path.named_effects)
+    path.base = base_discrepancy(path.context)
 
 
 def _drop_unneeded(analysis: Analysis, replayer: Replayer, path: _Path, masks) -> None:
@@ -492,12 +499,7 @@ def _drop_unneeded(analysis: Analysis, replayer: Replayer, path: _Path, masks) -
                     parameters=refitted[id(item)].effect.describe(fit.extended_model)))
             updated.append(item)
         path.causes = updated
-        path.named_effects = others + ([NamedEffect(newest.cause, fit.effect, tuple(fit.excluded))]
-                                       if fit.effect is not None else [])
-        path.recalibration_base = refined_base
-        path.context = _context_on(analysis.data, replayer, refined_base, fit.extended_model, fit.line, fit.replay,
-                                   context.noise_rms_K, masks, fit.extended_model, named=path.named_effects)
-        path.base = base_discrepancy(path.context)
+        _settle(path, analysis, replayer, masks, newest.cause, fit, refined_base, others)
         newest = path.causes[-1]
 
 

@@ -89,6 +89,22 @@ class Identification:
     residual_rms_in_noise: list[tuple[float, float]]
 
 
+def prepared_records(records, base: CryostatModel, harmonics: bool) -> list[_Prepared]:
+    """Each record with its cooler line measured and taken out; refused when none moves the heater.
+
+    Raises
+    ------
+    IdentificationError
+        No records, or the heater never changes in any of them.
+    """
+    if not records:
+        raise IdentificationError("no records given")
+    if all(np.ptp(data.heater_w) <= 0.0 for data in records):
+        raise IdentificationError("the heater never changes in these records: the heater paths cannot be identified "
+                                  "(record heater steps, modulation or a PI setpoint change)")
+    return [_prepare(data, base, harmonics) for data in records]
+
+
 def _prepare(data: RecordData, base: CryostatModel, harmonics: bool) -> _Prepared:
     replayer = Replayer(data, np.ones(data.time_s.size, dtype=bool))
     orders = measurable_orders(base.ptc.angular_frequency_rad_s, data.sample_interval_s) if harmonics else (1,)
@@ -239,12 +255,7 @@ def identify(records: list[RecordData], base: CryostatModel, harmonics: bool = T
     IdentificationError
         When no record moves the heater, or the fit does not converge.
     """
-    if not records:
-        raise IdentificationError("no records given")
-    if all(np.ptp(data.heater_w) <= 0.0 for data in records):
-        raise IdentificationError("the heater never changes in these records: the heater paths cannot be identified "
-                                  "(record heater steps, modulation or a PI setpoint change)")
-    prepared = [_prepare(data, base, harmonics) for data in records]
+    prepared = prepared_records(records, base, harmonics)
     taus = sorted(base.heater_to_thermometer.time_constants_s)
     stage_taus = base.heater_to_ptc_stage.time_constants_s
     if len(taus) != 2 or len(stage_taus) != 1:

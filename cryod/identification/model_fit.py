@@ -31,7 +31,7 @@ import numpy as np
 
 from cryod.analysis.noise import white_noise_rms
 from cryod.analysis.record_data import RecordData
-from cryod.identification.fit import IdentificationError, _prepare
+from cryod.identification.fit import IdentificationError, prepared_records
 from cryod.identification.step_terms import (
     ChannelRecord, StepChannel, StepFitError, TermSelection, select_terms,
 )
@@ -191,12 +191,7 @@ def identify_model(records: list[RecordData], base: CryostatModel, *, harmonics:
     IdentificationError
         When no record moves the heater, or a fit fails.
     """
-    if not records:
-        raise IdentificationError("no records given")
-    if all(np.ptp(data.heater_w) <= 0.0 for data in records):
-        raise IdentificationError("the heater never changes in these records: the heater paths cannot be identified "
-                                  "(record heater steps, modulation or a PI setpoint change)")
-    prepared = [_prepare(data, base, harmonics) for data in records]
+    prepared = prepared_records(records, base, harmonics)
     flange_channel = StepChannel("T2 (heater to flange thermometer)", _channel_records(prepared, "flange"),
                                  FLANGE_OTHER)
     stage_channel = StepChannel("T5 (heater to PTC stage)", _channel_records(prepared, "stage"), STAGE_OTHER)

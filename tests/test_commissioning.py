@@ -1,7 +1,6 @@
 """Commissioning: the identification experiment through the daemon on the simulated cryostat (virtual clock),
 finished, interrupted and stopped by a fault; then the fit, the model file, the figures and the report."""
 
-import dataclasses
 import io
 import json
 import math
@@ -12,7 +11,6 @@ import numpy as np
 import pytest
 
 from cryod import cli
-from cryod.config import load_config
 from cryod.identification.acquire import INTERRUPTED_EXIT, ProgressDisplay, acquire
 from cryod.identification.experiment import ExperimentPlan, ExperimentRunner, Progress, SettleJudge
 from cryod.model import load_model
@@ -20,17 +18,7 @@ from cryod.records.columns import Row
 from cryod.records.record import read_record
 from cryod.service.clock import VirtualClock
 from cryod.service.simulation import SimulatedInstrumentsOpener
-from tests.conftest import CONFIG
-
-
-def simulated_config(tmp_path):
-    config = load_config(CONFIG / "cryod.yaml")
-    return dataclasses.replace(
-        config,
-        data=dataclasses.replace(config.data, directory=tmp_path / "data"),
-        control_socket=dataclasses.replace(config.control_socket, path=tmp_path / "control.sock"),
-        simulation=dataclasses.replace(config.simulation, transport="in-process"),
-    )
+from tests.test_daemon_faults import simulated_config
 
 
 class RowCounter:

@@ -315,14 +315,19 @@ def test_cryod_simulate_refuses_setpoint_and_seed_that_float_and_int_take(tmp_pa
 
 
 # -- the loop -----------------------------------------------------------------------------------------------
-def test_the_loop_carries_out_at_most_a_few_commands_a_tick_in_order(reference_model):
+def direct_loop(reference_model):
+    """(instruments, loop, what it emitted): the example configuration's loop on a simulated cryostat."""
     config = load_config(CONFIG / "cryod.yaml")
     curves = (load_calibration(CONFIG / "calibration" / "X186279.340"),
               load_calibration(CONFIG / "calibration" / "X207058.340"))
     clock = VirtualClock()
     instruments = DirectInstruments(SimulatedCryostat(reference_model, clock, seed=2), *curves, clock)
     items = []
-    loop = ControlLoop(config, instruments, *curves, clock, emit=items.append)
+    return instruments, ControlLoop(config, instruments, *curves, clock, emit=items.append), items
+
+
+def test_the_loop_carries_out_at_most_a_few_commands_a_tick_in_order(reference_model):
+    instruments, loop, items = direct_loop(reference_model)
     flood = [Command("ramp", 0.1 * (index % 10)) for index in range(20)]
 
     def measure():
@@ -346,13 +351,7 @@ def test_the_loop_carries_out_at_most_a_few_commands_a_tick_in_order(reference_m
 def test_a_heater_off_never_waits_behind_a_flood_and_what_was_sent_before_it_is_superseded(reference_model):
     """Before: a heater-off queued behind 256 commands waited 32 ticks (2.6 s), and setpoints sent before it
     ran first."""
-    config = load_config(CONFIG / "cryod.yaml")
-    curves = (load_calibration(CONFIG / "calibration" / "X186279.340"),
-              load_calibration(CONFIG / "calibration" / "X207058.340"))
-    clock = VirtualClock()
-    instruments = DirectInstruments(SimulatedCryostat(reference_model, clock, seed=2), *curves, clock)
-    items = []
-    loop = ControlLoop(config, instruments, *curves, clock, emit=items.append)
+    instruments, loop, items = direct_loop(reference_model)
     before = [Command("setpoint", 5.0 + 0.001 * index) for index in range(40)]
     off = Command("heater-off")
     after = [Command("ramp", 0.5), Command("ramp", 0.25)]

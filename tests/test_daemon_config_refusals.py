@@ -27,7 +27,7 @@ from cryod.service.notify import SystemdNotifier
 from tests.conftest import CONFIG
 from tests.test_config import EXAMPLE, line_of
 from tests.test_cli import simulate_args
-from tests.test_daemon_faults import FaultDrill, simulated_config
+from tests.test_daemon_faults import FaultDrill, in_tmp, simulated_config
 
 
 def config_file(tmp_path, text=None):
@@ -36,18 +36,10 @@ def config_file(tmp_path, text=None):
     return path
 
 
-def moved(config, tmp_path):
-    """``config`` with its data and socket in tmp_path, on the in-process simulated bench."""
-    return dataclasses.replace(
-        config, data=dataclasses.replace(config.data, directory=tmp_path / "data"),
-        control_socket=dataclasses.replace(config.control_socket, path=tmp_path / "control.sock"),
-        simulation=dataclasses.replace(config.simulation, transport="in-process"))
-
-
 def daemon_from_file(tmp_path, path, row_actions, reload_config=None):
     """The daemon on the configuration read from ``path`` (data and socket moved into tmp_path);
     ``row_actions[n](daemon)`` runs after the n-th row, on the loop's thread."""
-    config = moved(load_config(path), tmp_path)
+    config = in_tmp(load_config(path), tmp_path)
     drill = FaultDrill(tmp_path, {}, config=config)
     rows = []
     answers = []
@@ -177,7 +169,7 @@ def test_cryod_ctl_reload_applies_a_good_file_refuses_a_bad_one_and_says_who_ask
     actions.update({row: until_answered("bad") for row in range(401, 740)})
     actions[100] = reload_over_the_socket("good", "    proportional_W_per_K: 10.0", "    proportional_W_per_K: 12.0")
     actions[400] = reload_over_the_socket("bad", "  max_current_A: 0.1", "  max_current_A: " + "1" * 400)
-    daemon, _ = daemon_from_file(tmp_path, path, actions, reload_config=lambda: moved(load_config(path), tmp_path))
+    daemon, _ = daemon_from_file(tmp_path, path, actions, reload_config=lambda: in_tmp(load_config(path), tmp_path))
     result = daemon.run(60.0)
     for thread in asking:
         thread.join(20.0)

@@ -25,8 +25,8 @@ from cryod.service.simulation import SimulatedInstrumentsOpener
 from tests.conftest import CONFIG
 
 
-def simulated_config(tmp_path, **control):
-    config = load_config(CONFIG / "cryod.yaml")
+def in_tmp(config, tmp_path, **control):
+    """``config`` with its data and socket in tmp_path, on the in-process simulated bench (control changed)."""
     return dataclasses.replace(
         config,
         data=dataclasses.replace(config.data, directory=tmp_path / "data"),
@@ -34,6 +34,10 @@ def simulated_config(tmp_path, **control):
         simulation=dataclasses.replace(config.simulation, transport="in-process"),
         control=dataclasses.replace(config.control, **control),
     )
+
+
+def simulated_config(tmp_path, **control):
+    return in_tmp(load_config(CONFIG / "cryod.yaml"), tmp_path, **control)
 
 
 class FaultDrill:

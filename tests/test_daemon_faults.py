@@ -72,6 +72,8 @@ class FaultDrill:
         self.result = daemon.run(duration_s)
         self.record = read_record(self.result.log_paths[0])
         self.states = [str(state) for state in self.record.columns["state"]]
+        #: The rows that stand for a tick (a heater-off's own row has no lateness).
+        self.ticks = np.isfinite(self.record.columns["lateness_ms"])
         return self.result
 
     def supply_current_a(self):
@@ -97,10 +99,13 @@ def test_transient_faults_heater_off_then_recover(tmp_path, cause, inject, clear
     assert drill.run(300.0).exit_code == 0
     index = first_fault(drill, cause)
     assert 1500 <= index <= 1502
-    assert drill.record.heater_w[index] == 0.0
+    # the fault tick's row: the power the supply had; then the off's own row: 0 W from then on
+    assert drill.record.heater_w[index] == drill.record.heater_w[index - 1] > 0.0
+    assert not drill.ticks[index + 1] and drill.states[index + 1] == f"fault:{cause}"
+    assert drill.record.heater_w[index + 1] == 0.0
     assert any(f"fault: {cause}" in text for _, text in drill.record.events)
     resumed = next(i for i in range(index, len(drill.states)) if drill.states[i].startswith("closed"))
-    assert all(drill.record.heater_w[index:resumed] == 0.0)
+    assert all(drill.record.heater_w[index + 1:resumed] == 0.0)
     assert resumed - index < 40                        # reconnected and 5 valid readings, within ~3 s
     late = drill.record.time_s > drill.record.time_s[-1] - 60
     assert np.mean(drill.record.flange_K[late]) == pytest.approx(5.0, abs=2e-3)
@@ -124,7 +129,7 @@ def test_an_output_that_goes_off_mid_run_is_seen_at_the_next_setting_and_stops_w
     fault = drill.result.loop.last_fault
     assert fault.cause == "heater_output_off" and "interlock not asserted" in fault.message
     index = first_fault(drill, "heater_output_off")
-    assert index <= 502 and drill.record.heater_w[index] == 0.0 and len(drill.states) == index + 1
+    assert index <= 502 and drill.record.heater_w[index + 1] == 0.0 and len(drill.states) == index + 2
     supply = drill.opener.bench.heater_supply
     supply.inject_refuse_output(False)                 # the interlock closes again
     assert supply.current_setpoint_a == 0.0 and not supply.output_on and supply.output_current_a == 0.0
@@ -147,7 +152,8 @@ def test_over_temperature_stops_with_exit_3(tmp_path):
     assert drill.run(600.0).exit_code == 3
     assert drill.result.loop.last_fault.cause == "over_temperature"
     index = first_fault(drill, "over_temperature")
-    assert drill.record.flange_K[index] > 5.3 and drill.record.heater_w[index] == 0.0
+    assert drill.record.flange_K[index] > 5.3 and drill.record.heater_w[index] > 0.0
+    assert drill.record.heater_w[index + 1] == 0.0 and drill.states[index + 1] == "fault:over_temperature"
     assert drill.supply_current_a() == 0.0
 
 
@@ -189,7 +195,7 @@ def test_instruments_out_of_reach_at_start_are_waited_for_then_the_loop_runs(tmp
     waiting = [text for _, text in record.events if text.startswith("event: waiting:")]
     assert len(waiting) == 12 and "no route to host" in waiting[0]
     assert sum("instruments out of reach" in r.message for r in caplog.records) == 12
-    assert np.mean(record.flange_K[record.time_s > record.time_s[-1] - 20]) == pytest.approx(5.0, abs=0.05)
+    assert np.nanmean(record.flange_K[record.time_s > record.time_s[-1] - 20]) == pytest.approx(5.0, abs=0.05)
 
 
 def test_waiting_for_instruments_is_bounded_when_configured(tmp_path):

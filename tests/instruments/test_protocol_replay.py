@@ -236,7 +236,8 @@ CONFIGURE_6221 = [
     (":SOURce:CURRent 0.000000E+00", None),
     QUEUE_EMPTY,
 ]
-OFF = [(":SOURce:CURRent 0.000000E+00", None), (":OUTPut:STATe OFF", None), (":OUTPut:STATe?", "0")]
+#: The off: 0 A, output off and the output state read back, in one program message.
+OFF = [(":SOURce:CURRent 0.000000E+00;:OUTPut:STATe OFF;:OUTPut:STATe?", "0")]
 OFF_6221 = OFF
 
 

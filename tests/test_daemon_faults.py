@@ -14,6 +14,7 @@ import pytest
 
 from cryod.service.clock import VirtualClock
 from cryod.config import load_config
+from cryod.instrument_waits import InstrumentWaits
 from cryod.service.daemon import Daemon
 from cryod.model import load_model
 from cryod.records.record import read_record
@@ -110,6 +111,30 @@ def test_transient_faults_heater_off_then_recover(tmp_path, cause, inject, clear
     late = drill.record.time_s > drill.record.time_s[-1] - 60
     assert np.mean(drill.record.flange_K[late]) == pytest.approx(5.0, abs=2e-3)
     assert drill.supply_current_a() == 0.0             # off at the end of the run
+
+
+@pytest.mark.parametrize("timeout_s", [0.5, 1.0, 2.0])
+def test_a_silent_dmm_has_the_supply_at_0_W_within_the_loops_bound_whatever_the_timeout(tmp_path, timeout_s):
+    """The supply's own log: 0 W within one loop period, the reading's time, one loop-path reply and the
+    heater-off after the DMM falls silent, not after instruments.timeout_s; the record's 0 W not before."""
+    config = simulated_config(tmp_path)
+    config = dataclasses.replace(config, instruments=dataclasses.replace(config.instruments, timeout_s=timeout_s))
+    silent = {}
+
+    def fall_silent(bench):
+        silent["at"] = bench.clock.now()
+        bench.flange_dmm.inject_no_reply(True)
+
+    drill = FaultDrill(tmp_path, {300: fall_silent}, config=config)
+    assert drill.run(40.0).exit_code == 0
+    supply = drill.opener.bench.heater_supply
+    off_s = supply.first_off_after(silent["at"])
+    waits = InstrumentWaits(config.loop.period_s, timeout_s)
+    assert off_s - silent["at"] <= waits.fault_to_off_s(drill.result.loop.instruments.pair.reading_delay_s)
+    index = first_fault(drill, "instrument_timeout")
+    fault_row, off_row = drill.rows[index], drill.rows[index + 1]           # as emitted: clock times
+    assert fault_row.heater_W == pytest.approx(supply.power_at(fault_row.time_s), rel=1e-6) and fault_row.heater_W > 0
+    assert off_row.heater_W == 0.0 and off_s <= off_row.heater_set_s <= off_row.time_s
 
 
 def test_heater_supply_refusing_output_stops_with_exit_6(tmp_path):

@@ -155,6 +155,16 @@ def test_heater_fault_exits_6(reference_model, curves, base_config):
     assert cryostat.heater_power_w == 0.0
 
 
+def test_a_long_stop_tick_writes_no_overrun_after_the_stop(reference_model, curves, base_config):
+    """A heater fault found in a tick that ran long: the stop event is the loop's last word."""
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    instruments.measure_delays = {45: 0.5}             # the tick of the 40th setting (the first 5 hold)
+    instruments.heater_faults = {40: HeaterCompliance("heater", "compliance reached: open heater?")}
+    assert loop.run(duration_s=60.0, manage_gc=False) == 6
+    assert events[-1].kind == "stop" and not any(event.kind == "overrun" for event in events)
+    assert rows[-2].state == "fault:heater_fault" and rows[-1].heater_W == 0.0 and heater_off_rows(rows[-1:])
+
+
 def test_unexpected_exception_turns_heater_off_and_propagates(reference_model, curves, base_config):
     loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
     instruments.measure_faults = {300: RuntimeError("bug")}

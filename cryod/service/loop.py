@@ -279,15 +279,17 @@ class ControlLoop:
         tick_start = self._tick_start_s = self.clock.now()
         self.timing.record_tick(tick_start - deadline)
         self._apply_commands()
+        # a row without a trigger stands for the instant after the commands (a heater-off among them came first)
+        commands_done = self.clock.now()
         if self._outside_fault is not None:
             fault, self._outside_fault = self._outside_fault, None
-            self._fault(fault, Row(time_s=tick_start, lateness_ms=(tick_start - deadline) * 1e3))
+            self._fault(fault, Row(time_s=commands_done, lateness_ms=(tick_start - deadline) * 1e3))
             if self.exit_code is not None:
                 return
         if self._stop_reason is not None:
             self._stop(ExitCode.OK, Fault(FaultCause.STOP_REQUESTED, self._stop_reason))
             return
-        row = Row(time_s=tick_start, lateness_ms=(tick_start - deadline) * 1e3)
+        row = Row(time_s=commands_done, lateness_ms=(tick_start - deadline) * 1e3)
         if self.state is LoopState.RECOVERING and self._maybe_reconnect(tick_start):
             # one slow thing per tick: the readings come at the next one
             if self.exit_code is None:

@@ -9,21 +9,8 @@ from cryod.instrument_waits import (LOOP_REPLY_PERIODS, UNIT_WATCHDOG_S, WATCHDO
 from cryod.service.notify import SystemdNotifier
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG
+from tests.test_config import line_of, written
 from tests.test_systemd_unit import TEMPLATE, UNIT, unit_sections
-
-
-def written(tmp_path, old, new):
-    """The example configuration with ``old`` replaced by ``new``, in tmp_path: (path, text)."""
-    example = (CONFIG / "cryod.yaml").read_text()
-    assert old in example, old
-    text = example.replace(old, new, 1).replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/")
-    path = tmp_path / "cryod.yaml"
-    path.write_text(text)
-    return path, text
-
-
-def line_of(text, fragment):
-    return next(number for number, line in enumerate(text.splitlines(), 1) if fragment in line)
 
 
 @pytest.mark.parametrize("unit", [UNIT, TEMPLATE])

@@ -177,6 +177,23 @@ class MetricsConfig:
 
 
 @dataclass(frozen=True)
+class WebConfig:
+    """The ``web`` section: the live page (off when the section is absent or null)."""
+
+    address: str                        # host:port, 127.0.0.1 unless stated otherwise
+    writable: bool = False              # control from the page (needs token_file)
+    token_file: Path | None = None      # the token a write must carry; readable by the service's group only
+
+
+@dataclass(frozen=True)
+class Lakeshore336Config:
+    """The ``lakeshore336`` section: the Lake Shore 336 command set over TCP (off when absent or null)."""
+
+    address: str                        # host:port, 127.0.0.1 unless stated otherwise
+    writable: bool = False              # SETP, RAMP and RANGE taken (within the same limits as every path)
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     model: Path | None
     seed: int
@@ -197,6 +214,8 @@ class DaemonConfig:
     control_socket: SocketConfig
     simulation: SimulationConfig
     metrics: MetricsConfig = MetricsConfig()
+    web: WebConfig | None = None
+    lakeshore336: Lakeshore336Config | None = None
     source: str = ""
     text: str = ""
 
@@ -507,10 +526,12 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         )
         section.finish()
     metrics = _metrics(top.section("metrics", None))
+    web = _web(top.section("web", None), base)
+    lakeshore336 = _lakeshore336(top.section("lakeshore336", None))
     top.finish()
     return DaemonConfig(loop=loop, instruments=instruments, sensors=sensors, heater=heater, control=control,
                         safety=safety, data=data, control_socket=socket_config, simulation=simulation,
-                        metrics=metrics)
+                        metrics=metrics, web=web, lakeshore336=lakeshore336)
 
 
 def _metrics(section: Section | None) -> MetricsConfig:
@@ -527,6 +548,46 @@ def _metrics(section: Section | None) -> MetricsConfig:
     metrics = MetricsConfig(address=address, cryostat=section.text("cryostat", ""))
     section.finish()
     return metrics
+
+
+def _listen_address(section: Section) -> str:
+    """The section's ``address`` (host:port), checked; port 0 (any free port) is taken for tests."""
+    from cryod.service.listen_address import parse_address
+
+    address = section.text("address")
+    try:
+        parse_address(address, allow_any_port=True)
+    except ValueError as error:
+        raise section.error("address", str(error)) from None
+    return address
+
+
+def _web(section: Section | None, base: Path) -> WebConfig | None:
+    if section is None:
+        return None
+    web = WebConfig(address=_listen_address(section), writable=section.flag("writable", False),
+                    token_file=_existing_file(section, "token_file", base, None))
+    if web.writable and web.token_file is None:
+        raise section.error("writable", "control from the page needs web.token_file: a file holding the token "
+                                        "a write must carry (at least 16 characters), readable by the service's "
+                                        "group only (docs/operations.md)")
+    if web.token_file is not None:
+        from cryod.service.web_token import read_token
+
+        try:
+            read_token(web.token_file)
+        except ValueError as error:
+            raise section.error("token_file", str(error)) from None
+    section.finish()
+    return web
+
+
+def _lakeshore336(section: Section | None) -> Lakeshore336Config | None:
+    if section is None:
+        return None
+    lakeshore = Lakeshore336Config(address=_listen_address(section), writable=section.flag("writable", False))
+    section.finish()
+    return lakeshore
 
 
 def _control(section: Section, safety: SafetyConfig) -> ControlConfig:

@@ -5,8 +5,10 @@ the instruments handed over (real ones, or drivers talking to simulated ones)
 and the clock.
 
 Threads: the main thread runs the control loop and nothing else. The data
-log writer, the control socket, the status/reload service thread and the log
-listener run beside it and talk to the loop through queues and snapshots.
+log writer, the control socket, the status/reload service thread, the log
+listener and the network interfaces (metrics, web page, Lake Shore 336 command
+set; each on a thread of its own when configured) run beside it and talk to the
+loop through queues and snapshots.
 """
 
 from __future__ import annotations
@@ -32,7 +34,11 @@ from cryod.records.columns import Event, RowSchema
 from cryod.service.commands import Command, wait_for
 from cryod.service.faults import ExitCode, Fault, FaultCause
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock
+from cryod.service.history import RecentRows
+from cryod.service.lakeshore336 import Lakeshore336Setup
+from cryod.service.lakeshore336_server import Lakeshore336Server
 from cryod.service.live_view import LiveView
+from cryod.service.web import WebServer
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
 from cryod.service.realtime import RealtimeSession
 from cryod.service.control_socket import ControlSocketServer
@@ -121,6 +127,10 @@ class Daemon:
         self.datalog: DataLog | None = None
         #: The latest row and faults, for the status line and the metrics endpoint.
         self.live_view = LiveView(config.loop.period_s, cooler_rad_s(config))
+        #: The latest rows and events for the web page's history (a row tap only when the page is on).
+        self.recent_rows = RecentRows()
+        self._instrument_status: tuple[object, dict] = (None, {})
+        self._lakeshore_setup: tuple[object, Lakeshore336Setup | None] = (None, None)
         self._reload_wanted = False
         self._socket_reloads: collections.deque[Command] = collections.deque()   # "reload" from the socket
         self._stop_reason: str | None = None
@@ -228,6 +238,53 @@ class Daemon:
         status["line_amplitude_K"] = self.live_view.line_amplitude_K()
         return status
 
+    def _status_for_instruments(self) -> dict:
+        """The loop's status with the thermometers' resistances, built once a tick (the 336's queries).
+
+        Without the averages :meth:`_status` computes, so that a client polling fast costs little.
+        """
+        loop = self.loop
+        if loop is None:
+            return self._status()
+        status = loop.status
+        cached_for, cached = self._instrument_status
+        if cached_for is not status:
+            row = self.live_view.latest_row()
+            cached = dict(status.as_dict(), T2_ohm=getattr(row, "T2_ohm", None), T5_ohm=getattr(row, "T5_ohm", None))
+            self._instrument_status = (status, cached)
+        return cached
+
+    def _lakeshore336_setup(self) -> Lakeshore336Setup:
+        """The 336's view of the configuration in force (built again after a reload)."""
+        config = self.config
+        built_for, setup = self._lakeshore_setup
+        if built_for is not config:
+            from cryod.thermometry import load_calibration
+
+            setup = Lakeshore336Setup.from_config(config, load_calibration(config.sensors.flange_calibration),
+                                                  load_calibration(config.sensors.ptc_stage_calibration))
+            self._lakeshore_setup = (config, setup)
+        return setup
+
+    def _start_network_interfaces(self, config: DaemonConfig) -> list:
+        """The web page and the Lake Shore 336 command set, as configured; one that cannot listen is said in
+        the journal and left out (the cryostat is regulated all the same)."""
+        started = []
+        if config.web is not None:
+            started.append(WebServer(config.web.address, config.web.writable, config.web.token_file, self._status,
+                                     self._submit, self.recent_rows, self.live_view.line_amplitude_K))
+        if config.lakeshore336 is not None:
+            self._lakeshore336_setup()
+            started.append(Lakeshore336Server(config.lakeshore336.address, config.lakeshore336.writable,
+                                              self._status_for_instruments, self._submit, self._lakeshore336_setup))
+        for interface in list(started):
+            try:
+                interface.start()
+            except OSError as error:
+                log.error("not started: %s", error)
+                started.remove(interface)
+        return started
+
     # -- the run --------------------------------------------------------------------
     def run(self, duration_s: float | None = None) -> RunResult:
         """Take the lock, open everything, run the loop, close everything with the heater off.
@@ -248,6 +305,7 @@ class Daemon:
         control_socket: ControlSocketServer | None = None
         realtime: RealtimeSession | None = None
         metrics = None
+        interfaces: list = []
         service = threading.Thread(target=self._service, name="cryod-service", daemon=True)
         previous_handlers = {}
         exit_code = ExitCode.OK
@@ -277,6 +335,7 @@ class Daemon:
                     metrics = None
                 else:
                     log.info("Prometheus metrics on http://%s:%d/metrics", metrics.host, metrics.port)
+            interfaces = self._start_network_interfaces(config)
             if self.install_signal_handlers:
                 for number, handler in ((signal.SIGTERM, self._on_stop_signal), (signal.SIGINT, self._on_stop_signal),
                                         (signal.SIGHUP, self._on_reload_signal)):
@@ -290,6 +349,8 @@ class Daemon:
             else:
                 instruments, flange_curve, stage_curve = opened
                 taps = [self.datalog.put, self.live_view, *self.row_taps]
+                if config.web is not None:
+                    taps.append(self.recent_rows)
                 self.loop = ControlLoop(config, instruments, flange_curve, stage_curve, self.clock,
                                         emit=_fan_out(taps), watchdog=self.notifier.watchdog)
                 self.live_view.attach_timing(self.loop.timing.summary)
@@ -323,6 +384,8 @@ class Daemon:
                 control_socket.stop()
             if metrics is not None:
                 metrics.stop()
+            for interface in interfaces:
+                interface.stop()
             if self.datalog is not None:
                 self.datalog.stop()
             for number, handler in previous_handlers.items():

@@ -68,6 +68,11 @@ class TemperatureCurve(Protocol):
     def temperature_K(self, resistance_ohm: float) -> float: ...
 
 
+def _given(target_K: float) -> float | None:
+    """A ramp's target as a status value: None until a setpoint was given (every setpoint is above 0 K)."""
+    return target_K if target_K > 0.0 else None
+
+
 def _or(value: float | None, default: float) -> float:
     return default if value is None else value
 
@@ -93,6 +98,8 @@ class Status:
     target_K: float | None = None
     ramp_K_per_min: float = 0.0
     last_fault: str | None = None
+    #: The last target given (K), kept while the loop is open: what regulating again heads for.
+    last_target_K: float | None = None
     loop_timing: object = None      # LoopTiming, summarised when asked, not every tick
     control: dict | None = None     # the control terms' columns of the last tick
 
@@ -104,7 +111,8 @@ class Status:
         return {
             "time_s": self.time_s, "state": str(self.state), "T2_K": self.flange_K, "T5_K": self.ptc_stage_K,
             "heater_W": self.heater_w, "setpoint_K": self.setpoint_K, "target_K": self.target_K,
-            "ramp_K_per_min": self.ramp_K_per_min, "last_fault": self.last_fault, **(self.control or {}),
+            "ramp_K_per_min": self.ramp_K_per_min, "last_target_K": self.last_target_K,
+            "last_fault": self.last_fault, **(self.control or {}),
             **self.timing,
         }
 
@@ -343,7 +351,7 @@ class ControlLoop:
         # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
         self._latest = (row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
                         ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
-                        ramp.rate_K_per_min, self.last_fault, row.control)
+                        ramp.rate_K_per_min, self.last_fault, row.control, _given(ramp.target_K))
         self._status = None
 
     @property
@@ -351,10 +359,12 @@ class ControlLoop:
         """The loop as of its last tick (built when asked, from the tick's snapshot)."""
         status = self._status
         if status is None:
-            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control = self._latest
+            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control, last_target_K = \
+                self._latest
             status = Status(time_s=time_s, state=state, flange_K=flange_K, ptc_stage_K=stage_K, heater_w=heater_w,
                             setpoint_K=setpoint_K, target_K=target_K, ramp_K_per_min=rate,
-                            last_fault=str(fault) if fault else None, loop_timing=self.timing, control=control)
+                            last_fault=str(fault) if fault else None, loop_timing=self.timing, control=control,
+                            last_target_K=last_target_K)
             self._status = status
         return status
 
@@ -362,7 +372,9 @@ class ControlLoop:
     def status(self, status: Status) -> None:
         self._status = status
         self._latest = (status.time_s, status.state, status.flange_K, status.ptc_stage_K, status.heater_w,
-                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault, status.control)
+                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault, status.control,
+                        status.last_target_K if status.last_target_K is not None
+                        else _given(self.regulator.ramp.target_K))
 
     # -- start-up and recovery ----------------------------------------------------
     def _count_valid(self, in_range: bool, reading: PairReading, row: Row) -> None:

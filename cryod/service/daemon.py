@@ -131,6 +131,8 @@ class Daemon:
         self.recent_rows = RecentRows()
         self._instrument_status: tuple[object, dict] = (None, {})
         self._lakeshore_setup: tuple[object, Lakeshore336Setup | None] = (None, None)
+        #: The web page and Lake Shore 336 interfaces serving now (their ports, for tests and tools).
+        self.network_interfaces: list = []
         self._reload_wanted = False
         self._socket_reloads: collections.deque[Command] = collections.deque()   # "reload" from the socket
         self._stop_reason: str | None = None
@@ -335,7 +337,7 @@ class Daemon:
                     metrics = None
                 else:
                     log.info("Prometheus metrics on http://%s:%d/metrics", metrics.host, metrics.port)
-            interfaces = self._start_network_interfaces(config)
+            interfaces = self.network_interfaces = self._start_network_interfaces(config)
             if self.install_signal_handlers:
                 for number, handler in ((signal.SIGTERM, self._on_stop_signal), (signal.SIGINT, self._on_stop_signal),
                                         (signal.SIGHUP, self._on_reload_signal)):

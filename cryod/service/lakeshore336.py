@@ -365,7 +365,7 @@ class Lakeshore336Session:
         return 100.0 * heater / self._setup().heater_max_W if heater is not None and math.isfinite(heater) else 0.0
 
     def _heater_output(self, arguments, status) -> str:
-        if self._output(arguments, outputs=("1", "2")) != "1":
+        if self._output(arguments) != "1":            # (outputs 3 and 4 are off: 0 %, as AOUT? would say)
             return _number(0.0, 3)
         return _number(self._heater_percent(status), 3)
 

@@ -106,20 +106,20 @@ class Lakeshore336Server(TcpService):
                     await asyncio.sleep(1.0 - (now - second))
                     second, served = time.monotonic(), 1
                 reply = await self._answer(session, raw)
-                if reply:
+                if reply is not None:
                     await send(writer, reply.encode("ascii") + b"\r\n")
 
-    async def _answer(self, session: Lakeshore336Session, raw: bytes) -> str:
-        """The reply line to one message (empty when it holds no query answered)."""
+    async def _answer(self, session: Lakeshore336Session, raw: bytes) -> str | None:
+        """The reply line to one message (None when it holds no query that is answered)."""
         self.messages += 1
         if len(raw) > MAX_MESSAGE:
             session.malformed()
-            return ""
+            return None
         try:
             text = raw.decode("ascii")
         except UnicodeDecodeError:
             session.malformed()              # not the 336's character set: a malformed message (CME)
-            return ""
+            return None
         replies = []
         status = None
         for part in split_message(text):
@@ -130,4 +130,4 @@ class Lakeshore336Server(TcpService):
                 status = None               # what follows sees the command's effect
             elif outcome is not None:
                 replies.append(outcome)
-        return ";".join(replies)
+        return ";".join(replies) if replies else None

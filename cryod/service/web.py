@@ -58,7 +58,7 @@ PAGE_COMMANDS = ("setpoint", "ramp", "heater-off", "feedforward")
 REPLY_TIMEOUT_S = 5.0
 #: The page's files (name: content type).
 ASSETS = {"index.html": "text/html; charset=utf-8", "app.js": "text/javascript; charset=utf-8",
-          "style.css": "text/css; charset=utf-8"}
+          "style.css": "text/css; charset=utf-8", "icon.svg": "image/svg+xml"}
 #: Sent with every response: the page loads nothing from elsewhere and is not framed.
 SECURITY_HEADERS = ("Content-Security-Policy: default-src 'none'; script-src 'self'; style-src 'self'; "
                     "connect-src 'self'; img-src 'self'; frame-ancestors 'none'; form-action 'none'\r\n"

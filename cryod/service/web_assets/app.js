@@ -168,13 +168,13 @@ function drawChart(canvas, chart, shown, start, end) {
   for (const [key, color] of chart.lines) {
     context.strokeStyle = color;
     context.beginPath();
-    let drawing = false;
+    let previous = null;                       // a gap in the bins (the daemon was not running) breaks the line
     for (const bin of shown) {
       const v = value(bin, key);
-      if (v === null || v === undefined) { drawing = false; continue; }
+      if (v === null || v === undefined) { previous = null; continue; }
       const px = x(bin.time_s + 0.5), py = y(v);
-      if (drawing) context.lineTo(px, py); else context.moveTo(px, py);
-      drawing = true;
+      if (previous !== null && bin.time_s - previous <= 1.5) context.lineTo(px, py); else context.moveTo(px, py);
+      previous = bin.time_s;
     }
     context.stroke();
   }

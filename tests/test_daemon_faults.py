@@ -201,6 +201,21 @@ def test_waiting_for_instruments_is_bounded_when_configured(tmp_path):
     assert 200.0 < opener.attempts[-1] - opener.attempts[0] <= 300.0
 
 
+@pytest.mark.parametrize("wait_s", [5.0, 0.5, 61.0])
+def test_the_wait_for_instruments_lasts_the_configured_time(tmp_path, wait_s):
+    """The last attempt comes when the configured wait is up, not at the last doubling of the pause before it."""
+    config = simulated_config(tmp_path)
+    config = dataclasses.replace(config, safety=dataclasses.replace(config.safety, instruments_wait_s=wait_s))
+    opener = FlakyOpener(failures=10 ** 6)
+    result = Daemon(config, opener, VirtualClock(), notifier=SystemdNotifier({}), install_signal_handlers=False).run(60.0)
+    assert result.exit_code == 4
+    assert opener.attempts[-1] - opener.attempts[0] == pytest.approx(wait_s, abs=1e-9)
+    assert all(later > earlier for earlier, later in zip(opener.attempts, opener.attempts[1:]))
+    stop = [text for _, text in read_record(result.log_paths[0]).events if text.startswith("event: stop:")]
+    assert stop == [f"event: stop: instruments out of reach for {wait_s:.1f} s (safety.instruments_wait_s {wait_s:g}): "
+                    f"flange DMM (T2): cannot open TCPIP0::10.0.0.7::1234::SOCKET: no route to host (exit 4)"]
+
+
 def test_a_second_daemon_touches_no_instrument(tmp_path):
     """Opening resets the instruments (heater off): a second daemon must stop before that."""
     config = simulated_config(tmp_path)

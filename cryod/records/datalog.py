@@ -188,6 +188,8 @@ class DataLog:
                             self._write_event(item)
                         case _ if item is _STOP:
                             stopping = True
+                            if self._pending_events and self._stream is None and self.failure is None:
+                                self._open_without_rows()
                             break
                         case _:
                             raise TypeError(f"the data log takes rows and events, not {type(item).__name__}")
@@ -225,13 +227,20 @@ class DataLog:
         self._stream.write(_event_line(event))
         self._dirty = True
 
-    def _open(self, day: str, origin_s: float) -> None:
+    def _open_without_rows(self) -> None:
+        """A run that stops before its first row (instruments never came, a signal while waiting) still
+        leaves its events: a record of the header and those events, dated now."""
+        wall = time.time()
+        self._open(dt.datetime.fromtimestamp(wall, dt.timezone.utc).strftime("%Y-%m-%d"), 0.0, start_wall_s=wall)
+
+    def _open(self, day: str, origin_s: float, start_wall_s: float | None = None) -> None:
         self._close()
         path = self._free_path(day)
         self._stream = path.open("x", encoding="utf-8", newline="\n")
         self._day = day
         self._origin_s = origin_s
-        header = {"record_start_utc": _utc_text(self.monotonic_to_wall(origin_s)), **self.metadata}
+        start_wall_s = self.monotonic_to_wall(origin_s) if start_wall_s is None else start_wall_s
+        header = {"record_start_utc": _utc_text(start_wall_s), **self.metadata}
         self._stream.write(format_header(header, self.schema.names))
         for event in self._pending_events:
             self._stream.write(_event_line(event))

@@ -14,6 +14,7 @@ from __future__ import annotations
 import collections
 import functools
 import logging
+import math
 import platform
 import signal
 import socket
@@ -338,9 +339,13 @@ class Daemon:
                          time.perf_counter() - started)
 
     def _open_instruments_waiting(self, config: DaemonConfig):
-        """The opened instruments and curves, or the exit code when they never came (or a stop came first)."""
+        """The opened instruments and curves, or the exit code when they never came (or a stop came first).
+
+        With ``safety.instruments_wait_s`` the last attempt is made when that time is up, not
+        before: the pause before it is shortened to fit."""
         wait_limit = config.safety.instruments_wait_s
         first_try = self.clock.now()
+        give_up_at = math.inf if wait_limit is None else first_try + wait_limit
         pause, attempt = 1.0, 0
         while True:
             attempt += 1
@@ -352,26 +357,29 @@ class Daemon:
                 self._stop_event(f"{error}: another instrument answers at a configured address", ExitCode.CONFIG)
                 return ExitCode.CONFIG
             except InstrumentError as error:
-                waited = self.clock.now() - first_try
-                if wait_limit is not None and waited + pause > wait_limit:
-                    self._stop_event(f"instruments out of reach for {waited:.0f} s "
+                now = self.clock.now()
+                waited = now - first_try
+                if now >= give_up_at:
+                    self._stop_event(f"instruments out of reach for {waited:.1f} s "
                                      f"(safety.instruments_wait_s {wait_limit:g}): {error}",
                                      ExitCode.INSTRUMENTS_LOST)
                     return ExitCode.INSTRUMENTS_LOST
+                retry_at = min(now + pause, give_up_at)
                 self._waiting = f"waiting for the instruments (attempt {attempt}, {waited:.0f} s): {error}"
-                log.warning("instruments out of reach, heater untouched; retrying in %.0f s: %s", pause, error)
-                self.datalog.put(Event("waiting", f"instruments out of reach, retrying in {pause:.0f} s: {error}"))
+                log.warning("instruments out of reach, heater untouched; retrying in %.3g s: %s", retry_at - now,
+                            error)
+                self.datalog.put(Event("waiting", f"instruments out of reach, retrying in {retry_at - now:.3g} s: "
+                                                  f"{error}"))
                 self.notifier.status(self._waiting)
-            if self._pause(pause):
+            if self._pause_until(retry_at):
                 self._stop_event(self._stop_reason, ExitCode.OK)
                 return ExitCode.OK
             pause = min(2.0 * pause, MAX_RETRY_PAUSE_S)
 
-    def _pause(self, duration_s: float) -> bool:
-        """Wait on the clock, keeping the watchdog fed; True when a stop was asked for meanwhile."""
-        end = self.clock.now() + duration_s
-        while not self._stop_reason and self.clock.now() < end:
-            self.clock.sleep_until(min(end, self.clock.now() + 1.0))
+    def _pause_until(self, end_s: float) -> bool:
+        """Wait on the clock until ``end_s``, keeping the watchdog fed; True when a stop was asked for meanwhile."""
+        while not self._stop_reason and self.clock.now() < end_s:
+            self.clock.sleep_until(min(end_s, self.clock.now() + 1.0))
             self.notifier.watchdog()
         return bool(self._stop_reason)
 

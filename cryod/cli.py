@@ -187,7 +187,8 @@ def _main(argv: list[str] | None) -> int:
 
 def _run_service(args) -> int:
     from cryod.service.daemon import Daemon, config_or_exit
-    from cryod.service.instruments import open_instruments, check_calibrations, check_instrument_support
+    from cryod.service.instruments import (check_calibrations, check_instrument_locking, check_instrument_support,
+                                           instrument_addresses, open_instruments)
     from cryod.service.clock import MonotonicClock
     from cryod.service.logs import ServiceLogging
 
@@ -196,14 +197,14 @@ def _run_service(args) -> int:
     config = config_or_exit(args.run_config, sys.stderr)
     if config is None:
         return 2
-    problem = check_calibrations(config) or check_instrument_support(config)
+    problem = check_calibrations(config) or check_instrument_support(config) or check_instrument_locking(config)
     if problem:
         print(f"cryod: {problem}", file=sys.stderr)
         return 2
     if args.check:
         print(f"{args.run_config}: configuration and calibration files are valid")
         return 0
-    daemon = Daemon(config, open_instruments, MonotonicClock())
+    daemon = Daemon(config, open_instruments, MonotonicClock(), instrument_addresses=instrument_addresses)
     status_line = StatusLine(daemon.live_view, sys.stderr, duration_s=args.run_duration)   # a terminal only
     logging_service = ServiceLogging(stream=status_line.log_stream)
     logging_service.start()

@@ -51,6 +51,7 @@ class FaultDrill:
         self.before_start = before_start
         self.rows = []
         self.heater_at_fault = []
+        self.install_signal_handlers = False        # the daemon's own signal handling (the test's main thread)
 
     def tap(self, item):
         if not isinstance(item, Row):
@@ -67,12 +68,17 @@ class FaultDrill:
         return opened
 
     def run(self, duration_s):
-        daemon = Daemon(self.config, self.open_instruments, VirtualClock(), notifier=SystemdNotifier({}),
-                        row_taps=[self.tap], install_signal_handlers=False, datalog_options=self.datalog_options)
-        self.result = daemon.run(duration_s)
-        self.record = read_record(self.result.log_paths[0])
+        self.daemon = Daemon(self.config, self.open_instruments, VirtualClock(), notifier=SystemdNotifier({}),
+                             row_taps=[self.tap], install_signal_handlers=self.install_signal_handlers,
+                             datalog_options=self.datalog_options)
+        self.result = self.daemon.run(duration_s)
+        self.record = self.daemon_record()
         self.states = [str(state) for state in self.record.columns["state"]]
         return self.result
+
+    def daemon_record(self):
+        """The record the daemon wrote (also after its run raised)."""
+        return read_record(self.daemon.datalog.paths[0])
 
     def supply_current_a(self):
         return self.opener.bench.heater_supply.output_current_a

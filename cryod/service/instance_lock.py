@@ -148,13 +148,14 @@ class InstrumentLocks:
         self._held: list[int] = []
 
     def acquire(self) -> None:
-        """Lock every address, or none; :class:`InstrumentInUse` names the instrument, its key and the
-        daemon holding it. OSError when the directory cannot be made or written."""
+        """Lock every address, or none; :class:`InstrumentInUse` names each instrument another daemon holds,
+        its key and that daemon. OSError when the directory cannot be made or written."""
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
         except OSError as error:
             raise OSError(f"instruments.lock_directory {self.directory} cannot be created: "
                           f"{error.strerror or error}") from None
+        taken = []
         try:
             for address in sorted(self.addresses):
                 keys = " and ".join(self.addresses[address])
@@ -164,12 +165,14 @@ class InstrumentLocks:
                     raise OSError(f"instruments.lock_directory {self.directory}: cannot lock {address} "
                                   f"({keys}): {error.strerror or error}") from None
                 if not held:
-                    holder = _holder(fd)
+                    taken.append(f"{keys} {address} is driven by another cryod ({_holder(fd)})")
                     os.close(fd)
-                    raise InstrumentInUse(f"{keys} {address} is driven by another cryod ({holder}); not started, "
-                                          f"no instrument was touched: give each daemon its own instruments")
+                    continue
                 _say_holder(fd, f"process {os.getpid()} with {self.configuration}, as {keys}")
                 self._held.append(fd)
+            if taken:
+                raise InstrumentInUse(f"{'; '.join(taken)}; not started, no instrument was touched: give each "
+                                      f"daemon its own instruments")
         except BaseException:
             self.release()
             raise

@@ -221,7 +221,7 @@ def _run_service(args) -> int:
 
 
 def _ctl(args) -> int:
-    from cryod.service.control_socket import send_command
+    from cryod.service.control_socket import CLIENT_TIMEOUT_S, send_command
     from cryod.service.discovery import find_daemon_socket
     from cryod.yaml_source import FileFormatError
 
@@ -244,7 +244,9 @@ def _ctl(args) -> int:
         print(f"cryod ctl: {error}", file=sys.stderr)
         return 3
     try:
-        reply = send_command(path, " ".join(args.words))
+        reply = send_command(path, " ".join(args.words), on_busy=lambda message: print(
+            f"cryod ctl: the daemon answered {message}; trying again for up to {CLIENT_TIMEOUT_S:g} s",
+            file=sys.stderr))
     except ValueError as error:
         print(f"cryod ctl: {error}", file=sys.stderr)
         return 2

@@ -143,26 +143,61 @@ def test_a_hundred_clients_at_once_on_the_running_daemon_all_get_their_reply(tmp
     assert overruns == 0
 
 
-def test_one_connection_over_the_limit_gets_a_busy_reply(served):
+def wait_for_connections(server, count, timeout_s=10.0):
+    end = time.monotonic() + timeout_s
+    while server.clients != count and time.monotonic() < end:
+        time.sleep(0.005)
+    assert server.clients == count
+
+
+def test_beyond_the_limit_only_heater_off_is_taken_and_cryod_ctl_retries_the_rest(served):
     path, loop, server = served(max_clients=3)
     holders = [socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) for _ in range(3)]
     try:
         for holder in holders:
             holder.connect(str(path))
             holder.sendall(b"sta")                     # a line not finished yet: each keeps its connection
-        end = time.monotonic() + 5.0
-        while server.clients < 3 and time.monotonic() < end:
-            time.sleep(0.005)
-        busy = send_command(path, "setpoint 5")
-        assert busy == {"ok": False, "message": "busy: 3 connections open at once (at most 3); try again in a moment"}
+        wait_for_connections(server, 3)
+        busy = raw_exchange(path, b"setpoint 5\n")
+        assert busy == {"ok": False, "message": "busy: 4 connections open at once (at most 3 for commands; beyond "
+                                                "that only heater-off is taken); try again in a moment"}
         assert loop.seen == []                         # the busy client's command never reached the loop
+        assert raw_exchange(path, b"heater-off\n")["message"] == "heater-off done"
+        assert loop.seen == [("heater-off", None)]
+        with pytest.raises(ConnectionError, match=r"stayed busy for 0.3 s \(\d+ attempts\); its last answer: busy:"):
+            send_command(path, "setpoint 5", timeout_s=0.3)
+        releaser = threading.Timer(0.3, lambda: [holder.close() for holder in holders])
+        releaser.start()                               # cryod ctl asks again until there is room
+        assert main(["ctl", "--socket", str(path), "setpoint", "5"]) == 0
+        releaser.join()
     finally:
         for holder in holders:
             holder.close()
-    end = time.monotonic() + 5.0
-    while server.clients and time.monotonic() < end:
-        time.sleep(0.005)
-    assert send_command(path, "status")["ok"]
+
+
+def test_idle_connections_however_many_cannot_keep_heater_off_out(served, capsys):
+    """Before: 256 idle connections got every cryod ctl heater-off "busy: 256 connections open" for as long as
+    they stayed. Now the connections beyond the limit are read for heater-off, and beyond those the idlest are
+    closed to make room."""
+    path, loop, server = served(max_clients=40, reserved_connections=10)
+    idle = []
+    try:
+        for _ in range(120):                           # three times the limit, none sending anything
+            client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            client.connect(str(path))
+            idle.append(client)
+        end = time.monotonic() + 10.0
+        while (server.connections.closed_for_room < 70 or server.clients > 50) and time.monotonic() < end:
+            time.sleep(0.005)
+        assert server.clients == 50                    # the limit and the reserve: no more held open
+        assert main(["ctl", "--socket", str(path), "heater-off"]) == 0
+        assert loop.seen == [("heater-off", None)] and "heater-off done" in capsys.readouterr().out
+        closed = json.loads(idle[0].makefile("rb").readline())       # the idlest, closed for room, were told
+        assert closed["ok"] is False and closed["message"].startswith("closed: no command line after the 50 "
+                                                                      "connections open at once were taken")
+    finally:
+        for client in idle:
+            client.close()
 
 
 def test_cryod_ctl_waits_while_the_backlog_is_full(tmp_path):

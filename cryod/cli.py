@@ -99,6 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="only validate the configuration and the calibration files, then exit")
     run.add_argument("--duration", type=positive, default=None, dest="run_duration", metavar="S",
                      help="stop after this many seconds (default: until SIGTERM)")
+    run.add_argument("--supply-off", action="store_true",
+                     help="only set the heater supply to 0 A with its output off, then exit (what the unit runs "
+                          "after the daemon ended, however it ended; left alone while another cryod drives it)")
 
     ctl = commands.add_parser("ctl", help="talk to the running daemon",
                               description="Send one command to the running daemon's control socket.")
@@ -204,6 +207,8 @@ def _run_service(args) -> int:
     if args.check:
         print(f"{args.run_config}: configuration and calibration files are valid")
         return 0
+    if args.supply_off:
+        return _supply_off(config)
     daemon = Daemon(config, open_instruments, MonotonicClock(), instrument_addresses=instrument_addresses)
     status_line = StatusLine(daemon.live_view, sys.stderr, duration_s=args.run_duration)   # a terminal only
     logging_service = ServiceLogging(stream=status_line.log_stream)
@@ -218,6 +223,29 @@ def _run_service(args) -> int:
         status_line.stop()
         logging_service.stop()
     return result.exit_code
+
+
+def _supply_off(config) -> int:
+    """``cryod run --supply-off``: 0 done, 2 another cryod drives the supply, 4 the supply out of reach."""
+    from cryod.service.clock import MonotonicClock
+    from cryod.service.instance_lock import InstrumentInUse
+    from cryod.service.instruments import switch_supply_off
+    from drivers.errors import InstrumentError
+
+    ended = ", ".join(f"{name} {os.environ[name]}" for name in ("SERVICE_RESULT", "EXIT_CODE", "EXIT_STATUS")
+                      if os.environ.get(name))          # how the daemon ended, when systemd runs this
+    after = f" (the daemon ended: {ended})" if ended else ""
+    try:
+        switch_supply_off(config, MonotonicClock())
+    except InstrumentInUse as error:
+        print(f"cryod: supply left alone{after}: {error}", file=sys.stderr)
+        return 2
+    except (InstrumentError, OSError) as error:
+        print(f"cryod: could not switch the heater supply off{after}: {error}; check it at the supply",
+              file=sys.stderr)
+        return 4
+    print(f"cryod: heater supply at 0 A, output off{after}", file=sys.stderr)
+    return 0
 
 
 def _ctl(args) -> int:

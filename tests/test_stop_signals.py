@@ -7,7 +7,10 @@ what the heater really got and when; once with a loop that answers, once with a 
 an instrument call, which only the last resort of the stop brings to 0 W.
 """
 
+import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -16,6 +19,7 @@ import pytest
 from cryod.service.daemon import Daemon, stop_grace_s
 from cryod.service.stop_signals import CRASH_SIGNALS, exit_code_for, terminating_signals
 from cryod.config import load_config
+from tests.conftest import REPOSITORY
 from tests.service_bench import BenchOverTcp, RunProcess, delay_to_zero_s
 from tests.test_daemon_faults import FaultDrill
 
@@ -158,5 +162,36 @@ def test_a_loop_hung_in_an_instrument_call_is_stepped_over_the_heater_goes_off_a
             f"event: stopping: {stepped_in}",
             "event: stop: signal: SIGUSR1 received; the loop thread was stuck, the process was ended from outside "
             "it with the heater off (exit 138)"]
+    finally:
+        run.close()
+
+
+def supply_off(config) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cryod.cli", "run", "--config", str(config), "--supply-off"],
+                          capture_output=True, text=True, timeout=60, env=dict(os.environ, PYTHONPATH=str(REPOSITORY),
+                                                                              SERVICE_RESULT="signal",
+                                                                              EXIT_STATUS="KILL"))
+
+
+def test_after_sigkill_the_units_supply_off_switches_the_supply_off_and_leaves_a_running_daemons_alone(tmp_path,
+                                                                                                      bench):
+    """What the unit's ExecStopPost runs: the supply a SIGKILL left at its last setting goes to 0 A, output
+    off; while a daemon drives it, the same command leaves it alone."""
+    config = bench.write_config(tmp_path / "daemon")
+    run = RunProcess(config)
+    try:
+        run.wait_for_heating(bench.supply)
+        refused = supply_off(config)
+        assert refused.returncode == 2 and "supply left alone (the daemon ended: SERVICE_RESULT signal, " \
+                                           "EXIT_STATUS KILL)" in refused.stderr
+        assert bench.supply.heater_power_w > 0.0 and run.process.poll() is None
+        killed_at = run.send(signal.SIGKILL)
+        run.wait(10)
+        assert bench.supply.heater_power_w > 0.0                    # what SIGKILL leaves
+        done = supply_off(config)
+        assert done.returncode == 0, done.stderr
+        assert "heater supply at 0 A, output off (the daemon ended: SERVICE_RESULT signal" in done.stderr
+        assert bench.supply.heater_power_w == 0.0 and not bench.supply.output_on
+        assert delay_to_zero_s(bench.supply, killed_at) < 30.0
     finally:
         run.close()

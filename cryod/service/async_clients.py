@@ -2,14 +2,16 @@
 
 The control socket and the metrics endpoint each serve every client from one thread with an
 asyncio event loop (:class:`ClientsThread`), so many clients cost the loop what one thread
-costs, not one thread each. What bounds them is the number of connections
-(file descriptors, memory): at most ``most_open`` at once. A client that connects and says
-nothing holds one until its request's timeout; many such clients (a stuck script, a scanner,
-a flood) would hold them all, and a client with something to say (``cryod ctl heater-off``)
-would find no room. So a new connection beyond ``most_open`` is never turned away: the
-connection that has waited longest without sending its request is closed to make room for
-it (it has had its chance; a client sends its request as it connects). Connections whose
-request is being answered are never closed for room.
+costs, not one thread each. What bounds them is the number of connections (file descriptors,
+memory): :class:`ConnectionBook` allows ``most_open`` at once. A client that connects and says
+nothing holds one until its request's timeout; many such clients (a stuck script, a scanner, a
+flood) would hold them all, and a client with something to say (``cryod ctl heater-off``) would
+find no room. So a new connection beyond ``most_open`` is not turned away: the connection that
+has waited longest without sending its request is closed to make room for it (it has had its
+chance; a client sends its request as it connects). Connections whose request is being answered
+are never closed for room; when all of them are, a new connection may take one of ``reserved``
+more places (the control socket serves only ``heater-off`` on those), and beyond those it is
+refused at once.
 
 Examples
 --------
@@ -36,11 +38,19 @@ class ConnectionBook:
     Parameters
     ----------
     most_open : int
-        Connections open at once; one more closes the one that has waited longest for its request.
+        Connections open at once for any request; one more closes the one that has waited longest for
+        its request.
+    reserved : int
+        Places beyond ``most_open`` for when every connection open is being answered.
     """
 
-    def __init__(self, most_open: int):
+    #: What :meth:`arrived` says of a new connection: a place like any other, one of the reserved places
+    #: (when all others are being answered), or none (refuse it at once).
+    TAKEN, RESERVED, FULL = "taken", "reserved", "full"
+
+    def __init__(self, most_open: int, reserved: int = 0):
         self.most_open = int(most_open)
+        self.reserved = int(reserved)
         #: Connections open now, the most at once since the start, and those closed to make room.
         self.open = 0
         self.most_seen = 0
@@ -48,28 +58,28 @@ class ConnectionBook:
         self._waiting: collections.OrderedDict[asyncio.Task, None] = collections.OrderedDict()
         self._evicted: set[asyncio.Task] = set()
 
-    def arrived(self) -> int:
+    def arrived(self) -> str:
         """The running task's connection is open and waits for its request; makes room if needed.
 
         Returns
         -------
-        int
-            How many connections are open, this one included (before any closed for room).
+        str
+            :attr:`TAKEN`, :attr:`RESERVED` or :attr:`FULL` (the caller refuses it at once).
         """
         task = asyncio.current_task()
         self.open += 1
-        count = self.open
         self.most_seen = max(self.most_seen, self.open)
-        self._waiting[task] = None
-        while self.open - len(self._evicted) > self.most_open and len(self._waiting) > 1:
+        live = self.open - len(self._evicted)
+        while live > self.most_open and self._waiting:
             oldest, _ = self._waiting.popitem(last=False)
-            if oldest is task:                  # the newest is never the one to go
-                self._waiting[task] = None
-                continue
             self._evicted.add(oldest)
             self.closed_for_room += 1
             oldest.cancel()
-        return count
+            live -= 1
+        self._waiting[task] = None
+        if live <= self.most_open:
+            return self.TAKEN
+        return self.RESERVED if live <= self.most_open + self.reserved else self.FULL
 
     def request_received(self) -> None:
         """The running task's connection has sent its request: it is no longer closed for room."""

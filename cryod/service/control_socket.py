@@ -18,12 +18,13 @@ the socket competes with the control loop's thread as one thread, not one per cl
 holds up to :data:`BACKLOG` connections until the server takes them, and a client finding even
 that full waits for its turn (:func:`send_command`).
 
-``heater-off`` always gets through. Up to :data:`MAX_CLIENTS` connections carry any command; the
-:data:`RESERVED_CONNECTIONS` beyond them carry only ``heater-off`` (anything else is answered
-``busy: ...``, which :func:`send_command` retries) and have :data:`RESERVED_LINE_TIMEOUT_S` to send
-it; and a connection beyond all of those closes the one that has waited longest without sending
-its line (:class:`cryod.service.async_clients.ConnectionBook`), so idle clients, however many,
-cannot keep a ``heater-off`` out.
+``heater-off`` always gets through. Up to :data:`MAX_CLIENTS` connections are open at once; one
+more closes the one that has waited longest without sending its line
+(:class:`cryod.service.async_clients.ConnectionBook`), so idle clients, however many, keep no one
+out. When every connection open is waiting for the loop's answer, the :data:`RESERVED_CONNECTIONS`
+beyond them carry only ``heater-off`` (anything else is answered ``busy: ...``, which
+:func:`send_command` retries) and have :data:`RESERVED_LINE_TIMEOUT_S` to send it; beyond those, a
+connection is answered ``busy`` at once.
 """
 
 from __future__ import annotations
@@ -52,10 +53,11 @@ MAX_LINE = 256
 #: Connections the kernel holds until the server takes them (a full backlog makes a client wait).
 BACKLOG = 256
 #: Connections open at once that carry any command (each costs a file descriptor, and a command waiting
-#: for the loop: at 8 a tick, 256 commands are answered within 2.6 s).
+#: for the loop: at 8 a tick, 256 commands are answered within 2.6 s); one more closes the one that has
+#: waited longest without sending its line.
 MAX_CLIENTS = 256
-#: Connections beyond :data:`MAX_CLIENTS` that carry only heater-off; beyond these, the connection that has
-#: waited longest without sending its line is closed to make room.
+#: Connections beyond :data:`MAX_CLIENTS`, when every one open waits for the loop's answer, that carry only
+#: heater-off.
 RESERVED_CONNECTIONS = 64
 #: How long a client has to send its command line, s.
 LINE_TIMEOUT_S = 5.0
@@ -105,7 +107,7 @@ class ControlSocketServer:
         self.line_timeout_s = LINE_TIMEOUT_S if line_timeout_s is None else line_timeout_s
         reserved = RESERVED_CONNECTIONS if reserved_connections is None else reserved_connections
         #: The connections open now (:attr:`ConnectionBook.open`), the most at once, those closed for room.
-        self.connections = ConnectionBook(self.max_clients + reserved)
+        self.connections = ConnectionBook(self.max_clients, reserved)
         self._clients = ClientsThread("control socket", lambda listener: asyncio.start_unix_server(
             self._serve_client, sock=listener, limit=MAX_LINE, backlog=BACKLOG))
 
@@ -182,9 +184,13 @@ class ControlSocketServer:
                                         f"try again in a moment"}
 
     async def _serve_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        open_now = self.connections.arrived()
-        reserved = open_now > self.max_clients
+        place = self.connections.arrived()
+        open_now = self.connections.open
+        reserved = place is not ConnectionBook.TAKEN
         try:
+            if place is ConnectionBook.FULL:
+                await self._send(writer, self._busy(open_now))
+                return
             line = await self._read_line(reader, RESERVED_LINE_TIMEOUT_S if reserved else self.line_timeout_s)
             self.connections.request_received()
             if isinstance(line, dict):
@@ -196,8 +202,8 @@ class ControlSocketServer:
             await self._send(writer, reply)
         except asyncio.CancelledError:
             if self.connections.closed_for_room_now():
-                message = (f"closed: no command line after the {self.connections.most_open} connections open at "
-                           f"once were taken by newer ones; send the line as you connect")
+                message = (f"closed: no command line yet when the {self.connections.most_open} connections open "
+                           f"at once were all taken; send the line as you connect")
             else:                               # the daemon is stopping: say so, without waiting for the client
                 message = "the daemon is stopping; nothing more is answered"
             writer.write((json.dumps({"ok": False, "message": message}) + "\n").encode("utf-8"))

@@ -504,9 +504,10 @@ class Daemon:
 
 
 def stop_grace_s(config: DaemonConfig) -> float:
-    """How long the loop has to stop by itself once told to (s): the rest of its period and an instrument
-    call stuck until its timeout for each of the two instruments a tick may be waiting on, and half a second."""
-    return config.loop.period_s + 2.0 * config.instruments.timeout_s + 0.5
+    """How long the loop has to stop by itself once told to (s): a period and one instrument call to its
+    timeout (a tick asked to stop after its readings sets no new power, so a loop that answers stops
+    within that); after it, the heater is switched off from outside the loop."""
+    return config.loop.period_s + config.instruments.timeout_s
 
 
 def cooler_rad_s(config: DaemonConfig) -> float:

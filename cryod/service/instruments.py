@@ -17,7 +17,7 @@ import sys
 from typing import Callable
 
 from cryod.config import DaemonConfig, DmmSettings, InstrumentAddress
-from cryod.service.instance_lock import lock_directory_problem
+from cryod.service.instance_lock import InstrumentLocks, lock_directory_problem
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError
 from drivers.errors import InstrumentError
@@ -318,6 +318,40 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
     instruments_set = assemble_instruments(config, clock, flange, stage, heater, make_trigger,
                                            on_close=close_others)
     return (instruments_set, *curves)
+
+
+def switch_supply_off(config: DaemonConfig, clock) -> None:
+    """The configured heater supply to 0 A with its output off, without a daemon (``cryod run --supply-off``).
+
+    What the service unit runs after the daemon ended, however it ended (``ExecStopPost``): after
+    SIGKILL or a crash the supply would keep its last setting until the next start. The supply's
+    address is locked first, as a daemon locks it, so a supply another daemon drives is left alone.
+
+    Raises
+    ------
+    InstrumentInUse
+        Another cryod drives the supply (nothing was sent).
+    InstrumentError
+        The supply is out of reach or did not confirm the off.
+    """
+    supply = {address: keys for address, keys in instrument_addresses(config).items()
+              if any(key.startswith("instruments.heater_supply.") for key in keys)}
+    locks = InstrumentLocks(config.instruments.lock_directory, supply, config.source)
+    locks.acquire()
+    adapters: dict = {}
+    try:
+        transport = open_transport(config.instruments.heater_supply, config, adapters, "heater supply")
+        try:
+            heater = HEATER_DRIVERS[config.instruments.heater_model](      # opening sets 0 A, output off
+                transport, clock, config.heater.resistance_ohm, max_current_a=config.heater.max_current_A,
+                voltage_compliance_v=config.heater.voltage_compliance_V, name="heater supply")
+            heater.output_off()
+        finally:
+            transport.close()
+    finally:
+        for adapter in adapters.values():
+            adapter.close()
+        locks.release()
 
 
 def _gpib_board(*addresses: InstrumentAddress) -> int:

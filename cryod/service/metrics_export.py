@@ -165,8 +165,10 @@ class MetricsEndpoint:
         self._clients.start(listener)
 
     async def _serve_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self.connections.arrived()
+        place = self.connections.arrived()
         try:
+            if place is ConnectionBook.FULL:        # every connection open is being answered: no room now
+                return
             try:
                 head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), self.request_timeout_s)
             except (asyncio.IncompleteReadError, asyncio.TimeoutError, asyncio.LimitOverrunError, OSError):

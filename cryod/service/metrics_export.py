@@ -150,7 +150,7 @@ class MetricsEndpoint:
     def start(self) -> None:
         """Listen; an address in use or not on this host raises OSError naming it."""
         try:
-            family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
+            family = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)[0][0]
             listener = socket.socket(family, socket.SOCK_STREAM)
             listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             try:

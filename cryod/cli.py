@@ -1,6 +1,6 @@
 """Command line of cryod.
 
-    cryod run --config PATH [--check]           the service
+    cryod run --config PATH [--check]           the service (--supply-off: only the heater supply to 0 A)
     cryod --simulate [--config PATH] [...]      the same daemon on the simulated cryostat
     cryod simulate [...]                        the same as cryod --simulate
     cryod ctl [--socket PATH] COMMAND           talk to the running daemon (found by itself)

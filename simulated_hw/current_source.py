@@ -109,15 +109,6 @@ class EmulatedCurrentSource(EmulatedInstrument):
         if not self.delivered_w or self.delivered_w[-1][1] != power_w:
             self.delivered_w.append((self.clock.now(), power_w))
 
-    def delivered_at(self, time_s: float) -> float:
-        """The power the heater got at clock time ``time_s`` (W), from :attr:`delivered_w`."""
-        power_w = 0.0
-        for changed_s, value in list(self.delivered_w):
-            if changed_s > time_s:
-                break
-            power_w = value
-        return power_w
-
     def zero_since(self, time_s: float) -> float | None:
         """The first clock time at or after ``time_s`` from which the heater got 0 W for good (so far), or None."""
         changes = list(self.delivered_w)

@@ -1,12 +1,16 @@
 """The daemon: configuration, instruments, loop, data log, control socket, systemd, signals.
 
 ``cryod run`` and ``cryod --simulate`` both come here; they differ only in
-the instruments handed over (real ones, or drivers talking to simulated ones)
-and the clock.
+the instruments handed over (real ones, locked against other daemons, or drivers
+talking to simulated ones) and the clock.
 
 Threads: the main thread runs the control loop and nothing else. The data
 log writer, the control socket, the status/reload service thread and the log
-listener run beside it and talk to the loop through queues and snapshots.
+listener run beside it and talk to the loop through queues and snapshots. The
+signal watch sees every terminating signal at once; when the loop does not stop
+within :func:`stop_grace_s` of one (or of an exception in another thread), a
+thread of the daemon switches the heater off through the :class:`HeaterGuard`
+and, if the loop thread stays stuck, ends the process.
 """
 
 from __future__ import annotations

@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Callable
 
 from cryod.records import record_file
-from cryod.records.columns import Row
 from cryod.records.record import RecordFormatError, read_record
 from cryod.service.clock import VirtualClock
 from cryod.service.daemon import Daemon

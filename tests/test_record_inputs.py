@@ -144,7 +144,7 @@ def test_a_cut_short_compressed_record_gives_its_rows_up_to_the_cut(tmp_path):
     assert record.warnings[0].startswith("the compressed file is cut short")
 
 
-def test_a_record_within_the_bounds_reads_as_before(tmp_path):
+def test_a_record_within_the_bounds_is_read_whole(tmp_path):
     path = tmp_path / "record.csv"
     path.write_text(HEADER.replace("\n", "\n# site: " + "x" * 100_000 + "\n", 1) + ROW * 1 + "# event: note\n",
                     encoding="utf-8")

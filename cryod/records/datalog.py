@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
-import os
 import queue
 import shutil
 import tempfile

@@ -88,7 +88,7 @@ class RecordFile:
 
     def __init__(self, path: Path):
         self.path = Path(path)
-        self._descriptor = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
+        self._descriptor = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
         status = os.fstat(self._descriptor)
         self._identity = (status.st_dev, status.st_ino)
         self.size = 0

@@ -12,7 +12,7 @@ from tests.measured_child import run_cryod
 
 pytestmark = pytest.mark.slow
 
-#: What each disk condition must end in: (exit code, the stop event in the record, rows lost; None: some).
+#: What each disk condition must end in: (exit code, the stop event in the record, rows lost; None: either, some).
 DISK_OUTCOMES = {
     "record deleted": (0, True, 0),
     "record moved": (0, True, 0),
@@ -21,7 +21,8 @@ DISK_OUTCOMES = {
     "directory deleted": (7, False, None),          # nowhere to write: the journal has the stop
     "directory moved": (7, True, 0),                # the moved record takes the last rows and the stop
     "disk filled": (7, True, 0),                    # the space held ahead of the record takes them
-    "disk filled, no room held": (7, False, None),  # without fallocate the rows after the disk filled are lost
+    "disk filled, no room held": (7, None, None),   # without fallocate: the rows after the disk filled are lost,
+                                                    # the stop event too unless a line still fits
     "file size limit": (7, False, None),            # no byte more fits in the file
 }
 
@@ -44,7 +45,8 @@ def test_disk_conditions_while_the_daemon_writes(tmp_path):
               f"{'yes' if outcome['stop_event_recorded'] else 'no'} | {outcome['rows_lost']} | "
               f"{outcome['rows_from_harm_to_heater_off'] if outcome['exit_code'] else '-'} |")
         assert outcome["exit_code"] == exit_code, outcome
-        assert outcome["stop_event_recorded"] == stop_recorded, outcome
+        if stop_recorded is not None:
+            assert outcome["stop_event_recorded"] == stop_recorded, outcome
         assert outcome["heater_off_at_end_A"] == 0.0
         if lost is not None:
             assert outcome["rows_lost"] == lost, outcome

@@ -288,9 +288,10 @@ class DataLog:
         data = self._text(items)
         try:
             self._file.write(data)
-        except OSError as error:
+        except OSError as error:            # nothing of it is in the file: the events are tried again
             self.error = error
             self._left_out += [item.time_s for item in items if isinstance(item, Row)]
+            self._pending[:0] = [item for item in items if isinstance(item, Event)]
             self._fail(f"writing {self._file.path} failed: {error.strerror or error}")
             return
         self._dirty = True

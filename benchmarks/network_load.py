@@ -30,7 +30,7 @@ from pathlib import Path
 REPOSITORY = Path(__file__).resolve().parent.parent
 
 PROBE = r"""
-import json, sys, time
+import json, os, sys, time
 from cryod.service import loop as loop_module
 measured = {}
 run = loop_module.ControlLoop.run
@@ -44,8 +44,11 @@ def timed(self, *args, **kwargs):
         measured["ticks"], measured["overruns"] = summary["ticks"], summary["overruns"]
 loop_module.ControlLoop.run = timed
 from cryod.cli import main
-main(sys.argv[1:])
-print(json.dumps(measured), file=open(sys.argv[-1] + ".json", "w"))
+try:
+    main(sys.argv[1:])
+finally:
+    with open(os.environ["CRYOD_BENCHMARK_RESULT"], "w") as result:
+        result.write(json.dumps(measured))
 """
 
 ADDRESS = re.compile(r"(Lake Shore 336 command set|web page) \((?:writable|read-only)\) on 127\.0\.0\.1:(\d+)")
@@ -142,8 +145,9 @@ def measure(duration_s: float, with_clients: bool) -> dict:
             process = subprocess.Popen(
                 [sys.executable, "-c", PROBE, "simulate", "--config", str(configuration(folder)), "--speed", "1",
                  "--duration", str(duration_s), "--data-dir", str(folder / "data"), "--socket",
-                 str(folder / "c.sock"), str(result)],
-                env=dict(os.environ, PYTHONPATH=str(REPOSITORY)), stdout=subprocess.DEVNULL, stderr=errors)
+                 str(folder / "c.sock")],
+                env=dict(os.environ, PYTHONPATH=str(REPOSITORY), CRYOD_BENCHMARK_RESULT=str(result)),
+                stdout=subprocess.DEVNULL, stderr=errors)
             ports = {}
             while len(ports) < 2 and process.poll() is None:
                 ports = dict(ADDRESS.findall(stderr.read_text()))
@@ -154,7 +158,7 @@ def measure(duration_s: float, with_clients: bool) -> dict:
                     process.wait()
                 counts = load.counts
             process.wait()
-        measured = json.loads(Path(str(result) + ".json").read_text())
+        measured = json.loads(result.read_text())
     return {"cpu_per_tick_s": measured["cpu_s"] / measured["ticks"], "overruns": measured["overruns"],
             "ticks": measured["ticks"], **counts}
 

@@ -28,7 +28,8 @@ from typing import Callable
 
 from cryod.service.commands import Command
 from cryod.service.lakeshore336 import MAX_MESSAGE, Lakeshore336Session, split_message
-from cryod.service.tcp_service import TcpService, loop_answer, send
+from cryod.service.async_clients import loop_answer
+from cryod.service.tcp_service import TcpService, send
 
 #: Connections open at once.
 MAX_CLIENTS = 16

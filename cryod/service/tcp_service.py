@@ -11,7 +11,7 @@ shares lives here:
 * TCP keepalive, so a client that vanished without closing frees its place;
 * a client's trouble (an exception in its handler) ends that client only;
 * commands go to the loop like every other path's, and the interface waits for the loop's answer
-  without blocking its thread (:func:`loop_answer`).
+  without blocking its thread (:func:`cryod.service.async_clients.loop_answer`).
 
 A subclass gives :meth:`TcpService.serve` (one client) and may give :meth:`TcpService.busy`
 (the reply to a client over the limit) and :meth:`TcpService.background` (a task that runs while
@@ -23,9 +23,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
-import threading
 
-from cryod.service.commands import Command
+from cryod.service.async_clients import ClientsThread
 from cryod.service.listen_address import describe, is_loopback, parse_address
 
 log = logging.getLogger("cryod.network")
@@ -60,10 +59,7 @@ class TcpService:
         self.clients = 0
         self.most_clients = 0
         self.busy_refusals = 0
-        self._event_loop: asyncio.AbstractEventLoop | None = None
-        self._stopping: asyncio.Future | None = None
-        self._thread: threading.Thread | None = None
-        self._failure: str | None = None
+        self._thread: ClientsThread | None = None
 
     # -- what a subclass gives -------------------------------------------------------
     async def serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, peer: str) -> None:
@@ -121,54 +117,21 @@ class TcpService:
             raise OSError(f"{self.what} on {self.host}:{self.port}: {error.strerror or error}") from error
         listener.setblocking(False)
         self.port = listener.getsockname()[1]
-        self._event_loop = asyncio.new_event_loop()
-        ready = threading.Event()
-        self._thread = threading.Thread(target=self._run, args=(listener, ready), name=f"cryod-{self.what}",
-                                        daemon=True)
-        self._thread.start()
-        ready.wait(10.0)
-        if self._failure is not None:
-            self.stop()
-            raise OSError(f"{self.what} on {self.host}:{self.port} could not be served: {self._failure}")
+        self._thread = ClientsThread(self.what, self._open_server)
+        self._thread.start(listener)
         log.log(logging.INFO if is_loopback(self.host) else logging.WARNING, "%s",
                 describe(self.what, self.host, self.port))
 
-    def _run(self, listener: socket.socket, ready: threading.Event) -> None:
-        asyncio.set_event_loop(self._event_loop)
-        try:
-            self._event_loop.run_until_complete(self._serve(listener, ready))
-        except Exception as error:              # said by start(), or in the journal once serving
-            self._failure = f"{type(error).__name__}: {error}"
-            log.error("%s stopped: %s", self.what, self._failure)
-        finally:
-            ready.set()
-            self._event_loop.close()
-
-    async def _serve(self, listener: socket.socket, ready: threading.Event) -> None:
-        self._stopping = asyncio.get_running_loop().create_future()
-        server = await asyncio.start_server(self._client, sock=listener, backlog=BACKLOG,
-                                            limit=self.stream_limit)
-        background = asyncio.ensure_future(self.background())
-        ready.set()
-        try:
-            await self._stopping
-        finally:
-            server.close()
-            tasks = [task for task in asyncio.all_tasks() if task is not asyncio.current_task()]
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, background, return_exceptions=True)
+    async def _open_server(self, listener: socket.socket) -> asyncio.AbstractServer:
+        server = await asyncio.start_server(self._client, sock=listener, backlog=BACKLOG, limit=self.stream_limit)
+        asyncio.ensure_future(self.background())        # cancelled with the clients at the stop
+        return server
 
     def stop(self) -> None:
         """Stop serving and close the port (open connections are closed)."""
-        if self._thread is None:
-            return
-        try:
-            self._event_loop.call_soon_threadsafe(_resolve, self._stopping)
-        except RuntimeError:                    # the event loop has already ended
-            pass
-        self._thread.join(5.0)
-        self._thread = None
+        if self._thread is not None:
+            self._thread.stop()
+            self._thread = None
 
 
 async def send(writer: asyncio.StreamWriter, data: bytes) -> None:
@@ -184,37 +147,3 @@ async def close(writer: asyncio.StreamWriter) -> None:
         await asyncio.wait_for(writer.wait_closed(), 1.0)
     except (OSError, asyncio.TimeoutError, asyncio.CancelledError):
         pass
-
-
-async def loop_answer(command: Command, submit, timeout_s: float) -> Command:
-    """Hand ``command`` to the loop with ``submit`` and wait for its answer without blocking the event loop.
-
-    Returns
-    -------
-    Command
-        Answered, or (after ``timeout_s``) marked refused with the reason.
-    """
-    event_loop = asyncio.get_running_loop()
-    answered = event_loop.create_future()
-
-    def wake() -> None:                     # on the loop's thread: hand over, never raise
-        try:
-            event_loop.call_soon_threadsafe(_resolve, answered)
-        except RuntimeError:                # the interface has stopped meanwhile
-            pass
-
-    command.on_answer = wake
-    submit(command)
-    if not command.done.is_set():
-        try:
-            await asyncio.wait_for(answered, timeout_s)
-        except asyncio.TimeoutError:
-            pass
-    if not command.done.is_set():
-        command.ok, command.message = False, f"no answer from the control loop within {timeout_s:g} s"
-    return command
-
-
-def _resolve(future: asyncio.Future | None) -> None:
-    if future is not None and not future.done():
-        future.set_result(None)

@@ -46,6 +46,9 @@ MAX_RAMP_K_PER_MIN = 100.0
 #: socket needs write permission, and whoever connects can set the heater; read or execute bits
 #: for others mean nothing on a socket but show a mode meant for a file, so all three are refused.
 SOCKET_MODE_OTHERS = 0o007
+#: Where every cryod on the host locks the instruments it drives (``instruments.lock_directory``): the
+#: system's place for lock files, shared by all users and units; created at boot by systemd/cryod-tmpfiles.conf.
+DEFAULT_LOCK_DIRECTORY = Path("/run/lock/cryod")
 
 
 @dataclass(frozen=True)
@@ -102,6 +105,8 @@ class InstrumentsConfig:
     heater_model: str
     dmm: DmmSettings
     trigger_output: TriggerOutputConfig | None = None
+    #: Where this daemon locks each instrument's address against other cryod daemons on the host.
+    lock_directory: Path = DEFAULT_LOCK_DIRECTORY
 
 
 @dataclass(frozen=True)
@@ -179,6 +184,23 @@ class MetricsConfig:
 
 
 @dataclass(frozen=True)
+class WebConfig:
+    """The ``web`` section: the live page (off when the section is absent or null)."""
+
+    address: str                        # host:port, 127.0.0.1 unless stated otherwise
+    writable: bool = False              # control from the page (needs token_file)
+    token_file: Path | None = None      # the token a write must carry; readable by the service's group only
+
+
+@dataclass(frozen=True)
+class Lakeshore336Config:
+    """The ``lakeshore336`` section: the Lake Shore 336 command set over TCP (off when absent or null)."""
+
+    address: str                        # host:port, 127.0.0.1 unless stated otherwise
+    writable: bool = False              # SETP, RAMP and RANGE taken (within the same limits as every path)
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     model: Path | None
     seed: int
@@ -199,6 +221,8 @@ class DaemonConfig:
     control_socket: SocketConfig
     simulation: SimulationConfig
     metrics: MetricsConfig = MetricsConfig()
+    web: WebConfig | None = None
+    lakeshore336: Lakeshore336Config | None = None
     source: str = ""
     text: str = ""
 
@@ -422,6 +446,8 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         heater_supply=heater_address,
         heater_model=heater_model,
         dmm=dmm,
+        lock_directory=(_directory(section, "lock_directory", base) if section.text("lock_directory", None) is not None
+                        else DEFAULT_LOCK_DIRECTORY),
     )
     timing = ReadingTiming(nplc=dmm.nplc, line_frequency_hz=dmm.line_frequency_hz,
                            offset_compensation=dmm.offset_compensation, autozero=dmm.autozero,
@@ -510,10 +536,12 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         )
         section.finish()
     metrics = _metrics(top.section("metrics", None))
+    web = _web(top.section("web", None), base)
+    lakeshore336 = _lakeshore336(top.section("lakeshore336", None))
     top.finish()
     return DaemonConfig(loop=loop, instruments=instruments, sensors=sensors, heater=heater, control=control,
                         safety=safety, data=data, control_socket=socket_config, simulation=simulation,
-                        metrics=metrics)
+                        metrics=metrics, web=web, lakeshore336=lakeshore336)
 
 
 def _check_waits_against_watchdog(waits: InstrumentWaits, instruments_section: Section,
@@ -543,6 +571,46 @@ def _metrics(section: Section | None) -> MetricsConfig:
     metrics = MetricsConfig(address=address, cryostat=section.text("cryostat", ""))
     section.finish()
     return metrics
+
+
+def _listen_address(section: Section) -> str:
+    """The section's ``address`` (host:port), checked; port 0 (any free port) is taken for tests."""
+    from cryod.service.listen_address import parse_address
+
+    address = section.text("address")
+    try:
+        parse_address(address, allow_any_port=True)
+    except ValueError as error:
+        raise section.error("address", str(error)) from None
+    return address
+
+
+def _web(section: Section | None, base: Path) -> WebConfig | None:
+    if section is None:
+        return None
+    web = WebConfig(address=_listen_address(section), writable=section.flag("writable", False),
+                    token_file=_existing_file(section, "token_file", base, None))
+    if web.writable and web.token_file is None:
+        raise section.error("writable", "control from the page needs web.token_file: a file holding the token "
+                                        "a write must carry (at least 16 characters), readable by the service's "
+                                        "group only (docs/operations.md)")
+    if web.token_file is not None:
+        from cryod.service.web_token import read_token
+
+        try:
+            read_token(web.token_file)
+        except ValueError as error:
+            raise section.error("token_file", str(error)) from None
+    section.finish()
+    return web
+
+
+def _lakeshore336(section: Section | None) -> Lakeshore336Config | None:
+    if section is None:
+        return None
+    lakeshore = Lakeshore336Config(address=_listen_address(section), writable=section.flag("writable", False))
+    section.finish()
+    return lakeshore
 
 
 def _control(section: Section, safety: SafetyConfig) -> ControlConfig:

@@ -160,7 +160,7 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         self.configure_source()
         self.output_is_on = False
         self.current_a = 0.0
-        self.off_confirmed_s = self.clock.now()      # the configuration's error queue came back: it is done
+        self.off_confirmed_s = None             # off as configured, but not read back: output_off() asks
         self.off_failure = None
 
     # -- limits ------------------------------------------------------------------------

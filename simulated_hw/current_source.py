@@ -6,14 +6,14 @@ holds the compliance voltage and the current falls to V/R (an open heater:
 no current at all). The power the heater then dissipates, V*I, goes to the
 simulated cryostat at the instant of the command that changed it.
 
-Faults: :meth:`inject_refuse_output` (the interlock or output enable is open:
-the output stays off when asked on) and :meth:`inject_open_heater` (a broken
-heater wire: infinite resistance).
+Faults (issue 3, section 6): :meth:`inject_refuse_output` (the interlock or
+output enable is open: the output stays off when asked on) and
+:meth:`inject_open_heater` (a broken heater wire: infinite resistance).
 
-The supply keeps its own log of the power it delivered, :attr:`EmulatedCurrentSource.power_log`:
-every change, at the clock instant it executed the command. That is the
-heater's power as the instrument saw it, against which a test can hold what
-the daemon recorded (the instant the heater really reached 0 W after a fault).
+The supply keeps its own log of the power it delivered,
+:attr:`EmulatedCurrentSource.delivered_w`: every change, at the clock instant
+it executed the command. That is the heater's power as the instrument saw it,
+against which a test holds what the daemon recorded.
 """
 
 from __future__ import annotations
@@ -24,8 +24,9 @@ import math
 from simulated_hw.cryostat import SimulatedCryostat
 from simulated_hw.instrument import EmulatedInstrument
 
-#: Changes of the delivered power the supply remembers (about 3 h of a loop setting it every 80 ms).
-POWER_LOG_LENGTH = 131072
+
+#: Output changes :attr:`EmulatedCurrentSource.delivered_w` keeps.
+DELIVERED_LOG_LENGTH = 100_000
 
 
 class EmulatedCurrentSource(EmulatedInstrument):
@@ -52,8 +53,9 @@ class EmulatedCurrentSource(EmulatedInstrument):
         self.output_on = False
         self.current_setpoint_a = 0.0
         self.compliance_v = 10.0
-        #: (clock time, delivered power W) at every change, oldest first (the last POWER_LOG_LENGTH).
-        self.power_log: collections.deque[tuple[float, float]] = collections.deque(maxlen=POWER_LOG_LENGTH)
+        #: What the heater got: (clock time s, power W) at every change of the output, the last
+        #: :data:`DELIVERED_LOG_LENGTH` of them (for checks of what really reached the heater, and when).
+        self.delivered_w: collections.deque[tuple[float, float]] = collections.deque(maxlen=DELIVERED_LOG_LENGTH)
 
     # -- faults ----------------------------------------------------------------------
     def inject_refuse_output(self, blocked: bool = True) -> None:
@@ -106,26 +108,33 @@ class EmulatedCurrentSource(EmulatedInstrument):
         return self.output_voltage_v * self.output_current_a
 
     def apply_to_heater(self) -> None:
-        """Give the cryostat the heater power of the present output state, from now on (and log a change)."""
+        """Give the cryostat the heater power of the present output state, from now on."""
         power_w = abs(self.heater_power_w)
         self.cryostat.set_heater_power(power_w)
-        if not self.power_log or self.power_log[-1][1] != power_w:
-            self.power_log.append((self.clock.now(), power_w))
+        if not self.delivered_w or self.delivered_w[-1][1] != power_w:
+            self.delivered_w.append((self.clock.now(), power_w))
 
     def power_at(self, time_s: float) -> float:
-        """The power (W) the supply delivered at clock time ``time_s`` (from its log; 0 before the first entry)."""
+        """The power (W) the heater got at clock time ``time_s`` (from the log; 0 before its first entry)."""
         power_w = 0.0
-        for instant, logged_w in self.power_log:
+        for instant, logged_w in self.delivered_w:
             if instant > time_s:
                 break
             power_w = logged_w
         return power_w
 
     def first_off_after(self, time_s: float) -> float | None:
-        """The first clock instant at or after ``time_s`` from which the supply delivered 0 W (None: not yet)."""
+        """The first clock time at or after ``time_s`` at which the heater got 0 W (None: not so far)."""
         if self.power_at(time_s) == 0.0:
             return time_s
-        return next((instant for instant, power_w in self.power_log if instant >= time_s and power_w == 0.0), None)
+        return next((instant for instant, power_w in self.delivered_w if instant >= time_s and power_w == 0.0), None)
+
+    def zero_since(self, time_s: float) -> float | None:
+        """The first clock time at or after ``time_s`` from which the heater got 0 W for good (so far), or None."""
+        changes = list(self.delivered_w)
+        if not changes or changes[-1][1] != 0.0:
+            return None
+        return max(time_s, changes[-1][0])
 
     def turn_output(self, on: bool) -> bool:
         """Turn the output on or off; False when on was asked but the output is blocked."""

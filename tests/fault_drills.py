@@ -192,7 +192,7 @@ class TcpFaultDrill:
         return DrillResult(result.exit_code, self.fault_s, supply.first_off_after(self.fault_s), recorded_off,
                            fault_row, off_row, list(self.rows), list(self.events), gaps, self.heater_off_sent_s,
                            self.heater_off_answer_s,
-                           self.stop_event_s, self.stop_requested_s, run_end, list(supply.power_log))
+                           self.stop_event_s, self.stop_requested_s, run_end, list(supply.delivered_w))
 
 
 def never_claims_zero_early(result: DrillResult, supply_power_at: Callable[[float], float]) -> list[str]:

@@ -83,6 +83,11 @@ class TemperatureCurve(Protocol):
     def temperature_K(self, resistance_ohm: float) -> float: ...
 
 
+def _given(target_K: float) -> float | None:
+    """A ramp's target as a status value: None until a setpoint was given (every setpoint is above 0 K)."""
+    return target_K if target_K > 0.0 else None
+
+
 def _or(value: float | None, default: float) -> float:
     return default if value is None else value
 
@@ -108,6 +113,8 @@ class Status:
     target_K: float | None = None
     ramp_K_per_min: float = 0.0
     last_fault: str | None = None
+    #: The last target given (K), kept while the loop is open: what regulating again heads for.
+    last_target_K: float | None = None
     loop_timing: object = None      # LoopTiming, summarised when asked, not every tick
     control: dict | None = None     # the control terms' columns of the last tick
 
@@ -119,7 +126,8 @@ class Status:
         return {
             "time_s": self.time_s, "state": str(self.state), "T2_K": self.flange_K, "T5_K": self.ptc_stage_K,
             "heater_W": self.heater_w, "setpoint_K": self.setpoint_K, "target_K": self.target_K,
-            "ramp_K_per_min": self.ramp_K_per_min, "last_fault": self.last_fault, **(self.control or {}),
+            "ramp_K_per_min": self.ramp_K_per_min, "last_target_K": self.last_target_K,
+            "last_fault": self.last_fault, **(self.control or {}),
             **self.timing,
         }
 
@@ -184,6 +192,7 @@ class ControlLoop:
         self._answers: list[tuple[Command, bool, str]] = []
         self.exit_code: int | None = None
         self._stop_reason: str | None = None
+        self._stop_as: tuple[int, FaultCause] = (ExitCode.OK, FaultCause.STOP_REQUESTED)
         self._outside_fault: Fault | None = None
         self._valid_in_a_row = 0
         self._hold_reported = False         # a reading above a limit kept the heater off (said once per hold)
@@ -207,9 +216,20 @@ class ControlLoop:
         self.commands.append(command)
         return command
 
-    def request_stop(self, reason: str) -> None:
-        """Stop at the next tick with the heater at 0 W (safe from a signal handler)."""
-        self._stop_reason = reason
+    def request_stop(self, reason: str, exit_code: int = ExitCode.OK,
+                     cause: FaultCause = FaultCause.STOP_REQUESTED) -> None:
+        """Stop at the next tick with the heater at 0 W, for ``reason``, with ``exit_code`` (safe from a
+        signal handler; a tick that has its readings but not yet its heater setting stops before setting it).
+        The first request is kept."""
+        if self._stop_reason is None:
+            self._stop_as = (exit_code, cause)
+            self._stop_reason = reason
+
+    def _stop_as_requested(self, row: Row | None = None) -> None:
+        """Stop for the requested reason; ``row``, the readings of a tick cut short by it, is kept, with the
+        heater as the stop left it."""
+        exit_code, cause = self._stop_as
+        self._stop(exit_code, Fault(cause, self._stop_reason), row=row)
 
     def fail(self, fault: Fault) -> None:
         """A fault found outside the loop (the data log): handled at the next tick like one found in it
@@ -240,8 +260,8 @@ class ControlLoop:
                 self._tick(deadline)
                 self._answer_commands()         # after the tick: the reply's status shows the command's effect
                 self.watchdog()                 # every tick that returns: a call that hangs trips it
-                if self.exit_code is not None:
-                    break                       # the stop event is the last word: no lateness after it
+                if self.exit_code is not None:  # stopped: the stop is the record's last word, not its timing
+                    break
                 now = self.clock.now()
                 missed = int((now - deadline) // self.period_s) if now > deadline + self.period_s else 0
                 if missed and self.state.waits_for_readings:
@@ -287,7 +307,7 @@ class ControlLoop:
             if self.exit_code is not None:
                 return
         if self._stop_reason is not None:
-            self._stop(ExitCode.OK, Fault(FaultCause.STOP_REQUESTED, self._stop_reason))
+            self._stop_as_requested()
             return
         row = Row(time_s=commands_done, lateness_ms=(tick_start - deadline) * 1e3)
         if self.state is LoopState.RECOVERING and self._maybe_reconnect(tick_start):
@@ -335,6 +355,9 @@ class ControlLoop:
                                    flange_time_s=_or(reading.flange_sample_time_s, reading.trigger_time_s),
                                    ptc_stage_time_s=_or(reading.ptc_stage_sample_time_s, reading.trigger_time_s),
                                    output_time_s=computing_since + self._setting_time_s)
+        if self._stop_reason is not None:        # asked to stop while this tick read: no new setting
+            self._stop_as_requested(row)
+            return
         self.last_commanded_w = step.power_w
         self._heater_driven = True
         try:
@@ -343,7 +366,10 @@ class ControlLoop:
             self._fault(error, row)
             return
         except InstrumentError as error:
-            self._fault(error, row)
+            if self._stop_reason is not None:    # held off from outside on the way to the stop
+                self._stop_as_requested(row)
+            else:
+                self._fault(error, row)
             return
         row.heater_set_s = self.clock.now()
         # how long computing and setting take, smoothed: when the next setting will take effect
@@ -373,7 +399,7 @@ class ControlLoop:
         # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
         self._latest = (row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
                         ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
-                        ramp.rate_K_per_min, self.last_fault, row.control)
+                        ramp.rate_K_per_min, self.last_fault, row.control, _given(ramp.target_K))
         self._status = None
 
     @property
@@ -381,10 +407,12 @@ class ControlLoop:
         """The loop as of its last tick (built when asked, from the tick's snapshot)."""
         status = self._status
         if status is None:
-            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control = self._latest
+            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control, last_target_K = \
+                self._latest
             status = Status(time_s=time_s, state=state, flange_K=flange_K, ptc_stage_K=stage_K, heater_w=heater_w,
                             setpoint_K=setpoint_K, target_K=target_K, ramp_K_per_min=rate,
-                            last_fault=str(fault) if fault else None, loop_timing=self.timing, control=control)
+                            last_fault=str(fault) if fault else None, loop_timing=self.timing, control=control,
+                            last_target_K=last_target_K)
             self._status = status
         return status
 
@@ -392,7 +420,9 @@ class ControlLoop:
     def status(self, status: Status) -> None:
         self._status = status
         self._latest = (status.time_s, status.state, status.flange_K, status.ptc_stage_K, status.heater_w,
-                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault, status.control)
+                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault, status.control,
+                        status.last_target_K if status.last_target_K is not None
+                        else _given(self.regulator.ramp.target_K))
 
     # -- start-up and recovery ----------------------------------------------------
     def _count_valid(self, in_range: bool, reading: PairReading, row: Row) -> None:
@@ -547,8 +577,11 @@ class ControlLoop:
         self._emit_row(Row(time_s=at_s, lateness_ms=math.nan, state=state, heater_W=0.0 if confirmed else math.nan,
                            heater_set_s=self._heater_off_s))
 
-    def _stop(self, exit_code: int, fault: Fault | None, reason: str = "", heater_done: bool = False) -> None:
-        """Heater off, then stop with ``exit_code`` because of ``fault`` (or for ``reason``, no fault).
+    def _stop(self, exit_code: int, fault: Fault | None, reason: str = "", row: Row | None = None,
+              heater_done: bool = False) -> None:
+        """Heater off, then stop with ``exit_code`` because of ``fault`` (or for ``reason``, no fault);
+        ``row``, the readings of a tick the stop cut short before it set the heater, is kept with the setting
+        the stop made instead (0 W, set when the supply confirmed the off, as a tick's own setting).
 
         ``heater_done``: the caller switched the heater off and recorded it already (a fault).
         The first fatal cause is kept: a stop after one changes nothing.
@@ -556,8 +589,14 @@ class ControlLoop:
         off_failure = None
         if not heater_done:
             off_failure = self._switch_heater_off()
-            if off_failure is not None:         # a row says so; a stop's off is said by its event, the last line
-                self._heater_off_row(True, "fault:heater_fault")
+        if row is not None:
+            row.heater_W = self.heater_w
+            row.heater_set_s = self._heater_off_s
+            row.state = LoopState.STOPPED
+            row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
+            self._emit_row(row)
+        elif off_failure is not None:           # a row says so; a stop's off is said by its event, the last line
+            self._heater_off_row(True, "fault:heater_fault")
         if off_failure is not None and exit_code != ExitCode.HEATER_FAULT:
             exit_code, fault = ExitCode.HEATER_FAULT, Fault(
                 FaultCause.HEATER_FAULT, f"{off_failure.message}; on stopping after {fault or reason}")

@@ -368,7 +368,7 @@ def test_6221_off_of_a_dropped_link_is_confirmed_on_a_new_connection_and_is_an_o
 
 
 def test_6221_off_already_confirmed_asks_nothing_and_an_unconfirmed_one_is_not_waited_on_twice(clock):
-    with expected_protocol(CONFIGURE_6221 + [
+    with expected_protocol(CONFIGURE_6221 + OFF + [
         (":SOURce:CURRent 1.000000E-02", None),
         (":OUTPut:STATe ON", None),
         (":OUTPut:STATe?", "1"),
@@ -377,7 +377,8 @@ def test_6221_off_already_confirmed_asks_nothing_and_an_unconfirmed_one_is_not_w
         *OFF,                                      # close() tries once more
     ]) as transport:
         heater = supply_6221(transport, clock)
-        assert heater.output_off() == 0.0          # configured off at connect: nothing sent
+        assert heater.output_off() == 0.0          # read back once...
+        assert heater.output_off() == 0.0          # ...then known: nothing sent
         heater.set_current_a(0.010)
         with pytest.raises(InstrumentTimeout):
             heater.output_off()

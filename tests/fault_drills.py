@@ -32,6 +32,12 @@ from cryod.service.simulation import SimulatedInstrumentsOpener
 from tests.conftest import CONFIG
 
 
+def reading_delay_s(loop) -> float:
+    """The longest time from a trigger to both readings of the loop's DMMs (s)."""
+    instruments = loop.instruments
+    return getattr(instruments, "instruments", instruments).pair.reading_delay_s      # behind the heater guard
+
+
 class WatchdogRecorder(SystemdNotifier):
     """A notifier without systemd that notes when the daemon fed the watchdog (clock times)."""
 

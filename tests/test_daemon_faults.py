@@ -25,6 +25,7 @@ from drivers.errors import ConnectionLost
 from cryod.service.notify import SystemdNotifier
 from cryod.service.simulation import SimulatedInstrumentsOpener
 from tests.conftest import CONFIG
+from tests.fault_drills import reading_delay_s
 
 
 def in_tmp(config, tmp_path, **control):
@@ -137,7 +138,7 @@ def test_a_silent_dmm_has_the_supply_at_0_W_within_the_loops_bound_whatever_the_
     supply = drill.opener.bench.heater_supply
     off_s = supply.first_off_after(silent["at"])
     waits = InstrumentWaits(config.loop.period_s, timeout_s)
-    assert off_s - silent["at"] <= waits.fault_to_off_s(drill.result.loop.instruments.pair.reading_delay_s)
+    assert off_s - silent["at"] <= waits.fault_to_off_s(reading_delay_s(drill.result.loop))
     index = first_fault(drill, "instrument_timeout")
     fault_row, off_row = drill.rows[index], drill.rows[index + 1]           # as emitted: clock times
     assert fault_row.heater_W == pytest.approx(supply.power_at(fault_row.time_s), rel=1e-6) and fault_row.heater_W > 0

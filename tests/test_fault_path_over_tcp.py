@@ -13,14 +13,10 @@ import math
 
 import pytest
 
-from tests.fault_drills import TcpFaultDrill, never_claims_zero_early
+from tests.fault_drills import TcpFaultDrill, never_claims_zero_early, reading_delay_s
 
 #: Scheduling room on a loaded machine (s).
 ALLOWANCE_S = 0.5
-
-
-def reading_delay_s(drill):
-    return drill.daemon.loop.instruments.pair.reading_delay_s
 
 
 def assert_record_is_honest(drill, result):
@@ -42,7 +38,7 @@ def test_a_silent_dmm_with_the_longest_timeout_the_watchdog_allows(tmp_path):
     result = drill.run()
     waits = drill.waits
     assert result.exit_code == 0
-    assert result.fault_to_off_s <= waits.fault_to_off_s(reading_delay_s(drill)) + ALLOWANCE_S < 2.0
+    assert result.fault_to_off_s <= waits.fault_to_off_s(reading_delay_s(drill.daemon.loop)) + ALLOWANCE_S < 2.0
     assert result.fault_row.state == "fault:instrument_timeout"
     assert_record_is_honest(drill, result)
     assert result.heater_off_answer_s - result.heater_off_sent_s <= waits.longest_tick_s + ALLOWANCE_S
@@ -58,7 +54,7 @@ def test_every_link_dropping_at_once_is_a_confirmed_off_and_a_recovery(tmp_path)
     result = drill.run()
     assert result.exit_code == 0
     assert result.fault_row.state == "fault:connection_lost"
-    assert result.fault_to_off_s <= drill.waits.fault_to_off_s(reading_delay_s(drill)) + ALLOWANCE_S
+    assert result.fault_to_off_s <= drill.waits.fault_to_off_s(reading_delay_s(drill.daemon.loop)) + ALLOWANCE_S
     assert_record_is_honest(drill, result)
     states = [str(row.state) for row in result.rows]
     assert "fault:heater_fault" not in states and states[-1].startswith("closed")
@@ -76,9 +72,9 @@ def test_a_silent_supply_ends_in_a_bounded_stop_tick_and_the_stop_is_the_last_wo
     assert result.exit_code == 6
     assert result.fault_row.state == "fault:heater_fault" and result.fault_row.heater_W > 0.0
     assert result.off_row.state == "fault:heater_fault" and math.isnan(result.off_row.heater_W)
-    assert result.stop_event_s - result.fault_s <= waits.fault_to_off_s(reading_delay_s(drill)) + ALLOWANCE_S
+    assert result.stop_event_s - result.fault_s <= waits.fault_to_off_s(reading_delay_s(drill.daemon.loop)) + ALLOWANCE_S
     assert result.run_end_s - result.stop_event_s <= waits.heater_off_s + ALLOWANCE_S     # close's last try
     assert result.events[-1].kind == "stop" and "(exit 6)" in result.events[-1].text
     assert "UNKNOWN" in result.events[-1].text
     assert result.real_off_s is not None                  # the supply did execute the off it was sent
-    assert result.fault_to_off_s <= waits.fault_to_off_s(reading_delay_s(drill)) + ALLOWANCE_S
+    assert result.fault_to_off_s <= waits.fault_to_off_s(reading_delay_s(drill.daemon.loop)) + ALLOWANCE_S

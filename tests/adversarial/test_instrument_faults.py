@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import pytest
 
 from cryod.instrument_waits import InstrumentWaits
-from tests.fault_drills import TcpFaultDrill, never_claims_zero_early
+from tests.fault_drills import TcpFaultDrill, never_claims_zero_early, reading_delay_s
 
 ALLOWANCE_S = 0.5
 RUNS = 3
@@ -61,7 +61,7 @@ def run_category(tmp_path, category: Category, run: int):
                           stop_after_s=1.5 if category.recovers else None)
     result = drill.run()
     waits = drill.waits
-    bound = waits.fault_to_off_s(drill.daemon.loop.instruments.pair.reading_delay_s)
+    bound = waits.fault_to_off_s(reading_delay_s(drill.daemon.loop))
     supply = drill.opener.bench.heater_supply
     problems = []
     where = f"{category.name}, timeout_s {category.timeout_s:g}, run {run}"

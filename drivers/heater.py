@@ -210,17 +210,12 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
             try:
                 self.write_output_off()
             except ConnectionLost:
-                try:
-                    self.transport.reopen()
-                except InstrumentError:
-                    raise
-                except Exception as error:  # noqa: BLE001 - whatever the transport met: the link is gone
-                    raise ConnectionLost(self.label, f"cannot reopen the connection: {error}") from error
+                self.transport.reopen()
                 self.write_output_off()
-        except Exception as error:  # noqa: BLE001 - the caller reports the fault being handled, and this
+        except Exception as error:  # noqa: BLE001 - kept as off_failure; the caller reports the fault it handles
             self.off_confirmed_s = None
             self.off_failure = error if isinstance(error, InstrumentError) else \
-                InstrumentError(self.label, f"switching the output off failed: {type(error).__name__}: {error}")
+                ConnectionLost(self.label, f"switching the output off failed: {type(error).__name__}: {error}")
         else:
             self.off_confirmed_s = self.clock.now()
             self.off_failure = None

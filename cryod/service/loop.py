@@ -18,8 +18,9 @@ instrument why (a failing DMM's error queue is read after it). The record
 says what the supply was told and when: the fault tick's row carries the
 power the supply had during that tick, and a row at the instant the supply
 confirmed the off carries the 0 W (empty ``heater_W``: the off could not be
-confirmed, the heater's state is unknown). A stop's heater-off is said by its
-``stop`` event, the last thing the loop writes.
+confirmed, the heater's state is unknown). A stop's heater-off is its ``stop``
+event, the last thing the loop writes (and, in a tick the stop cut short, that
+tick's own setting).
 """
 
 from __future__ import annotations

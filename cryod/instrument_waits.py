@@ -3,10 +3,11 @@
 Two waits, each for one reply:
 
 * **on the loop's path** (readings, heater settings, the heater-off): at most
-  :attr:`InstrumentWaits.loop_reply_s`, two loop periods (or ``instruments.timeout_s`` if
-  that is shorter). A reply later than that is a dead instrument for the loop: the heater
-  goes off, the loop recovers. An instrument that stops answering therefore holds the
-  heater on for a bounded time, whatever ``instruments.timeout_s`` says;
+  :attr:`InstrumentWaits.loop_reply_s`, five loop periods (or ``instruments.timeout_s`` if
+  that is shorter). A reply later than that is no reply for the loop: the heater goes off,
+  the loop recovers. An instrument that stops answering therefore holds the heater on for a
+  bounded time, whatever ``instruments.timeout_s`` says, while a slow adapter or a loaded
+  machine that delays a reply by a few periods does not stop the regulation;
 * **opening, configuring, reconnecting** (``*IDN?``, the error queue after a configuration):
   ``instruments.timeout_s``, since an instrument may take longer to take in a
   configuration than to give a reading.
@@ -28,19 +29,20 @@ ends the attempt). The watchdog is pinged at the end of a tick, at most every
 longest tick; :meth:`InstrumentWaits.watchdog_problem` refuses a configuration for which that
 takes more than :data:`WATCHDOG_USABLE_SHARE` of the shipped unit's ``WatchdogSec``, the rest
 being room for a machine under load. A stop (SIGTERM) and a ``heater-off`` from the control
-socket are taken at the next tick boundary, so within the longest tick too.
+socket are carried out at the next tick boundary, so within the longest tick too (a command is
+answered when that tick ends).
 
 Examples
 --------
 >>> waits = InstrumentWaits(loop_period_s=0.08, timeout_s=1.0)
 >>> waits.loop_reply_s, round(waits.heater_off_s, 3)
-(0.16, 0.37)
->>> round(waits.fault_to_off_s(reading_delay_s=0.045), 3)
-0.655
+(0.4, 0.85)
+>>> round(waits.fault_to_off_s(reading_delay_s=0.042), 3)
+1.372
 >>> waits.watchdog_problem() is None
 True
 >>> print(InstrumentWaits(loop_period_s=0.08, timeout_s=30.0).watchdog_problem())
-30 s per reply: a reconnect on the loop's thread may wait 2 of them, so a tick may last 60.5 s and the watchdog (10 s, WatchdogSec in systemd/cryod.service) go unfed for 63 s, more than the 7.5 s the daemon's own waits may take of it; at most 2.225 s per reply fits
+30 s per reply: a reconnect on the loop's thread may wait 2 of them, so a tick may last 61 s and the watchdog (10 s, WatchdogSec in systemd/cryod.service) go unfed for 63.5 s, more than the 7.5 s the daemon's own waits may take of it; at most 1.985 s per reply fits
 """
 
 from __future__ import annotations
@@ -56,7 +58,7 @@ WATCHDOG_PING_SHARE = 0.25
 #: The longest the watchdog may go unfed by the configuration's own waits, as a share of its interval.
 WATCHDOG_USABLE_SHARE = 0.75
 #: A reply on the loop's path is given this many loop periods.
-LOOP_REPLY_PERIODS = 2.0
+LOOP_REPLY_PERIODS = 5.0
 #: Waits of ``instruments.timeout_s`` one reconnect attempt can make: a connection, then a reply.
 RECONNECT_WAITS = 2
 
@@ -79,7 +81,7 @@ class InstrumentWaits:
 
     @property
     def loop_reply_s(self) -> float:
-        """Longest wait for one reply on the loop's path (s): two loop periods, or ``timeout_s`` if shorter."""
+        """Longest wait for one reply on the loop's path (s): five loop periods, or ``timeout_s`` if shorter."""
         return min(self.timeout_s, LOOP_REPLY_PERIODS * self.loop_period_s)
 
     @property

@@ -121,7 +121,7 @@ def test_transient_faults_heater_off_then_recover(tmp_path, cause, inject, clear
     assert drill.supply_current_a() == 0.0             # off at the end of the run
 
 
-@pytest.mark.parametrize("timeout_s", [0.5, 1.0, 2.0])
+@pytest.mark.parametrize("timeout_s", [0.3, 1.0, 1.9])
 def test_a_silent_dmm_has_the_supply_at_0_W_within_the_loops_bound_whatever_the_timeout(tmp_path, timeout_s):
     """The supply's own log: 0 W within one loop period, the reading's time, one loop-path reply and the
     heater-off after the DMM falls silent, not after instruments.timeout_s; the record's 0 W not before."""

@@ -13,10 +13,12 @@ import math
 
 import pytest
 
+from cryod.instrument_waits import InstrumentWaits
 from tests.fault_drills import TcpFaultDrill, never_claims_zero_early, reading_delay_s
 
 #: Scheduling room on a loaded machine (s).
 ALLOWANCE_S = 0.5
+LARGEST_TIMEOUT_S = InstrumentWaits(0.08, 1.0).largest_timeout_s()
 
 
 def assert_record_is_honest(drill, result):
@@ -31,14 +33,16 @@ def assert_record_is_honest(drill, result):
 
 
 def test_a_silent_dmm_with_the_longest_timeout_the_watchdog_allows(tmp_path):
-    """instruments.timeout_s 2 s: the heater is at 0 W within the loop's bound, not after two timeouts; a
-    heater-off sent while the loop recovers and a stop after it are answered within a tick; the watchdog fed."""
-    drill = TcpFaultDrill(tmp_path, "silent flange DMM", timeout_s=2.0, fault_at_row=15, after_fault_s=6.0,
-                          heater_off_after_s=0.5, stop_after_s=1.5)
+    """The largest instruments.timeout_s (1.985 s): the heater is at 0 W within the loop's bound, not after two
+    timeouts; a heater-off sent while the loop recovers and a stop after it are answered within a tick; the
+    watchdog fed."""
+    drill = TcpFaultDrill(tmp_path, "silent flange DMM", timeout_s=LARGEST_TIMEOUT_S, fault_at_row=15,
+                          after_fault_s=6.0, heater_off_after_s=0.5, stop_after_s=1.5)
     result = drill.run()
     waits = drill.waits
     assert result.exit_code == 0
-    assert result.fault_to_off_s <= waits.fault_to_off_s(reading_delay_s(drill.daemon.loop)) + ALLOWANCE_S < 2.0
+    assert result.fault_to_off_s <= waits.fault_to_off_s(reading_delay_s(drill.daemon.loop)) + ALLOWANCE_S \
+        < 2 * LARGEST_TIMEOUT_S
     assert result.fault_row.state == "fault:instrument_timeout"
     assert_record_is_honest(drill, result)
     assert result.heater_off_answer_s - result.heater_off_sent_s <= waits.longest_tick_s + ALLOWANCE_S

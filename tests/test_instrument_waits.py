@@ -18,22 +18,22 @@ def test_the_configuration_is_checked_against_the_shipped_units_watchdog(unit):
     assert float(unit_sections(unit)["Service"]["WatchdogSec"]) == UNIT_WATCHDOG_S
 
 
-def test_the_example_fits_and_its_loop_waits_two_periods_for_a_reply():
+def test_the_example_fits_and_its_loop_waits_five_periods_for_a_reply():
     config = load_config(CONFIG / "cryod.yaml")
     waits = InstrumentWaits(config.loop.period_s, config.instruments.timeout_s)
     assert waits.watchdog_problem() is None
-    assert waits.loop_reply_s == LOOP_REPLY_PERIODS * config.loop.period_s == 0.16
+    assert waits.loop_reply_s == LOOP_REPLY_PERIODS * config.loop.period_s == 0.4
     assert InstrumentWaits(0.08, 0.05).loop_reply_s == 0.05       # a shorter timeout is kept
 
 
-@pytest.mark.parametrize("timeout_s", [30.0, 60.0, 2.3])
+@pytest.mark.parametrize("timeout_s", [30.0, 60.0, 2.0])
 def test_a_timeout_the_watchdog_cannot_wait_out_is_refused_with_file_line_and_key(tmp_path, timeout_s):
     path, text = written(tmp_path, "  timeout_s: 1.0 ", f"  timeout_s: {timeout_s:g} ")
     with pytest.raises(FileFormatError) as caught:
         load_config(path)
     message = str(caught.value)
     assert message.startswith(f"{path}:{line_of(text, 'timeout_s:')}: instruments.timeout_s: {timeout_s:g} s per reply")
-    assert "WatchdogSec in systemd/cryod.service" in message and "at most 2.225 s per reply fits" in message
+    assert "WatchdogSec in systemd/cryod.service" in message and "at most 1.985 s per reply fits" in message
 
 
 def test_the_largest_timeout_fits_and_a_little_more_does_not():

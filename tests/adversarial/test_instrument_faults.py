@@ -42,7 +42,6 @@ LARGEST_TIMEOUT_S = round(InstrumentWaits(0.08, 1.0).largest_timeout_s(), 3)
 CATEGORIES = [
     Category("silent flange DMM", "silent flange DMM", 0.5),
     Category("silent flange DMM", "silent flange DMM", 1.0),
-    Category("silent flange DMM", "silent flange DMM", 2.0),
     Category("silent flange DMM", "silent flange DMM", LARGEST_TIMEOUT_S),
     Category("silent PTC-stage DMM", "silent PTC-stage DMM"),
     Category("garbage from the flange DMM", "garbage from the flange DMM"),

@@ -185,7 +185,7 @@ def test_2002_left_to_examine_later_asks_its_error_queue_only_when_told(clock):
     driver at once, and the error queue is read when the daemon calls examine()."""
     with expected_protocol([
         ("*IDN?", IDN_2002),
-        (":FETCh?", InstrumentTimeout("replay", "no reply within 0.16 s")),
+        (":FETCh?", InstrumentTimeout("replay", "no reply within 0.4 s")),
         (":SYSTem:ERRor?", '-230,"Data corrupt or stale"'),
         (":SYSTem:ERRor?", '0,"No error"'),
     ]) as transport:
@@ -373,7 +373,7 @@ def test_6221_off_already_confirmed_asks_nothing_and_an_unconfirmed_one_is_not_w
         (":OUTPut:STATe ON", None),
         (":OUTPut:STATe?", "1"),
         (":STATus:MEASurement:CONDition?", "2"),
-        (OFF[0][0], InstrumentTimeout("replay", "no reply within 0.16 s")),
+        (OFF[0][0], InstrumentTimeout("replay", "no reply within 0.4 s")),
         *OFF,                                      # close() tries once more
     ]) as transport:
         heater = supply_6221(transport, clock)

@@ -17,13 +17,19 @@ Examples
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from cryod.control.ramp import MIN_RATE_K_PER_MIN, rate_refusal
 from cryod.control.terms import term_settings_from
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError, Section, read_text_file, shown
 from drivers.keithley2002_timing import ReadingTiming
+
+if TYPE_CHECKING:
+    from drivers.transports.addresses import InstrumentLocation
 
 CONFIG_FORMAT = "cryod-config v1"
 EXAMPLE_CONFIG_PATH = Path(__file__).resolve().parent / "data" / "cryod.yaml"
@@ -44,6 +50,12 @@ MAX_RAMP_K_PER_MIN = 100.0
 #: socket needs write permission, and whoever connects can set the heater; read or execute bits
 #: for others mean nothing on a socket but show a mode meant for a file, so all three are refused.
 SOCKET_MODE_OTHERS = 0o007
+#: Longest path a Unix socket can be bound to (bytes): the kernel's ``sun_path`` holds 108, the
+#: terminating NUL included.
+SOCKET_PATH_MAX_BYTES = 107
+#: The instruments' keys under ``instruments``, with the names the drivers give them.
+INSTRUMENT_KEYS = {"flange_dmm": "flange DMM (T2)", "ptc_stage_dmm": "PTC-stage DMM (T5)",
+                   "heater_supply": "heater supply"}
 
 
 @dataclass(frozen=True)
@@ -312,6 +324,10 @@ def _socket_path(section: Section, key: str, base: Path) -> Path:
     if candidate.is_dir():
         raise section.error(key, f"{candidate} is a directory: give the socket's own path in it, "
                                  f"e.g. {candidate / 'control.sock'}")
+    length = len(os.fsencode(str(candidate)))
+    if length > SOCKET_PATH_MAX_BYTES:
+        raise section.error(key, f"{length} bytes long: a Unix socket's path holds at most {SOCKET_PATH_MAX_BYTES} "
+                                 f"bytes; give a shorter one (e.g. /run/cryod/control.sock)")
     return candidate
 
 
@@ -339,7 +355,10 @@ def _range_text(curve: CalibrationCurve) -> str:
     return " and ".join(f"{low:.5g}..{high:.5g} K" for low, high in ranges)
 
 
-def _address(section: Section) -> InstrumentAddress:
+def _address(section: Section) -> tuple[InstrumentAddress, InstrumentLocation, Section, str]:
+    """The instrument's address, where it is, and the section and key that say so (for later errors)."""
+    from drivers.transports.addresses import prologix_location, resource_location
+
     resource = section.text("resource", None)
     prologix = section.section("prologix", None)
     if (resource is None) == (prologix is None):
@@ -349,11 +368,41 @@ def _address(section: Section) -> InstrumentAddress:
         host = prologix.text("host", None)
         if (port is None) == (host is None):
             raise prologix.error(None, "give either 'port' (GPIB-USB serial device) or 'host' (GPIB-ETHERNET)")
+        if not (port or host or "").strip():
+            raise prologix.error("port" if port is not None else "host", "is empty")
         address = InstrumentAddress(prologix_port=port, prologix_host=host,
                                     gpib_address=prologix.number("address", minimum=0, maximum=30, integer=True))
         prologix.finish()
-        return address
-    return InstrumentAddress(resource=resource)
+        return (address, prologix_location(port, host, address.gpib_address), prologix,
+                "address")
+    try:
+        location = resource_location(resource)
+    except ValueError as error:
+        raise section.error("resource", f"{shown(resource)} is not a VISA resource cryod can open: {error}") from None
+    return InstrumentAddress(resource=resource), location, section, "resource"
+
+
+def _instruments_apart(places: dict) -> None:
+    """Refuse two instruments at one address on one bus (the second one named, with the first)."""
+    seen: dict = {}
+    for name, (_, location, section, key) in places.items():
+        if location in seen:
+            raise section.error(key, f"{location} is instruments.{seen[location]}'s already: two instruments "
+                                     f"cannot share an address on one bus")
+        seen[location] = name
+
+
+def _trigger_reaches_both_dmms(trigger: str, places: dict, section: Section) -> None:
+    """``gpib-group`` needs both DMMs on one GPIB card, ``prologix`` both behind one Prologix controller."""
+    flange, stage = places["flange_dmm"][1], places["ptc_stage_dmm"][1]
+    if trigger == "gpib-group" and not (flange.bus.startswith("GPIB") and flange.bus == stage.bus):
+        raise section.error("trigger", f"gpib-group triggers both DMMs on one GPIB card, but the flange DMM is on "
+                                       f"{flange.bus} and the PTC-stage DMM on {stage.bus}: give both "
+                                       f"GPIBn::address::INSTR resources on one board, or another trigger")
+    if trigger == "prologix" and not (flange.bus.startswith("Prologix") and flange.bus == stage.bus):
+        raise section.error("trigger", f"prologix triggers both DMMs behind one Prologix controller, but the "
+                                       f"flange DMM is on {flange.bus} and the PTC-stage DMM on {stage.bus}: "
+                                       f"give both a prologix: section with the same port or host")
 
 
 def _config_from_section(top: Section, base: Path) -> DaemonConfig:
@@ -389,15 +438,15 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     dmm_section.finish()
     heater_section = section.section("heater_supply")
     heater_model = heater_section.text("model", choices=HEATER_MODELS)
-    heater_address = _address(heater_section)
+    places = {"heater_supply": _address(heater_section)}
     heater_section.finish()
-    flange_section = section.section("flange_dmm")
-    flange_address = _address(flange_section)
-    flange_section.finish()
-    stage_section = section.section("ptc_stage_dmm")
-    stage_address = _address(stage_section)
-    stage_section.finish()
+    for name in ("flange_dmm", "ptc_stage_dmm"):
+        instrument_section = section.section(name)
+        places[name] = _address(instrument_section)
+        instrument_section.finish()
+    _instruments_apart(places)
     trigger = section.text("trigger", choices=TRIGGER_MODES)
+    _trigger_reaches_both_dmms(trigger, places, section)
     output_section = section.section("trigger_output", None)
     trigger_output = None
     if output_section is not None:
@@ -415,9 +464,9 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         trigger_output=trigger_output,
         timeout_s=section.number("timeout_s", 1.0, minimum=0.01, maximum=60.0),
         visa_library=section.text("visa_library", "@py"),
-        flange_dmm=flange_address,
-        ptc_stage_dmm=stage_address,
-        heater_supply=heater_address,
+        flange_dmm=places["flange_dmm"][0],
+        ptc_stage_dmm=places["ptc_stage_dmm"][0],
+        heater_supply=places["heater_supply"][0],
         heater_model=heater_model,
         dmm=dmm,
     )
@@ -538,6 +587,9 @@ def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
         raise section.error("setpoint_max_K", f"must be below the over-temperature limit safety.flange_max_K "
                                               f"({safety.flange_max_K:g} K)")
     max_ramp = section.number("max_ramp_K_per_min", 10.0, minimum=0.0, exclusive_minimum=True)
+    if max_ramp < MIN_RATE_K_PER_MIN:
+        raise section.error("max_ramp_K_per_min", f"{max_ramp!r} K/min would allow no ramp that moves the "
+                                                  f"setpoint: at least {MIN_RATE_K_PER_MIN:g} K/min")
     if max_ramp > MAX_RAMP_K_PER_MIN:
         raise section.error("max_ramp_K_per_min", f"{max_ramp:g} K/min is beyond what a cryostat flange can "
                                                   f"follow; at most {MAX_RAMP_K_PER_MIN:g} K/min (a Lake Shore "
@@ -550,9 +602,12 @@ def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
     for moved in MOVED_TO_PI:
         if moved in section.data:
             raise section.error(moved, f"the PI gains have a section of their own: give it as control.pi.{moved}")
+    ramp = section.number("ramp_K_per_min", 0.0, minimum=0.0, maximum=max_ramp)
+    if rate_refusal(ramp) is not None:
+        raise section.error("ramp_K_per_min", rate_refusal(ramp))
     control = ControlConfig(
         setpoint_K=setpoint,
-        ramp_K_per_min=section.number("ramp_K_per_min", 0.0, minimum=0.0, maximum=max_ramp),
+        ramp_K_per_min=ramp,
         setpoint_min_K=setpoint_min,
         setpoint_max_K=setpoint_max,
         max_ramp_K_per_min=max_ramp,

@@ -11,12 +11,12 @@ closed with the heater output off, and the error names the instrument.
 
 from __future__ import annotations
 
-import importlib.util
 import logging
-import sys
 from typing import Callable
 
-from cryod.config import DaemonConfig, DmmSettings, InstrumentAddress
+from pyvisa import rname
+
+from cryod.config import INSTRUMENT_KEYS, DaemonConfig, DmmSettings, InstrumentAddress
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError
 from drivers.errors import InstrumentError
@@ -53,32 +53,6 @@ def check_calibrations(config: DaemonConfig) -> str | None:
     except FileFormatError as error:
         return f"calibration file not usable: {error}"
     return None
-
-
-def check_instrument_support(config: DaemonConfig) -> str | None:
-    """None if this installation can open every configured instrument, else what is missing.
-
-    pyvisa-py reaches a GPIB card only through linux-gpib's Python binding (the
-    ``gpib`` module) or gpib-ctypes; without either, the instruments could never be
-    opened, which is an installation to fix, not an outage to wait out.
-    """
-    instruments = config.instruments
-    if instruments.visa_library != "@py":
-        return None
-    gpib = [(name, address.resource) for name, address in (
-        ("flange_dmm", instruments.flange_dmm), ("ptc_stage_dmm", instruments.ptc_stage_dmm),
-        ("heater_supply", instruments.heater_supply))
-        if address.resource and address.resource.upper().startswith("GPIB")]
-    if not gpib:
-        return None
-    for module in ("gpib", "gpib_ctypes"):
-        if importlib.util.find_spec(module) is not None:
-            return None
-    name, resource = gpib[0]
-    return (f"instruments.{name}: {resource} is on a GPIB card, which pyvisa-py reaches through linux-gpib's "
-            f"Python binding (module 'gpib') or gpib-ctypes, and neither is installed in {sys.prefix}. Install "
-            f"linux-gpib with its Python binding into this environment (docs/operations.md, 'GPIB card'), or "
-            f"use NI-VISA (instruments.visa_library: \"\") or a Prologix adapter")
 
 
 # ---------------------------------------------------------------------------
@@ -164,10 +138,10 @@ def assemble_instruments(config: DaemonConfig, clock, flange_transport: Transpor
         heater_config = config.heater
         heater = HEATER_DRIVERS[config.instruments.heater_model](
             heater_transport, clock, heater_config.resistance_ohm, max_current_a=heater_config.max_current_A,
-            voltage_compliance_v=heater_config.voltage_compliance_V, name="heater supply")
+            voltage_compliance_v=heater_config.voltage_compliance_V, name=INSTRUMENT_KEYS["heater_supply"])
         line = config.instruments.dmm.line_frequency_hz
-        flange = Keithley2002(flange_transport, clock, "flange DMM (T2)", line_frequency_hz=line)
-        stage = Keithley2002(stage_transport, clock, "PTC-stage DMM (T5)", line_frequency_hz=line)
+        flange = Keithley2002(flange_transport, clock, INSTRUMENT_KEYS["flange_dmm"], line_frequency_hz=line)
+        stage = Keithley2002(stage_transport, clock, INSTRUMENT_KEYS["ptc_stage_dmm"], line_frequency_hz=line)
         settings = four_wire_settings(config.instruments.dmm)
         for dmm in (flange, stage):
             dmm.configure_four_wire_resistance(settings)
@@ -222,12 +196,12 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
     adapters: dict = {}
     opened: list = []
     try:
-        heater = open_transport(instruments.heater_supply, config, adapters, "heater supply")
-        opened.append(heater)
-        flange = open_transport(instruments.flange_dmm, config, adapters, "flange DMM (T2)")
-        opened.append(flange)
-        stage = open_transport(instruments.ptc_stage_dmm, config, adapters, "PTC-stage DMM (T5)")
-        opened.append(stage)
+        for key in ("heater_supply", "flange_dmm", "ptc_stage_dmm"):
+            try:
+                opened.append(open_transport(getattr(instruments, key), config, adapters, INSTRUMENT_KEYS[key]))
+            except InstrumentError as error:         # the configuration's words: which key to look at
+                raise error.relabelled(f"{error.instrument} (instruments.{key})") from error.__cause__
+        heater, flange, stage = opened
     except BaseException:
         for transport in opened:
             transport.close()
@@ -241,16 +215,14 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
         if mode == "sequential":
             return SequentialTrigger([flange, stage], clock)
         if mode == "gpib-group":
-            board = _gpib_board(instruments.flange_dmm, instruments.ptc_stage_dmm)
+            board = _gpib_board(instruments.flange_dmm)
             interface = resource_manager(instruments.visa_library).open_resource(f"GPIB{board}::INTFC")
             closers.append(interface.close)
             return GpibGroupTrigger(interface, [flange, stage], clock)
-        if mode == "prologix":
-            keys = {_adapter_key(instruments.flange_dmm), _adapter_key(instruments.ptc_stage_dmm)}
-            if instruments.flange_dmm.resource or instruments.ptc_stage_dmm.resource or len(keys) != 1:
-                raise ValueError("instruments.trigger: prologix needs both DMMs on the same Prologix adapter")
-            return PrologixGroupTrigger(adapters[keys.pop()], [instruments.flange_dmm.gpib_address,
-                                                               instruments.ptc_stage_dmm.gpib_address], clock)
+        if mode == "prologix":           # the configuration puts both DMMs behind one controller
+            return PrologixGroupTrigger(adapters[_adapter_key(instruments.flange_dmm)],
+                                        [instruments.flange_dmm.gpib_address, instruments.ptc_stage_dmm.gpib_address],
+                                        clock)
         output = instruments.trigger_output
         line = SerialControlLine.open(output.port, clock, line=output.line)
         closers.append(line.close)
@@ -269,13 +241,6 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
     return (instruments_set, *curves)
 
 
-def _gpib_board(*addresses: InstrumentAddress) -> int:
-    boards = set()
-    for address in addresses:
-        if not address.resource or not address.resource.upper().startswith("GPIB"):
-            raise ValueError("instruments.trigger: gpib-group needs both DMMs on a GPIB card (GPIBn::addr::INSTR)")
-        prefix = address.resource.upper().split("::")[0][4:]
-        boards.add(int(prefix or 0))
-    if len(boards) != 1:
-        raise ValueError("instruments.trigger: gpib-group needs both DMMs on the same GPIB board")
-    return boards.pop()
+def _gpib_board(address: InstrumentAddress) -> int:
+    """The GPIB board of a DMM on a GPIB card (the configuration puts both DMMs of a gpib-group trigger on one)."""
+    return int(rname.parse_resource_name(address.resource).board)

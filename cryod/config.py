@@ -373,8 +373,11 @@ def _address(section: Section) -> tuple[InstrumentAddress, InstrumentLocation, S
         address = InstrumentAddress(prologix_port=port, prologix_host=host,
                                     gpib_address=prologix.number("address", minimum=0, maximum=30, integer=True))
         prologix.finish()
-        return (address, prologix_location(port, host, address.gpib_address), prologix,
-                "address")
+        try:
+            location = prologix_location(port, host, address.gpib_address)
+        except ValueError as error:
+            raise prologix.error("host", str(error)) from None
+        return address, location, prologix, "address"
     try:
         location = resource_location(resource)
     except ValueError as error:

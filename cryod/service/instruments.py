@@ -15,11 +15,12 @@ import logging
 from typing import Callable
 
 from pyvisa import rname
+from pyvisa.errors import VisaIOError
 
 from cryod.config import INSTRUMENT_KEYS, DaemonConfig, DmmSettings, InstrumentAddress
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError
-from drivers.errors import InstrumentError
+from drivers.errors import ConnectionLost, InstrumentError
 from drivers.heater import HeaterSupply
 from drivers.keithley2002 import FourWireSettings, Keithley2002, TriggerSource
 from drivers.keithley2400 import Keithley2400
@@ -216,7 +217,11 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
             return SequentialTrigger([flange, stage], clock)
         if mode == "gpib-group":
             board = _gpib_board(instruments.flange_dmm)
-            interface = resource_manager(instruments.visa_library).open_resource(f"GPIB{board}::INTFC")
+            try:
+                interface = resource_manager(instruments.visa_library).open_resource(f"GPIB{board}::INTFC")
+            except (VisaIOError, OSError) as error:     # a card out of reach: waited for, as an instrument is
+                raise ConnectionLost(f"GPIB{board}::INTFC (instruments.trigger: gpib-group)",
+                                     f"cannot open the GPIB card to trigger both DMMs: {error}") from error
             closers.append(interface.close)
             return GpibGroupTrigger(interface, [flange, stage], clock)
         if mode == "prologix":           # the configuration puts both DMMs behind one controller

@@ -94,14 +94,17 @@ def _check_interfaces(config: DaemonConfig) -> None:
         if not missing:
             continue
         if address.resource.upper().startswith("GPIB"):
-            what = "is on a GPIB card, which pyvisa-py cannot reach"
-            advice = ("install linux-gpib with its Python binding into this environment (docs/operations.md, "
-                      "'GPIB card'), or use NI-VISA (instruments.visa_library: \"\") or a Prologix adapter")
+            reason = (f"{address.resource} is on a GPIB card, which pyvisa-py cannot reach from the installation in "
+                      f"{sys.prefix} ({missing.rstrip('.')}): install linux-gpib with its Python binding into this "
+                      f"environment (docs/operations.md, 'GPIB card'), or use NI-VISA (instruments.visa_library: "
+                      f"\"\") or a Prologix adapter")
+        elif missing.startswith("pyvisa-py has no support"):
+            reason = (f"{address.resource}: {missing}: give a resource of another kind, or a VISA library that has "
+                      f"them (instruments.visa_library)")
         else:
-            what, advice = "is out of pyvisa-py's reach", "install what it names into this environment"
-        raise located_error(config, f"instruments.{key}.resource",
-                            f"{address.resource} {what} from the installation in {sys.prefix} "
-                            f"({missing.rstrip('.')}): {advice}")
+            reason = (f"{address.resource} is out of pyvisa-py's reach from the installation in {sys.prefix} "
+                      f"({missing.rstrip('.')}): install what it names into this environment")
+        raise located_error(config, f"instruments.{key}.resource", reason)
 
 
 def _check_serial_devices(config: DaemonConfig) -> None:

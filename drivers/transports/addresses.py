@@ -28,13 +28,18 @@ ValueError: the primary address must be a whole number 0 to 30, got '61' (syntax
 
 from __future__ import annotations
 
+import ipaddress
 import os
+import re
 from dataclasses import dataclass
 
 from pyvisa import rname
 
 #: GPIB primary and secondary addresses (IEEE 488.1): 0 to 30.
 GPIB_ADDRESSES = range(0, 31)
+#: A host name: dot-separated labels of letters, digits and inner hyphens (RFC 1123), 253 characters at most.
+_HOST_NAME = re.compile(r"(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
+                        r"(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*\.?", re.ASCII)
 #: The resource classes an instrument is opened as: a message-based instrument or a raw TCP socket.
 INSTRUMENT_CLASSES = ("INSTR", "SOCKET")
 
@@ -64,6 +69,19 @@ def _whole_number(text: str | None, what: str, allowed: range | None = None) -> 
         limits = f" {allowed.start} to {allowed.stop - 1}" if allowed is not None else ""
         raise ValueError(f"the {what} must be a whole number{limits}, got {text!r}")
     return int(text)
+
+
+def _host(host: str) -> str:
+    """A host name or IP address as written (lower case); ValueError when it can be neither."""
+    try:
+        return str(ipaddress.ip_address(host))
+    except ValueError:
+        pass
+    if re.fullmatch(r"[0-9.]+", host):
+        raise ValueError(f"the host {host!r} is not an IPv4 address (four numbers 0 to 255)")
+    if not _HOST_NAME.fullmatch(host):
+        raise ValueError(f"the host {host!r} is neither a host name nor an IP address")
+    return host.lower()
 
 
 def _device(path: str) -> str:
@@ -98,9 +116,9 @@ def resource_location(resource: str) -> InstrumentLocation:
             return InstrumentLocation(f"GPIB{board}", str(primary))
         if isinstance(parsed, rname.TCPIPSocket):
             port = _whole_number(parsed.port, "TCP port", range(1, 65536))
-            return InstrumentLocation(f"TCP {parsed.host_address.lower()} port {port}")
+            return InstrumentLocation(f"TCP {_host(parsed.host_address)} port {port}")
         if isinstance(parsed, rname.TCPIPInstr):
-            return InstrumentLocation(f"VXI-11 {parsed.host_address.lower()} device {parsed.lan_device_name}")
+            return InstrumentLocation(f"VXI-11 {_host(parsed.host_address)} device {parsed.lan_device_name}")
         if isinstance(parsed, rname.ASRLInstr):
             return InstrumentLocation(f"serial {_device(parsed.board)}")
     except ValueError as error:
@@ -110,8 +128,14 @@ def resource_location(resource: str) -> InstrumentLocation:
 
 def prologix_location(port: str | None = None, host: str | None = None, gpib_address: int = 0) -> InstrumentLocation:
     """Where an instrument behind a Prologix controller is: the controller (serial ``port`` or ``host``) and
-    the GPIB address."""
-    bus = f"Prologix {_device(port)}" if port is not None else f"Prologix {str(host).lower()}"
+    the GPIB address.
+
+    Raises
+    ------
+    ValueError
+        ``host`` is neither a host name nor an IP address.
+    """
+    bus = f"Prologix {_device(port)}" if port is not None else f"Prologix {_host(str(host))}"
     return InstrumentLocation(bus, str(gpib_address))
 
 

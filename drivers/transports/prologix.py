@@ -91,7 +91,7 @@ class PrologixAdapter:
         try:
             self._interface = self.manager.open_resource(self.interface_resource_name,
                                                          timeout=self.timeout_s * 1000.0)
-        except (VisaIOError, OSError, ValueError) as error:
+        except Exception as error:  # noqa: BLE001 - pyvisa-py raises a bare Exception for a host it cannot resolve
             self._interface = None
             raise ConnectionLost(self.interface_resource_name,
                                  f"cannot open the Prologix controller: {error}") from error

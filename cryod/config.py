@@ -376,7 +376,7 @@ def _address(section: Section) -> tuple[InstrumentAddress, InstrumentLocation, S
         try:
             location = prologix_location(port, host, address.gpib_address)
         except ValueError as error:
-            raise prologix.error("host", str(error)) from None
+            raise prologix.error("port" if port is not None else "host", str(error)) from None
         return address, location, prologix, "address"
     try:
         location = resource_location(resource)

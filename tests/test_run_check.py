@@ -8,19 +8,16 @@ the same checks before it starts anything, so what ``--check`` passes does not f
 import os
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
 
 from cryod.cli import main
-from cryod.config import SOCKET_PATH_MAX_BYTES, load_config
+from cryod.config import SOCKET_PATH_MAX_BYTES
 from cryod.service.faults import ExitCode
-from cryod.service.control_socket import send_command
 from tests.conftest import CONFIG, REPOSITORY
-from tests.test_config import EXAMPLE, line_of
-from tests.test_daemon_config_refusals import config_file, daemon_from_file
-from tests.test_daemon_faults import in_tmp
+from tests.test_config import EXAMPLE
+from tests.test_daemon_config_refusals import config_file, reloads_over_the_socket
 from tests.test_systemd_unit import TEMPLATE, UNIT, unit_sections
 
 #: The example's instruments behind a LAN-to-GPIB gateway, triggered one after the other.
@@ -144,7 +141,7 @@ def test_check_and_run_exit_2_as_processes_and_run_no_longer_waits_on_a_garbage_
         for arguments in (("--check",), ("--duration", "30")):
             started = time.monotonic()
             result = cryod("run", "--config", str(path), *arguments)
-            assert result.returncode == 2, (name, arguments, result.stderr[-2000:])
+            assert result.returncode == 2, (what, arguments, result.stderr[-2000:])
             assert located in result.stderr and "Traceback" not in result.stderr, result.stderr[-2000:]
             assert time.monotonic() - started < 30
         assert not (folder / "data").exists()                   # nothing was started
@@ -179,22 +176,6 @@ def test_a_configuration_replaced_by_a_fifo_does_not_hang_reloads(tmp_path):
     and no later reload was ever answered); the file back, the next reload is taken."""
     path = config_file(tmp_path)
     good = path.read_text()
-    replies = {}
-    asking = []
-
-    def reload_over_the_socket(name, make):
-        def action(daemon):
-            make()
-            asking.append(threading.Thread(target=lambda: replies.update(
-                {name: send_command(tmp_path / "control.sock", "reload", timeout_s=20.0)})))
-            asking[-1].start()
-        return action
-
-    def until_answered(name):
-        def action(daemon):          # the loop keeps ticking, slowly, until the client has its answer
-            if name not in replies:
-                time.sleep(0.002)
-        return action
 
     def to_fifo():
         path.unlink()
@@ -204,16 +185,9 @@ def test_a_configuration_replaced_by_a_fifo_does_not_hang_reloads(tmp_path):
         path.unlink()
         path.write_text(good.replace("    proportional_W_per_K: 10.0", "    proportional_W_per_K: 12.0"))
 
-    actions = {row: until_answered("fifo") for row in range(101, 390)}
-    actions.update({row: until_answered("file") for row in range(401, 740)})
-    actions[100] = reload_over_the_socket("fifo", to_fifo)
-    actions[400] = reload_over_the_socket("file", back_to_file)
-    daemon, _ = daemon_from_file(tmp_path, path, actions, reload_config=lambda: in_tmp(load_config(path), tmp_path))
-    result = daemon.run(60.0)
-    for thread in asking:
-        thread.join(20.0)
+    daemon, result, (fifo, file) = reloads_over_the_socket(tmp_path, path, to_fifo, back_to_file)
     assert result.exit_code == 0
-    assert not replies["fifo"]["ok"]
-    assert f"{path}: is a named pipe (FIFO), not a regular file" in replies["fifo"]["message"]
-    assert replies["file"]["ok"], replies["file"]["message"]
+    assert not fifo["ok"]
+    assert f"{path}: is a named pipe (FIFO), not a regular file" in fifo["message"]
+    assert file["ok"], file["message"]
     assert daemon.loop.regulator.term("pi").controller.gains.proportional_w_per_K == 12.0

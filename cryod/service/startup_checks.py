@@ -154,25 +154,25 @@ def _check_socket_owner_and_group(config: DaemonConfig) -> None:
     socket_config = config.control_socket
     privileged = os.geteuid() == 0
     if socket_config.owner is not None:
-        try:
-            uid = pwd.getpwnam(socket_config.owner).pw_uid
-        except KeyError:
-            raise located_error(config, "control_socket.owner",
-                                f"no user {shown(socket_config.owner)} on this computer") from None
+        uid = _known_id(config, "control_socket.owner", socket_config.owner, "user")
         if not privileged and uid != os.geteuid():
             raise located_error(config, "control_socket.owner",
                                 f"the daemon runs as {_user()} and cannot give the socket to {socket_config.owner}: "
                                 f"only root can; leave owner out (the socket is then {_user()}'s)")
     if socket_config.group is not None:
-        try:
-            gid = grp.getgrnam(socket_config.group).gr_gid
-        except KeyError:
-            raise located_error(config, "control_socket.group",
-                                f"no group {shown(socket_config.group)} on this computer") from None
+        gid = _known_id(config, "control_socket.group", socket_config.group, "group")
         if not privileged and gid != os.getegid() and gid not in os.getgroups():
             raise located_error(config, "control_socket.group",
                                 f"the daemon runs as {_user()}, who is not in the group {socket_config.group}: add "
                                 f"{_user()} to it (SupplementaryGroups= in the unit), or give one of its groups")
+
+
+def _known_id(config: DaemonConfig, key: str, name: str, kind: str) -> int:
+    """The id of the user or group ``name`` on this computer, or the error at ``key``."""
+    try:
+        return pwd.getpwnam(name).pw_uid if kind == "user" else grp.getgrnam(name).gr_gid
+    except KeyError:
+        raise located_error(config, key, f"no {kind} {shown(name)} on this computer") from None
 
 
 def _nearest_existing(directory: Path) -> Path:

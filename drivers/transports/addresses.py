@@ -77,6 +77,9 @@ def _host(host: str) -> str:
         return str(ipaddress.ip_address(host))
     except ValueError:
         pass
+    if ":" in host:
+        raise ValueError(f"the host {host!r} looks like an IPv6 address, which a VISA resource name cannot hold: give "
+                         f"a host name for it, or an IPv4 address")
     if re.fullmatch(r"[0-9.]+", host):
         raise ValueError(f"the host {host!r} is not an IPv4 address (four numbers 0 to 255)")
     if not _HOST_NAME.fullmatch(host):
@@ -135,6 +138,14 @@ def prologix_location(port: str | None = None, host: str | None = None, gpib_add
     ValueError
         ``host`` is neither a host name nor an IP address.
     """
+    from drivers.transports.prologix import interface_resource_name
+
+    name = interface_resource_name(serial_port=port, host=host)
+    try:
+        rname.parse_resource_name(name)
+    except rname.InvalidResourceName as error:
+        raise ValueError(f"{port if port is not None else host!r} cannot be written in a VISA resource name ({error})") \
+            from None
     bus = f"Prologix {_device(port)}" if port is not None else f"Prologix {_host(str(host))}"
     return InstrumentLocation(bus, str(gpib_address))
 

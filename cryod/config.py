@@ -20,16 +20,12 @@ import dataclasses
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from cryod.control.ramp import MIN_RATE_K_PER_MIN, rate_refusal
 from cryod.control.terms import term_settings_from
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError, Section, read_text_file, shown
 from drivers.keithley2002_timing import ReadingTiming
-
-if TYPE_CHECKING:
-    from drivers.transports.addresses import InstrumentLocation
 
 CONFIG_FORMAT = "cryod-config v1"
 EXAMPLE_CONFIG_PATH = Path(__file__).resolve().parent / "data" / "cryod.yaml"
@@ -56,6 +52,9 @@ SOCKET_PATH_MAX_BYTES = 107
 #: The instruments' keys under ``instruments``, with the names the drivers give them.
 INSTRUMENT_KEYS = {"flange_dmm": "flange DMM (T2)", "ptc_stage_dmm": "PTC-stage DMM (T5)",
                    "heater_supply": "heater supply"}
+#: Where every cryod on the host locks the instruments it drives (``instruments.lock_directory``): the
+#: system's place for lock files, shared by all users and units; created at boot by systemd/cryod-tmpfiles.conf.
+DEFAULT_LOCK_DIRECTORY = Path("/run/lock/cryod")
 
 
 @dataclass(frozen=True)
@@ -112,6 +111,8 @@ class InstrumentsConfig:
     heater_model: str
     dmm: DmmSettings
     trigger_output: TriggerOutputConfig | None = None
+    #: Where this daemon locks each instrument's address against other cryod daemons on the host.
+    lock_directory: Path = DEFAULT_LOCK_DIRECTORY
 
 
 @dataclass(frozen=True)
@@ -189,6 +190,23 @@ class MetricsConfig:
 
 
 @dataclass(frozen=True)
+class WebConfig:
+    """The ``web`` section: the live page (off when the section is absent or null)."""
+
+    address: str                        # host:port, 127.0.0.1 unless stated otherwise
+    writable: bool = False              # control from the page (needs token_file)
+    token_file: Path | None = None      # the token a write must carry; readable by the service's group only
+
+
+@dataclass(frozen=True)
+class Lakeshore336Config:
+    """The ``lakeshore336`` section: the Lake Shore 336 command set over TCP (off when absent or null)."""
+
+    address: str                        # host:port, 127.0.0.1 unless stated otherwise
+    writable: bool = False              # SETP, RAMP and RANGE taken (within the same limits as every path)
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     model: Path | None
     seed: int
@@ -209,6 +227,8 @@ class DaemonConfig:
     control_socket: SocketConfig
     simulation: SimulationConfig
     metrics: MetricsConfig = MetricsConfig()
+    web: WebConfig | None = None
+    lakeshore336: Lakeshore336Config | None = None
     source: str = ""
     text: str = ""
 
@@ -355,9 +375,10 @@ def _range_text(curve: CalibrationCurve) -> str:
     return " and ".join(f"{low:.5g}..{high:.5g} K" for low, high in ranges)
 
 
-def _address(section: Section) -> tuple[InstrumentAddress, InstrumentLocation, Section, str]:
-    """The instrument's address, where it is, and the section and key that say so (for later errors)."""
-    from drivers.transports.addresses import prologix_location, resource_location
+def _address(section: Section) -> tuple[InstrumentAddress, str, Section, str]:
+    """The instrument's address, its canonical form (:mod:`drivers.transports.addresses`: what the host-wide
+    instrument lock takes), and the section and key that say so (for later errors)."""
+    from drivers.transports.addresses import instrument_resource, prologix_instrument
 
     resource = section.text("resource", None)
     prologix = section.section("prologix", None)
@@ -374,38 +395,49 @@ def _address(section: Section) -> tuple[InstrumentAddress, InstrumentLocation, S
                                     gpib_address=prologix.number("address", minimum=0, maximum=30, integer=True))
         prologix.finish()
         try:
-            location = prologix_location(port, host, address.gpib_address)
+            canonical = prologix_instrument(port=port, host=host, gpib_address=address.gpib_address)
         except ValueError as error:
             raise prologix.error("port" if port is not None else "host", str(error)) from None
-        return address, location, prologix, "address"
+        return address, canonical, prologix, "address"
     try:
-        location = resource_location(resource)
+        canonical = instrument_resource(resource)
     except ValueError as error:
-        raise section.error("resource", f"{shown(resource)} is not a VISA resource cryod can open: {error}") from None
-    return InstrumentAddress(resource=resource), location, section, "resource"
+        raise section.error("resource", f"not a VISA resource cryod can open: {error}") from None
+    return InstrumentAddress(resource=resource), canonical, section, "resource"
 
 
 def _instruments_apart(places: dict) -> None:
-    """Refuse two instruments at one address on one bus (the second one named, with the first)."""
+    """Refuse two instruments at one address (the second one named, with the first): one address, one lock."""
     seen: dict = {}
-    for name, (_, location, section, key) in places.items():
-        if location in seen:
-            raise section.error(key, f"{location} is instruments.{seen[location]}'s already: two instruments "
-                                     f"cannot share an address on one bus")
-        seen[location] = name
+    for name, (_, canonical, section, key) in places.items():
+        if canonical in seen:
+            raise section.error(key, f"{canonical} is instruments.{seen[canonical]}'s already: two instruments "
+                                     f"cannot share an address")
+        seen[canonical] = name
 
 
 def _trigger_reaches_both_dmms(trigger: str, places: dict, section: Section) -> None:
     """``gpib-group`` needs both DMMs on one GPIB card, ``prologix`` both behind one Prologix controller."""
-    flange, stage = places["flange_dmm"][1], places["ptc_stage_dmm"][1]
-    if trigger == "gpib-group" and not (flange.bus.startswith("GPIB") and flange.bus == stage.bus):
-        raise section.error("trigger", f"gpib-group triggers both DMMs on one GPIB card, but the flange DMM is on "
-                                       f"{flange.bus} and the PTC-stage DMM on {stage.bus}: give both "
-                                       f"GPIBn::address::INSTR resources on one board, or another trigger")
-    if trigger == "prologix" and not (flange.bus.startswith("Prologix") and flange.bus == stage.bus):
-        raise section.error("trigger", f"prologix triggers both DMMs behind one Prologix controller, but the "
-                                       f"flange DMM is on {flange.bus} and the PTC-stage DMM on {stage.bus}: "
-                                       f"give both a prologix: section with the same port or host")
+    from pyvisa import rname
+
+    from drivers.transports.addresses import canonical_prologix_adapter
+
+    dmms = [places[name][0] for name in ("flange_dmm", "ptc_stage_dmm")]
+    described = " and ".join(f"the {name} DMM is {address.resource or 'behind a Prologix controller'}"
+                             for name, address in zip(("flange", "PTC-stage"), dmms))
+    if trigger == "gpib-group":
+        parsed = [rname.parse_resource_name(places[name][1]) for name in ("flange_dmm", "ptc_stage_dmm")
+                  if places[name][0].resource]
+        if len(parsed) != 2 or not all(isinstance(each, rname.GPIBInstr) for each in parsed) \
+                or parsed[0].board != parsed[1].board:
+            raise section.error("trigger", f"gpib-group triggers both DMMs on one GPIB card, but {described}: give "
+                                           f"both GPIBn::address::INSTR resources on one board, or another trigger")
+    if trigger == "prologix":
+        adapters = {canonical_prologix_adapter(port=address.prologix_port, host=address.prologix_host)
+                    for address in dmms if not address.resource}
+        if any(address.resource for address in dmms) or len(adapters) != 1:
+            raise section.error("trigger", f"prologix triggers both DMMs behind one Prologix controller, but "
+                                           f"{described}: give both a prologix: section with the same port or host")
 
 
 def _config_from_section(top: Section, base: Path) -> DaemonConfig:
@@ -472,6 +504,8 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         heater_supply=places["heater_supply"][0],
         heater_model=heater_model,
         dmm=dmm,
+        lock_directory=(_directory(section, "lock_directory", base) if section.text("lock_directory", None) is not None
+                        else DEFAULT_LOCK_DIRECTORY),
     )
     timing = ReadingTiming(nplc=dmm.nplc, line_frequency_hz=dmm.line_frequency_hz,
                            offset_compensation=dmm.offset_compensation, autozero=dmm.autozero,
@@ -559,10 +593,12 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         )
         section.finish()
     metrics = _metrics(top.section("metrics", None))
+    web = _web(top.section("web", None), base)
+    lakeshore336 = _lakeshore336(top.section("lakeshore336", None))
     top.finish()
     return DaemonConfig(loop=loop, instruments=instruments, sensors=sensors, heater=heater, control=control,
                         safety=safety, data=data, control_socket=socket_config, simulation=simulation,
-                        metrics=metrics)
+                        metrics=metrics, web=web, lakeshore336=lakeshore336)
 
 
 def _metrics(section: Section | None) -> MetricsConfig:
@@ -579,6 +615,46 @@ def _metrics(section: Section | None) -> MetricsConfig:
     metrics = MetricsConfig(address=address, cryostat=section.text("cryostat", ""))
     section.finish()
     return metrics
+
+
+def _listen_address(section: Section) -> str:
+    """The section's ``address`` (host:port), checked; port 0 (any free port) is taken for tests."""
+    from cryod.service.listen_address import parse_address
+
+    address = section.text("address")
+    try:
+        parse_address(address, allow_any_port=True)
+    except ValueError as error:
+        raise section.error("address", str(error)) from None
+    return address
+
+
+def _web(section: Section | None, base: Path) -> WebConfig | None:
+    if section is None:
+        return None
+    web = WebConfig(address=_listen_address(section), writable=section.flag("writable", False),
+                    token_file=_existing_file(section, "token_file", base, None))
+    if web.writable and web.token_file is None:
+        raise section.error("writable", "control from the page needs web.token_file: a file holding the token "
+                                        "a write must carry (at least 16 characters), readable by the service's "
+                                        "group only (docs/operations.md)")
+    if web.token_file is not None:
+        from cryod.service.web_token import read_token
+
+        try:
+            read_token(web.token_file)
+        except ValueError as error:
+            raise section.error("token_file", str(error)) from None
+    section.finish()
+    return web
+
+
+def _lakeshore336(section: Section | None) -> Lakeshore336Config | None:
+    if section is None:
+        return None
+    lakeshore = Lakeshore336Config(address=_listen_address(section), writable=section.flag("writable", False))
+    section.finish()
+    return lakeshore
 
 
 def _control(section: Section, safety: SafetyConfig) -> ControlConfig:

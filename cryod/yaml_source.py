@@ -27,7 +27,7 @@ from typing import Any, Iterable
 import yaml
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
-from cryod.regular_files import NotARegularFile, regular_file_bytes
+from cryod.regular_files import NotARegularFile, open_regular_file
 
 #: A number as these files write it: plain decimal digits with an optional sign, point and exponent
 #: (``5``, ``-0.5``, ``.5``, ``2.5e-3``), which YAML 1.1 and YAML 1.2 read alike. A whole number with a
@@ -368,7 +368,8 @@ def read_text_file(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
     """
     path = Path(path)
     try:
-        data = regular_file_bytes(path, max_bytes)
+        with open_regular_file(path) as stream:
+            data = stream.read(max_bytes + 1)
         if len(data) > max_bytes:
             raise FileFormatError(str(path), None, "", f"larger than {max_bytes} bytes: not a configuration "
                                                        f"or model file")
@@ -376,8 +377,7 @@ def read_text_file(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
     except FileNotFoundError:
         raise FileFormatError(str(path), None, "", "file not found") from None
     except NotARegularFile as error:
-        what = "is a directory, not a file" if str(error).startswith("a directory") else f"is {error}"
-        raise FileFormatError(str(path), None, "", what) from None
+        raise FileFormatError(str(path), None, "", error.reason) from None
     except UnicodeDecodeError as error:
         raise FileFormatError(str(path), None, "", f"not UTF-8 text: {error}") from None
     except (OSError, ValueError) as error:          # ValueError: a NUL character in the path

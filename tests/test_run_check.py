@@ -71,17 +71,17 @@ REFUSALS = [
     ("socket path is a file", [(SOCKET, "  path: {tmp}/occupied")], "control_socket.path",
      "exists and is a regular file"),
     ("resource with a colon missing", [(FLANGE, "    resource: GPIB0::16:INSTR")], "instruments.flange_dmm.resource",
-     "the primary address must be a whole number 0 to 30, got '16:INSTR'"),
+     "'GPIB0::16:INSTR' is not a VISA resource name: the GPIB primary address must be a number"),
     ("GPIB address 61", [(FLANGE, "    resource: GPIB0::61::INSTR")], "instruments.flange_dmm.resource",
-     "the primary address must be a whole number 0 to 30, got '61'"),
+     "'GPIB0::61::INSTR': the GPIB primary address must be 0 to 30, got 61"),
     ("an interface for an instrument", [(FLANGE, "    resource: GPIB0::INTFC")], "instruments.flange_dmm.resource",
      "INTFC is an interface, not an instrument"),
     ("two instruments on one address", [("    resource: TCPIP0::10.0.0.3::1234::SOCKET", FLANGE)],
-     "instruments.ptc_stage_dmm.resource", "TCP 10.0.0.2 port 1234 is instruments.flange_dmm's already"),
+     "instruments.ptc_stage_dmm.resource", "TCPIP0::10.0.0.2::1234::SOCKET is instruments.flange_dmm's already"),
     ("two behind one Prologix address", [(FLANGE, "    prologix: {{host: 10.0.0.9, address: 12}}"),
                                          ("    resource: TCPIP0::10.0.0.4::1234::SOCKET",
                                           "    prologix: {{host: 10.0.0.9, address: 12}}")],
-     "instruments.flange_dmm.prologix.address", "Prologix 10.0.0.9 address 12 is instruments.heater_supply's"),
+     "instruments.flange_dmm.prologix.address", "prologix-ethernet:10.0.0.9:gpib12 is instruments.heater_supply's"),
     ("Prologix port that does not exist", [(FLANGE, "    prologix: {{port: /dev/ttyUSB-cryod-none, address: 16}}")],
      "instruments.flange_dmm.prologix.port", "/dev/ttyUSB-cryod-none: no such device"),
     ("Prologix port that is not a device", [(FLANGE, "    prologix: {{port: {tmp}/occupied, address: 16}}")],
@@ -89,7 +89,8 @@ REFUSALS = [
     ("garbage VISA library", [('  visa_library: "@py"', '  visa_library: "garbage"')], "instruments.visa_library",
      "'garbage' cannot be loaded as a VISA library"),
     ("GPIB group trigger without a GPIB card", [("  trigger: sequential", "  trigger: gpib-group")],
-     "instruments.trigger", "gpib-group triggers both DMMs on one GPIB card, but the flange DMM is on TCP 10.0.0.2"),
+     "instruments.trigger", "gpib-group triggers both DMMs on one GPIB card, but the flange DMM is "
+                            "TCPIP0::10.0.0.2::1234::SOCKET"),
     ("ramp too slow to move", [("  ramp_K_per_min: 0.0", "  ramp_K_per_min: 1e-320")], "control.ramp_K_per_min",
      "1e-320 K/min is too slow to move the setpoint"),
 ]
@@ -162,11 +163,11 @@ def test_a_configuration_that_is_not_a_regular_file_is_refused_at_once(tmp_path,
     if kind == "fifo":
         path = tmp_path / "cryod.yaml"
         os.mkfifo(path)
-        words = "is a named pipe (FIFO), not a regular file"
+        words = "is a FIFO (named pipe), not a regular file"
     elif kind == "device":
-        path, words = "/dev/zero", "is a character device, not a regular file"
+        path, words = "/dev/zero", "is a character device (like /dev/zero or a terminal), not a regular file"
     else:
-        path, words = tmp_path, "is a directory, not a file"
+        path, words = tmp_path, "is a directory, not a regular file"
     result = cryod("run", "--config", str(path), "--check", timeout=30)
     assert result.returncode == 2 and f"{path}: {words}" in result.stderr, result.stderr
 
@@ -188,6 +189,6 @@ def test_a_configuration_replaced_by_a_fifo_does_not_hang_reloads(tmp_path):
     daemon, result, (fifo, file) = reloads_over_the_socket(tmp_path, path, to_fifo, back_to_file)
     assert result.exit_code == 0
     assert not fifo["ok"]
-    assert f"{path}: is a named pipe (FIFO), not a regular file" in fifo["message"]
+    assert f"{path}: is a FIFO (named pipe), not a regular file" in fifo["message"]
     assert file["ok"], file["message"]
     assert daemon.loop.regulator.term("pi").controller.gains.proportional_w_per_K == 12.0

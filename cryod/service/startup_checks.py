@@ -59,7 +59,8 @@ def check_before_run(config: DaemonConfig, *, before_systemd_start: bool = False
     _check_socket_owner_and_group(config)
     notes = []
     for key, directory in (("control_socket.path", config.control_socket.path.parent),
-                           ("data.directory", config.data.directory)):
+                           ("data.directory", config.data.directory),
+                           ("instruments.lock_directory", config.instruments.lock_directory)):
         note = _check_directory(config, key, directory, before_systemd_start)
         if note:
             notes.append(note)
@@ -134,7 +135,7 @@ def _serial_device_problem(device: str) -> str | None:
     except OSError as error:
         return f"{device}: {error.strerror or error}"
     if not stat.S_ISCHR(mode):
-        return f"{device} is {kind_of(mode) or 'a regular file'}, not a serial device"
+        return f"{device} is {kind_of(mode)}, not a serial device"
     if not os.access(device, os.R_OK | os.W_OK):
         return (f"{device}: user {_user()} may not read and write it: add {_user()} to the device's group "
                 f"(dialout for serial adapters; SupplementaryGroups= in the unit)")
@@ -182,11 +183,21 @@ def _nearest_existing(directory: Path) -> Path:
     return place
 
 
+def directory_problem(config: DaemonConfig, key: str, directory: Path) -> str | None:
+    """None when ``directory`` (named at ``key``) takes files or can be made by this user, else why not, at its
+    file, line and key."""
+    try:
+        _check_directory(config, key, directory, before_systemd_start=False)
+    except FileFormatError as error:
+        return str(error)
+    return None
+
+
 def _check_directory(config: DaemonConfig, key: str, directory: Path, before_systemd_start: bool) -> str | None:
     """``directory`` takes files, or can be made; a note when systemd makes it for the service."""
     place = _nearest_existing(directory)
     if not place.is_dir():
-        what = (kind_of(os.stat(place).st_mode) or "a file") if place.exists() else "a link to nothing"
+        what = kind_of(os.stat(place).st_mode) if place.exists() else "a link to nothing"
         raise located_error(config, key, f"{directory} cannot be made: {place} is {what}, not a directory")
     try:
         if place == directory:
@@ -215,8 +226,8 @@ def _check_socket_path_is_free(config: DaemonConfig) -> None:
         return
     if not stat.S_ISSOCK(mode):
         raise located_error(config, "control_socket.path",
-                            f"{path} exists and is {kind_of(mode) or 'a regular file'}: cryod binds its socket "
+                            f"{path} exists and is {kind_of(mode)}: cryod binds its socket "
                             f"there and replaces only a socket left behind; remove it or give another path")
 
 
-__all__ = ["check_before_run", "FileFormatError"]
+__all__ = ["check_before_run", "directory_problem", "FileFormatError"]

@@ -21,7 +21,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from cryod.regular_files import NotARegularFile, regular_file_bytes
+from cryod.regular_files import NotARegularFile, open_regular_file
 from cryod.thermometry.errors import CalibrationFileError
 
 _SPACES = re.compile(r"\s+")
@@ -60,11 +60,12 @@ class CalibrationText:
         """Read a file; a missing, unreadable or binary file is a :class:`CalibrationFileError`."""
         path = Path(path)
         try:
-            raw = regular_file_bytes(path, MAX_FILE_BYTES)
+            with open_regular_file(path) as stream:
+                raw = stream.read(MAX_FILE_BYTES + 1)
         except FileNotFoundError:
             raise CalibrationFileError(str(path), None, "file not found") from None
         except NotARegularFile as error:
-            raise CalibrationFileError(str(path), None, f"is {error}") from None
+            raise CalibrationFileError(str(path), None, error.reason) from None
         except OSError as error:
             raise CalibrationFileError(str(path), None, f"cannot read: {error.strerror or error}") from None
         if len(raw) > MAX_FILE_BYTES:

@@ -41,9 +41,8 @@ from hypothesis import strategies as st
 from cryod.cli import main
 from cryod.config import SOCKET_PATH_MAX_BYTES
 from cryod.control.regulator import RegulatorMode
-from cryod.service.clock import MonotonicClock
-from simulated_hw.bench import SimulatedBench
 from tests.conftest import CONFIG, REPOSITORY
+from tests.service_bench import BenchOverTcp
 from tests.test_config import EXAMPLE
 from tests.test_reload_limits import ReloadDrill
 
@@ -60,9 +59,8 @@ RUNS = settings(max_examples=25, deadline=None, derandomize=True, database=None,
 @pytest.fixture(scope="module")
 def bench():
     """The simulated instruments on 127.0.0.1 ports; the resource names of each."""
-    simulated = SimulatedBench(MonotonicClock(), seed=7)
-    with simulated.serve_tcp() as resources:
-        yield resources
+    with BenchOverTcp() as served:
+        yield served.resources
 
 
 class Cases:
@@ -91,6 +89,7 @@ def base_text(bench: dict, folder: Path) -> str:
                       ("GPIB0::12::INSTR", "heater_supply")):
         text = text.replace(gpib, bench[key])
     return (text.replace("trigger: gpib-group", "trigger: sequential")
+            .replace("  timeout_s: 1.0 ", f"  lock_directory: {folder.parent / 'locks'}\n  timeout_s: 1.0 ")
             .replace("/var/lib/cryod", str(folder / "data"))
             .replace("/run/cryod/control.sock", str(folder / "run" / "control.sock")))
 
@@ -359,7 +358,12 @@ OPERATIONS = st.one_of(
     st.tuples(st.just("reload"), limit_sets()),
     st.tuples(st.just("reload"), limit_sets()),
     st.tuples(st.just("reload while recovering"), limit_sets()),
+    st.tuples(st.just("ramp, then a slower ramp limit"), limit_sets()),
+    st.tuples(st.just("a limit below the flange"), st.none()),
 )
+#: Limits below the flange's temperature with the heater off (about 4.26 K).
+COLD_LIMITS = {"setpoint_max_K": 3.9, "flange_max_K": 4.1, "setpoint_min_K": 3.0, "setpoint_K": "null",
+               "ramp_K_per_min": 0.0, "max_ramp_K_per_min": 1.0}
 RELOAD_RUNS = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                        suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 
@@ -374,7 +378,8 @@ def limits_text(limits: dict) -> list[tuple[str, str]]:
        steps=st.lists(st.tuples(st.integers(4, 40), OPERATIONS), min_size=3, max_size=10))
 def test_setpoints_ramps_and_reloads_in_every_state(tmp_path_factory, first, first_row, steps):
     """A reload while the loop still holds the heater off at start, then operator commands, reloads and sensor
-    faults (each ``reload while recovering`` injects one and reloads two rows later)."""
+    faults (each ``reload while recovering`` injects one and reloads two rows later; ``ramp, then a slower ramp
+    limit`` and ``a limit below the flange`` aim at the limits on the ramp in use and the temperature now)."""
     tmp_path = tmp_path_factory.mktemp("sequence")
     schedule, row = {first_row: ("reload", first)}, first_row
     for gap, (name, value) in steps:
@@ -383,6 +388,12 @@ def test_setpoints_ramps_and_reloads_in_every_state(tmp_path_factory, first, fir
             schedule[row] = ("fault", None)
             schedule[row + 2] = ("reload", value)
             row += 2
+        elif name == "ramp, then a slower ramp limit":
+            schedule[row] = ("ramp", 0.5)
+            schedule[row + 2] = ("reload", {**value, "max_ramp_K_per_min": 0.05, "ramp_K_per_min": 0.0})
+            row += 2
+        elif name == "a limit below the flange":
+            schedule[row] = ("reload", COLD_LIMITS)
         else:
             schedule[row] = (name, value)
     violations = []

@@ -31,8 +31,9 @@ def lan_config(tmp_path):
     text = EXAMPLE.replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/")
     for gpib, lan in LAN.items():
         text = text.replace(gpib, lan)
-    text = text.replace("/var/lib/cryod", str(tmp_path / "data")).replace("/run/cryod/control.sock",
-                                                                          str(tmp_path / "run" / "control.sock"))
+    text = (text.replace("/var/lib/cryod", str(tmp_path / "data"))
+            .replace("/run/cryod/control.sock", str(tmp_path / "run" / "control.sock"))
+            .replace("  timeout_s: 1.0 ", f"  lock_directory: {tmp_path / 'locks'}\n  timeout_s: 1.0 "))
     path = tmp_path / "cryod.yaml"
     path.write_text(text)
     return path, text
@@ -70,6 +71,8 @@ REFUSALS = [
      "/proc/cryod-check does not exist and user"),
     ("socket path is a file", [(SOCKET, "  path: {tmp}/occupied")], "control_socket.path",
      "exists and is a regular file"),
+    ("lock folder cannot be made", [("  lock_directory: {tmp}/locks", "  lock_directory: /proc/cryod-check-locks")],
+     "instruments.lock_directory", "/proc/cryod-check-locks does not exist and user"),
     ("resource with a colon missing", [(FLANGE, "    resource: GPIB0::16:INSTR")], "instruments.flange_dmm.resource",
      "'GPIB0::16:INSTR' is not a VISA resource name: the GPIB primary address must be a number"),
     ("GPIB address 61", [(FLANGE, "    resource: GPIB0::61::INSTR")], "instruments.flange_dmm.resource",

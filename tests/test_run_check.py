@@ -195,3 +195,23 @@ def test_a_configuration_replaced_by_a_fifo_does_not_hang_reloads(tmp_path):
     assert f"{path}: is a FIFO (named pipe), not a regular file" in fifo["message"]
     assert file["ok"], file["message"]
     assert daemon.loop.regulator.term("pi").controller.gains.proportional_w_per_K == 12.0
+
+
+def test_an_instrument_out_of_reach_at_start_is_named_by_its_key(tmp_path):
+    """What ``cryod run`` says while it waits for an instrument names the configuration's key, beside the
+    resource pyvisa could not open."""
+    import socket
+
+    from cryod.config import load_config
+    from cryod.service.clock import MonotonicClock
+    from cryod.service.instruments import open_instruments
+    from drivers.errors import ConnectionLost
+
+    with socket.socket() as probe:              # a port nobody listens at
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    path, _ = lan_config(tmp_path)
+    path.write_text(path.read_text().replace("TCPIP0::10.0.0.4::1234::SOCKET", f"TCPIP0::127.0.0.1::{port}::SOCKET"))
+    with pytest.raises(ConnectionLost) as caught:
+        open_instruments(load_config(path), MonotonicClock())
+    assert str(caught.value).startswith("heater supply (instruments.heater_supply): "), str(caught.value)

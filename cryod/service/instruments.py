@@ -253,8 +253,8 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
         for key in ("heater_supply", "flange_dmm", "ptc_stage_dmm"):
             try:
                 opened.append(open_transport(getattr(instruments, key), config, adapters, INSTRUMENT_KEYS[key]))
-            except InstrumentError as error:         # the configuration's words: which key to look at
-                raise error.relabelled(f"{error.instrument} (instruments.{key})") from error.__cause__
+            except InstrumentError as error:
+                raise _with_key(error, key) from error.__cause__
         heater, flange, stage = opened
     except BaseException:
         for transport in opened:
@@ -294,9 +294,19 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
             except Exception as error:  # noqa: BLE001 - closing; say so and go on
                 log.warning("closing: %s", error)
 
-    instruments_set = assemble_instruments(config, clock, flange, stage, heater, make_trigger,
-                                           on_close=close_others)
+    try:
+        instruments_set = assemble_instruments(config, clock, flange, stage, heater, make_trigger,
+                                               on_close=close_others)
+    except InstrumentError as error:
+        key = next((key for key, name in INSTRUMENT_KEYS.items() if error.instrument == name), None)
+        raise (error if key is None else _with_key(error, key)) from error.__cause__
     return (instruments_set, *curves)
+
+
+def _with_key(error: InstrumentError, key: str) -> InstrumentError:
+    """``error`` naming the configuration's key of its instrument too: ``heater supply (instruments.heater_supply)``,
+    which the lab finds in the file, beside the resource the message quotes."""
+    return error.relabelled(f"{error.instrument} (instruments.{key})")
 
 
 def switch_supply_off(config: DaemonConfig, clock) -> None:

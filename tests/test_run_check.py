@@ -215,3 +215,21 @@ def test_an_instrument_out_of_reach_at_start_is_named_by_its_key(tmp_path):
     with pytest.raises(ConnectionLost) as caught:
         open_instruments(load_config(path), MonotonicClock())
     assert str(caught.value).startswith("heater supply (instruments.heater_supply): "), str(caught.value)
+
+
+def test_a_folder_systemd_makes_for_the_service_is_a_note_before_the_first_start(tmp_path, capsys, monkeypatch):
+    """The unit's RuntimeDirectory= makes /run/cryod when systemd starts the service: --check run before the
+    first start notes that it is missing; cryod run by hand, which systemd does not prepare, refuses it. (A
+    folder this user cannot make stands in for /run: /proc.)"""
+    from pathlib import Path
+
+    from cryod.service import startup_checks
+
+    monkeypatch.setattr(startup_checks, "SYSTEMD_DIRECTORY_ROOTS", (Path("/proc"),))
+    path, _, line = refused_case(tmp_path, [(SOCKET, "  path: /proc/cryod-check/control.sock")])
+    assert main(["run", "--config", str(path), "--check"]) == 0
+    out = capsys.readouterr().out
+    assert "note: /proc/cryod-check (control_socket.path) does not exist yet" in out
+    assert "systemd makes it when it starts the service" in out
+    assert main(["run", "--config", str(path), "--duration", "1"]) == ExitCode.CONFIG
+    assert f"{path}:{line}: control_socket.path: /proc/cryod-check does not exist" in capsys.readouterr().err

@@ -34,7 +34,7 @@ from typing import Callable
 import numpy as np
 
 from cryod import __version__
-from cryod.config import DaemonConfig, load_config
+from cryod.config import DaemonConfig, load_config, located_error
 from cryod.instrument_waits import InstrumentWaits
 from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
@@ -61,6 +61,10 @@ log = logging.getLogger("cryod.daemon")
 
 #: Longest pause between two attempts to open instruments that do not answer (s).
 MAX_RETRY_PAUSE_S = 60.0
+
+
+class _NotStarted(Exception):
+    """The daemon stops before touching an instrument (said in the journal and the record already)."""
 
 
 @dataclass
@@ -417,7 +421,12 @@ class Daemon:
             control_socket = ControlSocketServer(config.control_socket.path, config.control_socket.mode,
                                                  config.control_socket.owner, config.control_socket.group,
                                                  self._submit, self._status)
-            control_socket.start()
+            try:
+                control_socket.start()
+            except (OSError, KeyError) as error:         # KeyError: an owner or group gone since the checks
+                self._stop_event(str(located_error(config, "control_socket.path",
+                                                   f"the control socket cannot be served: {error}")), ExitCode.CONFIG)
+                raise _NotStarted from None
             if config.metrics.address is not None:
                 from cryod.service.metrics_export import MetricsEndpoint
 
@@ -460,6 +469,8 @@ class Daemon:
                 log.info("cryod %s: loop period %.0f ms, data in %s, control socket %s", __version__,
                          config.loop.period_s * 1e3, config.data.directory, config.control_socket.path)
                 exit_code = self.loop.run(duration_s)
+        except _NotStarted:
+            exit_code = ExitCode.CONFIG
         except BaseException as error:
             # the heater goes off below (closing the instruments); the record says why, unless the loop did
             if self.datalog is not None and (self.loop is None or self.loop.exit_code is None):
@@ -519,6 +530,10 @@ class Daemon:
             lock.acquire()
         except AlreadyRunning as error:
             log.critical("not started: %s", error)
+            return None
+        except OSError as error:                # a folder cryod run's checks found usable a moment ago
+            log.critical("not started: %s", located_error(config, "control_socket.path",
+                                                          f"the lock {lock.path} cannot be taken: {error}"))
             return None
         if self.instrument_addresses is None:
             return [lock]

@@ -31,7 +31,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Callable, Protocol
 
-from cryod.config import DaemonConfig
+from cryod.config import DaemonConfig, located_error
 from cryod.control.regulator import HeaterPowerOutput, Regulator, RegulatorMode
 from cryod.control.terms import term_columns
 from cryod.records.columns import TIME_DECIMALS, Event, Row, RowSchema, loop_schema
@@ -40,6 +40,7 @@ from cryod.service.faults import ExitCode, Fault, FaultCause, ReadingChecks, fau
 from cryod.service.realtime import LoopGarbageCollector
 from cryod.service.states import LoopState
 from cryod.service.timing import LoopTiming
+from cryod.yaml_source import FileFormatError
 from drivers.clock import Clock
 from drivers.errors import HeaterLimitRefused, InstrumentError
 from drivers.thermometer_pair import PairReading
@@ -197,7 +198,6 @@ class ControlLoop:
         self._outside_fault: Fault | None = None
         self._valid_in_a_row = 0
         self._hold_reported = False         # a reading above a limit kept the heater off (said once per hold)
-        self._regulating = False            # the loop has left its start-up hold at least once
         # a fault episode: from a first recoverable fault until the loop has run clean for
         # safety.recovery_timeout_s; the recovery timeout counts from its start, and every resume
         # within it doubles the valid readings the next resume needs (a fault that keeps coming back
@@ -436,9 +436,10 @@ class ControlLoop:
             previous = self.state
             self._last_trigger_s = reading.trigger_time_s
             self.state = LoopState(self.regulator.mode)
-            if self.state is LoopState.CLOSED and not self._regulating:
+            if self.state is LoopState.CLOSED and not self.regulator.regulating:
+                # start-up, or a setpoint given while the heater was off or manual: close from 0 W, the ramp
+                # from T2; after a fault while regulating the terms go on where they were
                 self.regulator.close_loop(reading.trigger_time_s, row.T2_K, row.T5_K, present_power_w=0.0)
-            self._regulating = True
             self._hold_reported = False
             note = ""
             if self._episode_start_s is not None:
@@ -656,6 +657,34 @@ class ControlLoop:
         for command, ok, message in answers:
             command.answer(ok, message)
 
+    def reload_refusal(self, new: DaemonConfig) -> FileFormatError | None:
+        """Why ``new`` cannot take over now, at the key of ``new`` it concerns (file, line, key), or None.
+
+        Refused: a change that needs a restart; a setpoint or ramp in use outside the new control
+        limits (:meth:`cryod.control.regulator.Regulator.refusal`); and, while the loop reads and acts
+        on its readings (closed, manual, off), an over-temperature limit below the temperature now,
+        which would stop the daemon at the next reading (exit 3). While it holds the heater off
+        waiting for valid readings, such a limit only holds it off longer, as it would at a start.
+        """
+        restart = self.config.restart_needed_for(new)
+        if restart:
+            return located_error(new, restart[0], f"changes to {', '.join(restart)} need a restart "
+                                                  f"(systemctl restart cryod)")
+        refusal = self.regulator.refusal(new.control)
+        if refusal is not None:
+            return located_error(new, *refusal)
+        if self.state.waits_for_readings or self.state is LoopState.STOPPED:
+            return None
+        status = self.status
+        for key, limit_K, name, now_K in (("safety.flange_max_K", new.safety.flange_max_K, "T2", status.flange_K),
+                                          ("safety.ptc_stage_max_K", new.safety.ptc_stage_max_K, "T5",
+                                           status.ptc_stage_K)):
+            if now_K > limit_K:                 # as ReadingChecks.check_temperatures will see it
+                return located_error(new, key, f"{limit_K:g} K is below {name} now, {now_K:.4f} K ({self.state}): "
+                                               f"the next reading would stop the daemon (over_temperature, exit 3); "
+                                               f"lower the limit once the temperature is below it")
+        return None
+
     def reload(self, new: DaemonConfig) -> str:
         """Apply a validated configuration at this tick boundary, bumplessly, or refuse it (the ``reload`` command).
 
@@ -665,12 +694,8 @@ class ControlLoop:
             Sections that need a restart changed, or the values in use would
             break a new limit; the running configuration stays.
         """
-        restart = self.config.restart_needed_for(new)
-        if restart:
-            raise CommandRefused(f"kept the running configuration: changes to {', '.join(restart)} need a restart "
-                                 f"(systemctl restart cryod)")
-        refusal = self.regulator.refusal(new.control)
-        if refusal:
+        refusal = self.reload_refusal(new)
+        if refusal is not None:
             raise CommandRefused(f"kept the running configuration: {refusal}")
         self.regulator.reconfigure(new.control)
         self.config = new

@@ -8,7 +8,7 @@ import pytest
 from cryod.analysis.candidates import first_order_link
 from cryod.analysis.decision import BaseDiscrepancy, CandidateScore, Gain, decide
 from cryod.analysis.noise import white_noise_rms
-from cryod.analysis.ptc_line import estimate_ptc_line, fit_phase_track, phase_track
+from cryod.cooler.line import estimate_ptc_line, fit_phase_track, phase_track
 from cryod.analysis.record_data import RecordData, fit_block_mask, heater_limit_from_metadata
 from cryod.analysis.replay import Replayer
 from cryod.analysis.segments import find_segments, find_steps

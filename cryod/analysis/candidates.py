@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize
 
-from cryod.analysis.ptc_line import PtcLine, measurable_orders
+from cryod.cooler.line import PtcLine, measurable_orders
 from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD, LINK_PARAMETERS, RecalibratedBase
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replay, Replayer
@@ -440,9 +440,9 @@ def fit_ptc_harmonics(context: FitContext) -> CandidateFit:
 def fit_ptc_frequency_drift(context: FitContext) -> CandidateFit:
     """The cooler's frequency changing over the record: the record replayed at the phase measured in T5.
 
-    The phase is followed sample by sample (:func:`cryod.analysis.ptc_line.measured_cycle`);
+    The phase is followed sample by sample (:func:`cryod.cooler.line.measured_cycle`);
     the drift's parameters are the model's form fitted to it
-    (:func:`cryod.analysis.ptc_line.fit_drift_to_phase`).
+    (:func:`cryod.cooler.line.fit_drift_to_phase`).
     """
     base = context.base_model
     line = context.replayer.stage_line(context.line_model or base, orders=context.base_line.orders,

@@ -9,7 +9,7 @@ to that phase whose effect on T2 cancels the line.
 
 How it works, every tick:
 
-1. **Phase** (:mod:`cryod.control.cooler_phase`): T5, at the instant its
+1. **Phase** (:mod:`cryod.cooler.phase`): T5, at the instant its
    reading stands for, updates a phase-locked loop; lock, phase and
    frequency come out.
 2. **Estimate** (:class:`SynchronousEstimator`): T2, at its own instant, updates
@@ -67,7 +67,7 @@ from pathlib import Path
 import numpy as np
 
 from cryod.control.bounded_waveform import best_bounded_waveform, waveform_values
-from cryod.control.cooler_phase import CoolerPhaseTracker
+from cryod.cooler.phase import CoolerPhaseTracker
 from cryod.control.feedforward_learning import LearningWorker
 from cryod.control.terms import TickInputs
 from cryod.control.unplayed_power import UnplayedPower

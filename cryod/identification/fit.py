@@ -15,7 +15,7 @@ What is fitted, all records at once (they are taken to be from one cryostat):
 * the operating point (T2_0, T5_0), shared by the records;
 * per record, the state at the first sample: each mode's amplitude, free;
 * the cooler's line (frequency, amplitude, phase at the first record's start,
-  significant harmonics) from the first record's T5 (:mod:`cryod.analysis.ptc_line`);
+  significant harmonics) from the first record's T5 (:mod:`cryod.cooler.line`);
 * the sensor noise, from the final residuals (:mod:`cryod.analysis.noise`).
 
 Which time constant belongs to G2 (flange to thermometer) cannot be told from
@@ -33,7 +33,7 @@ from scipy import optimize
 
 from cryod.analysis.candidates import first_order_link
 from cryod.analysis.noise import white_noise_rms
-from cryod.analysis.ptc_line import PtcLine, measurable_orders
+from cryod.cooler.line import PtcLine, measurable_orders
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replayer
 from cryod.model import CryostatModel, OperatingPoint, SensorNoise

@@ -64,7 +64,7 @@ def run(args) -> int:
 
 def cooler_frequency(time_s: np.ndarray, ptc_stage_K: np.ndarray, nominal_rad_s: float) -> float:
     """The cooler's angular frequency (rad/s) on T5 near ``nominal_rad_s`` (the first hour at most)."""
-    from cryod.records.metrics import line_frequency
+    from cryod.cooler.periodic import line_frequency
 
     usable = np.isfinite(time_s) & np.isfinite(ptc_stage_K)
     usable &= time_s <= time_s[usable][0] + 3600.0 if usable.any() else usable

@@ -30,7 +30,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
-from cryod.service.clock import Clock
+from drivers.clock import Clock
 from simulated_hw.scpi import (CommandTable, ErrorQueue, PARAMETER_NOT_ALLOWED, TRIGGER_IGNORED,
                                parse_boolean, parse_number, scpi_error, single_argument)
 from simulated_hw.status import REGISTER_MASK, StatusModel

@@ -31,28 +31,20 @@ from cryod.blas_threads import use_one_blas_thread
 use_one_blas_thread()          # before numpy is imported: see cryod/blas_threads.py
 
 from cryod import __version__  # noqa: E402
-from cryod.argument_types import positive, whole_number  # noqa: E402
+from cryod.argument_types import positive, speed, whole_number  # noqa: E402
 from cryod.service.commands import COMMANDS, socket_usage  # noqa: E402
 from cryod.service.discovery import SERVICE_CONFIG as DEFAULT_CONFIG  # noqa: E402
 
 #: Model tools with a module of their own (``configure_parser(parser)``, ``run(args) -> int``).
 MODEL_TOOLS = (
-    ("analyze", "cryod.analysis.command", "what the simulation gets wrong on a record, the cause, the extended model"),
-    ("identify", "cryod.identification.command", "fit the model's transfer functions to measured records"),
-    ("feedforward-limit", "cryod.control.feedforward_limit_command",
+    ("analyze", "cryod.cli.analyze", "what the simulation gets wrong on a record, the cause, the extended model"),
+    ("identify", "cryod.cli.identify", "fit the model's transfer functions to measured records"),
+    ("feedforward-limit", "cryod.cli.feedforward_limit",
      "the least cooler-synchronous oscillation any heater waveform can leave, and what would change it"),
-    ("tune", "cryod.control.tuning_command", "PI gains for the lab's model and heater, beside the configured ones"),
-    ("plot", "cryod.records.quick_look", "a quick look at a record: temperatures, heater, cooler line, spectrum"),
+    ("tune", "cryod.cli.tune", "PI gains for the lab's model and heater, beside the configured ones"),
+    ("plot", "cryod.cli.plot", "a quick look at a record: temperatures, heater, cooler line, spectrum"),
 )
 
-
-def _speed(text: str) -> float | str:
-    if text == "max":
-        return "max"
-    try:
-        return positive(text)
-    except argparse.ArgumentTypeError as error:
-        raise argparse.ArgumentTypeError(f"speed must be a number > 0 or 'max': {error}") from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -69,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
                           help="daemon configuration (default: the documented example config/cryod.yaml)")
     simulate.add_argument("--duration", type=positive, default=None, metavar="S",
                           help="simulated seconds to run (default: until stopped)")
-    simulate.add_argument("--speed", type=_speed, default=1.0,
+    simulate.add_argument("--speed", type=speed, default=1.0,
                           help="simulated seconds per real second, or 'max' for virtual time (default 1)")
     simulate.add_argument("--json", action="store_true", help="print one summary object on stdout at the end")
     simulate.add_argument("--window", type=positive, default=300.0, metavar="S",
@@ -193,7 +185,7 @@ def _main(argv: list[str] | None) -> int:
 def _run_service(args) -> int:
     from cryod.service.daemon import Daemon, config_or_exit
     from cryod.service.instruments import instrument_addresses, open_instruments
-    from cryod.service.clock import MonotonicClock
+    from drivers.clock import MonotonicClock
     from cryod.service.logs import ServiceLogging
     from cryod.service.startup_checks import check_before_run
     from cryod.service.status_line import StatusLine
@@ -233,7 +225,7 @@ def _run_service(args) -> int:
 
 def _supply_off(config) -> int:
     """``cryod run --supply-off``: 0 done, 2 another cryod drives the supply, 4 the supply out of reach."""
-    from cryod.service.clock import MonotonicClock
+    from drivers.clock import MonotonicClock
     from cryod.service.instance_lock import InstrumentInUse
     from cryod.service.instruments import switch_supply_off
     from drivers.errors import InstrumentError
@@ -300,6 +292,3 @@ def _ctl(args) -> int:
         print(reply.get("message", ""), file=sys.stdout if reply.get("ok") else sys.stderr)
     return 0 if reply.get("ok") else 1
 
-
-if __name__ == "__main__":
-    sys.exit(main())

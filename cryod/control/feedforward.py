@@ -75,7 +75,7 @@ from cryod.control.feedforward_limit import FeedforwardLimitError, limit_changes
 from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
 from cryod.records.columns import Column
-from cryod.service.realtime import at_normal_priority
+from cryod.thread_priority import at_normal_priority
 from cryod.yaml_source import FileFormatError, Section
 
 #: Loop period the plant response assumes when the settings do not say (s).

@@ -423,6 +423,11 @@ class FeedforwardTerm:
         """``cryod ctl feedforward on|off``: fade in or out."""
         self.switched_on = bool(on)
 
+    @property
+    def phase_locked(self) -> bool:
+        """Whether the cooler's phase is tracked and locked now (the waveform plays only then)."""
+        return self.phase is not None and self.phase.locked
+
     # -- the cycle ---------------------------------------------------------------------
     def condition(self, tick: TickInputs) -> TickInputs:
         """Track the cooler from T5, hand T2's reading to the estimator, and give the following terms

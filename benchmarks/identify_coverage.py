@@ -31,11 +31,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from cryod.blas_threads import use_one_blas_thread
+import numpy as np
 
-use_one_blas_thread()          # one core per process: the machine has two, shared
+from cryod.cli import use_one_blas_thread
 
-import numpy as np  # noqa: E402
+use_one_blas_thread()          # one core per process: the machine has two, shared (spawned workers run this too)
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -26,14 +26,10 @@ import signal
 import sys
 from pathlib import Path
 
-from cryod.blas_threads import use_one_blas_thread
-
-use_one_blas_thread()          # before numpy is imported: see cryod/blas_threads.py
-
-from cryod import __version__  # noqa: E402
-from cryod.argument_types import positive, speed, whole_number  # noqa: E402
-from cryod.service.commands import COMMANDS, socket_usage  # noqa: E402
-from cryod.service.discovery import SERVICE_CONFIG as DEFAULT_CONFIG  # noqa: E402
+from cryod import __version__
+from cryod.argument_types import positive, speed, whole_number
+from cryod.service.commands import COMMANDS, socket_usage
+from cryod.service.discovery import SERVICE_CONFIG as DEFAULT_CONFIG
 
 #: Model tools with a module of their own (``configure_parser(parser)``, ``run(args) -> int``).
 MODEL_TOOLS = (
@@ -128,11 +124,36 @@ def _misplaced_simulate_options(parser: argparse.ArgumentParser, args) -> list[s
     return ["--" + name.replace("_", "-") for name in given]
 
 
+#: The variables by which a user chooses the BLAS libraries' thread count; a number chosen there is kept.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def use_one_blas_thread() -> None:
+    """One thread for the BLAS libraries numpy and scipy load, unless the environment chose a number.
+
+    cryod's matrices are tall and narrow (a few columns by up to a few hundred thousand rows in the
+    model tools) or tiny (the loop's estimators): a second BLAS thread costs more than it brings
+    (``cryod identify`` took 1.7 times as long with two, docs/benchmarks.md), and idle BLAS threads
+    spin on the cores the daemon's loop needs. threadpoolctl sets the limit in the libraries already
+    loaded, whenever it is called; numpy and scipy each bring their own OpenBLAS, so both are loaded
+    first. ``cryod ctl`` loads neither and is not slowed by them.
+    """
+    if any(name in os.environ for name in BLAS_THREAD_VARIABLES):
+        return
+    import numpy  # noqa: F401  (its BLAS library)
+    import scipy.linalg  # noqa: F401  (scipy's own BLAS library)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")
+
+
 def _run_model_tool(name: str, argv: list[str]) -> int:
     """``cryod analyze ...``, ``cryod identify ...``, ...: the tool's module parses its own arguments."""
     module = importlib.import_module(dict((n, m) for n, m, _ in MODEL_TOOLS)[name])
     parser = module.configure_parser(argparse.ArgumentParser(prog=f"cryod {name}"))
-    return module.run(parser.parse_args(argv))
+    args = parser.parse_args(argv)
+    use_one_blas_thread()
+    return module.run(args)
 
 
 #: Exit code when the reader of the output went away (``cryod ctl status | head -2``): as a Unix tool killed
@@ -173,8 +194,10 @@ def _main(argv: list[str] | None) -> int:
     if args.simulate:
         from cryod.service.simulation import run_simulation
 
+        use_one_blas_thread()
         return run_simulation(args)
     if args.command == "run":
+        use_one_blas_thread()
         return _run_service(args)
     if args.command == "ctl":
         return _ctl(args)

@@ -5,6 +5,11 @@ as it is). Every error names the file, the line and the key. Relative paths
 (calibration files, data directory, model) are taken relative to the
 configuration file's folder.
 
+The checks are written out section by section rather than declared to a schema library:
+each says what a lab user must change, some span sections (the instruments' waits against
+systemd's watchdog, two keys that name one instrument), and each control term reads its own
+section (``settings_from``), so the section's rules live with the code that uses it.
+
 Examples
 --------
 >>> config = load_config(EXAMPLE_CONFIG_PATH)

@@ -123,16 +123,22 @@ def test_estimator_separates_the_line_from_the_plant_correction():
 # ---------------------------------------------------------------------------
 # the term on its own: fade, lock loss, switching
 # ---------------------------------------------------------------------------
-def feed(term, seconds, start_s=0.0, cooler=True, flange_K=5.0):
-    """Ticks into the term as the regulator would give them; returns the outputs."""
+def feed(term, seconds, start_s=0.0, cooler=True, flange_K=5.0, plant=None):
+    """Ticks into the term as the regulator would give them, T2 answering what the heater played last tick
+    through ``plant`` (K/W per harmonic; the term's model by default); returns the outputs."""
     outputs = []
+    answer = np.zeros(term.settings.harmonics, dtype=complex)
+    orders = np.arange(1, term.settings.harmonics + 1)
     for k in range(int(seconds / PERIOD)):
         t = start_s + k * PERIOD
         stage = 3.34 + (0.12 * math.cos(OMEGA * t) if cooler else 0.0)
-        tick = TickInputs.at(t, PERIOD, flange_K + 1.7e-3 * math.cos(OMEGA * t - 1.1), stage, 5.0)
+        played = float(np.real(np.sum(answer * np.exp(1j * orders * OMEGA * t))))
+        tick = TickInputs.at(t, PERIOD, flange_K + 1.7e-3 * math.cos(OMEGA * t - 1.1) + played, stage, 5.0)
         tick = term.condition(tick)
         outputs.append(term.update(tick))
         term.limit(0.113 + outputs[-1], 0.113 + outputs[-1])
+        response = term.plant if plant is None else plant
+        answer = response * (term.coefficients + term.probe) * (term.scale if outputs[-1] else 0.0)
     return np.array(outputs)
 
 

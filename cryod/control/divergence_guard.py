@@ -10,9 +10,11 @@ to the cooler's amplitude in T5 now). It trips when
 
 * that residual has stayed above PI alone's (times :data:`ABOVE_FACTOR`) for
   ``intervals`` learning steps in a row, or
-* it has grown at every one of ``intervals`` steps in a row, by
-  :data:`GROWTH_FACTOR` in all, to above :data:`GROWTH_FLOOR` of PI alone's
-  (below that, noise alone can look like growth).
+* it has grown at every one of ``intervals`` steps in a row, each time by
+  :data:`STEP_GROWTH` at least and by :data:`GROWTH_FACTOR` in all, to above
+  :data:`GROWTH_FLOOR` of PI alone's (below that, noise alone can look like
+  growth; a residual that rises once, when the heater's room shrinks, and stays
+  is not a divergence).
 
 What the feedforward then does (fade the waveform out, reset the learned plant
 to the model, say why, try again later) is up to it.
@@ -32,7 +34,8 @@ import collections
 
 #: A residual above PI alone's times this counts as worse than PI alone.
 ABOVE_FACTOR = 1.2
-#: Growth over the steps that counts as diverging ...
+#: Growth over the steps that counts as diverging, at each step and in all ...
+STEP_GROWTH = 1.05
 GROWTH_FACTOR = 2.0
 #: ... once the residual is above this fraction of PI alone's.
 GROWTH_FLOOR = 0.1
@@ -65,11 +68,11 @@ class DivergenceGuard:
             return (f"T2's synchronous part has been above PI alone's for {self.intervals} learning steps "
                     f"({1e3 * residual_K:.3f} mK against {1e3 * pi_alone_K:.3f} mK)")
         values = list(self._residuals)
-        if len(values) > self.intervals and all(b > a for a, b in zip(values, values[1:])) \
+        if len(values) > self.intervals and all(b > STEP_GROWTH * a for a, b in zip(values, values[1:])) \
                 and values[-1] >= GROWTH_FACTOR * values[0] and values[-1] > GROWTH_FLOOR * pi_alone_K:
             return (f"T2's synchronous part grew at every one of {self.intervals} learning steps, from "
                     f"{1e3 * values[0]:.3f} to {1e3 * values[-1]:.3f} mK (PI alone: {1e3 * pi_alone_K:.3f} mK)")
         return None
 
 
-__all__ = ["ABOVE_FACTOR", "DivergenceGuard", "GROWTH_FACTOR", "GROWTH_FLOOR"]
+__all__ = ["ABOVE_FACTOR", "DivergenceGuard", "GROWTH_FACTOR", "GROWTH_FLOOR", "STEP_GROWTH"]

@@ -50,6 +50,8 @@ def _work(inbox: queue.SimpleQueue, estimator, results: dict, ready: threading.C
             estimator.forget_last()
         elif len(item) == 3:
             estimator.add(*item)
+        elif len(item) == 1:
+            item[0](estimator)
         else:
             step_id, compute = item
             try:
@@ -87,6 +89,10 @@ class LearningWorker:
     def gap(self) -> None:
         """The next reading is not to be differenced against the last ones."""
         self._inbox.put(_GAP)
+
+    def apply(self, change: Callable[[Any], None]) -> None:
+        """Do ``change(estimator)`` after every reading handed over so far (non-blocking; a reset, a rescaling)."""
+        self._inbox.put((change,))
 
     def step(self, step_id: int, compute: Callable[[Any], Any]) -> None:
         """Compute ``compute(estimator)`` after every reading handed over so far (non-blocking)."""

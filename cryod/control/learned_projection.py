@@ -11,8 +11,12 @@ the constrained optimum of that cryostat, the physical limit
 (:mod:`cryod.control.feedforward_limit`); in the model's metric it would be
 the model's optimum, which can leave much more on a cryostat whose plant
 differs (at 6 K the fundamental needed sits within a few mW of both bounds).
-Harmonics whose plant is not learned are left out (their coefficient 0): a
-step through a plant off by more than 90 degrees would make the line grow.
+At harmonics whose plant is not learned the step aims at nothing (their target
+is 0: a step through a plant off by more than 90 degrees would make the line
+grow) and the metric is the model's; the projection may still put content
+there where that lets the learned harmonics come closer to their targets
+within the bounds (the clipped pulse at 5 K is made of them), and its changes
+teach the plant there.
 
 Examples
 --------
@@ -56,18 +60,15 @@ def learning_step(coefficients: np.ndarray, line: np.ndarray, plant: LearnedPlan
     Returns
     -------
     numpy.ndarray
-        The new coefficients; 0 at harmonics whose plant is not learned.
+        The new coefficients (none while no harmonic's plant is learned).
     """
     use = plant.learned
-    stepped = np.zeros(plant.harmonics, dtype=complex)
     if not use.any():
-        return stepped
-    response = plant.plant[use]
-    target = coefficients[use] + gain * (-line[use] / response - coefficients[use])
-    orders = np.flatnonzero(use) + 1
-    stepped[use] = best_bounded_waveform(-response * target, response, base_w, low_w, high_w,
-                                         phase_points=phase_points, orders=orders)
-    return stepped
+        return np.zeros(plant.harmonics, dtype=complex)
+    response = plant.plant
+    target = np.zeros(plant.harmonics, dtype=complex)
+    target[use] = coefficients[use] + gain * (-line[use] / response[use] - coefficients[use])
+    return best_bounded_waveform(-response * target, response, base_w, low_w, high_w, phase_points=phase_points)
 
 
 __all__ = ["learning_step"]

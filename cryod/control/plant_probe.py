@@ -11,26 +11,37 @@ turns by a quarter period at every learning step, a sequence fixed in advance
 (independent of the readings, so what T2 does in answer tells the plant without
 the bias of changes the noise decided).
 
+One harmonic at a time, the lowest first (the line's, which the waveform
+waits for): what the probe tells grows with the square of its amplitude and
+what it costs (its peak, the room it takes from the waveform) with the
+amplitude, so the whole room for one harmonic, then the next, learns them
+all sooner than a share each at once.
+
 Bounded three ways: it takes at most ``room_share`` of the heater's room around
 the power the waveform rides on (the waveform is projected within what is left),
 it stops at a harmonic once the plant there is known to ``precision``, and a
-burst at a harmonic ends after ``longest_s`` of playing even if it is not (a
-plant too weak for the probe to tell within its bounds: said in the status); it
-comes back when the plant's spread has grown to :data:`RESUME_FACTOR` times
+burst at a harmonic ends after ``longest_s`` of playing even if it is not; a
+harmonic where it could not even halve the plant's spread in that time (or
+make it usable), for a plant too weak for what the room allows now, waits
+while the next one is probed. It comes back when the plant's spread has grown to :data:`RESUME_FACTOR` times
 what it was left at. Its cost, T2's answer to it, ``|H_n p_n|`` through the
 learned plant, is reported.
 
 Examples
 --------
 >>> import numpy as np
->>> from cryod.control.plant_learner import LearnedPlant
+>>> from cryod.control.plant_learner import MODEL_ERROR, LearnedPlant
 >>> plant = LearnedPlant.from_model(np.array([7.36e-3 * np.exp(-2.0j), 4.06e-3 * np.exp(-2.5j)]))
 >>> settings = ProbeSettings(amplitude_K=50e-6)
->>> state, probe = next_probe(ProbeState.start(2), plant, room_w=0.2, interval_s=2.0, settings=settings)
->>> np.round(np.abs(probe) * 1e3, 1)                 # mW: 50 uK through each harmonic's plant
-array([ 6.8, 12.3])
->>> round(probe_cost_K(probe, plant.plant) * 1e6, 1)  # T2's answer, harmonics together (uK)
-70.7
+>>> state, probe = next_probe(ProbeState.start(2), plant, 0.2, 2.0, settings)
+>>> np.round(np.abs(probe) * 1e3, 1)                 # mW: the line first, 50 uK through its plant
+array([6.8, 0. ])
+>>> learned = LearnedPlant(plant.model, plant.correction, np.array([np.eye(2) * 1e-4, np.eye(2)]))
+>>> state, probe = next_probe(state, learned, 0.2, 2.0, settings)
+>>> np.round(np.abs(probe) * 1e3, 1)                 # the line known to 1.4 %: the second harmonic
+array([ 0. , 12.3])
+>>> round(probe_cost_K(probe, learned.plant) * 1e6, 1)   # T2's answer, harmonics together (uK)
+50.0
 """
 
 from __future__ import annotations
@@ -40,7 +51,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from cryod.control.plant_learner import LearnedPlant
+from cryod.control.plant_learner import MODEL_ERROR, LearnedPlant
 
 #: The probe turns by this at every learning step.
 PHASE_STEP_RAD = 0.5 * math.pi
@@ -61,21 +72,26 @@ class ProbeSettings:
     precision : float
         Relative standard deviation of the plant at which probing a harmonic stops.
     longest_s : float
-        Longest burst at one harmonic (s of playing).
+        Longest burst at one harmonic (s of playing; the harmonics above it wait for it).
     room_share : float
         Largest share of the heater's room (below and above the power the waveform rides on) it takes.
+    noise_K : float
+        T2's reading noise (K rms): a burst that could not tell the plant is not tried.
+    readings_per_s : float
     """
 
     amplitude_K: float = 50e-6
     precision: float = 0.025
-    longest_s: float = 300.0
-    room_share: float = 0.25
+    longest_s: float = 60.0
+    room_share: float = 0.15
+    noise_K: float = 20e-6
+    readings_per_s: float = 12.5
 
 
 @dataclass(frozen=True)
 class ProbeState:
-    """Per harmonic: probing or not, how long this burst has played (s), the spread it was left at (NaN: reached
-    the precision); and the steps taken (the probe's turn)."""
+    """Per harmonic: probing (or waiting to) or not, how long this burst has played (s), the spread it was left at
+    (NaN: reached the precision); and the steps taken (the probe's turn)."""
 
     probing: tuple[bool, ...]
     played_s: tuple[float, ...]
@@ -125,17 +141,31 @@ def next_probe(state: ProbeState, plant: LearnedPlant, room_w: float, interval_s
             reference = left_at[index] if math.isfinite(left_at[index]) else settings.precision
             if spread[index] > RESUME_FACTOR * reference:
                 probing[index], played[index] = True, 0.0
-    on = np.array(probing) & (settings.amplitude_K > 0.0)
-    amplitude = np.where(on, settings.amplitude_K / np.maximum(np.abs(plant.plant), 1e-12), 0.0)
-    total = float(np.sum(amplitude))
     budget = settings.room_share * max(room_w, 0.0)
-    if total > budget:
-        amplitude *= budget / total if total > 0.0 else 0.0
+    gain = np.maximum(np.abs(plant.plant), 1e-12)
+    amplitude = np.zeros(plant.harmonics)
+    for index in range(plant.harmonics):               # one harmonic at a time, the lowest worth it now first
+        if not probing[index] or settings.amplitude_K <= 0.0:
+            continue
+        power = min(settings.amplitude_K / gain[index], budget)
+        remaining_s = settings.longest_s - played[index]
+        if power > 0.0 and _spread_after(spread[index], gain[index] * power, remaining_s, settings) \
+                <= max(settings.precision, min(0.5 * spread[index], MODEL_ERROR)):
+            amplitude[index] = power
+            break
     orders = np.arange(1, plant.harmonics + 1)
     probe = amplitude * np.exp(1j * (state.steps * PHASE_STEP_RAD + orders * PHASE_OFFSET_RAD))
     played = [seconds + (interval_s if amplitude[index] > 0.0 else 0.0) for index, seconds in enumerate(played)]
     return replace(state, probing=tuple(probing), played_s=tuple(played), left_at=tuple(left_at),
                    steps=state.steps + 1), probe
+
+
+def _spread_after(spread: float, signal_K: float, seconds: float, settings: ProbeSettings) -> float:
+    """The plant's relative spread expected after ``seconds`` of a probe that moves T2 by ``signal_K`` against
+    readings with noise ``settings.noise_K`` (a least-squares fit of a turning phasor)."""
+    readings = max(seconds, 0.0) * settings.readings_per_s
+    information = readings * signal_K ** 2 / (4.0 * settings.noise_K ** 2)
+    return 1.0 / math.sqrt(1.0 / max(spread, 1e-9) ** 2 + information)
 
 
 def probe_cost_K(probe: np.ndarray, plant: np.ndarray) -> float:

@@ -405,12 +405,8 @@ class FeedforwardTerm:
                                    "(below 1: authority-limited)", "{:.4f}"),
         Column("ff_limit_from", "", "what ff_limit_K and ff_authority were computed from: model (the controller's "
                                     "model) or learned (the plant and line learned, the mean power PI found)"),
-        Column("ff_plant_from", "", "the plant the waveform uses at the line: model, or learned"),
-        Column("ff_plant_gain", "", "the plant learned at the line over the model's, in gain (the heater-to-T2 "
-                                    "response as the loop samples it)", "{:.4f}"),
-        Column("ff_plant_phase_deg", "deg", "the plant learned at the line against the model's, in phase "
-                                            "(negative: the cryostat lags more)", "{:.2f}"),
-        Column("ff_probe_K", "K", "T2's answer to the probe (harmonics together), 0 when it is off", "{:.3e}"),
+        Column("ff_probe_K", "K", "T2's answer to the probe (harmonics together), 0 when it is off; the learned "
+                                  "plant itself is in the record's feedforward events", "{:.3e}"),
     )
 
     def __init__(self, settings: FeedforwardSettings, output_max: float):
@@ -449,7 +445,8 @@ class FeedforwardTerm:
         self.divergences = 0                    # since start
         self._learn_again_s = -math.inf         # no learning before this after a divergence
         self._time_s = 0.0
-        self._columns_of_plant: tuple = ("model", math.nan, math.nan, 0.0)
+        self._probe_K = 0.0                     # T2's answer to the probe being played
+        self._plant_known_for_limit = False     # the plant at the line known well enough for the learned limit
         #: The physical limit at the setpoint in use, from the model or from what was learned.
         self.limits: LimitFollower | None = None
         self._configure(settings)
@@ -628,12 +625,8 @@ class FeedforwardTerm:
                 self._next_update_s = tick.time_s + self.settings.update_interval_s
             elif tick.time_s >= self._next_update_s:
                 self._next_update_s += self.settings.update_interval_s
+                self._follow_mean(abs(tick.setpoint_K - tick.flange_feedback_K))
                 self._ask_for_step(learning and self.switched_on)
-        distance = abs(tick.setpoint_K - tick.flange_feedback_K)
-        if math.isfinite(self._setpoint_distance_K):
-            self._setpoint_distance_K += (distance - self._setpoint_distance_K) * min(tick.dt_s / SETTLING_TIME_S, 1.0)
-        else:
-            self._setpoint_distance_K = distance
         self.limits.follow(tick.time_s, tick.setpoint_K, self.output_max, self.settings.period_s,
                            self.setting_delay_s, self._learned_limit_inputs)
         if self.scale <= 0.0 or self.phase is None:
@@ -680,12 +673,22 @@ class FeedforwardTerm:
     def limit(self, requested: float, applied: float) -> None:
         others = requested - self.output_w
         if self.other_terms_w is None:
-            self.other_terms_w = self.mean_power_w = others
+            self.other_terms_w = others
         else:       # the other terms' power, smoothed over about 2 s: the level the waveform rides on
-            period = self.settings.period_s
-            self.other_terms_w += (others - self.other_terms_w) * min(period / BASE_TIME_S, 1.0)
-            self.mean_power_w += (others - self.mean_power_w) * min(period / MEAN_POWER_TIME_S, 1.0)
+            self.other_terms_w += (others - self.other_terms_w) * min(self.settings.period_s / BASE_TIME_S, 1.0)
         self.unplayed.set(self._output_time_s, applied - requested)
+
+    def _follow_mean(self, distance_K: float) -> None:
+        """At every learning step: PI's mean power and T2's distance from the setpoint, smoothed (for the learned
+        limit: T2 settled at the setpoint, and the mean power that holds it)."""
+        interval = self.settings.update_interval_s
+        if self.other_terms_w is not None:
+            self.mean_power_w = self.other_terms_w if self.mean_power_w is None else \
+                self.mean_power_w + (self.other_terms_w - self.mean_power_w) * min(interval / MEAN_POWER_TIME_S, 1.0)
+        if not math.isfinite(self._setpoint_distance_K):
+            self._setpoint_distance_K = distance_K
+        elif math.isfinite(distance_K):
+            self._setpoint_distance_K += (distance_K - self._setpoint_distance_K) * min(interval / SETTLING_TIME_S, 1.0)
 
     def take_events(self) -> tuple[tuple[int, str], ...]:
         """What the learning found since the last tick: (logging level, text) pairs for the journal and the data log."""
@@ -693,13 +696,12 @@ class FeedforwardTerm:
 
     def column_values(self) -> tuple[float, ...]:
         phase = self.phase
-        known = self.limits.limit
-        limit, authority = (known.ptc_periodic_limit_K, known.authority) if known is not None else (math.nan,) * 2
-        learned = (self.limits.source,) + self._columns_of_plant
+        limit, authority, source = self.limits.columns
         if phase is None:
-            return (self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale, limit, authority) + learned
+            return (self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale, limit, authority, source,
+                    self._probe_K)
         return (self.output_w, self._flange_phase_rad, phase.frequency_rad_s, 1.0 if phase.locked else 0.0,
-                self._estimate.line_amplitude_K, self.scale, limit, authority) + learned
+                self._estimate.line_amplitude_K, self.scale, limit, authority, source, self._probe_K)
 
     @property
     def physical_limit(self):
@@ -794,7 +796,8 @@ class FeedforwardTerm:
                 "feedforward_reported_authority": None if limit is None else limit.authority,
                 "feedforward_limit_from": self.limits.source,
                 "feedforward_probe_K": self._estimate.probe_cost_K,
-                "feedforward_divergences": self.divergences}
+                "feedforward_divergences": self.divergences,
+                "feedforward_setting_delay_s": self.setting_delay_s}
 
     # -- learning (the worker computes, the loop takes the result at the next tick) ---------
     def _ask_for_step(self, learning: bool) -> None:
@@ -824,8 +827,8 @@ class FeedforwardTerm:
             self.probe_state = result.probe_state
             self._set_played()
         plant = result.learned
-        self._columns_of_plant = (plant.source, float(plant.gain_ratio[0]), float(plant.phase_deg[0]),
-                                  result.probe_cost_K)
+        self._probe_K = result.probe_cost_K if result.coefficients is not None and self._diverged is None else 0.0
+        self._plant_known_for_limit = bool(plant.learned[0] and plant.relative_spread[0] < LIMIT_PLANT_SPREAD)
         if result.ready:
             self._judge(result)
 
@@ -863,17 +866,17 @@ class FeedforwardTerm:
         self.probe_state = ProbeState.start(self.settings.harmonics)
         self.guard.clear()
         self.limits.forget_learned()
-        self._estimate = replace(self._estimate, learned=LearnedPlant.from_model(self.plant))
+        self._estimate = replace(self._estimate, learned=LearnedPlant.from_model(self.plant).prepared())
+        self._plant_known_for_limit = False
+        self._probe_K = 0.0
 
     def _learned_limit_inputs(self, setpoint_K: float) -> LearnedLimitInputs | None:
         """What the learned limit is computed from, once the plant at the line is learned and T2 has settled at the
         setpoint; else None."""
-        plant = self.learned_plant
-        if not (plant.learned[0] and plant.relative_spread[0] < LIMIT_PLANT_SPREAD
-                and self._setpoint_distance_K < SETTLED_K and self.mean_power_w is not None
+        if not (self._plant_known_for_limit and self._setpoint_distance_K < SETTLED_K and self.mean_power_w is not None
                 and self._estimate.ready and self._time_s >= self._learn_again_s):
             return None
-        return LearnedLimitInputs(plant, self._estimate.line.copy(), self.mean_power_w, self.output_max, setpoint_K,
+        return LearnedLimitInputs(self.learned_plant, self._estimate.line.copy(), self.mean_power_w, self.output_max, setpoint_K,
                                   self.settings.period_s, self.setting_delay_s)
 
 
@@ -911,7 +914,8 @@ class StepResult:
     @classmethod
     def empty(cls, model_plant: np.ndarray) -> "StepResult":
         zeros = np.zeros(len(model_plant), dtype=complex)
-        return cls(False, zeros, LearnedPlant.from_model(model_plant), math.nan, math.nan, None, None, None, 0.0)
+        return cls(False, zeros, LearnedPlant.from_model(model_plant).prepared(), math.nan, math.nan, None, None, None,
+                   0.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -934,7 +938,7 @@ class _LearningStep:
 
     def __call__(self, estimator: SynchronousEstimator) -> StepResult:
         ready = estimator.ready
-        learned = estimator.learned_plant(self.plant, self.frequency_rad_s)
+        learned = estimator.learned_plant(self.plant, self.frequency_rad_s).prepared()
         line_K = residual_K = math.nan
         if ready:
             line_K = _amplitude(estimator.synchronous(self.effect))

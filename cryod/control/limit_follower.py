@@ -37,6 +37,8 @@ TAKEN_AFTER_S = 2.0
 LEARNED_EVERY_S = 30.0
 #: A setting delay that moved by more than this asks for the model's limit again (s).
 DELAY_TOLERANCE_S = 0.002
+#: While a learned limit is due but the plant or T2 is not ready for it, they are looked at this often (s).
+RECHECK_S = 1.0
 
 
 class LimitFollower:
@@ -58,6 +60,9 @@ class LimitFollower:
         self._learned_at_s = -math.inf
         self._executor: ThreadPoolExecutor | None = None
         self._asked: tuple[Future, str, float, float] | None = None     # (result, kind, setpoint, take at)
+        self._quiet: tuple[float, float, float, float] = (-math.inf, math.nan, math.nan, math.nan)
+        #: (limit (K), authority, source) for the record's columns, as they stand.
+        self.columns: tuple = (math.nan, math.nan, None)
 
     @property
     def limit(self):
@@ -81,6 +86,7 @@ class LimitFollower:
         if model != self.model:
             self.model = model
             self.model_limit, self.model_changes = None, ()
+            self._changed()
 
     def forget_learned(self) -> None:
         """The learned plant was reset: the model's limit until it is learned again."""
@@ -88,6 +94,13 @@ class LimitFollower:
         self._learned_at_s = -math.inf
         if self._asked is not None and self._asked[1] == "learned":
             self._asked = None
+        self._changed()
+
+    def _changed(self) -> None:
+        limit = self.limit
+        self.columns = (math.nan, math.nan, None) if limit is None else \
+            (limit.ptc_periodic_limit_K, limit.authority, self.source)
+        self._quiet = (-math.inf, math.nan, math.nan, math.nan)
 
     def follow(self, time_s: float, setpoint_K: float, max_power_w: float, period_s: float, delay_s: float,
                learned: Callable[[float], LearnedLimitInputs | None]) -> None:
@@ -96,6 +109,9 @@ class LimitFollower:
         ``learned(setpoint_K)`` gives the learned inputs when the plant is learned and T2 has settled at the
         setpoint, else None; it is called only when a learned limit is due.
         """
+        until, quiet_setpoint, quiet_power, quiet_delay = self._quiet
+        if time_s < until and setpoint_K == quiet_setpoint and max_power_w == quiet_power and delay_s == quiet_delay:
+            return                                      # nothing due before then
         if self._asked is not None:
             result, kind, setpoint, take_at_s = self._asked
             if time_s < take_at_s:
@@ -108,6 +124,7 @@ class LimitFollower:
                     self._wanted = (setpoint, math.inf)          # out of reach: not again for this setpoint
             elif limit is not None:
                 self.learned_limit, self.learned_changes = limit, changes
+            self._changed()
             return
         setpoint = round(setpoint_K, 4)
         if self._wanted is None or self._wanted[0] != setpoint:
@@ -124,11 +141,14 @@ class LimitFollower:
         if time_s - self._learned_at_s >= LEARNED_EVERY_S:
             inputs = learned(setpoint)
             if inputs is None:
+                self._quiet = (time_s + RECHECK_S, setpoint_K, max_power_w, delay_s)
                 return
             self._learned_at_s = time_s
             self._ask("learned", _learned_report, time_s, setpoint, inputs,
                       self.model.operating_point.flange_temperature_K, self.model.ptc.angular_frequency_rad_s,
                       self.model.sensor_noise.flange_thermometer_rms_K)
+        else:
+            self._quiet = (self._learned_at_s + LEARNED_EVERY_S, setpoint_K, max_power_w, delay_s)
 
     def _ask(self, kind: str, function, time_s: float, setpoint: float, *arguments) -> None:
         if self._executor is None:

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -80,12 +81,12 @@ class LearnedPlant:
     def harmonics(self) -> int:
         return len(self.model)
 
-    @property
+    @cached_property
     def gain_ratio(self) -> np.ndarray:
         """|k_n|: the learned plant's gain over the model's."""
         return np.abs(self.correction)
 
-    @property
+    @cached_property
     def phase_deg(self) -> np.ndarray:
         """arg k_n in degrees: positive where the learned plant leads the model, negative where it lags."""
         return np.degrees(np.angle(self.correction))
@@ -95,51 +96,57 @@ class LearnedPlant:
         vector = np.stack([direction.real, direction.imag], axis=-1)
         return np.sqrt(np.maximum(np.einsum("ni,nij,nj->n", vector, self.covariance, vector), 0.0))
 
-    @property
+    @cached_property
     def gain_spread(self) -> np.ndarray:
         """Relative standard deviation of the learned gain, |k_n|'s over |k_n|."""
         unit = np.exp(1j * np.angle(self.correction))
         return self._along(unit) / np.maximum(self.gain_ratio, 1e-12)
 
-    @property
+    @cached_property
     def phase_spread_deg(self) -> np.ndarray:
         """Standard deviation of the learned phase (degrees)."""
         unit = 1j * np.exp(1j * np.angle(self.correction))
         return np.degrees(self._along(unit) / np.maximum(self.gain_ratio, 1e-12))
 
-    @property
+    @cached_property
     def relative_spread(self) -> np.ndarray:
         """Standard deviation of k_n (both parts) over |k_n|."""
         total = np.sqrt(np.maximum(self.covariance[:, 0, 0] + self.covariance[:, 1, 1], 0.0))
         return total / np.maximum(self.gain_ratio, 1e-12)
 
-    @property
+    @cached_property
     def learned(self) -> np.ndarray:
         """Where the correction is known better than the model's assumed error (bool per harmonic)."""
         return self.relative_spread < MODEL_ERROR
 
-    @property
+    @cached_property
     def plant(self) -> np.ndarray:
         """The plant to use: ``k_n H_n`` where learned, the model's ``H_n`` elsewhere (K/W)."""
         return np.where(self.learned, self.model * self.correction, self.model)
 
-    @property
+    @cached_property
     def source(self) -> str:
         """``"learned"`` when the plant at the fundamental is, else ``"model"``."""
         return "learned" if self.learned[0] else "model"
 
+    def prepared(self) -> "LearnedPlant":
+        """This, with everything derived from it computed (on the learning's thread, not the loop's)."""
+        for index in range(self.harmonics):
+            self.differs(index)
+        return self
+
     def differs(self, index: int = 0) -> tuple[bool, bool]:
         """Whether the learned gain and phase at harmonic ``index + 1`` differ from the model's (beyond the
         uncertainty and beyond what matters)."""
-        if not self.learned[index]:
-            return False, False
-        ratio = float(self.gain_ratio[index])
-        gain_sigma = float(self.gain_spread[index]) * ratio
-        phase = float(self.phase_deg[index])
-        phase_sigma = float(self.phase_spread_deg[index])
-        gain = abs(ratio - 1.0) > max(DIFFERENCE_SIGMAS * gain_sigma, DIFFERENCE_GAIN)
-        angle = abs(phase) > max(DIFFERENCE_SIGMAS * phase_sigma, DIFFERENCE_PHASE_DEG)
-        return gain, angle
+        return self._differing[index]
+
+    @cached_property
+    def _differing(self) -> list[tuple[bool, bool]]:
+        ratio, gain_sigma = self.gain_ratio, self.gain_spread * self.gain_ratio
+        phase, phase_sigma = self.phase_deg, self.phase_spread_deg
+        gain = np.abs(ratio - 1.0) > np.maximum(DIFFERENCE_SIGMAS * gain_sigma, DIFFERENCE_GAIN)
+        angle = np.abs(phase) > np.maximum(DIFFERENCE_SIGMAS * phase_sigma, DIFFERENCE_PHASE_DEG)
+        return [(bool(g and known), bool(a and known)) for g, a, known in zip(gain, angle, self.learned)]
 
     def difference(self, index: int = 0) -> str | None:
         """In words, how the learned plant at harmonic ``index + 1`` differs from the model, or None."""

@@ -72,7 +72,7 @@ Configuration, section ``control.feedforward`` (optional; reloadable, bumpless):
       fade_time_s: 5.0
       margin_W: 0.001            # kept from 0 W and from R I_max^2
       minimum_cooler_amplitude_K: 0.01
-      probe_amplitude_K: 5.0e-5  # T2's answer to the probe at each harmonic probed (0: no probe)
+      probe_amplitude_K: 1.0e-4  # T2's answer to the probe at each harmonic probed (0: no probe)
       plant_precision: 0.025     # the probe stops at a harmonic once its plant is known this well (relative)
       retry_after_s: 120.0       # after a divergence, learning starts again this much later
       model: null                # the controller's model (null: the shipped model)
@@ -108,6 +108,10 @@ from cryod.yaml_source import FileFormatError, Section
 DEFAULT_PERIOD_S = 0.08
 #: After a gap in the loop (a fault, start-up), T2's readings are left out this long (s).
 SETTLE_S = 1.0
+#: After a change of what the heater plays (a learning step, the probe turning), T2's readings are left out this
+#: long (s): a thermometer that lags or a heater that acts late answers the old waveform and the new one mixed for
+#: a while, and taking those readings as the new one's answer would bias the plant learned by the change.
+CHANGE_SETTLE_S = 0.5
 #: Smoothing of the feedback terms' power, the level the waveform rides on (s).
 BASE_TIME_S = 2.0
 #: Second differences the estimator takes into one update of its filter.
@@ -174,7 +178,7 @@ class FeedforwardSettings:
     fade_time_s: float = 5.0
     margin_W: float = 0.001
     minimum_cooler_amplitude_K: float = 0.01
-    probe_amplitude_K: float = 50e-6
+    probe_amplitude_K: float = 100e-6
     plant_precision: float = 0.025
     retry_after_s: float = 120.0
     model: CryostatModel | None = None
@@ -233,7 +237,7 @@ class SynchronousEstimator:
     """
 
     #: The correction of the plant may drift by about this fraction of itself per hour.
-    CORRECTION_DRIFT_PER_HOUR = 0.05
+    CORRECTION_DRIFT_PER_HOUR = 0.02
 
     def __init__(self, harmonics: int, noise_K: float = 20e-6, memory_s: float = 60.0,
                  period_s: float = DEFAULT_PERIOD_S, correction_spread: float = PRIOR_SPREAD,
@@ -430,6 +434,7 @@ class FeedforwardTerm:
         self._flange_phase_rad = math.nan
         self._applied_scale = 0.0           # the scale of the waveform the heater played last tick
         self._held_since_s = -math.inf      # when the loop last had a gap (the heater held off)
+        self._changed_at_s = -math.inf      # when the heater began to play a new waveform or probe
         self._played = False                # update() ran last tick: the heater played the waveform
         self._output_time_s = 0.0           # when this tick's power takes effect
         self.unplayed: UnplayedPower | None = None      # the power held back at the heater's bounds
@@ -565,8 +570,9 @@ class FeedforwardTerm:
         if tick.dt_s > 1.5 * self.settings.period_s:
             self._held_since_s = phase.time_s       # a gap: the loop held the heater off (a fault, start-up)
             self.unplayed.reset()
-        if phase.time_s - self._held_since_s < SETTLE_S:
-            # after a gap the heater did not play the waveform the estimator assumes: wait until T2 has settled
+        if phase.time_s - self._held_since_s < SETTLE_S or tick.flange_time_s - self._changed_at_s < CHANGE_SETTLE_S:
+            # after a gap the heater did not play the waveform the estimator assumes, and after a change it played
+            # the old and the new: wait until T2 has settled
             self._gap()
         else:
             self._in_gap = False
@@ -639,6 +645,9 @@ class FeedforwardTerm:
             power *= rotor
             value += (coefficient * power).real
         self._applied_scale = self.scale
+        if self._heard_coefficients is not self._played_coefficients:
+            self._heard_coefficients = self._played_coefficients    # what the next readings answer
+            self._changed_at_s = tick.output_time_s
         self.output_w = self.scale * value
         return self.output_w
 
@@ -658,17 +667,22 @@ class FeedforwardTerm:
         return self._probe
 
     def _set_played(self) -> None:
-        """What the heater plays: the waveform and the probe."""
+        """What the heater plays from the next output on: the waveform and the probe."""
         self._played_coefficients = self._coefficients + self._probe
         self._coefficient_list = [complex(value) for value in self._played_coefficients]
-        self._effect_cache = None
+        if not hasattr(self, "_heard_coefficients"):
+            self._heard_coefficients = self._played_coefficients
 
     def _effect(self) -> np.ndarray:
-        """What the heater played last tick through the model, its effect on T2 (K per harmonic)."""
+        """What the heater played last tick through the model, its effect on T2 (K per harmonic): a new waveform
+        taken at this tick's start is played from this tick's output on, and the reading now still answers the
+        one before (attributing it the new one would bias the plant learned by the change)."""
         scale = self._applied_scale
-        if self._effect_cache is None or self._effect_cache[0] != scale:
-            self._effect_cache = (scale, self.plant * self._played_coefficients * scale)
-        return self._effect_cache[1]
+        heard = self._heard_coefficients
+        cache = self._effect_cache
+        if cache is None or cache[0] != scale or cache[1] is not heard:
+            cache = self._effect_cache = (scale, heard, self.plant * heard * scale)
+        return cache[2]
 
     def limit(self, requested: float, applied: float) -> None:
         others = requested - self.output_w
@@ -812,7 +826,7 @@ class FeedforwardTerm:
             gain=self.settings.learning_gain, base_w=self.other_terms_w, low_w=self.settings.margin_W,
             high_w=self.output_max - self.settings.margin_W, probe_state=self.probe_state,
             probe=self.settings.probe, interval_s=self.settings.update_interval_s,
-            frequency_rad_s=self.phase.frequency_rad_s))
+            frequency_rad_s=self.phase.frequency_rad_s, before=self._estimate.learned))
         self._pending_step = self._step_id
 
     def _take_step_result(self) -> None:
@@ -935,10 +949,11 @@ class _LearningStep:
     probe: ProbeSettings
     interval_s: float
     frequency_rad_s: float
+    before: LearnedPlant | None
 
     def __call__(self, estimator: SynchronousEstimator) -> StepResult:
         ready = estimator.ready
-        learned = estimator.learned_plant(self.plant, self.frequency_rad_s).prepared()
+        learned = estimator.learned_plant(self.plant, self.frequency_rad_s).confirmed_against(self.before).prepared()
         line_K = residual_K = math.nan
         if ready:
             line_K = _amplitude(estimator.synchronous(self.effect))

@@ -13,10 +13,10 @@ the model's optimum, which can leave much more on a cryostat whose plant
 differs (at 6 K the fundamental needed sits within a few mW of both bounds).
 At harmonics whose plant is not learned the step aims at nothing (their target
 is 0: a step through a plant off by more than 90 degrees would make the line
-grow) and the metric is the model's; the projection may still put content
-there where that lets the learned harmonics come closer to their targets
-within the bounds (the clipped pulse at 5 K is made of them), and its changes
-teach the plant there.
+grow) and the metric is the plant as estimated so far (the model's before
+anything is known); the projection may still put content there where that lets
+the learned harmonics come closer to their targets within the bounds (the
+clipped pulse at 5 K is made of them), and its changes teach the plant there.
 
 Examples
 --------

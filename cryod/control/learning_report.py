@@ -7,7 +7,8 @@ term's name (the loop writes them into the record as ``# event: feedforward:
 * the plant at the line learned, or back to the model's;
 * the learned plant differing from the model beyond its uncertainty, in
   words, with what to do (:data:`cryod.control.plant_learner.RECOMMISSION`),
-  and when it agrees again (a warning each time the harmonics that differ change);
+  and when it agrees again (a warning each time the harmonics that differ
+  change, and when the words change, at most every :data:`SAY_AGAIN_S`);
 * the learned plant itself, every :data:`RECORD_EVERY_S` and whenever the
   harmonics learned change (the data log keeps it with the readings);
 * a probe burst that ended before the plant was known to the precision asked;
@@ -39,6 +40,8 @@ from cryod.control.plant_learner import RECOMMISSION, LearnedPlant
 
 #: The learned plant is written into the data log this often (s), and when the harmonics learned change.
 RECORD_EVERY_S = 600.0
+#: A difference from the model is said again when its words changed, at most this often (s).
+SAY_AGAIN_S = 60.0
 
 
 class LearningReport:
@@ -48,6 +51,8 @@ class LearningReport:
         self._events: list[tuple[int, str]] = []
         self._fundamental_learned = False
         self._differences: tuple[int, ...] = ()
+        self._words = ""
+        self._said_at_s = -math.inf
         self._learned: tuple[bool, ...] = ()
         self._recorded_at_s = -math.inf
         self._given_up: tuple[int, ...] = ()
@@ -61,11 +66,11 @@ class LearningReport:
                                     f"{plant.phase_deg[0]:+.1f} deg" if learned else
                       "plant at the line no longer known well enough: the model's is used")
         differing = tuple(index for index in range(plant.harmonics) if any(plant.differs(index)))
-        if differing != self._differences:
-            self._differences = differing
+        words = "; ".join(plant.difference(index) for index in differing)
+        if differing != self._differences or (words != self._words and time_s - self._said_at_s >= SAY_AGAIN_S):
+            self._differences, self._words, self._said_at_s = differing, words, time_s
             if differing:
-                self._say(logging.WARNING, "; ".join(plant.difference(index) for index in differing)
-                          + f": {RECOMMISSION}")
+                self._say(logging.WARNING, f"{words}: {RECOMMISSION}")
             else:
                 self._say(logging.INFO, "the learned plant agrees with the model within its uncertainty")
         harmonics_learned = tuple(bool(value) for value in plant.learned)
@@ -103,4 +108,4 @@ class LearningReport:
         return events
 
 
-__all__ = ["LearningReport", "RECORD_EVERY_S"]
+__all__ = ["LearningReport", "RECORD_EVERY_S", "SAY_AGAIN_S"]

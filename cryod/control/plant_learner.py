@@ -8,11 +8,15 @@ with its covariance, from how T2 answers the waveform's changes and the probe's
 (:mod:`cryod.control.plant_probe`). :class:`LearnedPlant` turns that into the
 plant the feedforward uses, over the full +-180 degrees:
 
-* at a harmonic whose correction is known to better than the model's assumed
-  error (:data:`MODEL_ERROR`, relative standard deviation) the learned plant
-  ``k_n H_n`` is used; before, the model's ``H_n``, and the waveform leaves that
-  harmonic alone (a step through a plant off by more than 90 degrees would
-  make the line grow);
+* the plant ``k_n H_n`` with the correction as estimated is the best estimate
+  there is (the model's ``H_n`` before the readings say anything): the waveform
+  is measured in it at every harmonic;
+* the waveform aims at the line only at a harmonic whose correction is known to
+  better than the model's assumed error (:data:`MODEL_ERROR`, relative standard
+  deviation), and was at the step before with a value that agrees within
+  :data:`AGREEMENT_SIGMAS` (a first estimate from a few seconds of readings
+  states a spread it does not have yet): there the plant is *learned*; a step
+  through a plant off by more than 90 degrees would make the line grow;
 * where the learned plant differs from the model by more than its uncertainty
   (and by more than matters, :data:`DIFFERENCE_GAIN`, :data:`DIFFERENCE_PHASE_DEG`),
   it says so in words, for the status and the journal.
@@ -32,6 +36,7 @@ None
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from functools import cached_property
@@ -48,6 +53,8 @@ DIFFERENCE_GAIN = 0.05
 DIFFERENCE_PHASE_DEG = 5.0
 #: Prior standard deviation of each part (real, imaginary) of the correction: any phase is possible.
 PRIOR_SPREAD = 1.0
+#: A correction is confirmed when it agrees with the one at the step before within this many standard deviations.
+AGREEMENT_SIGMAS = 3.0
 #: What to do about a plant that differs from the model.
 RECOMMISSION = "re-commission with cryod identify --acquire"
 
@@ -64,11 +71,26 @@ class LearnedPlant:
         ``k_n`` as estimated (complex): the cryostat's plant is ``k_n H_n``.
     covariance : numpy.ndarray
         (N, 2, 2): the covariance of (Re k_n, Im k_n).
+    confirmed : numpy.ndarray, optional
+        Per harmonic, whether the correction was known well enough at the step before too, and agrees with it
+        (:meth:`confirmed_against`); None: taken as confirmed.
     """
 
     model: np.ndarray
     correction: np.ndarray
     covariance: np.ndarray
+    confirmed: np.ndarray | None = None
+
+    def confirmed_against(self, before: "LearnedPlant | None") -> "LearnedPlant":
+        """This, with each harmonic confirmed where ``before`` (the step before's) was known well enough too and
+        agrees with this within :data:`AGREEMENT_SIGMAS` standard deviations, or was confirmed already."""
+        if before is None or len(before.model) != len(self.model):
+            return dataclasses.replace(self, confirmed=np.zeros(len(self.model), dtype=bool))
+        spread = np.maximum(self.relative_spread, before.relative_spread) * np.abs(self.correction)
+        agree = np.abs(self.correction - before.correction) <= AGREEMENT_SIGMAS * np.sqrt(2.0) * spread
+        known_before = before.relative_spread < MODEL_ERROR
+        confirmed = known_before & (agree | before.learned)
+        return dataclasses.replace(self, confirmed=confirmed)
 
     @classmethod
     def from_model(cls, model: np.ndarray) -> "LearnedPlant":
@@ -116,13 +138,17 @@ class LearnedPlant:
 
     @cached_property
     def learned(self) -> np.ndarray:
-        """Where the correction is known better than the model's assumed error (bool per harmonic)."""
-        return self.relative_spread < MODEL_ERROR
+        """Where the correction is known better than the model's assumed error, and confirmed (bool per harmonic)."""
+        known = self.relative_spread < MODEL_ERROR
+        return known if self.confirmed is None else known & self.confirmed
 
     @cached_property
     def plant(self) -> np.ndarray:
-        """The plant to use: ``k_n H_n`` where learned, the model's ``H_n`` elsewhere (K/W)."""
-        return np.where(self.learned, self.model * self.correction, self.model)
+        """The best estimate of the plant, ``k_n H_n`` (K/W): the model's where nothing is learned yet (``k_n`` is
+        1 there), closer to what the readings say the more they say. The waveform is measured in it (the metric of
+        the projection onto the heater's bounds, the probe's size) at every harmonic; it aims at the line only
+        where the plant is :attr:`learned`."""
+        return self.model * self.correction
 
     @cached_property
     def source(self) -> str:
@@ -198,5 +224,5 @@ class LearnedPlant:
             for index in range(self.harmonics))
 
 
-__all__ = ["DIFFERENCE_GAIN", "DIFFERENCE_PHASE_DEG", "DIFFERENCE_SIGMAS", "LearnedPlant", "MODEL_ERROR",
-           "PRIOR_SPREAD", "RECOMMISSION"]
+__all__ = ["AGREEMENT_SIGMAS", "DIFFERENCE_GAIN", "DIFFERENCE_PHASE_DEG", "DIFFERENCE_SIGMAS", "LearnedPlant",
+           "MODEL_ERROR", "PRIOR_SPREAD", "RECOMMISSION"]

@@ -21,9 +21,9 @@ Bounded three ways: it takes at most ``room_share`` of the heater's room around
 the power the waveform rides on (the waveform is projected within what is left),
 it stops at a harmonic once the plant there is known to ``precision``, and a
 burst at a harmonic ends after ``longest_s`` of playing even if it is not; a
-harmonic where it could not even halve the plant's spread in that time (or
-make it usable), for a plant too weak for what the room allows now, waits
-while the next one is probed. It comes back when the plant's spread has grown to :data:`RESUME_FACTOR` times
+harmonic where a whole burst could not bring the plant's spread to the
+precision, or to :data:`WORTH` of what it is (a plant too weak for what the
+room allows now), waits while the next one is probed. It comes back when the plant's spread has grown to :data:`RESUME_FACTOR` times
 what it was left at. Its cost, T2's answer to it, ``|H_n p_n|`` through the
 learned plant, is reported.
 
@@ -59,6 +59,8 @@ PHASE_STEP_RAD = 0.5 * math.pi
 PHASE_OFFSET_RAD = math.pi * (3.0 - math.sqrt(5.0))
 #: The probe comes back at a harmonic when the plant's spread has grown to this times what it was left at.
 RESUME_FACTOR = 2.0
+#: A burst is begun where it would bring the spread below this fraction of what it is (or to the precision).
+WORTH = 0.7
 
 
 @dataclass(frozen=True)
@@ -148,9 +150,10 @@ def next_probe(state: ProbeState, plant: LearnedPlant, room_w: float, interval_s
         if not probing[index] or settings.amplitude_K <= 0.0:
             continue
         power = min(settings.amplitude_K / gain[index], budget)
-        remaining_s = settings.longest_s - played[index]
-        if power > 0.0 and _spread_after(spread[index], gain[index] * power, remaining_s, settings) \
-                <= max(settings.precision, min(0.5 * spread[index], MODEL_ERROR)):
+        if power <= 0.0:
+            break                                       # no room now: wait
+        # a burst once begun goes on; one not begun only where it could tell the plant
+        if played[index] > 0.0 or _worth_it(spread[index], gain[index] * power, settings):
             amplitude[index] = power
             break
     orders = np.arange(1, plant.harmonics + 1)
@@ -158,6 +161,13 @@ def next_probe(state: ProbeState, plant: LearnedPlant, room_w: float, interval_s
     played = [seconds + (interval_s if amplitude[index] > 0.0 else 0.0) for index, seconds in enumerate(played)]
     return replace(state, probing=tuple(probing), played_s=tuple(played), left_at=tuple(left_at),
                    steps=state.steps + 1), probe
+
+
+def _worth_it(spread: float, signal_K: float, settings: ProbeSettings) -> bool:
+    """Whether a whole burst would bring the plant's spread to the precision, or to a usable value from an unusable
+    one, or to :data:`WORTH` of what it is."""
+    after = _spread_after(spread, signal_K, settings.longest_s, settings)
+    return after <= settings.precision or (after < MODEL_ERROR <= spread) or after <= WORTH * spread
 
 
 def _spread_after(spread: float, signal_K: float, seconds: float, settings: ProbeSettings) -> float:

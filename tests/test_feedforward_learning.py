@@ -285,3 +285,34 @@ def test_the_limit_for_a_plant_known_at_the_harmonics_is_the_models_limit_for_th
     modelled = feedforward_limit(reference_model, 5.0, 0.5, 1.0, PERIOD, certify=False)
     assert learned.ptc_periodic_limit_K == pytest.approx(modelled.ptc_periodic_limit_K, rel=1e-3)
     assert learned.authority == pytest.approx(modelled.authority, rel=1e-6)
+
+
+# ---------------------------------------------------------------------------
+# the daemon: status keys, journal and record
+# ---------------------------------------------------------------------------
+def test_the_daemon_reports_what_it_learned_in_the_record_the_journal_and_its_summary(reference_model, tmp_path):
+    """`cryod --simulate` on a cryostat whose heater reaches T2 0.6x as strongly and 90 degrees later at the line
+    than the controller's model says: the data log and the journal say so in words, the record keeps the learned
+    plant in event lines, ``ff_limit_from`` turns to ``learned`` with ``ff_limit_K`` this cryostat's limit."""
+    import io
+
+    from cryod.model.model_file import save_model
+    from cryod.records.record import read_record
+    from cryod.service.simulation import simulate
+
+    model = cryostat(reference_model, gain=0.6, dead_time_s=math.radians(90.0) / OMEGA)
+    path = save_model(model, tmp_path / "cryostat.yaml")
+    journal = io.StringIO()
+    run = simulate(600.0, 6.0, sim_model=path, seed=2, data_dir=tmp_path / "data", socket=tmp_path / "c.sock",
+                   log_stream=journal)
+    summary = run.summary
+    record = read_record(summary["log_path"])
+    said = [text for _, text in record.events if text.startswith("event: feedforward: the heater reaches T2")]
+    assert said and "weaker" in said[-1] and "degrees later than the model at the line" in said[-1] \
+        and said[-1].endswith("re-commission with cryod identify --acquire")
+    assert said[-1][len("event: feedforward: "):] in journal.getvalue()
+    assert any(text.startswith("event: feedforward: learned plant: harmonic 1:") for _, text in record.events)
+    assert record.columns["ff_limit_from"][-1] == "learned" == summary["feedforward_limit_from"]
+    assert record.columns["ff_limit_K"][-1] == pytest.approx(summary["ptc_periodic_limit_K"], rel=0.1)
+    assert summary["feedforward_plant"][0]["learned"] and summary["feedforward_plant_differences"]
+    assert summary["feedforward_divergences"] == 0

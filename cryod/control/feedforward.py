@@ -121,6 +121,11 @@ BATCH = 4
 BOUND_POINTS = 48
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
 SETTING_DELAY_TOLERANCE_S = 0.002
+#: A step that would move T2's synchronous part by less than this many standard deviations of the line's estimate
+#: at every harmonic keeps the waveform as it is: a change decided by noise teaches the plant nothing true (the
+#: noise that decided it is still in the estimate), and each change of a waveform through the flange's slow
+#: response kicks T2's mean a little (microkelvin below 0.1 Hz).
+HOLD_SIGMAS = 2.0
 #: Learning steps in a row that make a divergence (:class:`~cryod.control.divergence_guard.DivergenceGuard`).
 DIVERGENCE_STEPS = 5
 #: The wait before learning again after a divergence doubles with each one in a row, up to this (s).
@@ -273,14 +278,37 @@ class SynchronousEstimator:
         n = self.harmonics
         return self.state[2 * n:3 * n] + 1j * self.state[3 * n:]
 
-    @property
-    def correction_covariance(self) -> np.ndarray:
-        """(harmonics, 2, 2): the covariance of (Re k_n, Im k_n)."""
+    def _blocks(self, first: int) -> np.ndarray:
+        """(harmonics, 2, 2): the covariance of the real and imaginary parts of the state from ``first`` on."""
         n = self.harmonics
-        real, imaginary = np.arange(2 * n, 3 * n), np.arange(3 * n, 4 * n)
+        real, imaginary = np.arange(first, first + n), np.arange(first + n, first + 2 * n)
         c = self.covariance
         return np.stack([np.stack([c[real, real], c[real, imaginary]], axis=-1),
                          np.stack([c[imaginary, real], c[imaginary, imaginary]], axis=-1)], axis=-2)
+
+    @property
+    def correction_covariance(self) -> np.ndarray:
+        """(harmonics, 2, 2): the covariance of (Re k_n, Im k_n), as the filter states it."""
+        return self._blocks(2 * self.harmonics)
+
+    def _as_the_readings_give(self, covariance: np.ndarray, prior_variance: float,
+                              frequency_rad_s: float | None) -> np.ndarray:
+        """A block covariance as the readings give it (see :meth:`learned_plant`): the information the readings
+        brought corrected by the second differences' misstatement at each harmonic; the prior's kept."""
+        if frequency_rad_s is None:
+            return covariance
+        gain = (2.0 - 2.0 * np.cos(self.orders * frequency_rad_s * self.period_s)) ** 2 / 6.0
+        prior = np.eye(2) / prior_variance
+        information = np.linalg.inv(covariance) - prior
+        information = 0.5 * (information + np.swapaxes(information, 1, 2))
+        values, vectors = np.linalg.eigh(information)
+        information = np.einsum("nij,nj,nkj->nik", vectors, np.maximum(values, 0.0), vectors)
+        return np.linalg.inv(prior + information / np.maximum(gain, 1e-3)[:, None, None])
+
+    def line_spread_K(self, frequency_rad_s: float | None = None) -> np.ndarray:
+        """Standard deviation of the line's estimate at each harmonic (K, both parts together)."""
+        covariance = self._as_the_readings_give(self._blocks(0), self._line_variance, frequency_rad_s)
+        return np.sqrt(np.maximum(covariance[:, 0, 0] + covariance[:, 1, 1], 0.0))
 
     def learned_plant(self, model_plant: np.ndarray, frequency_rad_s: float | None = None) -> LearnedPlant:
         """What is learned of the plant, against the model's ``model_plant`` (K/W per harmonic).
@@ -294,15 +322,8 @@ class SynchronousEstimator:
         information the readings brought is corrected by that factor (``frequency_rad_s``, the cooler's;
         none: as the filter has it); the prior's is kept.
         """
-        covariance = self.correction_covariance
-        if frequency_rad_s is not None:
-            gain = (2.0 - 2.0 * np.cos(self.orders * frequency_rad_s * self.period_s)) ** 2 / 6.0
-            prior = np.eye(2) / self._correction_variance
-            information = np.linalg.inv(covariance) - prior
-            information = 0.5 * (information + np.swapaxes(information, 1, 2))
-            values, vectors = np.linalg.eigh(information)
-            information = np.einsum("nij,nj,nkj->nik", vectors, np.maximum(values, 0.0), vectors)
-            covariance = np.linalg.inv(prior + information / np.maximum(gain, 1e-3)[:, None, None])
+        covariance = self._as_the_readings_give(self.correction_covariance, self._correction_variance,
+                                                frequency_rad_s)
         return LearnedPlant(np.asarray(model_plant, dtype=complex), self.raw_correction.copy(), covariance)
 
     @property
@@ -966,6 +987,9 @@ class _LearningStep:
             reserved = float(np.sum(np.abs(probe)))
             coefficients = learning_step(self.coefficients, estimator.line, learned, self.gain, self.base_w,
                                          self.low_w + reserved, self.high_w - reserved, BOUND_POINTS)
+            change_K = np.abs(learned.plant * (coefficients - self.coefficients))
+            if np.all(change_K < HOLD_SIGMAS * estimator.line_spread_K(self.frequency_rad_s)):
+                coefficients = self.coefficients        # within the line's noise: keep the waveform as it is
             cost = probe_cost_K(probe, learned.plant)
             # no second difference may span the step: the readings before it decided it, and their noise
             # would look like the plant's answer to it

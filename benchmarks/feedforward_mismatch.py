@@ -23,7 +23,8 @@ Goals per case (the issue's), each checked from the run's own output:
   with its dead time and lag) at harmonics 1-3;
 * the reported ``ff_limit_K`` within 10 % of the simulated cryostat's own limit (for a
   noise-limited case, within 10 % or within the noise floor);
-* within 2x of the final residual 300 s after T2 first reaches the setpoint; mean error at most
+* within 2x of the final residual 300 s after T2 first reaches the setpoint (20 s windows, in which
+  noise alone shows 6.2 uK: within 2x of that where the final residual is smaller); mean error at most
   20 uK; noise below 0.1 Hz at most 1.05x PI alone's; no overruns;
 * the loop thread's CPU per tick at most 1.3x PI alone's: measured for a few cases
   (`benchmarks/loop_cpu.py`, best of 3 each; the cycle does not depend on the cryostat).
@@ -174,7 +175,10 @@ def run_case(cryostat: Cryostat, setpoint_K: float, resistance_ohm: float, folde
         pi = feedforward_benchmark.simulate(work / "pi", setpoint_K, False, model_path, config=config, prefix=NICE)
         record = read_record(ff["log_path"], columns=["time_s", "T2_K", "T5_K", "heater_W", "setpoint_K",
                                                       "T2_sample_s", "T5_sample_s"])
-        settling = feedforward_benchmark.settling(record, setpoint_K, ff["ptc_periodic_amplitude_K"])
+        # within 2x of the final residual, or of what noise alone shows in the 20 s windows when that is more
+        window_floor = noise_floor_K(model.sensor_noise.flange_thermometer_rms_K,
+                                     feedforward_benchmark.CONVERGENCE_WINDOW_S, PERIOD_S)
+        settling = feedforward_benchmark.settling(record, setpoint_K, max(ff["ptc_periodic_amplitude_K"], window_floor))
     limit = ff["ptc_periodic_limit_K"]
     plant = ff.get("feedforward_plant") or []
     truth = true_plant(model, [1, 2, 3], ff.get("feedforward_setting_delay_s") or 0.0)

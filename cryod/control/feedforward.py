@@ -121,11 +121,6 @@ BATCH = 4
 BOUND_POINTS = 48
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
 SETTING_DELAY_TOLERANCE_S = 0.002
-#: A step that would move T2's synchronous part by less than this many standard deviations of the line's estimate
-#: at every harmonic keeps the waveform as it is: a change decided by noise teaches the plant nothing true (the
-#: noise that decided it is still in the estimate), and each change of a waveform through the flange's slow
-#: response kicks T2's mean a little (microkelvin below 0.1 Hz).
-HOLD_SIGMAS = 2.0
 #: Learning steps in a row that make a divergence (:class:`~cryod.control.divergence_guard.DivergenceGuard`).
 DIVERGENCE_STEPS = 5
 #: The wait before learning again after a divergence doubles with each one in a row, up to this (s).
@@ -304,11 +299,6 @@ class SynchronousEstimator:
         values, vectors = np.linalg.eigh(information)
         information = np.einsum("nij,nj,nkj->nik", vectors, np.maximum(values, 0.0), vectors)
         return np.linalg.inv(prior + information / np.maximum(gain, 1e-3)[:, None, None])
-
-    def line_spread_K(self, frequency_rad_s: float | None = None) -> np.ndarray:
-        """Standard deviation of the line's estimate at each harmonic (K, both parts together)."""
-        covariance = self._as_the_readings_give(self._blocks(0), self._line_variance, frequency_rad_s)
-        return np.sqrt(np.maximum(covariance[:, 0, 0] + covariance[:, 1, 1], 0.0))
 
     def learned_plant(self, model_plant: np.ndarray, frequency_rad_s: float | None = None) -> LearnedPlant:
         """What is learned of the plant, against the model's ``model_plant`` (K/W per harmonic).
@@ -667,10 +657,29 @@ class FeedforwardTerm:
             value += (coefficient * power).real
         self._applied_scale = self.scale
         if self._heard_coefficients is not self._played_coefficients:
+            value += self._energy_kept(rotor)
             self._heard_coefficients = self._played_coefficients    # what the next readings answer
             self._changed_at_s = tick.output_time_s
         self.output_w = self.scale * value
         return self.output_w
+
+    def _energy_kept(self, rotor: complex) -> float:
+        """The power to add for one tick where the waveform changes, so that the energy it delivers goes on as
+        if it had always been the new one (W).
+
+        A held waveform ``Re sum_n u_n exp(j n phase_k)`` delivers, summed over the ticks, a bounded
+        oscillation plus a constant; changing ``u`` at tick K moves that constant by
+        ``T Re sum_n (u_n - u'_n) exp(j n phase_K) / (exp(j n omega T) - 1)``, which depends on where in the
+        period the change falls: a kick of energy the flange integrates into T2's mean (a few microkelvin for
+        a change of a milliwatt, every learning step, below 0.1 Hz). This gives it back."""
+        advance = self.phase.frequency_rad_s * self.settings.period_s
+        turn = cmath.exp(1j * advance)
+        power, step, kept = 1.0 + 0j, 1.0 + 0j, 0.0
+        for new, old in zip(self._played_coefficients, self._heard_coefficients):
+            power *= rotor
+            step *= turn
+            kept += ((new - old) * power / (step - 1.0)).real
+        return kept
 
     @property
     def coefficients(self) -> np.ndarray:
@@ -987,9 +996,6 @@ class _LearningStep:
             reserved = float(np.sum(np.abs(probe)))
             coefficients = learning_step(self.coefficients, estimator.line, learned, self.gain, self.base_w,
                                          self.low_w + reserved, self.high_w - reserved, BOUND_POINTS)
-            change_K = np.abs(learned.plant * (coefficients - self.coefficients))
-            if np.all(change_K < HOLD_SIGMAS * estimator.line_spread_K(self.frequency_rad_s)):
-                coefficients = self.coefficients        # within the line's noise: keep the waveform as it is
             cost = probe_cost_K(probe, learned.plant)
             # no second difference may span the step: the readings before it decided it, and their noise
             # would look like the plant's answer to it

@@ -96,7 +96,7 @@ from cryod.control.learned_limit import LearnedLimitInputs
 from cryod.control.learned_projection import learning_step
 from cryod.control.learning_report import LearningReport
 from cryod.control.limit_follower import LimitFollower
-from cryod.control.plant_learner import PRIOR_SPREAD, RECOMMISSION, LearnedPlant
+from cryod.control.plant_learner import PRIOR_SPREAD, LearnedPlant
 from cryod.control.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
 from cryod.control.terms import TickInputs
 from cryod.control.unplayed_power import UnplayedPower
@@ -789,7 +789,8 @@ class FeedforwardTerm:
         lines.append(f"plant, heater to T2's readings (model: {self.settings.model_source}; "
                      f"{'learned' if plant.learned.any() else 'nothing learned yet'}):")
         lines.append(plant.describe())
-        lines += [f"{text}: {RECOMMISSION}" for text in plant.differences()]
+        if plant.differences_said():
+            lines.append(plant.differences_said())
         lines.append(self._describe_probe())
         if self._diverged is not None:
             lines.append(f"learning diverged ({self._diverged}): fading out")
@@ -819,12 +820,18 @@ class FeedforwardTerm:
         probing = [index + 1 for index, on in enumerate(self.probe_state.probing) if on]
         cost = self._estimate.probe_cost_K
         short = self.probe_state.given_up()
-        text = (f"probe: {', '.join(f'{1e3 * abs(p):.1f}' for p in self._probe)} mW at harmonics "
-                f"{', '.join(map(str, probing))}, moving T2 by {1e6 * cost:.1f} uK" if probing and cost > 0.0
-                else "probe: off" + (" (plant known to the precision asked)" if not probing else
-                                     " (no room: the heater's power is at a bound)"))
-        if short:
-            text += f"; harmonics {', '.join(map(str, short))} left at the precision the probe reached"
+        playing = [index + 1 for index, value in enumerate(self._probe) if value]
+        if playing and cost > 0.0:
+            text = (f"probe: {1e3 * abs(self._probe[playing[0] - 1]):.1f} mW at harmonic {playing[0]}, moving T2 by "
+                    f"{1e6 * cost:.1f} uK (to learn the plant to {100 * self.settings.plant_precision:g} %; "
+                    f"harmonics {', '.join(map(str, probing))} to go)")
+        elif probing:
+            text = (f"probe: waiting (harmonics {', '.join(map(str, probing))} to go: no room now, or a plant too "
+                    f"weak for the room there is)")
+        else:
+            text = f"probe: off (plant known to {100 * self.settings.plant_precision:g} %" + \
+                (")" if not short else f" where it could be; harmonics {', '.join(map(str, short))} left at what "
+                                       f"the probe could tell within its share of the heater's room)")
         return text
 
     def line_amplitude_K(self) -> float:

@@ -6,7 +6,7 @@ term's name (the loop writes them into the record as ``# event: feedforward:
 
 * the plant at the line learned, or back to the model's;
 * the learned plant differing from the model beyond its uncertainty, in
-  words, with what to do (:data:`cryod.control.plant_learner.RECOMMISSION`),
+  words, with what to do (:meth:`cryod.control.plant_learner.LearnedPlant.differences_said`),
   and when it agrees again (a warning each time the harmonics that differ
   change, and when the words change, at most every :data:`SAY_AGAIN_S`);
 * the learned plant itself, every :data:`RECORD_EVERY_S` and whenever the
@@ -36,7 +36,7 @@ from __future__ import annotations
 import logging
 import math
 
-from cryod.control.plant_learner import RECOMMISSION, LearnedPlant
+from cryod.control.plant_learner import LearnedPlant
 
 #: The learned plant is written into the data log this often (s), and when the harmonics learned change.
 RECORD_EVERY_S = 600.0
@@ -66,11 +66,11 @@ class LearningReport:
                                     f"{plant.phase_deg[0]:+.1f} deg" if learned else
                       "plant at the line no longer known well enough: the model's is used")
         differing = tuple(index for index in range(plant.harmonics) if any(plant.differs(index)))
-        words = "; ".join(plant.difference(index) for index in differing)
+        words = plant.differences_said() or ""
         if differing != self._differences or (words != self._words and time_s - self._said_at_s >= SAY_AGAIN_S):
             self._differences, self._words, self._said_at_s = differing, words, time_s
             if differing:
-                self._say(logging.WARNING, f"{words}: {RECOMMISSION}")
+                self._say(logging.WARNING, words)
             else:
                 self._say(logging.INFO, "the learned plant agrees with the model within its uncertainty")
         harmonics_learned = tuple(bool(value) for value in plant.learned)

@@ -28,8 +28,8 @@ Examples
 >>> learned = LearnedPlant(model, np.array([0.62 * np.exp(-1.22j)]), np.array([np.eye(2) * 1e-4]))
 >>> bool(learned.learned[0]), round(float(abs(learned.plant[0])) * 1e3, 2)
 (True, 4.56)
->>> print(learned.difference())
-the heater reaches T2 1.6x weaker and 70 degrees later than the model at the line
+>>> print(learned.differences_said())
+the heater reaches T2 1.6x weaker and 70 degrees later than the model at the line: re-commission with cryod identify --acquire
 >>> print(LearnedPlant.from_model(model).difference())
 None
 """
@@ -193,15 +193,26 @@ class LearnedPlant:
         """:meth:`difference` at every harmonic where there is one."""
         return [text for text in (self.difference(index) for index in range(self.harmonics)) if text]
 
+    def differences_said(self) -> str | None:
+        """All the differences in one sentence, with what to do (None where the plant agrees with the model)."""
+        said = self.differences()
+        if not said:
+            return None
+        prefix = "the heater reaches T2 "
+        rest = [text[len(prefix):].replace(" than the model", "") for text in said[1:]]
+        return "; ".join([said[0], *rest]) + f": {RECOMMISSION}"
+
     def describe(self) -> str:
         """One line per harmonic: gain and phase against the model, their spread, learned or the model's."""
         lines = []
         for index in range(self.harmonics):
             plant = self.plant[index]
-            state = (f"learned: {self.gain_ratio[index]:.3f} x the model's +-{100 * self.gain_spread[index]:.1f} %, "
-                     f"{self.phase_deg[index]:+.1f} +-{self.phase_spread_deg[index]:.1f} deg"
-                     if self.learned[index] else
-                     f"the model's (learned only to {100 * min(self.relative_spread[index], 9.99):.0f} %)")
+            against = (f"{self.gain_ratio[index]:.3f} x the model's +-{100 * self.gain_spread[index]:.1f} %, "
+                       f"{self.phase_deg[index]:+.1f} +-{self.phase_spread_deg[index]:.1f} deg")
+            state = (f"learned: {against}" if self.learned[index] else
+                     "the model's: nothing learned yet" if self.relative_spread[index] >= PRIOR_SPREAD else
+                     f"known to {100 * self.relative_spread[index]:.0f} % only, {against}: the waveform does not "
+                     f"aim at the line there")
             lines.append(f"  harmonic {index + 1}: {1e3 * abs(plant):.3f} mK/W, {math.degrees(np.angle(plant)):+.0f} deg "
                          f"({state})")
         return "\n".join(lines)

@@ -128,8 +128,10 @@ LONGEST_RETRY_S = 3600.0
 #: Smoothing of PI's power for the mean power the setpoint needs (s), and of T2's distance from the setpoint.
 MEAN_POWER_TIME_S = 60.0
 SETTLING_TIME_S = 20.0
-#: T2 is taken as settled at the setpoint (its mean power the one the setpoint needs) within this (K).
+#: T2 is taken as settled at the setpoint (its mean power the one the setpoint needs) within this (K) ...
 SETTLED_K = 2e-4
+#: ... and as still on its way to it (the probe may be larger) beyond this (K).
+APPROACHING_K = 2e-3
 #: The learned limit needs the plant at the line known to this (relative standard deviation).
 LIMIT_PLANT_SPREAD = 0.1
 
@@ -863,7 +865,8 @@ class FeedforwardTerm:
             gain=self.settings.learning_gain, base_w=self.other_terms_w, low_w=self.settings.margin_W,
             high_w=self.output_max - self.settings.margin_W, probe_state=self.probe_state,
             probe=self.settings.probe, interval_s=self.settings.update_interval_s,
-            frequency_rad_s=self.phase.frequency_rad_s, before=self._estimate.learned))
+            frequency_rad_s=self.phase.frequency_rad_s, before=self._estimate.learned,
+            approaching=self._setpoint_distance_K > APPROACHING_K))
         self._pending_step = self._step_id
 
     def _take_step_result(self) -> None:
@@ -987,6 +990,7 @@ class _LearningStep:
     interval_s: float
     frequency_rad_s: float
     before: LearnedPlant | None
+    approaching: bool
 
     def __call__(self, estimator: SynchronousEstimator) -> StepResult:
         ready = estimator.ready
@@ -999,7 +1003,7 @@ class _LearningStep:
         cost = 0.0
         if ready and self.learning:
             room = min(self.base_w - self.low_w, self.high_w - self.base_w)
-            state, probe = next_probe(self.probe_state, learned, room, self.interval_s, self.probe)
+            state, probe = next_probe(self.probe_state, learned, room, self.interval_s, self.probe, self.approaching)
             reserved = float(np.sum(np.abs(probe)))
             coefficients = learning_step(self.coefficients, estimator.line, learned, self.gain, self.base_w,
                                          self.low_w + reserved, self.high_w - reserved, BOUND_POINTS)

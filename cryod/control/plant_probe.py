@@ -17,6 +17,11 @@ what it costs (its peak, the room it takes from the waveform) with the
 amplitude, so the whole room for one harmonic, then the next, learns them
 all sooner than a share each at once.
 
+While T2 is still on its way to a new setpoint, what the probe costs does not
+count: it may then be ``approach_gain`` times larger and take
+``approach_room_share`` of the room, so that most of the plant is known by the
+time T2 arrives.
+
 Bounded three ways: it takes at most ``room_share`` of the heater's room around
 the power the waveform rides on (the waveform is projected within what is left),
 it stops at a harmonic once the plant there is known to ``precision``, and a
@@ -80,6 +85,11 @@ class ProbeSettings:
     noise_K : float
         T2's reading noise (K rms): a burst that could not tell the plant is not tried.
     readings_per_s : float
+    approach_gain : float
+        While T2 is on its way to the setpoint, the probe moves T2 this many times more (and may take
+        ``approach_room_share`` of the room): what it costs then does not count, and the plant is
+        learned sooner.
+    approach_room_share : float
     """
 
     amplitude_K: float = 50e-6
@@ -88,6 +98,8 @@ class ProbeSettings:
     room_share: float = 0.15
     noise_K: float = 20e-6
     readings_per_s: float = 12.5
+    approach_gain: float = 3.0
+    approach_room_share: float = 0.4
 
 
 @dataclass(frozen=True)
@@ -112,7 +124,7 @@ class ProbeState:
 
 
 def next_probe(state: ProbeState, plant: LearnedPlant, room_w: float, interval_s: float,
-               settings: ProbeSettings) -> tuple[ProbeState, np.ndarray]:
+               settings: ProbeSettings, approaching: bool = False) -> tuple[ProbeState, np.ndarray]:
     """The probe for the coming learning interval, and the state after deciding it.
 
     Parameters
@@ -125,6 +137,8 @@ def next_probe(state: ProbeState, plant: LearnedPlant, room_w: float, interval_s
     interval_s : float
         The learning interval: how long this probe plays (s).
     settings : ProbeSettings
+    approaching : bool
+        T2 is still on its way to the setpoint: the probe may be larger.
 
     Returns
     -------
@@ -143,6 +157,9 @@ def next_probe(state: ProbeState, plant: LearnedPlant, room_w: float, interval_s
             reference = left_at[index] if math.isfinite(left_at[index]) else settings.precision
             if spread[index] > RESUME_FACTOR * reference:
                 probing[index], played[index] = True, 0.0
+    if approaching:
+        settings = replace(settings, amplitude_K=settings.approach_gain * settings.amplitude_K,
+                           room_share=settings.approach_room_share)
     budget = settings.room_share * max(room_w, 0.0)
     gain = np.maximum(np.abs(plant.plant), 1e-12)
     amplitude = np.zeros(plant.harmonics)

@@ -73,7 +73,7 @@ Configuration, section ``control.feedforward`` (optional; reloadable, bumpless):
       margin_W: 0.001            # kept from 0 W and from R I_max^2
       minimum_cooler_amplitude_K: 0.01
       probe_amplitude_K: 1.0e-4  # T2's answer to the probe at each harmonic probed (0: no probe)
-      plant_precision: 0.025     # the probe stops at a harmonic once its plant is known this well (relative)
+      plant_precision: 0.03      # the probe stops at a harmonic once its plant is known this well (relative)
       retry_after_s: 120.0       # after a divergence, learning starts again this much later
       model: null                # the controller's model (null: the shipped model)
 """
@@ -181,7 +181,7 @@ class FeedforwardSettings:
     margin_W: float = 0.001
     minimum_cooler_amplitude_K: float = 0.01
     probe_amplitude_K: float = 100e-6
-    plant_precision: float = 0.025
+    plant_precision: float = 0.03
     retry_after_s: float = 120.0
     model: CryostatModel | None = None
     model_source: str = "shipped model"

@@ -93,7 +93,7 @@ class ProbeSettings:
     """
 
     amplitude_K: float = 50e-6
-    precision: float = 0.025
+    precision: float = 0.03
     longest_s: float = 60.0
     room_share: float = 0.15
     noise_K: float = 20e-6

@@ -147,7 +147,7 @@ def test_the_waveform_fades_in_and_out_with_the_lock_and_on_command(reference_mo
     term.start(None, 0.113)
     feed(term, 40.0)
     assert term.scale == 1.0 and np.any(term.coefficients)
-    peak = float(np.max(np.abs(waveform_values(term.coefficients, 0.0, 128))))
+    peak = float(np.max(np.abs(waveform_values(term.coefficients + term.probe, 0.0, 128))))
     term.switch(False)
     off = feed(term, 10.0, 40.0)
     assert term.scale == 0.0 and np.all(off[-20:] == 0.0)

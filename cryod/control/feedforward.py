@@ -112,6 +112,9 @@ SETTLE_S = 1.0
 #: long (s): a thermometer that lags or a heater that acts late answers the old waveform and the new one mixed for
 #: a while, and taking those readings as the new one's answer would bias the plant learned by the change.
 CHANGE_SETTLE_S = 0.5
+#: ... when the change moves T2 by more than this (K, through the model's plant): a change of a few microkelvin (a
+#: converged waveform following the line's noise) mixes nothing that matters against the readings' noise.
+CHANGE_SETTLE_ABOVE_K = 20e-6
 #: Smoothing of the feedback terms' power, the level the waveform rides on (s).
 BASE_TIME_S = 2.0
 #: Second differences the estimator takes into one update of its filter.
@@ -660,8 +663,10 @@ class FeedforwardTerm:
         self._applied_scale = self.scale
         if self._heard_coefficients is not self._played_coefficients:
             value += self._energy_kept(rotor)
+            change_K = float(np.sum(np.abs(self.plant * (self._played_coefficients - self._heard_coefficients))))
+            if change_K > CHANGE_SETTLE_ABOVE_K:
+                self._changed_at_s = tick.output_time_s
             self._heard_coefficients = self._played_coefficients    # what the next readings answer
-            self._changed_at_s = tick.output_time_s
         self.output_w = self.scale * value
         return self.output_w
 

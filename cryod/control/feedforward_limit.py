@@ -451,11 +451,12 @@ def feedforward_limit(model: CryostatModel, setpoint_K: float, heater_resistance
     problem = _problem(model, setpoint_K, max_power, period_s, delay, measure, harmonics)
     floor_gain = _smallest_held_gain(problem.heater_path, period_s, delay, measure) if certify else None
     thermometer_at_line = complex(problem.heater_path.frequency_response(model.ptc.angular_frequency_rad_s))
-    return _solved(problem, _Inputs(float(setpoint_K), float(heater_resistance_ohm), float(max_current_A),
-                                    float(period_s), float(delay), measure, phase_points,
-                                    model.ptc.angular_frequency_rad_s, model.sensor_noise.flange_thermometer_rms_K,
-                                    float(averaging_time_s)),
-                   thermometer_at_line, floor_gain, lambda delivered: _commanded(model, delivered))
+    return _solved(problem, thermometer_at_line, floor_gain, lambda delivered: _commanded(model, delivered),
+                   model.sensor_noise.flange_thermometer_rms_K, setpoint_K=float(setpoint_K),
+                   heater_resistance_ohm=float(heater_resistance_ohm), max_current_A=float(max_current_A),
+                   period_s=float(period_s), heater_delay_s=float(delay), measure=measure, phase_points=phase_points,
+                   cooler_angular_frequency_rad_s=model.ptc.angular_frequency_rad_s,
+                   averaging_time_s=float(averaging_time_s))
 
 
 def limit_for_plant(line: np.ndarray, plant: np.ndarray, mean_heater_power_w: float, max_heater_power_w: float,
@@ -503,34 +504,20 @@ def limit_for_plant(line: np.ndarray, plant: np.ndarray, mean_heater_power_w: fl
     line = np.asarray(line, dtype=complex)
     problem = _Problem(line=line, gain=np.asarray(plant, dtype=complex), mean=float(mean_heater_power_w), low=0.0,
                        high=float(max_heater_power_w), heater_path=None)
-    inputs = _Inputs(float(setpoint_K), float(max_heater_power_w), 1.0, float(period_s), float(heater_delay_s),
-                     "sampled", phase_points, cooler_angular_frequency_rad_s, sensor_noise_rms_K,
-                     float(averaging_time_s))
-    return _solved(problem, inputs, complex(math.nan, math.nan), None, lambda delivered: delivered)
+    return _solved(problem, complex(math.nan, math.nan), None, lambda delivered: delivered, sensor_noise_rms_K,
+                   setpoint_K=float(setpoint_K), heater_resistance_ohm=float(max_heater_power_w), max_current_A=1.0,
+                   period_s=float(period_s), heater_delay_s=float(heater_delay_s), measure="sampled",
+                   phase_points=phase_points, cooler_angular_frequency_rad_s=cooler_angular_frequency_rad_s,
+                   averaging_time_s=float(averaging_time_s))
 
 
-@dataclass(frozen=True)
-class _Inputs:
-    """What a limit is reported for, besides the problem itself."""
-
-    setpoint_K: float
-    heater_resistance_ohm: float
-    max_current_A: float
-    period_s: float
-    heater_delay_s: float
-    measure: str
-    phase_points: int
-    cooler_angular_frequency_rad_s: float
-    sensor_noise_rms_K: float
-    averaging_time_s: float
-
-
-def _solved(problem: "_Problem", inputs: _Inputs, thermometer_at_line: complex, floor_gain: float | None,
-            commanded) -> FeedforwardLimit:
-    """The best waveform for the problem, and the limit as reported (``floor_gain`` None: not certified)."""
+def _solved(problem: "_Problem", thermometer_at_line: complex, floor_gain: float | None, commanded,
+            sensor_noise_rms_K: float, **reported) -> FeedforwardLimit:
+    """The best waveform for the problem, and the limit as reported (``floor_gain`` None: not certified;
+    ``reported``: the inputs the limit is given for, by the names :class:`FeedforwardLimit` gives them)."""
     bounds = (problem.mean, problem.low, problem.high)
-    harmonics = problem.line.size
-    amplitudes = best_bounded_waveform(problem.line, problem.gain, *bounds, phase_points=inputs.phase_points)
+    phase_points = reported["phase_points"]
+    amplitudes = best_bounded_waveform(problem.line, problem.gain, *bounds, phase_points=phase_points)
     residual = problem.line + problem.gain * amplitudes
     lower_bound = None
     if floor_gain is not None:
@@ -546,20 +533,16 @@ def _solved(problem: "_Problem", inputs: _Inputs, thermometer_at_line: complex, 
     fundamental_left = max(0.0, float(abs(problem.line[0]) - abs(problem.gain[0]) * sinusoid))
     best_sinusoid = _amplitude(np.concatenate([[fundamental_left], line_shown[1:]]))
     limit = _amplitude(residual_shown)
-    noise = noise_floor_K(inputs.sensor_noise_rms_K, inputs.averaging_time_s, inputs.period_s)
+    noise = noise_floor_K(sensor_noise_rms_K, reported["averaging_time_s"], reported["period_s"])
 
     waveform_harmonics = amplitudes        # against the cooler's phase phi (T5 reads A cos phi)
-    waveform_delivered = waveform_values(waveform_harmonics, problem.mean, inputs.phase_points)
+    waveform_delivered = waveform_values(waveform_harmonics, problem.mean, phase_points)
     waveform_delivered = np.clip(waveform_delivered, problem.low, problem.high)
-    waveform_phase = 2.0 * math.pi * np.arange(inputs.phase_points) / inputs.phase_points
+    waveform_phase = 2.0 * math.pi * np.arange(phase_points) / phase_points
     gain_at_line = complex(problem.gain[0])
     return FeedforwardLimit(
-        setpoint_K=inputs.setpoint_K, heater_resistance_ohm=inputs.heater_resistance_ohm,
-        max_current_A=inputs.max_current_A, period_s=inputs.period_s, heater_delay_s=inputs.heater_delay_s,
-        measure=inputs.measure, harmonics=harmonics, phase_points=inputs.phase_points,
-        cooler_angular_frequency_rad_s=inputs.cooler_angular_frequency_rad_s,
-        mean_heater_power_W=float(problem.mean),
-        max_heater_power_W=inputs.heater_resistance_ohm * inputs.max_current_A ** 2,
+        **reported, harmonics=problem.line.size, mean_heater_power_W=float(problem.mean),
+        max_heater_power_W=reported["heater_resistance_ohm"] * reported["max_current_A"] ** 2,
         thermometer_gain_at_line_K_per_W=abs(thermometer_at_line),
         thermometer_phase_at_line_deg=math.degrees(cmath.phase(thermometer_at_line)),
         heater_gain_at_line_K_per_W=abs(gain_at_line),
@@ -569,8 +552,7 @@ def _solved(problem: "_Problem", inputs: _Inputs, thermometer_at_line: complex, 
         ptc_periodic_limit_K=limit, whole_periodic_limit_K=_amplitude(residual), lower_bound_K=lower_bound,
         open_line_harmonics_K=tuple(float(v) for v in np.abs(line_shown)),
         limit_harmonics_K=tuple(float(v) for v in np.abs(residual_shown)),
-        noise_floor_K=noise, averaging_time_s=inputs.averaging_time_s,
-        predicted_best_residual_K=math.hypot(limit, noise),
+        noise_floor_K=noise, predicted_best_residual_K=math.hypot(limit, noise),
         authority_limited=limit > AUTHORITY_FRACTION * open_line,
         waveform_phase_rad=_read_only(waveform_phase),
         waveform_power_W=_read_only(commanded(waveform_delivered)),

@@ -43,6 +43,7 @@ import dataclasses
 import itertools
 import json
 import math
+import subprocess
 import sys
 import tempfile
 import time
@@ -152,6 +153,19 @@ def true_plant(model, orders, setting_delay_s: float) -> np.ndarray:
     dead = model.effects.dead_time.heater_to_flange_s if model.effects.dead_time else 0.0
     omega = model.ptc.angular_frequency_rad_s * np.asarray(orders, dtype=float)
     return plant_at_harmonics(model, orders, PERIOD_S, setting_delay_s + dead) * np.exp(-1j * omega * dead)
+
+
+def run_case_reported(cryostat: Cryostat, setpoint_K: float, resistance_ohm: float, folder: Path) -> dict:
+    """:func:`run_case`, said on stderr when done; a run that failed is kept with its error, not raised."""
+    try:
+        case = run_case(cryostat, setpoint_K, resistance_ohm, folder)
+    except subprocess.CalledProcessError as error:
+        case = {"cryostat": cryostat.name, "spec": dataclasses.asdict(cryostat), "setpoint_K": setpoint_K,
+                "heater_ohm": resistance_ohm, "error": (error.stderr or "")[-2000:]}
+    print(f"{cryostat.name}, {setpoint_K:g} K, {resistance_ohm:g} ohm: "
+          f"{case.get('error') and 'FAILED' or case.get('out_of_reach') and 'out of reach' or 'done'}",
+          file=sys.stderr, flush=True)
+    return case
 
 
 def run_case(cryostat: Cryostat, setpoint_K: float, resistance_ohm: float, folder: Path) -> dict:
@@ -266,6 +280,8 @@ def loop_cpu_cases(cases: list[tuple[Cryostat, float, float]], folder: Path, rep
 def _cell(case: dict) -> str:
     if "out_of_reach" in case:
         return "out of reach"
+    if "error" in case:
+        return "run failed"
     met = goals(case)
     if case["limited_by"] == "authority":
         text = f"{case['ff_K'] / case['limit_K']:.2f}x limit"
@@ -292,7 +308,8 @@ def tables(results: dict) -> str:
             row = {case["setpoint_K"]: case for case in chosen if case["cryostat"] == name}
             lines.append(f"| {name} | " + " | ".join(_cell(row[s]) if s in row else "" for s in setpoints) + " |")
         lines.append("")
-    measured = [case for case in cases if "out_of_reach" not in case]
+    measured = [case for case in cases if "out_of_reach" not in case and "error" not in case]
+    failed = [case for case in cases if "error" in case]
     lines.append(f"Goals over the {len(measured)} cases within the heater's reach "
                  f"({len(cases) - len(measured)} left out: the setpoint needs more mean power than R I_max^2):")
     lines.append("")
@@ -312,6 +329,10 @@ def tables(results: dict) -> str:
         for row in results["loop_cpu"]:
             lines.append(f"| {row['cryostat']}, {row['setpoint_K']:g} K, {row['heater_ohm']:g} ohm | "
                          f"{row['ff_us']:.0f} us | {row['pi_us']:.0f} us | {row['ratio']:.2f} |")
+    if failed:
+        lines.append("")
+        lines.append("Runs that failed: " + "; ".join(f"{case['cryostat']}, {case['setpoint_K']:g} K, "
+                                                      f"{case['heater_ohm']:g} ohm" for case in failed))
     lines.append("")
     lines.append("Missed goals, case by case:")
     lines.append("")
@@ -338,7 +359,7 @@ def main() -> int:
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as folder, ThreadPoolExecutor(max_workers=min(args.workers, 2)) as pool:
         folder = Path(folder)
-        results = list(pool.map(lambda case: run_case(*case, folder), cases))
+        results = list(pool.map(lambda case: run_case_reported(*case, folder), cases))
         cpu = loop_cpu_cases([(Cryostat(), 5.0, 50.0), (Cryostat(), 6.0, 50.0),
                               (Cryostat(0.5, 0.25, 0.08, WANDER), 5.0, 50.0)], folder, args.cpu_repeat)
     summary = {"matrix": args.matrix, "seconds": time.perf_counter() - started, "cases": results, "loop_cpu": cpu,

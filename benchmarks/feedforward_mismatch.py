@@ -221,43 +221,44 @@ def run_case(cryostat: Cryostat, setpoint_K: float, resistance_ohm: float, folde
     return case
 
 
-def goals(case: dict) -> dict[str, tuple[bool, str]]:
-    """Each goal: met, and the figure."""
+def goals(case: dict) -> dict[str, tuple[bool, str, float]]:
+    """Each goal: met, the figure, and how far it is from the goal (measured over allowed: above 1 when missed)."""
     result = {}
     floor = case["noise_floor_K"]
     if case["limited_by"] == "authority":
         ratio = case["ff_K"] / case["limit_K"]
-        result["residual"] = (ratio <= WITHIN_LIMIT, f"{ratio:.3f}x the limit")
+        result["residual"] = (ratio <= WITHIN_LIMIT, f"{ratio:.3f}x the limit", ratio / WITHIN_LIMIT)
     else:
         below = case["pi_K"] / case["ff_K"]
-        result["residual"] = (below >= BELOW_PI or case["ff_K"] <= OF_NOISE_FLOOR * floor,
-                              f"{below:.0f}x below PI alone, {case['ff_K'] / floor:.1f}x the noise floor")
-    worst = max(case["plant"], key=lambda entry: max(abs(entry["gain_error"]) / PLANT_GAIN,
-                                                      abs(entry["phase_error_deg"]) / PLANT_PHASE_DEG),
-                default=None)
-    if worst is None:
-        result["plant"] = (False, "no plant reported")
+        excess = min(BELOW_PI / below, case["ff_K"] / (OF_NOISE_FLOOR * floor))
+        result["residual"] = (excess <= 1.0, f"{below:.0f}x below PI alone, {case['ff_K'] / floor:.1f}x the noise floor",
+                              excess)
+    excesses = [max(abs(e["gain_error"]) / PLANT_GAIN, abs(e["phase_error_deg"]) / PLANT_PHASE_DEG)
+                for e in case["plant"]]
+    if not excesses:
+        result["plant"] = (False, "no plant reported", float("inf"))
     else:
-        ok = all(abs(e["gain_error"]) <= PLANT_GAIN and abs(e["phase_error_deg"]) <= PLANT_PHASE_DEG
-                 for e in case["plant"])
-        result["plant"] = (ok, f"harmonic {worst['harmonic']}: {100 * worst['gain_error']:+.1f} %, "
-                               f"{worst['phase_error_deg']:+.1f} deg ({'learned' if worst['learned'] else 'model'}, "
-                               f"+-{100 * worst['gain_spread']:.1f} %, +-{worst['phase_spread_deg']:.1f} deg)")
+        worst = case["plant"][int(np.argmax(excesses))]
+        result["plant"] = (max(excesses) <= 1.0, f"harmonic {worst['harmonic']}: {100 * worst['gain_error']:+.1f} %, "
+                           f"{worst['phase_error_deg']:+.1f} deg ({'learned' if worst['learned'] else 'not learned'}, "
+                           f"stated +-{100 * worst['gain_spread']:.1f} %, +-{worst['phase_spread_deg']:.1f} deg)",
+                           max(excesses))
     reported = case["reported_limit_K"]
     if reported is None:
-        result["reported limit"] = (False, "none reported")
+        result["reported limit"] = (False, "none reported", float("inf"))
     else:
         error = abs(reported - case["limit_K"])
-        result["reported limit"] = ((error <= REPORTED_LIMIT * case["limit_K"]
-                                     or (case["limited_by"] == "noise" and error <= floor)),
-                                    f"{1e6 * reported:.1f} uK from the {case['reported_from']} against "
-                                    f"{1e6 * case['limit_K']:.1f} uK")
+        allowed = max(REPORTED_LIMIT * case["limit_K"], floor if case["limited_by"] == "noise" else 0.0)
+        result["reported limit"] = (error <= allowed, f"{1e6 * reported:.1f} uK from the {case['reported_from']} "
+                                                      f"against {1e6 * case['limit_K']:.1f} uK", error / allowed)
     after = case["within_2x_after_reaching_s"]
-    result["settled"] = (after <= SETTLED_AFTER_S, f"{after:.0f} s" if after > 0 else "before the setpoint")
-    result["mean error"] = (abs(case["mean_error_K"]) <= MEAN_ERROR_K, f"{1e6 * case['mean_error_K']:.2f} uK")
+    result["settled"] = (after <= SETTLED_AFTER_S, f"{after:.0f} s" if after > 0 else "before the setpoint",
+                         after / SETTLED_AFTER_S)
+    result["mean error"] = (abs(case["mean_error_K"]) <= MEAN_ERROR_K, f"{1e6 * case['mean_error_K']:.2f} uK",
+                            abs(case["mean_error_K"]) / MEAN_ERROR_K)
     ratio = case["lowfreq_ff_K"] / case["lowfreq_pi_K"]
-    result["low frequency"] = (ratio <= LOW_FREQUENCY, f"{ratio:.2f}x PI alone")
-    result["overruns"] = (case["overruns"] == 0, str(case["overruns"]))
+    result["low frequency"] = (ratio <= LOW_FREQUENCY, f"{ratio:.2f}x PI alone", ratio / LOW_FREQUENCY)
+    result["overruns"] = (case["overruns"] == 0, str(case["overruns"]), float(case["overruns"]))
     return result
 
 
@@ -277,6 +278,20 @@ def loop_cpu_cases(cases: list[tuple[Cryostat, float, float]], folder: Path, rep
     return rows
 
 
+def plant_breakdown(cases: list[dict]) -> list[str]:
+    """The plant goal harmonic by harmonic: met, missed where the learner itself states it does not know the plant
+    that well (its stated spread in gain above half the goal), and missed beyond that."""
+    lines = ["| plant at harmonic | within 5 % and 5 deg | missed, stated spread above 2.5 % | missed otherwise |",
+             "|---|---|---|---|"]
+    for index in range(3):
+        entries = [case["plant"][index] for case in cases if len(case["plant"]) > index]
+        met = [e for e in entries if abs(e["gain_error"]) <= PLANT_GAIN and abs(e["phase_error_deg"]) <= PLANT_PHASE_DEG]
+        unsure = [e for e in entries if e not in met and e["gain_spread"] > PLANT_GAIN / 2]
+        lines.append(f"| {index + 1} | {len(met)} of {len(entries)} | {len(unsure)} | "
+                     f"{len(entries) - len(met) - len(unsure)} |")
+    return lines
+
+
 def _cell(case: dict) -> str:
     if "out_of_reach" in case:
         return "out of reach"
@@ -287,7 +302,7 @@ def _cell(case: dict) -> str:
         text = f"{case['ff_K'] / case['limit_K']:.2f}x limit"
     else:
         text = f"{case['pi_K'] / case['ff_K']:.0f}x below PI"
-    missed = [name for name, (ok, _) in met.items() if not ok]
+    missed = [name for name, (ok, _, _) in met.items() if not ok]
     return text + (f" (missed: {', '.join(missed)})" if missed else "")
 
 
@@ -318,10 +333,14 @@ def tables(results: dict) -> str:
     names = list(goals(measured[0])) if measured else []
     for name in names:
         verdicts = [(case, *goals(case)[name]) for case in measured]
-        missed = [(case, figure) for case, ok, figure in verdicts if not ok]
-        worst = missed[0] if missed else (verdicts[0][0], verdicts[0][2])
-        where = f"{worst[0]['cryostat']}, {worst[0]['setpoint_K']:g} K, {worst[0]['heater_ohm']:g} ohm: {worst[1]}"
-        lines.append(f"| {name} | {len(verdicts) - len(missed)} of {len(verdicts)} | {where if missed else '-'} |")
+        missed = [(case, figure, excess) for case, ok, figure, excess in verdicts if not ok]
+        if missed:
+            case, figure, _ = max(missed, key=lambda item: item[2])
+            where = f"{case['cryostat']}, {case['setpoint_K']:g} K, {case['heater_ohm']:g} ohm: {figure}"
+        else:
+            where = "-"
+        lines.append(f"| {name} | {len(verdicts) - len(missed)} of {len(verdicts)} | {where} |")
+    lines += ["", *plant_breakdown(measured)]
     if results.get("loop_cpu"):
         lines.append("")
         lines.append("| loop's CPU per tick | feedforward | PI alone | ratio |")
@@ -337,7 +356,7 @@ def tables(results: dict) -> str:
     lines.append("Missed goals, case by case:")
     lines.append("")
     for case in measured:
-        for name, (ok, figure) in goals(case).items():
+        for name, (ok, figure, _) in goals(case).items():
             if not ok:
                 lines.append(f"- {case['cryostat']}, {case['setpoint_K']:g} K, {case['heater_ohm']:g} ohm, {name}: "
                              f"{figure}")

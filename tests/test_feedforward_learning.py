@@ -132,6 +132,17 @@ def test_at_the_bounds_it_reaches_the_limit_of_the_cryostat_it_is_on(reference_m
     assert events(run, "weaker and")
 
 
+def test_a_setpoint_the_model_says_is_out_of_reach_gets_its_limit_from_what_was_learned(reference_model):
+    """A heater path 2x the model's and a 170 mW heater: by the model 6 K needs 260 mW and is out of reach, on
+    this cryostat it needs 130 mW; the limit reported is this cryostat's."""
+    model = cryostat(reference_model, gain=2.0)
+    run, term = settled_run(model, reference_model, 6.0, heater_max_w=0.17)
+    limit = feedforward_limit(model, 6.0, 0.17, 1.0, PERIOD, certify=False)
+    assert term.limits.model_limit is None and run.control["ff_limit_from"][-1] == "learned"
+    assert term.physical_limit.ptc_periodic_limit_K == pytest.approx(limit.ptc_periodic_limit_K, rel=0.1)
+    assert periodic(run, 400.0) < 1.1 * limit.ptc_periodic_limit_K
+
+
 def test_with_a_wandering_cooler(reference_model):
     """The cooler's frequency wandering by +-1.5 % over 15 minutes on a cryostat 2x stronger and lagging."""
     model = cryostat(reference_model, gain=2.0, lag_s=0.1, wander=0.015)

@@ -8,11 +8,13 @@ virtual time the loop waits for it, so runs stay deterministic):
 
 * **from the model** (:func:`cryod.control.feedforward_limit.limit_for_heater_power`)
   once the setpoint has been steady for :data:`MODEL_AFTER_S`, once per
-  setpoint, heater and setting delay;
+  setpoint, heater and setting delay (none where the model says the heater
+  cannot hold the setpoint);
 * **from what was learned** (:mod:`cryod.control.learned_limit`) once the plant
   at the fundamental is learned and T2 has settled at the setpoint (the mean
   power PI has found is then the one the setpoint needs), again every
-  :data:`LEARNED_EVERY_S` while it is.
+  :data:`LEARNED_EVERY_S` while it is; also where the model said the setpoint
+  was out of reach and this cryostat holds it.
 
 :attr:`LimitFollower.limit` is the learned one while there is one, else the
 model's; :attr:`LimitFollower.source` says which.
@@ -61,6 +63,7 @@ class LimitFollower:
         self._executor: ThreadPoolExecutor | None = None
         self._asked: tuple[Future, str, float, float] | None = None     # (result, kind, setpoint, take at)
         self._quiet: tuple[float, float, float, float] = (-math.inf, math.nan, math.nan, math.nan)
+        self._out_of_reach: tuple[float, float] | None = None     # (setpoint, R I_max^2) the model cannot hold
         #: (limit (K), authority, source) for the record's columns, as they stand.
         self.columns: tuple = (math.nan, math.nan, None)
 
@@ -120,8 +123,8 @@ class LimitFollower:
             limit, changes = result.result()
             if kind == "model":
                 self.model_limit, self.model_changes = limit, changes
-                if limit is None:
-                    self._wanted = (setpoint, math.inf)          # out of reach: not again for this setpoint
+                if limit is None:      # out of reach by the model: not again for this setpoint and heater
+                    self._out_of_reach = (setpoint, max_power_w)
             elif limit is not None:
                 self.learned_limit, self.learned_changes = limit, changes
             self._changed()
@@ -135,9 +138,11 @@ class LimitFollower:
             return
         known = self.model_limit
         if not (known is not None and known.setpoint_K == setpoint
-                and abs(known.heater_delay_s - delay_s) < DELAY_TOLERANCE_S and known.max_heater_power_W == max_power_w):
+                and abs(known.heater_delay_s - delay_s) < DELAY_TOLERANCE_S and known.max_heater_power_W == max_power_w) \
+                and self._out_of_reach != (setpoint, max_power_w):
             self._ask("model", _model_report, time_s, setpoint, self.model, setpoint, max_power_w, period_s, delay_s)
             return
+        # the learned limit also where the model says the setpoint is out of reach: the cryostat may differ
         if time_s - self._learned_at_s >= LEARNED_EVERY_S:
             inputs = learned(setpoint)
             if inputs is None:

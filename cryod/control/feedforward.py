@@ -25,13 +25,19 @@ How it works, every tick:
    evaluated at the phase of the middle of the coming hold. Its effect on T2's
    samples is the plant *as the loop samples it*
    (:func:`plant_at_harmonics`): above half the sampling rate the hold's
-   folded images make it differ much from ``G(j n omega)``.
+   folded images make it differ much from ``G(j n omega)``. The tick where the
+   waveform changes gives back the energy the change's place in the period
+   would have added or taken (T2's mean takes no kick); the reading after it
+   is attributed to the waveform played before it, and where the change moves
+   T2 by more than the readings' noise the next ``CHANGE_SETTLE_S`` of readings
+   are left out (a lagging thermometer or a late heater answers both, mixed).
 4. **Plant** (:mod:`cryod.control.plant_learner`): the correction ``k_n``
-   and its covariance say where the plant is learned, over the full +-180
-   degrees; until a harmonic's plant is known better than the model's assumed
-   error the waveform leaves that harmonic alone. Where the waveform's own
-   changes do not tell the plant to ``plant_precision``, a small probe does
-   (:mod:`cryod.control.plant_probe`), within a share of the heater's room.
+   and its covariance give the plant as estimated, over the full +-180
+   degrees, in which the waveform is measured; until a harmonic's plant is
+   known better than the model's assumed error (and confirmed by the step
+   after) the waveform does not aim at the line there. Where the waveform's
+   own changes do not tell the plant to ``plant_precision``, a small probe
+   does (:mod:`cryod.control.plant_probe`), within a share of the heater's room.
 5. **Learning** (iterative learning in the cooler's phase): every
    ``update_interval_s`` the coefficients step toward cancelling the estimated
    line, ``u <- u + gain (-L / H_n - u)``, at the harmonics whose plant is

@@ -8,6 +8,7 @@ file and the status, and the daemon must then recover or exit with the fault's c
 """
 
 import dataclasses
+import shutil
 
 import numpy as np
 import pytest
@@ -51,6 +52,7 @@ class FaultDrill:
         self.before_start = before_start
         self.rows = []
         self.heater_at_fault = []
+        self.install_signal_handlers = False        # the daemon's own signal handling (the test's main thread)
 
     def tap(self, item):
         if not isinstance(item, Row):
@@ -67,12 +69,17 @@ class FaultDrill:
         return opened
 
     def run(self, duration_s):
-        daemon = Daemon(self.config, self.open_instruments, VirtualClock(), notifier=SystemdNotifier({}),
-                        row_taps=[self.tap], install_signal_handlers=False, datalog_options=self.datalog_options)
-        self.result = daemon.run(duration_s)
-        self.record = read_record(self.result.log_paths[0])
+        self.daemon = Daemon(self.config, self.open_instruments, VirtualClock(), notifier=SystemdNotifier({}),
+                             row_taps=[self.tap], install_signal_handlers=self.install_signal_handlers,
+                             datalog_options=self.datalog_options)
+        self.result = self.daemon.run(duration_s)
+        self.record = self.daemon_record()
         self.states = [str(state) for state in self.record.columns["state"]]
         return self.result
+
+    def daemon_record(self):
+        """The record the daemon wrote last (also after its run raised)."""
+        return read_record(self.daemon.datalog.paths[-1])
 
     def supply_current_a(self):
         return self.opener.bench.heater_supply.output_current_a
@@ -201,6 +208,21 @@ def test_waiting_for_instruments_is_bounded_when_configured(tmp_path):
     assert 200.0 < opener.attempts[-1] - opener.attempts[0] <= 300.0
 
 
+@pytest.mark.parametrize("wait_s", [5.0, 0.5, 61.0])
+def test_the_wait_for_instruments_lasts_the_configured_time(tmp_path, wait_s):
+    """The last attempt comes when the configured wait is up, not at the last doubling of the pause before it."""
+    config = simulated_config(tmp_path)
+    config = dataclasses.replace(config, safety=dataclasses.replace(config.safety, instruments_wait_s=wait_s))
+    opener = FlakyOpener(failures=10 ** 6)
+    result = Daemon(config, opener, VirtualClock(), notifier=SystemdNotifier({}), install_signal_handlers=False).run(60.0)
+    assert result.exit_code == 4
+    assert opener.attempts[-1] - opener.attempts[0] == pytest.approx(wait_s, abs=1e-9)
+    assert all(later > earlier for earlier, later in zip(opener.attempts, opener.attempts[1:]))
+    stop = [text for _, text in read_record(result.log_paths[0]).events if text.startswith("event: stop:")]
+    assert stop == [f"event: stop: instruments out of reach for {wait_s:.1f} s (safety.instruments_wait_s {wait_s:g}): "
+                    f"flange DMM (T2): cannot open TCPIP0::10.0.0.7::1234::SOCKET: no route to host (exit 4)"]
+
+
 def test_a_second_daemon_touches_no_instrument(tmp_path):
     """Opening resets the instruments (heater off): a second daemon must stop before that."""
     config = simulated_config(tmp_path)
@@ -218,21 +240,25 @@ def test_a_second_daemon_touches_no_instrument(tmp_path):
 # ---------------------------------------------------------------------------
 # the data directory running out of space (docs/operations.md, "Disk space")
 # ---------------------------------------------------------------------------
-class ShrinkingDisk:
-    """Free space (bytes) that falls by ``per_check`` at every check of the data log."""
+class FillingDisk:
+    """Free space (bytes) of a disk that another program fills ``outside_per_byte`` times as fast as the
+    data log writes its records: the free space falls with the rows, whatever the speed of the machine."""
 
-    def __init__(self, start_bytes, per_check):
-        self.free, self.per_check, self.checks = start_bytes, per_check, 0
+    def __init__(self, start_bytes, outside_per_byte):
+        self.start_bytes, self.outside_per_byte, self.checks = start_bytes, outside_per_byte, []
+
+    def written(self, directory) -> int:
+        return sum(path.stat().st_size for path in directory.glob("cryod-*.csv"))
 
     def __call__(self, directory):
-        self.checks += 1
-        self.free -= self.per_check
-        return self.free
+        free = self.start_bytes - self.written(directory) * (1 + self.outside_per_byte)
+        self.checks.append(free)
+        return free
 
 
 def test_a_filling_disk_warns_then_stops_the_heater_with_exit_7_while_the_record_still_fits(tmp_path):
-    """Defaults: warn below 1000 MB, stop below 100 MB; the disk loses 300 MB between checks."""
-    disk = ShrinkingDisk(1500e6, 300e6)
+    """Defaults: warn below 1000 MB, stop below 100 MB; the disk fills at about 5 MB per second of record."""
+    disk = FillingDisk(1500e6, 2000)
     drill = FaultDrill(tmp_path, {}, datalog_options={"free_space": disk})
     result = drill.run(600.0)
     assert result.exit_code == 7 and result.loop.last_fault.cause == "data_log_failed"
@@ -240,12 +266,42 @@ def test_a_filling_disk_warns_then_stops_the_heater_with_exit_7_while_the_record
     assert drill.supply_current_a() == 0.0 and drill.record.heater_w[-1] == 0.0
     events = [text for _, text in drill.record.events]
     warnings = [text for text in events if "below data.warn_free_MB" in text]
-    assert len(warnings) == 1 and "900 MB free" in warnings[0]          # once, not at every check
+    assert len(warnings) == 1                                              # once, not at every check
     assert any("data_log_failed" in text and "(exit 7)" in text for text in events)    # the stop is recorded
-    # checks at start (1200 MB) and when the file opens (900 MB: the warning), then every 750 rows: 600, 300,
-    # 0 MB, the stop at row 2250 (on virtual time the loop runs ahead of the writer: some hundred rows, more
-    # on a loaded machine; in service the writer keeps up with 12.5 rows a second)
-    assert disk.checks == 5 and 2250 <= len(drill.record.time_s) < 2250 + 2250
+    # checked at least once a second of the record (12.5 rows, 4.5 to 5.2 MB of filling), and at nearly every
+    # row as the minimum comes near: the failure was found within two rows' filling (0.9 MB) of it
+    falls = -np.diff(disk.checks[2:50])               # after the header (9 kB: 18 MB filled)
+    assert len(disk.checks) > 250 and 0 < falls.max() < 6e6
+    assert next(free for free in disk.checks if free < 100e6) > 99.1e6
+
+
+def test_a_record_deleted_while_regulating_goes_on_in_a_new_file_to_the_stop(tmp_path, caplog):
+    data = tmp_path / "data"
+    drill = FaultDrill(tmp_path, {1500: lambda bench: [path.unlink() for path in data.glob("cryod-*.csv")]})
+    result = drill.run(300.0)
+    assert result.exit_code == 0 and len(result.log_paths) == 2 and not result.log_paths[0].exists()
+    first_event = drill.record.events[0][1]
+    assert first_event.startswith(f"event: disk: the record's file {result.log_paths[0]} was deleted; it goes on "
+                                  f"in this file")
+    assert any("was deleted; it goes on in this file" in line.message for line in caplog.records)
+    # from some rows before the deletion to the stop, every row, with the stop event
+    assert np.allclose(np.diff(drill.record.time_s), 0.08) and len(drill.record) >= len(drill.rows) - 1500
+    assert drill.supply_current_a() == 0.0 and drill.record.events[-1][1].startswith("event: stop:")
+
+
+def test_a_deleted_data_directory_stops_the_heater_with_exit_7(tmp_path):
+    data = tmp_path / "data"
+
+    def remove(bench):                   # as rm -rf, again if a new file got in meanwhile
+        while data.exists():
+            shutil.rmtree(data, ignore_errors=True)
+
+    drill = FaultDrill(tmp_path, {500: remove})
+    daemon_result = Daemon(drill.config, drill.open_instruments, VirtualClock(), notifier=SystemdNotifier({}),
+                           row_taps=[drill.tap], install_signal_handlers=False).run(300.0)
+    assert daemon_result.exit_code == 7 and daemon_result.loop.last_fault.cause == "data_log_failed"
+    assert daemon_result.loop.last_fault.message == f"data.directory {data} is gone (deleted or moved)"
+    assert drill.supply_current_a() == 0.0 and not data.exists()
 
 
 def test_no_room_at_start_touches_no_instrument(tmp_path):

@@ -206,39 +206,19 @@ def test_identify_fits_the_stretch_asked_for_and_says_so(tmp_path, capsys, refer
 def test_a_six_hour_record_with_a_hidden_effect_is_analysed_and_identified_in_bounded_memory(tmp_path,
                                                                                           reference_model):
     import json
-    import os
-    import subprocess
-    import sys
 
     from cryod.model import DeadTime
     from cryod.records.record import write_record
     from simulated_hw.measurement_programs import make_record
+    from tests.measured_child import run_cryod
 
     made = make_record(reference_model.with_effects(dead_time=DeadTime(1.5)), "pi_only", duration_s=6 * 3600.0,
                        seed=5)
     path = write_record(tmp_path / "six-hours.csv", made.columns, made.metadata)
 
-    # The child's own peak (VmHWM of its image after exec): wait4's ru_maxrss starts from this test
-    # process's resident size at the fork, which after the other slow tests is gigabytes.
-    peak_file = tmp_path / "peak_kB"
-    wrapper = ("import atexit, runpy, sys\n"
-               "def peak():\n"
-               "    with open('/proc/self/status') as status:\n"
-               "        kB = next(l.split()[1] for l in status if l.startswith('VmHWM'))\n"
-               f"    open({str(peak_file)!r}, 'w').write(kB)\n"
-               "atexit.register(peak)\n"
-               "sys.argv = ['cryod', *sys.argv[1:]]\n"
-               "runpy.run_module('cryod.cli', run_name='__main__')\n")
-
     def measured(*arguments):
-        child = subprocess.Popen([sys.executable, "-c", wrapper, *arguments], cwd=tmp_path,
-                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=dict(os.environ, MPLBACKEND="Agg"))
-        stdout = child.stdout.read()
-        stderr = child.stderr.read()
-        _, status, usage = os.wait4(child.pid, 0)
-        child.returncode = os.waitstatus_to_exitcode(status)
-        return child.returncode, stdout.decode(), stderr.decode(), usage.ru_utime + usage.ru_stime, \
-            int(peak_file.read_text()) / 1024.0
+        child = run_cryod(list(arguments), tmp_path)        # the child's own peak and CPU (tests/measured_child.py)
+        return child.status, child.stdout, child.stderr, child.cpu_s, child.peak_MB
 
     status, stdout, stderr, cpu_s, peak_MB = measured("analyze", str(path), "--json", "--out", "analysis")
     assert status == 0, stderr

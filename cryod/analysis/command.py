@@ -1,7 +1,8 @@
 """``cryod analyze RECORD [--model MODEL] [--out DIR] [--json]``.
 
 Writes into DIR (default ``<record name>-analysis`` beside the record;
-an existing analysis there is kept unless ``--force``): ``report.md``, the figures, ``extended-model.yaml`` (always
+an existing analysis there is kept unless ``--force``, and a file cryod did not
+write there is never replaced: :mod:`cryod.output_files`): ``report.md``, the figures, ``extended-model.yaml`` (always
 loadable by :func:`cryod.model.load_model`: the base model plus the fitted
 effect, or the base model unchanged when the cause is ``none`` or
 ``unexplained``) and ``analysis.json`` (the same object ``--json`` prints).
@@ -9,7 +10,7 @@ effect, or the base model unchanged when the cause is ``none`` or
 Exit status: 0 done; 2 the record or the model cannot be used (the message
 names the file, the line and what is wrong, or what the record is missing for
 an analysis: :mod:`cryod.analysis.usability`); 1 the analysis itself failed.
-The record is only read, never changed.
+The record is only read, never changed (nor the model), even with ``--force``.
 """
 
 from __future__ import annotations
@@ -26,16 +27,29 @@ from cryod.analysis.model_uncertainty import model_uncertainty_check, report_sec
 from cryod.analysis.pipeline import analyze
 from cryod.analysis.record_data import analysed_stretch, read_record_data
 from cryod.analysis.record_window import ANALYSIS_WINDOW_S
-from cryod.analysis.report import write_report
+from cryod.analysis.report import REPORT_NAME, write_report
 from cryod.analysis.segments import find_segments
 from cryod.analysis.summary import json_summary, model_header
 from cryod.analysis.usability import check_usable
 from cryod.argument_types import not_negative
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
+from cryod.output_files import OutputFiles
 from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError
 
+PROGRAM = "cryod analyze"
 EXTENDED_MODEL_NAME = "extended-model.yaml"
+SUMMARY_NAME = "analysis.json"
+
+
+def analysis_files(figures: bool = True) -> list[str]:
+    """The files an analysis writes into its directory (with the figures' when ``figures``)."""
+    names = [SUMMARY_NAME, REPORT_NAME, EXTENDED_MODEL_NAME]
+    if figures:
+        from cryod.analysis.figures import FIGURE_FILES      # matplotlib only when figures are wanted
+
+        names += FIGURE_FILES.values()
+    return names
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -71,10 +85,11 @@ def run(args: argparse.Namespace) -> int:
         return 2
     name = record_path.name.removesuffix(".gz").removesuffix(".csv")
     out = Path(args.out) if args.out else record_path.with_name(f"{name}-analysis")
-    earlier = [out / item for item in ("analysis.json", "report.md", EXTENDED_MODEL_NAME) if (out / item).exists()]
-    if earlier and not getattr(args, "force", False):
-        print(f"cryod analyze: {out} holds an earlier analysis ({earlier[0].name}); give --force to replace it "
-              f"or --out for another directory", file=sys.stderr)
+    outputs = OutputFiles(PROGRAM, out, analysis_files(figures=not args.no_figures),
+                          inputs=[record_path, Path(args.model)], what="analysis")
+    refusal = outputs.refusal(force=getattr(args, "force", False))
+    if refusal is not None:
+        print(f"{PROGRAM}: {refusal} (--out: another directory)", file=sys.stderr)
         return 2
     data = analysed_stretch(whole, getattr(args, "max_duration", ANALYSIS_WINDOW_S))
     if data is not whole:
@@ -92,6 +107,10 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, ArithmeticError, OSError) as error:
         print(f"cryod analyze: the analysis of {record_path} failed: {error}", file=sys.stderr)
         return 1
+    finally:
+        warning = outputs.note_written()
+        if warning is not None:
+            print(f"{PROGRAM}: warning: {warning}", file=sys.stderr)
     if args.json:
         print(json.dumps(summary))
     else:
@@ -142,5 +161,5 @@ def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Pat
         summary["model_uncertainty"] = check
         with Path(report_path).open("a", encoding="utf-8") as report:
             report.write(report_section(check))
-    (out / "analysis.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+    (out / SUMMARY_NAME).write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     return summary

@@ -260,17 +260,23 @@ def correlation(analysis: Analysis, path: Path) -> Path:
     return save_figure(figure, path)
 
 
+#: The file of each figure, by name.
+FIGURE_FILES = {"overview": "overview.png", "residual_spectrum": "residual_spectrum.png", "ptc_line": "ptc_line.png",
+                "candidates": "candidates.png", "correlation": "correlation.png", "steps": "steps.png"}
+
+
 def make_figures(analysis: Analysis, segments, directory: Path) -> dict[str, Path]:
-    """All figures into ``directory``; returns {name: path} of those made."""
+    """All figures into ``directory`` (the files of :data:`FIGURE_FILES`); returns {name: path} of those made."""
     directory = Path(directory)
+    files = {name: directory / file_name for name, file_name in FIGURE_FILES.items()}
     made = {
-        "overview": overview(analysis, segments, directory / "overview.png"),
-        "residual_spectrum": residual_spectrum(analysis, directory / "residual_spectrum.png"),
-        "ptc_line": ptc_line(analysis, directory / "ptc_line.png"),
-        "candidates": candidates(analysis, directory / "candidates.png"),
-        "correlation": correlation(analysis, directory / "correlation.png"),
+        "overview": overview(analysis, segments, files["overview"]),
+        "residual_spectrum": residual_spectrum(analysis, files["residual_spectrum"]),
+        "ptc_line": ptc_line(analysis, files["ptc_line"]),
+        "candidates": candidates(analysis, files["candidates"]),
+        "correlation": correlation(analysis, files["correlation"]),
     }
-    step_figure = steps(analysis, segments, directory / "steps.png")
+    step_figure = steps(analysis, segments, files["steps"])
     if step_figure is not None:
         made["steps"] = step_figure
     return made

@@ -19,6 +19,8 @@ from cryod.analysis.summary import format_parameters
 #: Discrepancies listed: those above this many standard errors, at most this many.
 LISTED_SIGNIFICANCE = 3.0
 LISTED_MOST = 25
+#: The report's file name.
+REPORT_NAME = "report.md"
 
 
 def _number(value: float) -> str:
@@ -170,6 +172,6 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
     lines += ["## Timing", "", "| step | wall time (s) |", "|---|---|"]
     for step, seconds in analysis.timings_s.items():
         lines.append(f"| {step} | {seconds:.2f} |")
-    path = Path(directory) / "report.md"
+    path = Path(directory) / REPORT_NAME
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

@@ -5,8 +5,10 @@ records, with the number of first-order terms of each heater path chosen from
 the data and every parameter's uncertainty
 (:mod:`cryod.identification.model_fit`), and writes a model file that
 :func:`cryod.model.load_model` reads (with its ``uncertainty`` section). An
-existing file is not overwritten unless ``--force`` is given (checked before
-anything is measured).
+existing file is not overwritten unless ``--force`` is given, a record or the
+base model never, and in the report's directory only the files cryod wrote
+there itself are replaced (:mod:`cryod.output_files`; checked before anything
+is measured).
 
 ``--acquire`` first runs the identification experiment on the cryostat
 through the daemon (:mod:`cryod.identification.acquire`; ``--simulate``: on
@@ -40,6 +42,7 @@ from cryod.identification.model_fit import ModelIdentification, identify_model
 from cryod.identification.record_check import describe, record_problems
 from cryod.identification.uncertainty import BOOTSTRAP_REPLICATES
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
+from cryod.output_files import OutputFiles, output_file_refusal
 from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError
 
@@ -199,15 +202,16 @@ def _acquire(args, config, base) -> tuple[int, object]:
         except (ValueError, FileFormatError) as error:
             print(f"{PROGRAM}: {error}", file=sys.stderr)
             return 2, None
-        opener = SimulatedInstrumentsOpener(simulated, config.simulation.seed)
+        opener, claims = SimulatedInstrumentsOpener(simulated, config.simulation.seed), None
         clock = _clock(args.speed)
         metadata.update({"simulated": "yes (cryod identify --acquire --simulate)",
                          "simulated_model": str(args.sim_model or config.simulation.model or DEFAULT_MODEL_PATH),
                          "simulation_seed": config.simulation.seed})
     else:
-        from cryod.service.instruments import check_calibrations, open_instruments
+        from cryod.service.instruments import (check_calibrations, check_instrument_locking, instrument_addresses,
+                                               open_instruments)
 
-        problem = check_calibrations(config)
+        problem = check_calibrations(config) or check_instrument_locking(config)
         if problem:
             print(f"{PROGRAM}: {problem}", file=sys.stderr)
             return 2, None
@@ -217,10 +221,12 @@ def _acquire(args, config, base) -> tuple[int, object]:
                 control_socket=dataclasses.replace(config.control_socket,
                                                    path=args.socket or config.control_socket.path))
         opener, clock = open_instruments, MonotonicClock()
+        claims = instrument_addresses
     logging_service = ServiceLogging(level=logging.WARNING)
     logging_service.start()
     try:
-        acquisition = acquire(config, plan, opener, clock, metadata=metadata, expected_settle_s=expected)
+        acquisition = acquire(config, plan, opener, clock, metadata=metadata, expected_settle_s=expected,
+                              instrument_addresses=claims)
     finally:
         logging_service.stop()
     print(f"{PROGRAM}: {acquisition.message}", file=sys.stderr)
@@ -256,8 +262,15 @@ def run(args: argparse.Namespace) -> int:
     from cryod.config import load_config
 
     out = Path(args.out)
-    if out.exists() and not args.force:
-        print(f"{PROGRAM}: {out} exists; give --force to overwrite it", file=sys.stderr)
+    inputs = [Path(path) for path in args.records] + [Path(args.base)]
+    refusal = output_file_refusal(PROGRAM, out, force=args.force, inputs=inputs)
+    report_dir = args.report or (f"{out.with_suffix('')}-report" if args.acquire else None)
+    report_files = None
+    if refusal is None and report_dir is not None:
+        report_files = _report_files(args, Path(report_dir), max(len(args.records), 1), inputs)
+        refusal = report_files.refusal(force=args.force)
+    if refusal is not None:
+        print(f"{PROGRAM}: {refusal}", file=sys.stderr)
         return 2
     if args.acquire and args.records:
         print(f"{PROGRAM}: --acquire records its own data: give no records with it", file=sys.stderr)
@@ -286,6 +299,13 @@ def run(args: argparse.Namespace) -> int:
         if status != 0:
             return status
         record_paths = list(acquisition.record_paths)
+        if report_files is not None and len(record_paths) > 1:      # a day's end cut the record: more figures
+            report_files = _report_files(args, Path(report_dir), len(record_paths), inputs + record_paths)
+            refusal = report_files.refusal(force=args.force)
+            if refusal is not None:
+                print(f"{PROGRAM}: {refusal}; the records are kept: {' '.join(map(str, record_paths))}",
+                      file=sys.stderr)
+                return 2
     try:
         records = [read_record_data(path) for path in record_paths]
     except (RecordFormatError, FileFormatError) as error:
@@ -337,11 +357,15 @@ def run(args: argparse.Namespace) -> int:
                             "cryostats, or an effect: run cryod analyze on them)")
     for warning in warnings:
         print(f"{PROGRAM}: warning: {warning}", file=sys.stderr)
-    report_dir = args.report or (f"{out.with_suffix('')}-report" if args.acquire else None)
     text = summary(result, out)
-    if report_dir is not None:
-        text["report"] = str(_write_report(args, result, Path(report_dir), out, record_paths, acquisition, config,
-                                           warnings))
+    if report_files is not None:
+        try:
+            text["report"] = str(_write_report(args, result, report_files.directory, out, record_paths, acquisition,
+                                               config, warnings))
+        finally:
+            warning = report_files.note_written()
+            if warning is not None:
+                print(f"{PROGRAM}: warning: {warning}", file=sys.stderr)
     if args.json:
         print(json.dumps(text))
     else:
@@ -354,6 +378,18 @@ def run(args: argparse.Namespace) -> int:
         for name, item in text["parameters"].items():
             print(f"  {name}: {item['value']:.6g} +- {item['standard_uncertainty']:.2g}")
     return 0
+
+
+def _report_files(args, directory: Path, record_count: int, inputs: list[Path]) -> OutputFiles:
+    """The files the report writes into ``directory``, for ``record_count`` records."""
+    from cryod.identification.report import REPORT_NAME
+
+    names = [REPORT_NAME]
+    if not args.no_figures:
+        from cryod.identification.figures import figure_files
+
+        names += figure_files(record_count).values()
+    return OutputFiles(PROGRAM, directory, names, inputs=inputs, what="report")
 
 
 def _write_report(args, result: ModelIdentification, directory: Path, out: Path, record_paths, acquisition, config,

@@ -132,23 +132,38 @@ def terms_figure(result: ModelIdentification, path: Path) -> Path:
     return save_figure(figure, path)
 
 
+def figure_files(record_count: int) -> dict[str, str]:
+    """The file of each figure of an identification from ``record_count`` records, by name.
+
+    >>> list(figure_files(2).values())
+    ['fit_T2_1.png', 'fit_T5_1.png', 'fit_T2_2.png', 'fit_T5_2.png', 'fit_line.png', 'terms.png']
+    """
+    files = {}
+    for index in range(record_count):
+        suffix = f"_{index + 1}" if record_count > 1 else ""
+        files[f"fit_T2{suffix}"] = f"fit_T2{suffix}.png"
+        files[f"fit_T5{suffix}"] = f"fit_T5{suffix}.png"
+    return {**files, "fit_line": "fit_line.png", "terms": "terms.png"}
+
+
 def make_figures(result: ModelIdentification, out: Path) -> dict[str, Path]:
-    """Write every figure into ``out``; returns their paths by name."""
+    """Write every figure (:func:`figure_files`) into ``out``; returns their paths by name."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    files = {name: out / file_name for name, file_name in figure_files(len(result.records)).items()}
     made = {}
     several = len(result.records) > 1
     for index in range(len(result.records)):
         suffix = f"_{index + 1}" if several else ""
         made[f"fit_T2{suffix}"] = _channel_figure(
             result, result.flange, index, "Heater to flange thermometer (G2 G1): T2 measured and fitted", "T2",
-            out / f"fit_T2{suffix}.png")
+            files[f"fit_T2{suffix}"])
         made[f"fit_T5{suffix}"] = _channel_figure(
             result, result.stage, index, "Heater to PTC stage (G3): T5 less its line, measured and fitted", "T5",
-            out / f"fit_T5{suffix}.png")
-    made["fit_line"] = line_figure(result, out / "fit_line.png")
-    made["terms"] = terms_figure(result, out / "terms.png")
+            files[f"fit_T5{suffix}"])
+    made["fit_line"] = line_figure(result, files["fit_line"])
+    made["terms"] = terms_figure(result, files["terms"])
     return made
 
 
-__all__ = ["make_figures", "line_figure", "terms_figure"]
+__all__ = ["figure_files", "make_figures", "line_figure", "terms_figure"]

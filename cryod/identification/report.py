@@ -22,6 +22,8 @@ LABELS = {
     "ptc.ptc_stage_amplitude_K": ("cooler line at T5, amplitude", "mK", 1e3),
     "ptc.phase_rad": ("cooler line at T5, phase at the record's start", "rad", 1.0),
 }
+#: The report's file name.
+REPORT_NAME = "report.md"
 
 
 def _label(name: str) -> tuple[str, str, float]:
@@ -161,9 +163,9 @@ def write_report(result: ModelIdentification, out: Path, *, model_path: Path, re
         lines += ["", "## Figures", ""]
         for name, path in figures.items():
             lines.append(f"![{name}]({Path(path).name})")
-    path = out / "report.md"
+    path = out / REPORT_NAME
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
 
 
-__all__ = ["FeedforwardSection", "feedforward_section", "write_report"]
+__all__ = ["REPORT_NAME", "FeedforwardSection", "feedforward_section", "write_report"]

@@ -33,6 +33,8 @@ from typing import Callable, Collection, Iterator
 
 import numpy as np
 
+from cryod.records.bounds import (MAX_DATA_LINE_CHARACTERS, MAX_EVENT_CHARACTERS, MAX_LINES, MAX_TEXT_CHARACTERS,
+                                  NOT_A_RECORD, size_text)
 from cryod.records.columns import REQUIRED
 
 #: Lines converted at a time: about 300 kB of daemon text, 4 MB while split into fields.
@@ -97,7 +99,8 @@ class _GrowingArray:
 
 
 def read_data_lines(open_lines: Callable[[], Iterator[str]], names: list[str], *, first_line_number: int,
-                    wanted: Collection[str] | None = None, expected_characters: int | None = None) -> DataTable:
+                    wanted: Collection[str] | None = None, expected_characters: int | None = None,
+                    characters_before: int = 0) -> DataTable:
     """Read the data lines of a record into columns.
 
     Parameters
@@ -114,6 +117,9 @@ def read_data_lines(open_lines: Callable[[], Iterator[str]], names: list[str], *
         Columns to read (the required ones are always read); None: all.
     expected_characters : int, optional
         Length of the text of the data lines, to size the arrays at once.
+    characters_before : int
+        Characters of the file before the first data line (the header), counted
+        against :data:`~cryod.records.bounds.MAX_TEXT_CHARACTERS`.
 
     Returns
     -------
@@ -123,17 +129,24 @@ def read_data_lines(open_lines: Callable[[], Iterator[str]], names: list[str], *
     ------
     DataLineError
         A line with the wrong number of fields, a required column that is
-        not a number, ``time_s`` empty or not increasing.
+        not a number, ``time_s`` empty or not increasing; a line, the lines,
+        the text or the events beyond the bounds of :mod:`cryod.records.bounds`
+        (the lines are expected no longer than one character past
+        :data:`~cryod.records.bounds.MAX_DATA_LINE_CHARACTERS`, as
+        ``readline(MAX_DATA_LINE_CHARACTERS + 1)`` gives them, so that a
+        longer one is refused without being held whole).
     """
     text_columns: set[str] = set()
     while True:
         try:
-            return _read(open_lines(), names, first_line_number, wanted, expected_characters, text_columns)
+            return _read(open_lines(), names, first_line_number, wanted, expected_characters, text_columns,
+                         characters_before)
         except _TextColumn as again:
             text_columns.add(again.name)
 
 
-def _read(lines: Iterator[str], names, first_line_number, wanted, expected_characters, text_columns) -> DataTable:
+def _read(lines: Iterator[str], names, first_line_number, wanted, expected_characters, text_columns,
+          characters_before) -> DataTable:
     count = len(names)
     selected = [(position, name) for position, name in enumerate(names)
                 if wanted is None or name in REQUIRED_NAMES or name in wanted]
@@ -144,11 +157,18 @@ def _read(lines: Iterator[str], names, first_line_number, wanted, expected_chara
     rows = 0
     previous_time = -math.inf
     line_number = first_line_number
+    bounds = _Bounds(characters_before)
     while True:
         chunk = list(itertools.islice(lines, CHUNK_ROWS))
         if not chunk:
             break
+        bounds.check(chunk, line_number)
+        if chunk.count("\n") == len(chunk):          # blank lines only (a padded or damaged file): nothing to sort
+            line_number += len(chunk)
+            continue
+        known_events = len(events)
         data, data_lines = _sort_lines(chunk, line_number, count, rows, events, warnings)
+        bounds.check_events(events[known_events:], line_number + len(chunk) - 1)
         line_number += len(chunk)
         # a last line without its newline: a killed writer's, perhaps cut inside a number
         unterminated = bool(data) and not chunk[-1].endswith("\n") and data_lines[-1] == line_number - 1
@@ -193,6 +213,37 @@ def _read(lines: Iterator[str], names, first_line_number, wanted, expected_chara
         else:
             columns[name] = np.empty(0)
     return DataTable(columns, events, warnings)
+
+
+class _Bounds:
+    """The bounds of :mod:`cryod.records.bounds` on the lines after the header, checked a chunk at a time."""
+
+    def __init__(self, characters_before: int):
+        self.characters = characters_before
+        self.event_characters = 0
+
+    def check(self, chunk: list[str], first_line: int) -> None:
+        last_line = first_line + len(chunk) - 1
+        if last_line > MAX_LINES:
+            raise DataLineError(MAX_LINES + 1, f"more than {MAX_LINES} lines, the most a record may have (a 7-day "
+                                               f"record at 80 ms has 7.6 million; {NOT_A_RECORD})")
+        longest = max(map(len, chunk))
+        if longest > MAX_DATA_LINE_CHARACTERS:
+            index = next(i for i, line in enumerate(chunk) if len(line) > MAX_DATA_LINE_CHARACTERS)
+            if len(chunk[index].rstrip("\r\n")) > MAX_DATA_LINE_CHARACTERS:
+                raise DataLineError(first_line + index, f"longer than {size_text(MAX_DATA_LINE_CHARACTERS)}, the "
+                                                        f"most a line after a record's header may have (a row is a "
+                                                        f"few hundred characters; {NOT_A_RECORD})")
+        self.characters += sum(map(len, chunk))
+        if self.characters > MAX_TEXT_CHARACTERS:
+            raise DataLineError(last_line, f"the text goes on for more than {size_text(MAX_TEXT_CHARACTERS)}, the "
+                                           f"most a record may have ({NOT_A_RECORD})")
+
+    def check_events(self, new_events: list[tuple[int, str]], last_line: int) -> None:
+        self.event_characters += sum(len(text) for _, text in new_events)
+        if self.event_characters > MAX_EVENT_CHARACTERS:
+            raise DataLineError(last_line, f"more than {size_text(MAX_EVENT_CHARACTERS)} of event lines, the most "
+                                           f"a record may have ({NOT_A_RECORD})")
 
 
 def _sort_lines(chunk: list[str], line_number: int, count: int, rows: int, events: list, warnings: list):
@@ -242,7 +293,7 @@ def _estimated_rows(data: list[str], expected_characters: int | None) -> int:
     if not expected_characters:
         return len(data)
     per_row = (sum(len(line) for line in data) + len(data)) / len(data)
-    return int(expected_characters / per_row * 1.02) + len(data)
+    return min(int(expected_characters / per_row * 1.02) + len(data), MAX_LINES)
 
 
 def _numbers(strings: list[str]) -> tuple[np.ndarray | None, int | None]:

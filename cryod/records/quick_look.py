@@ -9,7 +9,8 @@ marked, aliased ones at the frequency where the 12.5 Hz sampling puts them.
 Faults and other events are marked on the time axes.
 
 The figure goes beside the record (``RECORD.png``) unless ``--out`` says
-otherwise, and an existing file is kept unless ``--force``.
+otherwise, and an existing file is kept unless ``--force`` (the record itself
+always: :mod:`cryod.output_files`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cryod.output_files import output_file_refusal
 from cryod.records.record import RecordFormatError, read_record
 
 #: Blocks over which the line's amplitude is fitted (s): about 50 cooler periods.
@@ -43,8 +45,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
 
 def run(args) -> int:
     out = args.out or args.record.with_name(args.record.name.removesuffix(".gz").removesuffix(".csv") + ".png")
-    if out.exists() and not args.force:
-        print(f"cryod plot: {out} exists; give --force to replace it or --out for another file", file=sys.stderr)
+    refusal = output_file_refusal("cryod plot", out, force=args.force, inputs=[args.record])
+    if refusal is not None:
+        print(f"cryod plot: {refusal} (--out: another file)", file=sys.stderr)
         return 2
     try:
         record = read_record(args.record)

@@ -29,6 +29,7 @@ Examples
 from __future__ import annotations
 
 import contextlib
+import functools
 import gzip
 import io
 from dataclasses import dataclass, field
@@ -37,8 +38,11 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from cryod.records.bounds import (MAX_COLUMNS, MAX_DATA_LINE_CHARACTERS, MAX_HEADER_CHARACTERS,
+                                  MAX_HEADER_LINE_CHARACTERS, MAX_LINES, MAX_TEXT_CHARACTERS, NOT_A_RECORD, size_text)
 from cryod.records.columns import REQUIRED, format_field
 from cryod.records.data_lines import DataLineError, read_data_lines
+from cryod.regular_files import NotARegularFile, open_regular_file, regular_file_status
 
 MAGIC = "# cryod-log v1"
 #: Names of the columns every record has, first and in this order (declared in :mod:`cryod.records.columns`).
@@ -127,7 +131,10 @@ def read_record(path: str | Path, columns: Iterable[str] | None = None) -> Recor
 
     The data lines are read a chunk at a time into one float array per
     column (:mod:`cryod.records.data_lines`): memory holds the numbers, not
-    the text, whatever the record's length.
+    the text, whatever the record's length. Only a regular file is read (a
+    FIFO, a device, a socket or a directory is refused before it is opened:
+    :mod:`cryod.regular_files`), and a file beyond the bounds of
+    :mod:`cryod.records.bounds` is refused as it streams in.
 
     Parameters
     ----------
@@ -144,55 +151,141 @@ def read_record(path: str | Path, columns: Iterable[str] | None = None) -> Recor
     Raises
     ------
     RecordFormatError
-        Not a cryod-log v1 file, a required column missing, a line with the
-        wrong number of fields, or a bad value in a required column (file,
-        line and column named).
+        Not a cryod-log v1 file, not a regular file, beyond a bound, a
+        required column missing, a line with the wrong number of fields, or a
+        bad value in a required column (file, line and column named).
     """
     path = Path(path)
+    source = str(path)
     try:
         size = _text_size(path)
-        if path.is_dir():
-            raise IsADirectoryError(f"{path} is a directory")
+    except NotARegularFile as error:
+        raise RecordFormatError(source, None, f"{error.reason}: a record must be a regular file") from None
     except FileNotFoundError:
-        raise RecordFormatError(str(path), None, "file not found") from None
+        raise RecordFormatError(source, None, "file not found") from None
     except OSError as error:
-        raise RecordFormatError(str(path), None, f"cannot read: {error}") from None
-
-    def open_lines():
-        if path.suffix == ".gz":            # a finished day's record, compressed (cryod.records.compression)
-            return gzip.open(path, "rt", encoding="utf-8")
-        return path.open(encoding="utf-8")
-
+        raise RecordFormatError(source, None, f"cannot read: {error}") from None
+    if path.suffix != ".gz" and size > MAX_TEXT_CHARACTERS:
+        raise RecordFormatError(source, None, f"{size / 1e9:.1f} GB, more than the {size_text(MAX_TEXT_CHARACTERS)} "
+                                              f"a record may have ({NOT_A_RECORD})")
+    lines = _FileLines(path)
     try:
-        return _read_lines(open_lines, str(path), columns, size)
+        record = _read_lines(lines.open, source, columns, size, open_header=lines.open_header)
     except UnicodeDecodeError:
         line, reason = _first_line_not_utf8(path)
-        raise RecordFormatError(str(path), line, reason) from None
-    except (OSError, EOFError) as error:
-        raise RecordFormatError(str(path), None, f"cannot read: {error}") from None
+        raise RecordFormatError(source, line, reason) from None
+    except NotARegularFile as error:             # put in the record's place while it was being read
+        raise RecordFormatError(source, None, f"{error.reason}: a record must be a regular file") from None
+    except EOFError as error:
+        raise RecordFormatError(source, None, f"cannot read: {error} (the compressed file is cut short)") from None
+    except OSError as error:
+        raise RecordFormatError(source, None, f"cannot read: {error}") from None
+    record.warnings[:0] = lines.warnings
+    return record
+
+
+def _open_binary(path: Path, on_cut=None):
+    """The file's bytes (decompressed for ``.csv.gz``: a finished day's record, :mod:`cryod.records.compression`)."""
+    raw = open_regular_file(path)
+    if path.suffix != ".gz":
+        return raw
+    try:
+        return _RecordGzipFile(raw, on_cut)
+    except BaseException:
+        raw.close()
+        raise
+
+
+class _RecordGzipFile(gzip.GzipFile):
+    """A compressed record: closes the file it reads from with itself and, given ``on_cut``, ends where a file
+    cut short (a copy interrupted) ends, calling ``on_cut()``, so that the rows before the cut are kept."""
+
+    def __init__(self, raw, on_cut=None):
+        super().__init__(fileobj=raw, mode="rb")
+        self._raw = raw
+        self._on_cut = on_cut
+
+    def _up_to_a_cut(self, read, *args):
+        if self._on_cut is None:
+            return read(*args)
+        try:
+            return read(*args)
+        except EOFError:
+            self._on_cut()
+            return b""
+
+    def read(self, size=-1):
+        return self._up_to_a_cut(super().read, size)
+
+    def read1(self, size=-1):
+        return self._up_to_a_cut(super().read1, size)
+
+    def close(self) -> None:
+        try:
+            super().close()
+        finally:
+            self._raw.close()
+
+
+class _FileLines:
+    """Opens a record file as text, each time from its start, gathering the warnings of a compressed file
+    cut short."""
+
+    CUT_SHORT = "the compressed file is cut short (it ends before its end marker): read up to the cut"
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.warnings: list[str] = []
+
+    def open(self) -> io.TextIOWrapper:
+        """The text, to the end or to a cut."""
+        return io.TextIOWrapper(_open_binary(self.path, self._cut), encoding="utf-8")
+
+    def open_header(self) -> io.TextIOWrapper:
+        """The text for the header: a cut before its end is an error (EOFError)."""
+        return io.TextIOWrapper(_open_binary(self.path), encoding="utf-8")
+
+    def _cut(self) -> None:
+        if self.CUT_SHORT not in self.warnings:
+            self.warnings.append(self.CUT_SHORT)
 
 
 def _text_size(path: Path) -> int | None:
-    """Characters of text in the file, near enough to size the columns (None: not known)."""
-    size = path.stat().st_size
+    """Characters of text in the file, near enough to size the columns (None: not known); refuses a file that
+    is not a regular file."""
+    size = regular_file_status(path).st_size
     if path.suffix != ".gz":
         return size
-    with path.open("rb") as stream:           # gzip's last four bytes: the text's length modulo 2**32
+    with open_regular_file(path) as stream:   # gzip's last four bytes: the text's length modulo 2**32
         stream.seek(max(size - 4, 0))
         stated = int.from_bytes(stream.read(4), "little")
     return stated if stated > size else None
 
 
 def _first_line_not_utf8(path: Path) -> tuple[int | None, str]:
-    """The first line of a file that is not UTF-8 text, and what is wrong with it."""
-    with (gzip.open(path, "rb") if path.suffix == ".gz" else path.open("rb")) as stream:
-        for number, line in enumerate(stream, start=1):
-            try:
-                line.decode("utf-8")
-            except UnicodeDecodeError as error:
-                return number, (f"not UTF-8 text: byte 0x{line[error.start]:02x} at character {error.start + 1} "
-                                f"(a damaged file, or not a cryod record)")
+    """The first line of a file that is not UTF-8 text, and what is wrong with it (or the first line too long
+    to look at)."""
+    limit = MAX_HEADER_LINE_CHARACTERS
+    try:
+        with _open_binary(path) as stream:
+            for number in range(1, MAX_LINES + 1):
+                line = stream.readline(limit + 2)
+                if not line:
+                    break
+                if len(line.rstrip(b"\r\n")) > limit:
+                    return number, _too_long("line", limit)
+                try:
+                    line.decode("utf-8")
+                except UnicodeDecodeError as error:
+                    return number, (f"not UTF-8 text: byte 0x{line[error.start]:02x} at character {error.start + 1} "
+                                    f"({NOT_A_RECORD})")
+    except (OSError, EOFError, ValueError):
+        pass
     return None, "not UTF-8 text"
+
+
+def _too_long(what: str, limit: int) -> str:
+    return f"{what} longer than {size_text(limit)}, the most a record's {what} may have ({NOT_A_RECORD})"
 
 
 def read_record_text(text: str, source: str = "<record>", columns: Iterable[str] | None = None) -> Record:
@@ -200,9 +293,10 @@ def read_record_text(text: str, source: str = "<record>", columns: Iterable[str]
     return _read_lines(lambda: io.StringIO(text, newline=None), source, columns, len(text))
 
 
-def _read_lines(open_lines, source: str, columns: Iterable[str] | None, size: int | None) -> Record:
+def _read_lines(open_lines, source: str, columns: Iterable[str] | None, size: int | None,
+                open_header=None) -> Record:
     wanted = None if columns is None else set(columns)
-    with contextlib.closing(open_lines()) as stream:
+    with contextlib.closing((open_header or open_lines)()) as stream:
         metadata, names, header_line, header_characters = _read_header(stream, source)
     count = header_line
 
@@ -210,32 +304,45 @@ def _read_lines(open_lines, source: str, columns: Iterable[str] | None, size: in
         stream = open_lines()
         try:
             for _ in range(count):
-                stream.readline()
-            yield from stream
+                stream.readline(MAX_HEADER_LINE_CHARACTERS + 1)
+            yield from iter(functools.partial(stream.readline, MAX_DATA_LINE_CHARACTERS + 1), "")
         finally:
             stream.close()
 
     try:
         table = read_data_lines(data_lines, names, first_line_number=header_line + 1, wanted=wanted,
-                                expected_characters=None if size is None else max(size - header_characters, 0))
+                                expected_characters=None if size is None else max(size - header_characters, 0),
+                                characters_before=header_characters)
     except DataLineError as error:
         raise RecordFormatError(source, error.line, error.reason) from None
     return Record(metadata, table.columns, table.events, table.warnings, source)
 
 
 def _read_header(stream, source: str) -> tuple[dict[str, str], list[str], int, int]:
-    """Metadata, column names, the header's line number and the characters up to its end."""
-    first = stream.readline()
-    characters = len(first)
+    """Metadata, column names, the header's line number and the characters up to its end (each line read
+    no further than the bounds allow)."""
+    number, characters = 0, 0
+
+    def next_line() -> str:
+        nonlocal number, characters
+        line = stream.readline(MAX_HEADER_LINE_CHARACTERS + 1)
+        number += 1
+        characters += len(line)
+        if len(line.rstrip("\r\n")) > MAX_HEADER_LINE_CHARACTERS:
+            raise RecordFormatError(source, number, _too_long("header line", MAX_HEADER_LINE_CHARACTERS))
+        if characters > MAX_HEADER_CHARACTERS:
+            raise RecordFormatError(source, number, f"the header goes on for more than "
+                                                    f"{size_text(MAX_HEADER_CHARACTERS)}, the most a record's "
+                                                    f"header may have ({NOT_A_RECORD})")
+        return line
+
+    first = next_line()
     if first.strip() != MAGIC:
         raise RecordFormatError(source, 1, f"not a cryod-log v1 record (first line should be '{MAGIC}', "
                                            f"got {first.rstrip(chr(10))[:60]!r})")
     metadata: dict[str, str] = {}
-    number = 1
     while True:
-        line = stream.readline()
-        number += 1
-        characters += len(line)
+        line = next_line()
         if not line:
             raise RecordFormatError(source, number, "no column header line after the metadata")
         if not line.startswith("#"):
@@ -248,10 +355,13 @@ def _read_header(stream, source: str) -> tuple[dict[str, str], list[str], int, i
             # a multi-line value is written as repeated lines with the same key
             metadata[key] = f"{metadata[key]}\n{value}" if key in metadata else value
     names = [name.strip() for name in line.rstrip("\r\n").split(",")]
+    if len(names) > MAX_COLUMNS:
+        raise RecordFormatError(source, number, f"{len(names)} columns, more than the {MAX_COLUMNS} a record may "
+                                                f"have ({NOT_A_RECORD})")
     for required in REQUIRED_COLUMNS:
         if required not in names:
             raise RecordFormatError(source, number, f"required column '{required}' is missing "
-                                                    f"(columns: {', '.join(names)})")
+                                                    f"(columns: {', '.join(names)[:300]})")
     if len(set(names)) != len(names):
         raise RecordFormatError(source, number, "a column name appears twice")
     return metadata, names, number, characters

@@ -11,15 +11,17 @@ closed with the heater output off, and the error names the instrument.
 
 from __future__ import annotations
 
-import importlib.util
 import logging
-import sys
 from typing import Callable
 
-from cryod.config import DaemonConfig, DmmSettings, InstrumentAddress
+from pyvisa import rname
+from pyvisa.errors import VisaIOError
+
+from cryod.config import INSTRUMENT_KEYS, DaemonConfig, DmmSettings, InstrumentAddress
+from cryod.service.instance_lock import InstrumentLocks
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError
-from drivers.errors import InstrumentError
+from drivers.errors import ConnectionLost, InstrumentError
 from drivers.heater import HeaterSupply
 from drivers.keithley2002 import FourWireSettings, Keithley2002, TriggerSource
 from drivers.keithley2400 import Keithley2400
@@ -27,6 +29,8 @@ from drivers.keithley6221 import Keithley6221
 from drivers.pair_triggers import (GpibGroupTrigger, HardwareTrigger, PairTrigger, PrologixGroupTrigger,
                                    SequentialTrigger)
 from drivers.thermometer_pair import PairReading, ThermometerPair
+from drivers.transports.addresses import (canonical_prologix, canonical_prologix_adapter, canonical_resource,
+                                         canonical_serial_port)
 from drivers.transports.base import Transport
 from drivers.transports.prologix import PrologixAdapter
 from drivers.transports.visa import VisaTransport, resource_manager
@@ -55,30 +59,54 @@ def check_calibrations(config: DaemonConfig) -> str | None:
     return None
 
 
-def check_instrument_support(config: DaemonConfig) -> str | None:
-    """None if this installation can open every configured instrument, else what is missing.
+# ---------------------------------------------------------------------------
+# which instruments: what cryod run locks against other daemons
+# ---------------------------------------------------------------------------
+def instrument_addresses(config: DaemonConfig) -> dict[str, list[str]]:
+    """Every instrument ``cryod run`` drives, by its canonical address, with the configuration keys naming it.
 
-    pyvisa-py reaches a GPIB card only through linux-gpib's Python binding (the
-    ``gpib`` module) or gpib-ctypes; without either, the instruments could never be
-    opened, which is an installation to fix, not an outage to wait out.
+    The two DMMs and the heater supply; the Prologix controller they are behind, if any (two
+    programs on one controller mix their GPIB traffic); the serial port of an external trigger.
+
+    Raises
+    ------
+    ValueError
+        An address that is not one (the message names its key).
     """
     instruments = config.instruments
-    if instruments.visa_library != "@py":
-        return None
-    gpib = [(name, address.resource) for name, address in (
-        ("flange_dmm", instruments.flange_dmm), ("ptc_stage_dmm", instruments.ptc_stage_dmm),
-        ("heater_supply", instruments.heater_supply))
-        if address.resource and address.resource.upper().startswith("GPIB")]
-    if not gpib:
-        return None
-    for module in ("gpib", "gpib_ctypes"):
-        if importlib.util.find_spec(module) is not None:
-            return None
-    name, resource = gpib[0]
-    return (f"instruments.{name}: {resource} is on a GPIB card, which pyvisa-py reaches through linux-gpib's "
-            f"Python binding (module 'gpib') or gpib-ctypes, and neither is installed in {sys.prefix}. Install "
-            f"linux-gpib with its Python binding into this environment (docs/operations.md, 'GPIB card'), or "
-            f"use NI-VISA (instruments.visa_library: \"\") or a Prologix adapter")
+    addresses: dict[str, list[str]] = {}
+
+    def claim(address: str, key: str) -> None:
+        keys = addresses.setdefault(address, [])
+        if key not in keys:
+            keys.append(key)
+
+    for name in ("heater_supply", "flange_dmm", "ptc_stage_dmm"):
+        address: InstrumentAddress = getattr(instruments, name)
+        key = f"instruments.{name}"
+        if address.resource:
+            try:
+                claim(canonical_resource(address.resource), f"{key}.resource")
+            except ValueError as error:
+                raise ValueError(f"{key}.resource: {error}") from None
+        else:
+            where = dict(port=address.prologix_port, host=address.prologix_host)
+            claim(canonical_prologix(**where, gpib_address=address.gpib_address), f"{key}.prologix")
+            claim(canonical_prologix_adapter(**where), f"{key}.prologix")
+    if instruments.trigger == "external" and instruments.trigger_output is not None:
+        claim(f"serial:{canonical_serial_port(instruments.trigger_output.port)}", "instruments.trigger_output.port")
+    return addresses
+
+
+def check_instrument_locking(config: DaemonConfig) -> str | None:
+    """None if ``cryod run`` can lock the configured instruments' addresses, else what stands in the way."""
+    from cryod.service.startup_checks import directory_problem
+
+    try:
+        instrument_addresses(config)
+    except ValueError as error:
+        return f"{config.source}: {error}"
+    return directory_problem(config, "instruments.lock_directory", config.instruments.lock_directory)
 
 
 # ---------------------------------------------------------------------------
@@ -164,10 +192,10 @@ def assemble_instruments(config: DaemonConfig, clock, flange_transport: Transpor
         heater_config = config.heater
         heater = HEATER_DRIVERS[config.instruments.heater_model](
             heater_transport, clock, heater_config.resistance_ohm, max_current_a=heater_config.max_current_A,
-            voltage_compliance_v=heater_config.voltage_compliance_V, name="heater supply")
+            voltage_compliance_v=heater_config.voltage_compliance_V, name=INSTRUMENT_KEYS["heater_supply"])
         line = config.instruments.dmm.line_frequency_hz
-        flange = Keithley2002(flange_transport, clock, "flange DMM (T2)", line_frequency_hz=line)
-        stage = Keithley2002(stage_transport, clock, "PTC-stage DMM (T5)", line_frequency_hz=line)
+        flange = Keithley2002(flange_transport, clock, INSTRUMENT_KEYS["flange_dmm"], line_frequency_hz=line)
+        stage = Keithley2002(stage_transport, clock, INSTRUMENT_KEYS["ptc_stage_dmm"], line_frequency_hz=line)
         settings = four_wire_settings(config.instruments.dmm)
         for dmm in (flange, stage):
             dmm.configure_four_wire_resistance(settings)
@@ -222,12 +250,12 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
     adapters: dict = {}
     opened: list = []
     try:
-        heater = open_transport(instruments.heater_supply, config, adapters, "heater supply")
-        opened.append(heater)
-        flange = open_transport(instruments.flange_dmm, config, adapters, "flange DMM (T2)")
-        opened.append(flange)
-        stage = open_transport(instruments.ptc_stage_dmm, config, adapters, "PTC-stage DMM (T5)")
-        opened.append(stage)
+        for key in ("heater_supply", "flange_dmm", "ptc_stage_dmm"):
+            try:
+                opened.append(open_transport(getattr(instruments, key), config, adapters, INSTRUMENT_KEYS[key]))
+            except InstrumentError as error:
+                raise _with_key(error, key) from error.__cause__
+        heater, flange, stage = opened
     except BaseException:
         for transport in opened:
             transport.close()
@@ -241,16 +269,18 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
         if mode == "sequential":
             return SequentialTrigger([flange, stage], clock)
         if mode == "gpib-group":
-            board = _gpib_board(instruments.flange_dmm, instruments.ptc_stage_dmm)
-            interface = resource_manager(instruments.visa_library).open_resource(f"GPIB{board}::INTFC")
+            board = _gpib_board(instruments.flange_dmm)
+            try:
+                interface = resource_manager(instruments.visa_library).open_resource(f"GPIB{board}::INTFC")
+            except (VisaIOError, OSError) as error:     # a card out of reach: waited for, as an instrument is
+                raise ConnectionLost(f"GPIB{board}::INTFC (instruments.trigger: gpib-group)",
+                                     f"cannot open the GPIB card to trigger both DMMs: {error}") from error
             closers.append(interface.close)
             return GpibGroupTrigger(interface, [flange, stage], clock)
-        if mode == "prologix":
-            keys = {_adapter_key(instruments.flange_dmm), _adapter_key(instruments.ptc_stage_dmm)}
-            if instruments.flange_dmm.resource or instruments.ptc_stage_dmm.resource or len(keys) != 1:
-                raise ValueError("instruments.trigger: prologix needs both DMMs on the same Prologix adapter")
-            return PrologixGroupTrigger(adapters[keys.pop()], [instruments.flange_dmm.gpib_address,
-                                                               instruments.ptc_stage_dmm.gpib_address], clock)
+        if mode == "prologix":           # the configuration puts both DMMs behind one controller
+            return PrologixGroupTrigger(adapters[_adapter_key(instruments.flange_dmm)],
+                                        [instruments.flange_dmm.gpib_address, instruments.ptc_stage_dmm.gpib_address],
+                                        clock)
         output = instruments.trigger_output
         line = SerialControlLine.open(output.port, clock, line=output.line)
         closers.append(line.close)
@@ -264,18 +294,56 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
             except Exception as error:  # noqa: BLE001 - closing; say so and go on
                 log.warning("closing: %s", error)
 
-    instruments_set = assemble_instruments(config, clock, flange, stage, heater, make_trigger,
-                                           on_close=close_others)
+    try:
+        instruments_set = assemble_instruments(config, clock, flange, stage, heater, make_trigger,
+                                               on_close=close_others)
+    except InstrumentError as error:
+        key = next((key for key, name in INSTRUMENT_KEYS.items() if error.instrument == name), None)
+        raise (error if key is None else _with_key(error, key)) from error.__cause__
     return (instruments_set, *curves)
 
 
-def _gpib_board(*addresses: InstrumentAddress) -> int:
-    boards = set()
-    for address in addresses:
-        if not address.resource or not address.resource.upper().startswith("GPIB"):
-            raise ValueError("instruments.trigger: gpib-group needs both DMMs on a GPIB card (GPIBn::addr::INSTR)")
-        prefix = address.resource.upper().split("::")[0][4:]
-        boards.add(int(prefix or 0))
-    if len(boards) != 1:
-        raise ValueError("instruments.trigger: gpib-group needs both DMMs on the same GPIB board")
-    return boards.pop()
+def _with_key(error: InstrumentError, key: str) -> InstrumentError:
+    """``error`` naming the configuration's key of its instrument too: ``heater supply (instruments.heater_supply)``,
+    which the lab finds in the file, beside the resource the message quotes."""
+    return error.relabelled(f"{error.instrument} (instruments.{key})")
+
+
+def switch_supply_off(config: DaemonConfig, clock) -> None:
+    """The configured heater supply to 0 A with its output off, without a daemon (``cryod run --supply-off``).
+
+    What the service unit runs after the daemon ended, however it ended (``ExecStopPost``): after
+    SIGKILL or a crash the supply would keep its last setting until the next start. The supply's
+    address is locked first, as a daemon locks it, so a supply another daemon drives is left alone.
+
+    Raises
+    ------
+    InstrumentInUse
+        Another cryod drives the supply (nothing was sent).
+    InstrumentError
+        The supply is out of reach or did not confirm the off.
+    """
+    supply = {address: keys for address, keys in instrument_addresses(config).items()
+              if any(key.startswith("instruments.heater_supply.") for key in keys)}
+    locks = InstrumentLocks(config.instruments.lock_directory, supply, config.source)
+    locks.acquire()
+    adapters: dict = {}
+    try:
+        transport = open_transport(config.instruments.heater_supply, config, adapters,
+                                   INSTRUMENT_KEYS["heater_supply"])
+        try:
+            heater = HEATER_DRIVERS[config.instruments.heater_model](      # opening sets 0 A, output off
+                transport, clock, config.heater.resistance_ohm, max_current_a=config.heater.max_current_A,
+                voltage_compliance_v=config.heater.voltage_compliance_V, name=INSTRUMENT_KEYS["heater_supply"])
+            heater.output_off()
+        finally:
+            transport.close()
+    finally:
+        for adapter in adapters.values():
+            adapter.close()
+        locks.release()
+
+
+def _gpib_board(address: InstrumentAddress) -> int:
+    """The GPIB board of a DMM on a GPIB card (the configuration puts both DMMs of a gpib-group trigger on one)."""
+    return int(rname.parse_resource_name(address.resource).board)

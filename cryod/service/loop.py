@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Callable, Protocol
 
-from cryod.config import DaemonConfig
+from cryod.config import DaemonConfig, located_error
 from cryod.control.regulator import HeaterPowerOutput, Regulator, RegulatorMode
 from cryod.control.terms import term_columns
 from cryod.records.columns import Event, Row, RowSchema, loop_schema
@@ -31,6 +31,7 @@ from cryod.service.faults import ExitCode, Fault, FaultCause, ReadingChecks, fau
 from cryod.service.realtime import LoopGarbageCollector
 from cryod.service.states import LoopState
 from cryod.service.timing import LoopTiming
+from cryod.yaml_source import FileFormatError
 from drivers.clock import Clock
 from drivers.errors import InstrumentError
 from drivers.thermometer_pair import PairReading
@@ -68,6 +69,11 @@ class TemperatureCurve(Protocol):
     def temperature_K(self, resistance_ohm: float) -> float: ...
 
 
+def _given(target_K: float) -> float | None:
+    """A ramp's target as a status value: None until a setpoint was given (every setpoint is above 0 K)."""
+    return target_K if target_K > 0.0 else None
+
+
 def _or(value: float | None, default: float) -> float:
     return default if value is None else value
 
@@ -93,6 +99,8 @@ class Status:
     target_K: float | None = None
     ramp_K_per_min: float = 0.0
     last_fault: str | None = None
+    #: The last target given (K), kept while the loop is open: what regulating again heads for.
+    last_target_K: float | None = None
     loop_timing: object = None      # LoopTiming, summarised when asked, not every tick
     control: dict | None = None     # the control terms' columns of the last tick
 
@@ -104,7 +112,8 @@ class Status:
         return {
             "time_s": self.time_s, "state": str(self.state), "T2_K": self.flange_K, "T5_K": self.ptc_stage_K,
             "heater_W": self.heater_w, "setpoint_K": self.setpoint_K, "target_K": self.target_K,
-            "ramp_K_per_min": self.ramp_K_per_min, "last_fault": self.last_fault, **(self.control or {}),
+            "ramp_K_per_min": self.ramp_K_per_min, "last_target_K": self.last_target_K,
+            "last_fault": self.last_fault, **(self.control or {}),
             **self.timing,
         }
 
@@ -166,10 +175,10 @@ class ControlLoop:
         self._answers: list[tuple[Command, bool, str]] = []
         self.exit_code: int | None = None
         self._stop_reason: str | None = None
+        self._stop_as: tuple[int, FaultCause] = (ExitCode.OK, FaultCause.STOP_REQUESTED)
         self._outside_fault: Fault | None = None
         self._valid_in_a_row = 0
         self._hold_reported = False         # a reading above a limit kept the heater off (said once per hold)
-        self._regulating = False            # the loop has left its start-up hold at least once
         # a fault episode: from a first recoverable fault until the loop has run clean for
         # safety.recovery_timeout_s; the recovery timeout counts from its start, and every resume
         # within it doubles the valid readings the next resume needs (a fault that keeps coming back
@@ -189,9 +198,20 @@ class ControlLoop:
         self.commands.append(command)
         return command
 
-    def request_stop(self, reason: str) -> None:
-        """Stop at the next tick with the heater at 0 W (safe from a signal handler)."""
-        self._stop_reason = reason
+    def request_stop(self, reason: str, exit_code: int = ExitCode.OK,
+                     cause: FaultCause = FaultCause.STOP_REQUESTED) -> None:
+        """Stop at the next tick with the heater at 0 W, for ``reason``, with ``exit_code`` (safe from a
+        signal handler; a tick that has its readings but not yet its heater setting stops before setting it).
+        The first request is kept."""
+        if self._stop_reason is None:
+            self._stop_as = (exit_code, cause)
+            self._stop_reason = reason
+
+    def _stop_as_requested(self, row: Row | None = None) -> None:
+        """Stop for the requested reason; ``row``, the readings of a tick cut short by it, is kept, with the
+        heater as the stop left it."""
+        exit_code, cause = self._stop_as
+        self._stop(exit_code, Fault(cause, self._stop_reason), row=row)
 
     def fail(self, fault: Fault) -> None:
         """A fault found outside the loop (the data log): handled at the next tick like one found in it
@@ -222,6 +242,8 @@ class ControlLoop:
                 self._tick(deadline)
                 self._answer_commands()         # after the tick: the reply's status shows the command's effect
                 self.watchdog()                 # every tick that returns: a call that hangs trips it
+                if self.exit_code is not None:  # stopped: the stop is the record's last word, not its timing
+                    break
                 now = self.clock.now()
                 missed = int((now - deadline) // self.period_s) if now > deadline + self.period_s else 0
                 if missed and self.state.waits_for_readings:
@@ -265,7 +287,7 @@ class ControlLoop:
             if self.exit_code is not None:
                 return
         if self._stop_reason is not None:
-            self._stop(ExitCode.OK, Fault(FaultCause.STOP_REQUESTED, self._stop_reason))
+            self._stop_as_requested()
             return
         row = Row(time_s=tick_start, lateness_ms=(tick_start - deadline) * 1e3)
         if self.state is LoopState.RECOVERING and self._maybe_reconnect(tick_start):
@@ -313,11 +335,17 @@ class ControlLoop:
                                    flange_time_s=_or(reading.flange_sample_time_s, reading.trigger_time_s),
                                    ptc_stage_time_s=_or(reading.ptc_stage_sample_time_s, reading.trigger_time_s),
                                    output_time_s=computing_since + self._setting_time_s)
+        if self._stop_reason is not None:        # asked to stop while this tick read: no new setting
+            self._stop_as_requested(row)
+            return
         self.last_commanded_w = step.power_w
         try:
             self.instruments.set_heater_power(step.power_w)
         except InstrumentError as error:
-            self._fault(fault_from_instrument_error(error), row)
+            if self._stop_reason is not None:    # held off from outside on the way to the stop
+                self._stop_as_requested(row)
+            else:
+                self._fault(fault_from_instrument_error(error), row)
             return
         row.heater_set_s = self.clock.now()
         # how long computing and setting take, smoothed: when the next setting will take effect
@@ -346,7 +374,7 @@ class ControlLoop:
         # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
         self._latest = (row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
                         ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
-                        ramp.rate_K_per_min, self.last_fault, row.control)
+                        ramp.rate_K_per_min, self.last_fault, row.control, _given(ramp.target_K))
         self._status = None
 
     @property
@@ -354,10 +382,12 @@ class ControlLoop:
         """The loop as of its last tick (built when asked, from the tick's snapshot)."""
         status = self._status
         if status is None:
-            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control = self._latest
+            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control, last_target_K = \
+                self._latest
             status = Status(time_s=time_s, state=state, flange_K=flange_K, ptc_stage_K=stage_K, heater_w=heater_w,
                             setpoint_K=setpoint_K, target_K=target_K, ramp_K_per_min=rate,
-                            last_fault=str(fault) if fault else None, loop_timing=self.timing, control=control)
+                            last_fault=str(fault) if fault else None, loop_timing=self.timing, control=control,
+                            last_target_K=last_target_K)
             self._status = status
         return status
 
@@ -365,7 +395,9 @@ class ControlLoop:
     def status(self, status: Status) -> None:
         self._status = status
         self._latest = (status.time_s, status.state, status.flange_K, status.ptc_stage_K, status.heater_w,
-                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault, status.control)
+                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault, status.control,
+                        status.last_target_K if status.last_target_K is not None
+                        else _given(self.regulator.ramp.target_K))
 
     # -- start-up and recovery ----------------------------------------------------
     def _count_valid(self, in_range: bool, reading: PairReading, row: Row) -> None:
@@ -378,9 +410,10 @@ class ControlLoop:
             previous = self.state
             self._last_trigger_s = reading.trigger_time_s
             self.state = LoopState(self.regulator.mode)
-            if self.state is LoopState.CLOSED and not self._regulating:
+            if self.state is LoopState.CLOSED and not self.regulator.regulating:
+                # start-up, or a setpoint given while the heater was off or manual: close from 0 W, the ramp
+                # from T2; after a fault while regulating the terms go on where they were
                 self.regulator.close_loop(reading.trigger_time_s, row.T2_K, row.T5_K, present_power_w=0.0)
-            self._regulating = True
             self._hold_reported = False
             note = ""
             if self._episode_start_s is not None:
@@ -493,12 +526,18 @@ class ControlLoop:
         self.heater_w = 0.0
         return None
 
-    def _stop(self, exit_code: int, fault: Fault | None, reason: str = "") -> None:
-        """Heater off, then stop with ``exit_code`` because of ``fault`` (or for ``reason``, no fault).
+    def _stop(self, exit_code: int, fault: Fault | None, reason: str = "", row: Row | None = None) -> None:
+        """Heater off, then stop with ``exit_code`` because of ``fault`` (or for ``reason``, no fault);
+        ``row``, the readings of a tick the stop cut short, is kept with the heater as the stop left it.
 
         The first fatal cause is kept: a stop after one changes nothing.
         """
         off_failure = self._switch_heater_off()
+        if row is not None:
+            row.heater_W = self.heater_w
+            row.state = LoopState.STOPPED
+            row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
+            self.emit(row)
         if off_failure is not None and exit_code != ExitCode.HEATER_FAULT:
             exit_code, fault = ExitCode.HEATER_FAULT, Fault(
                 FaultCause.HEATER_FAULT, f"{off_failure.message}; on stopping after {fault or reason}")
@@ -557,6 +596,34 @@ class ControlLoop:
         for command, ok, message in answers:
             command.answer(ok, message)
 
+    def reload_refusal(self, new: DaemonConfig) -> FileFormatError | None:
+        """Why ``new`` cannot take over now, at the key of ``new`` it concerns (file, line, key), or None.
+
+        Refused: a change that needs a restart; a setpoint or ramp in use outside the new control
+        limits (:meth:`cryod.control.regulator.Regulator.refusal`); and, while the loop reads and acts
+        on its readings (closed, manual, off), an over-temperature limit below the temperature now,
+        which would stop the daemon at the next reading (exit 3). While it holds the heater off
+        waiting for valid readings, such a limit only holds it off longer, as it would at a start.
+        """
+        restart = self.config.restart_needed_for(new)
+        if restart:
+            return located_error(new, restart[0], f"changes to {', '.join(restart)} need a restart "
+                                                  f"(systemctl restart cryod)")
+        refusal = self.regulator.refusal(new.control)
+        if refusal is not None:
+            return located_error(new, *refusal)
+        if self.state.waits_for_readings or self.state is LoopState.STOPPED:
+            return None
+        status = self.status
+        for key, limit_K, name, now_K in (("safety.flange_max_K", new.safety.flange_max_K, "T2", status.flange_K),
+                                          ("safety.ptc_stage_max_K", new.safety.ptc_stage_max_K, "T5",
+                                           status.ptc_stage_K)):
+            if now_K > limit_K:                 # as ReadingChecks.check_temperatures will see it
+                return located_error(new, key, f"{limit_K:g} K is below {name} now, {now_K:.4f} K ({self.state}): "
+                                               f"the next reading would stop the daemon (over_temperature, exit 3); "
+                                               f"lower the limit once the temperature is below it")
+        return None
+
     def reload(self, new: DaemonConfig) -> str:
         """Apply a validated configuration at this tick boundary, bumplessly, or refuse it (the ``reload`` command).
 
@@ -566,12 +633,8 @@ class ControlLoop:
             Sections that need a restart changed, or the values in use would
             break a new limit; the running configuration stays.
         """
-        restart = self.config.restart_needed_for(new)
-        if restart:
-            raise CommandRefused(f"kept the running configuration: changes to {', '.join(restart)} need a restart "
-                                 f"(systemctl restart cryod)")
-        refusal = self.regulator.refusal(new.control)
-        if refusal:
+        refusal = self.reload_refusal(new)
+        if refusal is not None:
             raise CommandRefused(f"kept the running configuration: {refusal}")
         self.regulator.reconfigure(new.control)
         self.config = new

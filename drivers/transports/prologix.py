@@ -44,6 +44,22 @@ from drivers.transports.visa import VisaTransport, peer_closed, resource_manager
 ETHERNET_PORT = 1234
 
 
+def interface_resource_name(serial_port: str | None = None, host: str | None = None, port: int = ETHERNET_PORT,
+                            board: int = 0) -> str:
+    """pyvisa-py's resource name of a Prologix controller on ``serial_port`` (GPIB-USB) or at ``host``
+    (GPIB-ETHERNET).
+
+    Examples
+    --------
+    >>> interface_resource_name(serial_port="/dev/ttyUSB0"), interface_resource_name(host="10.0.0.9")
+    ('PRLGX-ASRL0::/dev/ttyUSB0::INTFC', 'PRLGX-TCPIP0::10.0.0.9::1234::INTFC')
+    """
+    if serial_port is not None:
+        device = serial_port[3:] if serial_port.upper().startswith("COM") else serial_port
+        return f"PRLGX-ASRL{board}::{device}::INTFC"
+    return f"PRLGX-TCPIP{board}::{host}::{port}::INTFC"
+
+
 class PrologixAdapter:
     """One Prologix controller and the GPIB instruments behind it.
 
@@ -72,14 +88,13 @@ class PrologixAdapter:
     @classmethod
     def usb(cls, serial_port: str, *, board: int = 0, **options: Any) -> "PrologixAdapter":
         """A GPIB-USB controller on ``serial_port`` (``/dev/ttyUSB0``, ``COM3``)."""
-        port = serial_port[3:] if serial_port.upper().startswith("COM") else serial_port
-        return cls(f"PRLGX-ASRL{board}::{port}::INTFC", **options)
+        return cls(interface_resource_name(serial_port=serial_port, board=board), **options)
 
     @classmethod
     def ethernet(cls, host: str, port: int = ETHERNET_PORT, *, board: int = 0,
                  **options: Any) -> "PrologixAdapter":
         """A GPIB-ETHERNET controller at ``host`` (TCP port 1234)."""
-        return cls(f"PRLGX-TCPIP{board}::{host}::{port}::INTFC", **options)
+        return cls(interface_resource_name(host=host, port=port, board=board), **options)
 
     @property
     def manager(self) -> pyvisa.ResourceManager:
@@ -91,7 +106,7 @@ class PrologixAdapter:
         try:
             self._interface = self.manager.open_resource(self.interface_resource_name,
                                                          timeout=self.timeout_s * 1000.0)
-        except (VisaIOError, OSError, ValueError) as error:
+        except Exception as error:  # noqa: BLE001 - pyvisa-py raises a bare Exception for a host it cannot resolve
             self._interface = None
             raise ConnectionLost(self.interface_resource_name,
                                  f"cannot open the Prologix controller: {error}") from error

@@ -51,6 +51,31 @@ def resource_manager(visa_library: str = "@py") -> pyvisa.ResourceManager:
     return _resource_managers[visa_library]
 
 
+def missing_support(resource_name: str, visa_library: str = "@py") -> str | None:
+    """Why ``visa_library`` cannot reach ``resource_name`` on this computer (a package it lacks), or None.
+
+    pyvisa-py keeps a list of the kinds of resource it can open, and of those it cannot open here
+    and why (its sessions whose Python binding is not installed: linux-gpib or gpib-ctypes for a
+    GPIB card, PyUSB for USB); an instrument on a GPIB card needs the card's interface too. Other
+    VISA libraries say nothing in advance: None.
+    """
+    if visa_library != "@py":
+        return None
+    resource_manager(visa_library)                # loads pyvisa-py, which registers its sessions
+    from pyvisa_py.sessions import Session
+
+    issues = dict(Session.iter_session_classes_issues())
+    parsed = rname.parse_resource_name(resource_name)
+    try:
+        Session.get_session_class(parsed.interface_type_const, parsed.resource_class)
+    except ValueError:
+        return f"pyvisa-py has no support for {parsed.interface_type} {parsed.resource_class} resources"
+    for needed in ((parsed.interface_type_const, parsed.resource_class), (parsed.interface_type_const, "INTFC")):
+        if needed in issues:
+            return str(issues[needed]).strip().splitlines()[0]
+    return None
+
+
 #: How long a late reply is waited for, to be dropped, before the query after a timeout (s).
 LATE_REPLY_WINDOW_S = 0.05
 
@@ -156,7 +181,7 @@ class VisaTransport:
         try:
             self.resource = self.manager.open_resource(self.resource_name,
                                                        timeout=self._timeout_s * 1000.0, **self._options)
-        except (VisaIOError, OSError, ValueError) as error:
+        except Exception as error:  # noqa: BLE001 - pyvisa-py raises a bare Exception for a host it cannot resolve
             self.resource = None
             raise ConnectionLost(self.name, f"cannot open {self.resource_name}: {error}") from error
         if self.is_socket:

@@ -426,13 +426,13 @@ class FeedforwardTerm:
                                  "learning step (sqrt of the sum of the harmonics' squared amplitudes)", "{:.4e}"),
         Column("ff_scale", "", "fade of the waveform, 0 (off) to 1 (on)", "{:.3f}"),
         Column("ff_limit_K", "K", "the physical limit at this setpoint: the least synchronous T2 any heater "
-                                  "waveform can leave (feedforward-limit; empty until computed)", "{:.4e}"),
+                                  "waveform can leave (feedforward-limit; empty until computed)", "{:.3e}"),
         Column("ff_authority", "", "largest fundamental the heater can give over the one the line needs "
-                                   "(below 1: authority-limited)", "{:.4f}"),
+                                   "(below 1: authority-limited)", "{:.3f}"),
         Column("ff_limit_from", "", "what ff_limit_K and ff_authority were computed from: model (the controller's "
                                     "model) or learned (the plant and line learned, the mean power PI found)"),
-        Column("ff_probe_K", "K", "T2's answer to the probe (harmonics together), 0 when it is off; the learned "
-                                  "plant itself is in the record's feedforward events", "{:.3e}"),
+        Column("ff_probe_K", "K", "T2's answer to the probe (harmonics together), empty when it is off; the "
+                                  "learned plant itself is in the record's feedforward events", "{:.2e}"),
     )
 
     def __init__(self, settings: FeedforwardSettings, output_max: float):
@@ -472,7 +472,7 @@ class FeedforwardTerm:
         self.divergences = 0                    # since start
         self._learn_again_s = -math.inf         # no learning before this after a divergence
         self._time_s = 0.0
-        self._probe_K = 0.0                     # T2's answer to the probe being played
+        self._probe_column = math.nan           # T2's answer to the probe being played (NaN: off)
         self._plant_known_for_limit = False     # the plant at the line known well enough for the learned limit
         #: The physical limit at the setpoint in use, from the model or from what was learned.
         self.limits: LimitFollower | None = None
@@ -756,9 +756,9 @@ class FeedforwardTerm:
         limit, authority, source = self.limits.columns
         if phase is None:
             return (self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale, limit, authority, source,
-                    self._probe_K)
+                    self._probe_column)
         return (self.output_w, self._flange_phase_rad, phase.frequency_rad_s, 1.0 if phase.locked else 0.0,
-                self._estimate.line_amplitude_K, self.scale, limit, authority, source, self._probe_K)
+                self._estimate.line_amplitude_K, self.scale, limit, authority, source, self._probe_column)
 
     @property
     def physical_limit(self):
@@ -892,7 +892,8 @@ class FeedforwardTerm:
             self.probe_state = result.probe_state
             self._set_played()
         plant = result.learned
-        self._probe_K = result.probe_cost_K if result.coefficients is not None and self._diverged is None else 0.0
+        playing = result.coefficients is not None and self._diverged is None and result.probe_cost_K > 0.0
+        self._probe_column = result.probe_cost_K if playing else math.nan     # empty when off
         self._plant_known_for_limit = bool(plant.learned[0] and plant.relative_spread[0] < LIMIT_PLANT_SPREAD)
         if result.ready:
             self._judge(result)
@@ -933,7 +934,7 @@ class FeedforwardTerm:
         self.limits.forget_learned()
         self._estimate = replace(self._estimate, learned=LearnedPlant.from_model(self.plant).prepared())
         self._plant_known_for_limit = False
-        self._probe_K = 0.0
+        self._probe_column = math.nan
 
     def _learned_limit_inputs(self, setpoint_K: float) -> LearnedLimitInputs | None:
         """What the learned limit is computed from, once the plant at the line is learned and T2 has settled at the

@@ -9,8 +9,9 @@ term's name (the loop writes them into the record as ``# event: feedforward:
   words, with what to do (:meth:`cryod.control.plant_learner.LearnedPlant.differences_said`),
   and when it agrees again (a warning each time the harmonics that differ
   change, and when the words change, at most every :data:`SAY_AGAIN_S`);
-* the learned plant itself, every :data:`RECORD_EVERY_S` and whenever the
-  harmonics learned change (the data log keeps it with the readings);
+* the learned plant itself, every :data:`RECORD_EVERY_S` and when the
+  harmonics learned have changed (at most every :data:`SAY_AGAIN_S`; the data
+  log keeps it with the readings);
 * a probe burst that ended before the plant was known to the precision asked;
 * a divergence, and the reset.
 
@@ -38,7 +39,7 @@ import math
 
 from cryod.control.plant_learner import LearnedPlant
 
-#: The learned plant is written into the data log this often (s), and when the harmonics learned change.
+#: The learned plant is written into the data log this often (s), and when the harmonics learned have changed.
 RECORD_EVERY_S = 600.0
 #: A difference from the model is said again when its words changed, at most this often (s).
 SAY_AGAIN_S = 60.0
@@ -74,7 +75,8 @@ class LearningReport:
             else:
                 self._say(logging.INFO, "the learned plant agrees with the model within its uncertainty")
         harmonics_learned = tuple(bool(value) for value in plant.learned)
-        if harmonics_learned != self._learned or time_s - self._recorded_at_s >= RECORD_EVERY_S:
+        since = time_s - self._recorded_at_s
+        if (harmonics_learned != self._learned and since >= SAY_AGAIN_S) or since >= RECORD_EVERY_S:
             self._learned = harmonics_learned
             self._recorded_at_s = time_s
             if any(harmonics_learned):

@@ -10,7 +10,7 @@ Examples
 >>> config = load_config(EXAMPLE_CONFIG_PATH)
 >>> config.loop.period_s, config.heater.max_current_A
 (0.08, 0.1)
->>> round(config.heater.max_power_w, 3)      # R * I_max**2
+>>> round(config.heater.max_power_w, 3)      # R * I_max**2, as the supply driver takes it
 0.5
 """
 
@@ -23,8 +23,10 @@ from pathlib import Path
 
 from cryod.control.ramp import MIN_RATE_K_PER_MIN, rate_refusal
 from cryod.control.terms import term_settings_from
+from cryod.instrument_waits import InstrumentWaits
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError, Section, read_text_file, shown
+from drivers.heater_limits import largest_power_w
 from drivers.keithley2002_timing import ReadingTiming
 
 CONFIG_FORMAT = "cryod-config v1"
@@ -129,8 +131,8 @@ class HeaterConfig:
 
     @property
     def max_power_w(self) -> float:
-        """R * I_max**2 (W)."""
-        return self.resistance_ohm * self.max_current_A ** 2
+        """R * I_max**2 (W), rounded as the supply driver tests a power (:func:`drivers.heater_limits.largest_power_w`)."""
+        return largest_power_w(self.resistance_ohm, self.max_current_A)
 
 
 @dataclass(frozen=True)
@@ -445,7 +447,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     if config_format != CONFIG_FORMAT:
         raise top.error("format", f"expected '{CONFIG_FORMAT}', got {config_format!r}")
 
-    section = top.section("loop")
+    loop_section = section = top.section("loop")
     loop = LoopConfig(
         period_s=section.number("period_s", 0.08, minimum=0.01, maximum=10.0),
         overrun_streak_limit=section.number("overrun_streak_limit", 5, minimum=1, maximum=1000, integer=True),
@@ -517,6 +519,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
                                         f"leaves no time in a {loop.period_s * 1e3:.0f} ms loop period (at least "
                                         f"{CYCLE_MARGIN_S * 1e3:.0f} ms are needed to fetch, convert and set the "
                                         f"heater)")
+    _check_waits_against_watchdog(InstrumentWaits(loop.period_s, instruments.timeout_s), section, loop_section)
     section.finish()
 
     section = top.section("sensors")
@@ -599,6 +602,19 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     return DaemonConfig(loop=loop, instruments=instruments, sensors=sensors, heater=heater, control=control,
                         safety=safety, data=data, control_socket=socket_config, simulation=simulation,
                         metrics=metrics, web=web, lakeshore336=lakeshore336)
+
+
+def _check_waits_against_watchdog(waits: InstrumentWaits, instruments_section: Section,
+                                  loop_section: Section) -> None:
+    """``instruments.timeout_s`` (or a ``loop.period_s`` no timeout fits) that could leave systemd's
+    watchdog unfed: each tick feeds it, and the longest tick follows from these two
+    (:mod:`cryod.instrument_waits`)."""
+    problem = waits.watchdog_problem()
+    if problem is None:
+        return
+    if waits.largest_timeout_s() < 0.01:
+        raise loop_section.error("period_s", f"{waits.loop_period_s:g} s: {problem}")
+    raise instruments_section.error("timeout_s", problem)
 
 
 def _metrics(section: Section | None) -> MetricsConfig:

@@ -35,6 +35,7 @@ import numpy as np
 
 from cryod import __version__
 from cryod.config import DaemonConfig, load_config, located_error
+from cryod.instrument_waits import InstrumentWaits
 from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
 from cryod.service.commands import Command, wait_for
@@ -389,6 +390,7 @@ class Daemon:
         """
         started = time.perf_counter()
         config = self.config
+        self._check_watchdog_interval(config)
         locks = self._take_locks(config)
         if locks is None:
             return RunResult(ExitCode.CONFIG, None, [], time.perf_counter() - started)
@@ -508,6 +510,17 @@ class Daemon:
             log.critical("the data log failed: %s", self.datalog.error)
         return RunResult(exit_code, self.loop, list(self.datalog.paths) if self.datalog else [],
                          time.perf_counter() - started)
+
+    def _check_watchdog_interval(self, config: DaemonConfig) -> None:
+        """Warn when systemd's watchdog (WATCHDOG_USEC) is shorter than the configuration was checked against."""
+        interval = self.notifier.watchdog_interval_s
+        if interval is None:
+            return
+        problem = InstrumentWaits(config.loop.period_s, config.instruments.timeout_s).watchdog_problem(
+            interval, "WatchdogSec of this service")
+        if problem:
+            log.warning("systemd's watchdog may stop this daemon while it waits on an instrument: "
+                        "instruments.timeout_s %s", problem)
 
     def _take_locks(self, config: DaemonConfig) -> list | None:
         """This cryostat's lock, then its instruments' (when real): the locks held, or None when another daemon

@@ -7,6 +7,12 @@ same drivers and the same :class:`DriverInstruments`.
 
 Opening is all or nothing: if any instrument fails, the ones already open are
 closed with the heater output off, and the error names the instrument.
+
+Opened, the instruments wait for a reply at most as long as the loop allows
+(:attr:`cryod.instrument_waits.InstrumentWaits.loop_reply_s`), and
+``instruments.timeout_s`` only while they are configured again after a
+reconnect; a failing DMM's error queue is read only when the loop asks
+(:meth:`DriverInstruments.examine`), after the heater is off.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ from pyvisa import rname
 from pyvisa.errors import VisaIOError
 
 from cryod.config import INSTRUMENT_KEYS, DaemonConfig, DmmSettings, InstrumentAddress
+from cryod.instrument_waits import InstrumentWaits
 from cryod.service.instance_lock import InstrumentLocks
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError
@@ -123,17 +130,27 @@ class DriverInstruments:
         Applied again after a reconnect.
     transports : list of Transport
         Everything to reopen on :meth:`reconnect` and close on :meth:`close`.
+    waits : InstrumentWaits
+        How long to wait for a reply: on the loop's path, and while configuring after a reconnect.
     on_close : callable, optional
         Releases what else was opened (a trigger port, a GPIB board).
     """
 
     def __init__(self, pair: ThermometerPair, heater: HeaterSupply, dmm_settings: FourWireSettings,
-                 transports: list[Transport], on_close: Callable[[], None] | None = None):
+                 transports: list[Transport], waits: InstrumentWaits, on_close: Callable[[], None] | None = None):
         self.pair = pair
         self.heater = heater
         self.dmm_settings = dmm_settings
         self.transports = transports
+        self.waits = waits
         self.on_close = on_close
+        for dmm in pair.dmms:                  # asked only after the heater is off (examine)
+            dmm.examines_faults_at_once = False
+        self._wait_for_replies(waits.loop_reply_s)
+
+    def _wait_for_replies(self, timeout_s: float) -> None:
+        for transport in self.transports:
+            transport.timeout_s = timeout_s
 
     def measure(self) -> PairReading:
         return self.pair.measure()
@@ -141,17 +158,28 @@ class DriverInstruments:
     def set_heater_power(self, power_w: float) -> None:
         self.heater.set_power_w(power_w)
 
-    def heater_off(self) -> None:
-        self.heater.output_off()
+    def heater_off(self) -> float:
+        """Heater output to 0 A and off; the clock time the supply confirmed it (InstrumentError: it could not)."""
+        return self.heater.output_off()
+
+    def examine(self, error: InstrumentError) -> None:
+        """Attach what the failing instrument's error queue holds (asked after the heater is off; a
+        queue that cannot be read is left out)."""
+        error.examine()
 
     def reconnect(self) -> None:
-        """Reopen every connection, then configure the DMMs and the heater again (output off)."""
-        for transport in self.transports:
-            transport.reopen()
-        for dmm in self.pair.dmms:
-            dmm.configure_four_wire_resistance(self.dmm_settings)
-        self.pair.prepare()
-        self.heater.configure()
+        """Reopen every connection, then configure the DMMs and the heater again (output off), waiting
+        ``instruments.timeout_s`` for each reply meanwhile."""
+        self._wait_for_replies(self.waits.timeout_s)
+        try:
+            for transport in self.transports:
+                transport.reopen()
+            for dmm in self.pair.dmms:
+                dmm.configure_four_wire_resistance(self.dmm_settings)
+            self.pair.prepare()
+            self.heater.configure()
+        finally:
+            self._wait_for_replies(self.waits.loop_reply_s)
 
     def close(self) -> None:
         """Heater output off first, then everything else (each step best effort)."""
@@ -204,7 +232,8 @@ def assemble_instruments(config: DaemonConfig, clock, flange_transport: Transpor
         if pair.reading_delay_s >= config.loop.period_s:
             raise ValueError(f"a reading takes {pair.reading_delay_s * 1e3:.0f} ms, longer than the "
                              f"{config.loop.period_s * 1e3:.0f} ms loop period: lower instruments.dmm.nplc")
-        return DriverInstruments(pair, heater, settings, transports, on_close)
+        waits = InstrumentWaits(config.loop.period_s, config.instruments.timeout_s)
+        return DriverInstruments(pair, heater, settings, transports, waits, on_close)
     except BaseException:
         if heater is not None:
             heater.close()

@@ -18,7 +18,8 @@ PAD15 [SAD15]]" issues Group Execute Trigger to the listed instruments),
 and recovery of a dropped controller connection.
 
 The controller's timeout governs every instrument behind it: pyvisa-py
-reads through the controller's interface session.
+reads through the controller's interface session, so setting an
+instrument's ``timeout_s`` sets the controller's.
 
 Examples
 --------
@@ -105,7 +106,8 @@ class PrologixAdapter:
     def _open(self) -> None:
         try:
             self._interface = self.manager.open_resource(self.interface_resource_name,
-                                                         timeout=self.timeout_s * 1000.0)
+                                                         timeout=self.timeout_s * 1000.0,
+                                                         open_timeout=round(self.timeout_s * 1000.0))
         except Exception as error:  # noqa: BLE001 - pyvisa-py raises a bare Exception for a host it cannot resolve
             self._interface = None
             raise ConnectionLost(self.interface_resource_name,
@@ -113,6 +115,16 @@ class PrologixAdapter:
         if "TCPIP" in self.interface_resource_name:
             send_without_delay(self._interface)
         self.generation += 1
+
+    def use_timeout(self, timeout_s: float) -> None:
+        """Wait at most ``timeout_s`` for any reply through the controller from now on (and after reopening)."""
+        self.timeout_s = float(timeout_s)
+        self.wait_for_replies(self.timeout_s)
+
+    def wait_for_replies(self, timeout_s: float) -> None:
+        """Set the wait for a reply on the controller's session, for now (:meth:`use_timeout` to keep it)."""
+        if self._interface is not None:
+            self._interface.timeout = timeout_s * 1000.0
 
     def close(self) -> None:
         interface, self._interface = self._interface, None
@@ -171,6 +183,18 @@ class PrologixInstrument(VisaTransport):
         # socket is quiet; on a socket the controller has closed that loop never ends. Looking
         # first turns the closed connection into ConnectionLost instead.
         self.check_peer_before_io = True
+
+    @property
+    def timeout_s(self) -> float:
+        return self.adapter.timeout_s
+
+    @timeout_s.setter
+    def timeout_s(self, value: float) -> None:
+        self._timeout_s = float(value)
+        self.adapter.use_timeout(value)
+
+    def _wait_for_replies(self, timeout_s: float) -> None:
+        self.adapter.wait_for_replies(timeout_s)
 
     def reopen(self) -> None:
         self.close()

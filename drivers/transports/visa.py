@@ -134,7 +134,7 @@ class VisaTransport:
     visa_library : str
         ``'@py'`` (pyvisa-py, default) or ``'@ivi'`` (NI-VISA / Keysight VISA).
     timeout_s : float
-        Longest wait for a reply (s).
+        Longest wait for a reply, and for a connection to open (s); may be changed at any time.
     read_termination, write_termination : str or None
         Line terminators (the Keithleys answer with LF; GPIB also asserts EOI). None leaves
         the session's own (a Prologix session ends reads at the LF the instrument sends).
@@ -179,8 +179,8 @@ class VisaTransport:
 
     def _open(self) -> None:
         try:
-            self.resource = self.manager.open_resource(self.resource_name,
-                                                       timeout=self._timeout_s * 1000.0, **self._options)
+            self.resource = self.manager.open_resource(self.resource_name, timeout=self._timeout_s * 1000.0,
+                                                       open_timeout=round(self._timeout_s * 1000.0), **self._options)
         except Exception as error:  # noqa: BLE001 - pyvisa-py raises a bare Exception for a host it cannot resolve
             self.resource = None
             raise ConnectionLost(self.name, f"cannot open {self.resource_name}: {error}") from error
@@ -207,8 +207,12 @@ class VisaTransport:
     @timeout_s.setter
     def timeout_s(self, value: float) -> None:
         self._timeout_s = float(value)
+        self._wait_for_replies(self._timeout_s)
+
+    def _wait_for_replies(self, timeout_s: float) -> None:
+        """Set the wait for a reply on the session replies are read through."""
         if self.resource is not None:
-            self.resource.timeout = self._timeout_s * 1000.0
+            self.resource.timeout = timeout_s * 1000.0
 
     # -- I/O ------------------------------------------------------------------------
     def _io(self, method: str, *arguments: Any) -> Any:
@@ -223,7 +227,7 @@ class VisaTransport:
             if error.error_code == constants.StatusCode.error_timeout:
                 if peer_closed(self.resource):
                     raise ConnectionLost(self.name, "the instrument closed the connection") from error
-                raise InstrumentTimeout(self.name, f"no reply within {self._timeout_s:g} s") from error
+                raise InstrumentTimeout(self.name, f"no reply within {self.timeout_s:g} s") from error
             if error.error_code in _CONNECTION_LOST_CODES:
                 raise ConnectionLost(self.name, f"connection failed: {error.description}") from error
             raise ConnectionLost(self.name, f"VISA error {error.abbreviation}: {error.description}") from error
@@ -259,7 +263,7 @@ class VisaTransport:
         dropped = []
         if self.resource is None:
             return dropped
-        self.resource.timeout = window_s * 1000.0
+        self._wait_for_replies(window_s)
         try:
             while len(dropped) < 16:
                 try:
@@ -267,7 +271,7 @@ class VisaTransport:
                 except (VisaIOError, OSError, UnicodeDecodeError):
                     break
         finally:
-            self.resource.timeout = self._timeout_s * 1000.0
+            self._wait_for_replies(self._timeout_s)
         return dropped
 
     def trigger(self) -> None:

@@ -35,7 +35,7 @@ from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config, located
 from cryod.service.daemon import Daemon
 from cryod.service.discovery import simulation_socket
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
-from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit, limit_changes
+from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit, limit_changes
 from cryod.records.columns import Event, Row
 from cryod.records.metrics import regulation_metrics
 from cryod.model import DEFAULT_MODEL_PATH, load_model

@@ -28,8 +28,8 @@ import numpy as np
 
 from cryod.cooler.phase import CoolerPhaseTracker
 from cryod.control.feedforward import FeedforwardTerm
-from cryod.control.feedforward_limit import feedforward_limit, mean_heater_power_w
-from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
+from cryod.control.feedforward.limit import feedforward_limit, mean_heater_power_w
+from cryod.control.feedforward.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.control.pi import PiGains
 from cryod.control.terms import TERM_TYPES, TickInputs, term_type
 from cryod.model import CryostatModel, load_model
@@ -213,7 +213,7 @@ def measure(result: ClosedLoopRun, model: CryostatModel = MODEL, window_s: float
 
 def fundamentals(model: CryostatModel) -> tuple[complex, complex]:
     """The line L_1 on T2 (K) and the held heater path H_1 to T2's readings (K/W) at the cooler's fundamental,
-    relative to T5's ``cos(psi)`` (:mod:`cryod.control.harmonic_plant`)."""
+    relative to T5's ``cos(psi)`` (:mod:`cryod.control.feedforward.harmonic_plant`)."""
     return complex(line_at_harmonics(model, 1)[0]), complex(plant_at_harmonics(model, [1], PERIOD_S)[0])
 
 

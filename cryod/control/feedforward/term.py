@@ -31,23 +31,23 @@ How it works, every tick:
    is attributed to the waveform played before it, and where the change moves
    T2 by more than the readings' noise the next ``CHANGE_SETTLE_S`` of readings
    are left out (a lagging thermometer or a late heater answers both, mixed).
-4. **Plant** (:mod:`cryod.control.plant_learner`): the correction ``k_n``
+4. **Plant** (:mod:`cryod.control.feedforward.plant_learner`): the correction ``k_n``
    and its covariance give the plant as estimated, over the full +-180
    degrees, in which the waveform is measured; until a harmonic's plant is
    known better than the model's assumed error (and confirmed by the step
    after) the waveform does not aim at the line there. Where the waveform's
    own changes do not tell the plant to ``plant_precision``, a small probe
-   does (:mod:`cryod.control.plant_probe`), within a share of the heater's room.
+   does (:mod:`cryod.control.feedforward.plant_probe`), within a share of the heater's room.
 5. **Learning** (iterative learning in the cooler's phase): every
    ``update_interval_s`` the coefficients step toward cancelling the estimated
    line, ``u <- u + gain (-L / H_n - u)``, at the harmonics whose plant is
    learned, and are projected onto what the heater can do,
    ``margin <= PI's power + waveform + probe <= R I_max^2 - margin`` at every
    phase, in the metric of the learned plant
-   (:mod:`cryod.control.learned_projection`): the fixed point is the
+   (:mod:`cryod.control.feedforward.learned_projection`): the fixed point is the
    constrained optimum of the cryostat the daemon is on, its physical limit
-   (:mod:`cryod.control.feedforward_limit`).
-6. **Guard** (:mod:`cryod.control.divergence_guard`): a learning that makes
+   (:mod:`cryod.control.feedforward.limit`).
+6. **Guard** (:mod:`cryod.control.feedforward.divergence_guard`): a learning that makes
    T2's synchronous part grow, or stay above PI alone's, fades the waveform
    out, resets the learned plant to the model, says why, and starts again
    after ``retry_after_s`` (doubling at each divergence in a row, up to an hour).
@@ -58,10 +58,10 @@ How it works, every tick:
 
 The limit (``ff_limit_K``, ``ff_authority``, the status) comes from the model
 until the plant is learned and T2 has settled at the setpoint, then from what
-was learned (:mod:`cryod.control.limit_follower`); ``ff_limit_from`` says
+was learned (:mod:`cryod.control.feedforward.limit_follower`); ``ff_limit_from`` says
 which. What the learning finds (the plant learned, a plant that differs from
 the model, a divergence) goes to the journal and the data log as events
-(:mod:`cryod.control.learning_report`).
+(:mod:`cryod.control.feedforward.learning_report`).
 
 The term rides on the feedback (``rides_on_feedback``): the regulator adds it
 after PI's sum has been held within the heater's range, so a clipped waveform
@@ -93,18 +93,18 @@ from pathlib import Path
 
 import numpy as np
 
-from cryod.control.bounded_waveform import waveform_values
-from cryod.control.divergence_guard import DivergenceGuard
-from cryod.control.feedforward_learning import LearningWorker
-from cryod.control.harmonic_plant import plant_at_harmonics
-from cryod.control.learned_limit import LearnedLimitInputs
-from cryod.control.learned_projection import learning_step
-from cryod.control.learning_report import LearningReport
-from cryod.control.limit_follower import LimitFollower
-from cryod.control.plant_learner import PRIOR_SPREAD, LearnedPlant
-from cryod.control.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
+from cryod.control.feedforward.bounded_waveform import waveform_values
+from cryod.control.feedforward.divergence_guard import DivergenceGuard
+from cryod.control.feedforward.learning_worker import LearningWorker
+from cryod.control.feedforward.harmonic_plant import plant_at_harmonics
+from cryod.control.feedforward.learned_limit import LearnedLimitInputs
+from cryod.control.feedforward.learned_projection import learning_step
+from cryod.control.feedforward.learning_report import LearningReport
+from cryod.control.feedforward.limit_follower import LimitFollower
+from cryod.control.feedforward.plant_learner import PRIOR_SPREAD, LearnedPlant
+from cryod.control.feedforward.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
 from cryod.control.terms import TickInputs
-from cryod.control.unplayed_power import UnplayedPower
+from cryod.control.feedforward.unplayed_power import UnplayedPower
 from cryod.cooler.phase import CoolerPhaseTracker
 from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
 from cryod.records.columns import Column
@@ -130,7 +130,7 @@ BATCH = 4
 BOUND_POINTS = 48
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
 SETTING_DELAY_TOLERANCE_S = 0.002
-#: Learning steps in a row that make a divergence (:class:`~cryod.control.divergence_guard.DivergenceGuard`).
+#: Learning steps in a row that make a divergence (:class:`~cryod.control.feedforward.divergence_guard.DivergenceGuard`).
 DIVERGENCE_STEPS = 5
 #: The wait before learning again after a divergence doubles with each one in a row, up to this (s).
 LONGEST_RETRY_S = 3600.0
@@ -229,7 +229,7 @@ class SynchronousEstimator:
     and learning, the probe) and is kept between them; it starts at 1 with a
     spread of ``correction_spread`` on each part, so any phase is possible.
     What is learned, with its covariance, is read as a
-    :class:`~cryod.control.plant_learner.LearnedPlant`, which decides where it
+    :class:`~cryod.control.feedforward.plant_learner.LearnedPlant`, which decides where it
     is known well enough to be used.
 
     Parameters
@@ -330,7 +330,7 @@ class SynchronousEstimator:
     @property
     def correction(self) -> np.ndarray:
         """The plant correction at each harmonic where the readings tell it better than the model's
-        assumed error (:data:`~cryod.control.plant_learner.MODEL_ERROR`), else 1: the model's."""
+        assumed error (:data:`~cryod.control.feedforward.plant_learner.MODEL_ERROR`), else 1: the model's."""
         return np.where(self.learned_plant(np.ones(self.harmonics)).learned, self.raw_correction, 1.0)
 
     def reset_correction(self) -> None:
@@ -767,7 +767,7 @@ class FeedforwardTerm:
 
     @property
     def physical_limit(self):
-        """The physical limit at the setpoint in use (:mod:`cryod.control.feedforward_limit`): from what was
+        """The physical limit at the setpoint in use (:mod:`cryod.control.feedforward.limit`): from what was
         learned once it is, else from the model; None until the setpoint has been steady a few seconds."""
         return self.limits.limit
 

@@ -10,6 +10,8 @@ cryostat, P is the heater power, L the cooler's line on T2 and H the heater's re
 Conventions: ``a_n = (1/pi) int_0^2pi P(theta) exp(-j n theta) d theta`` (phasor amplitude: a
 sinusoid ``A cos(n theta + p)`` has ``a_n = A exp(jp)``), arrays indexed from n = 1.
 
+Why, and how well it works: docs/feedforward.md ("The physical limit").
+
 Examples
 --------
 A line of amplitude 1 that a unit-gain input cancels with an amplitude-1 sinusoid, when the

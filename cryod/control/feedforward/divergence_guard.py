@@ -19,6 +19,8 @@ to the cooler's amplitude in T5 now). It trips when
 What the feedforward then does (fade the waveform out, reset the learned plant
 to the model, say why, try again later) is up to it.
 
+Why, and how well it works: docs/feedforward.md ("Never worse").
+
 Examples
 --------
 >>> guard = DivergenceGuard(intervals=3)

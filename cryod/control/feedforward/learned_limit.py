@@ -15,6 +15,8 @@ needs the mean power the measured DC gain, ``(setpoint - T2_0) / P_mean``,
 says (T2_0, the flange's temperature with the heater off, from the model), and
 R * I_max**2 doubled leaves the rest as it is.
 
+Why, and how well it works: docs/feedforward.md ("The limit from what was learned").
+
 Examples
 --------
 >>> import numpy as np

@@ -18,6 +18,8 @@ anything is known); the projection may still put content there where that lets
 the learned harmonics come closer to their targets within the bounds (the
 clipped pulse at 5 K is made of them), and its changes teach the plant there.
 
+Why, and how well it works: docs/feedforward.md ("The projection in the learned metric").
+
 Examples
 --------
 >>> import numpy as np

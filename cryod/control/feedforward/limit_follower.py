@@ -18,6 +18,8 @@ virtual time the loop waits for it, so runs stay deterministic):
 
 :attr:`LimitFollower.limit` is the learned one while there is one, else the
 model's; :attr:`LimitFollower.source` says which.
+
+Why, and how well it works: docs/feedforward.md ("The limit from what was learned").
 """
 
 from __future__ import annotations

@@ -21,6 +21,8 @@ plant the feedforward uses, over the full +-180 degrees:
   (and by more than matters, :data:`DIFFERENCE_GAIN`, :data:`DIFFERENCE_PHASE_DEG`),
   it says so in words, for the status and the journal.
 
+Why, and how well it works: docs/feedforward.md ("The plant, with its uncertainty").
+
 Examples
 --------
 >>> import numpy as np

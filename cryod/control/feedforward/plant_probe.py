@@ -32,6 +32,8 @@ room allows now), waits while the next one is probed. It comes back when the pla
 what it was left at. Its cost, T2's answer to it, ``|H_n p_n|`` through the
 learned plant, is reported.
 
+Why, and how well it works: docs/feedforward.md ("The probe").
+
 Examples
 --------
 >>> import numpy as np

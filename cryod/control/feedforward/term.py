@@ -1,71 +1,38 @@
-"""The feedforward: a heater waveform locked to the cooler that cancels its line on the flange.
+"""The ``feedforward`` control term: a heater waveform locked to the cooler that cancels its line on the flange.
 
-PI cannot remove the pulse-tube cooler's oscillation from T2 (docs/control.md):
-at 10.8 rad/s the heater reaches T2 only through G2*G1, about 7 mK/W lagging
-90 degrees, and a feedback loop that tried would need far more gain than the
-80 ms loop allows. The cooler's own oscillation, seen in T5 at hundreds of
-times its noise, gives the phase; the heater can then play a waveform locked
-to that phase whose effect on T2 cancels the line.
+PI cannot remove the pulse-tube cooler's line from T2: at 10.8 rad/s the heater
+reaches T2 only through G2*G1, about 7 mK/W lagging 90 degrees. The cooler's
+oscillation in T5 gives its phase, and the heater plays a waveform locked to
+that phase whose effect on T2 cancels the line. docs/feedforward.md says how
+and why, with the equations and the results ("How it works", "Learning the
+cryostat it is on"); here, where each part lives. Every tick the term
 
-How it works, every tick:
-
-1. **Phase** (:mod:`cryod.cooler.phase`): T5, at the instant its
-   reading stands for, updates a phase-locked loop; lock, phase and
-   frequency come out.
-2. **Estimate** (:class:`SynchronousEstimator`): T2, at its own instant, updates
-   a Kalman filter of T2's part synchronous with the cooler (harmonics 1 to N
-   of the tracked phase), split into the cooler's line and the waveform's
-   effect through the model's plant response times a correction learned from
-   how T2 answers the waveform's changes. The PI term is given T2 without the
-   estimated synchronous part, so it does not chase the line (and the
-   feedforward's plant is the open-loop one).
-3. **Waveform**: the heater part is ``Re(sum_n u_n exp(j n phase))``, a
-   band-limited waveform (no mean, so the mean heater power stays PI's; no
-   harmonics above N, so none alias below 2 Hz through the 80 ms hold),
-   evaluated at the phase of the middle of the coming hold. Its effect on T2's
-   samples is the plant *as the loop samples it*
-   (:func:`plant_at_harmonics`): above half the sampling rate the hold's
-   folded images make it differ much from ``G(j n omega)``. The tick where the
-   waveform changes gives back the energy the change's place in the period
-   would have added or taken (T2's mean takes no kick); the reading after it
-   is attributed to the waveform played before it, and where the change moves
-   T2 by more than the readings' noise the next ``CHANGE_SETTLE_S`` of readings
-   are left out (a lagging thermometer or a late heater answers both, mixed).
-4. **Plant** (:mod:`cryod.control.feedforward.plant_learner`): the correction ``k_n``
-   and its covariance give the plant as estimated, over the full +-180
-   degrees, in which the waveform is measured; until a harmonic's plant is
-   known better than the model's assumed error (and confirmed by the step
-   after) the waveform does not aim at the line there. Where the waveform's
-   own changes do not tell the plant to ``plant_precision``, a small probe
-   does (:mod:`cryod.control.feedforward.plant_probe`), within a share of the heater's room.
-5. **Learning** (iterative learning in the cooler's phase): every
-   ``update_interval_s`` the coefficients step toward cancelling the estimated
-   line, ``u <- u + gain (-L / H_n - u)``, at the harmonics whose plant is
-   learned, and are projected onto what the heater can do,
-   ``margin <= PI's power + waveform + probe <= R I_max^2 - margin`` at every
-   phase, in the metric of the learned plant
-   (:mod:`cryod.control.feedforward.learned_projection`): the fixed point is the
-   constrained optimum of the cryostat the daemon is on, its physical limit
-   (:mod:`cryod.control.feedforward.limit`).
-6. **Guard** (:mod:`cryod.control.feedforward.divergence_guard`): a learning that makes
-   T2's synchronous part grow, or stay above PI alone's, fades the waveform
-   out, resets the learned plant to the model, says why, and starts again
-   after ``retry_after_s`` (doubling at each divergence in a row, up to an hour).
-7. **Fade**: without lock (cooler stopped, T5 fault) or when switched off,
-   the waveform fades out over ``fade_time_s``; PI carries on. Switching on,
-   or closing the loop, fades it in. Readings after a gap (a fault, start-up)
-   are left out of the estimate.
-
-The limit (``ff_limit_K``, ``ff_authority``, the status) comes from the model
-until the plant is learned and T2 has settled at the setpoint, then from what
-was learned (:mod:`cryod.control.feedforward.limit_follower`); ``ff_limit_from`` says
-which. What the learning finds (the plant learned, a plant that differs from
-the model, a divergence) goes to the journal and the data log as events
-(:mod:`cryod.control.feedforward.learning_report`).
+1. tracks the cooler's phase from T5 (:mod:`cryod.cooler.phase`);
+2. estimates T2's part synchronous with the cooler, split into the line and
+   the waveform's effect (:class:`SynchronousEstimator`, fed on a worker
+   thread: :mod:`cryod.control.feedforward.learning_worker`), and gives the
+   feedback terms T2 without it, so PI does not chase the line;
+3. plays the waveform ``Re(sum_n u_n exp(j n phase))`` (no mean, harmonics 1
+   to N) at the phase of the middle of the coming hold, its effect measured in
+   the plant as the loop samples it
+   (:mod:`cryod.control.feedforward.harmonic_plant`) and as learned
+   (:mod:`cryod.control.feedforward.plant_learner`, with a small probe where
+   the waveform's own changes do not tell it:
+   :mod:`cryod.control.feedforward.plant_probe`);
+4. every ``update_interval_s``, steps the waveform toward cancelling the line
+   and projects it onto what the heater can play
+   (:mod:`cryod.control.feedforward.learned_projection`), under a guard that
+   steps back from a learning that makes T2 worse
+   (:mod:`cryod.control.feedforward.divergence_guard`);
+5. fades the waveform out without lock or when switched off, and in again.
 
 The term rides on the feedback (``rides_on_feedback``): the regulator adds it
 after PI's sum has been held within the heater's range, so a clipped waveform
-never stops PI integrating.
+never stops PI integrating; what the heater could not play is followed by
+:mod:`cryod.control.feedforward.unplayed_power`. The physical limit at the
+setpoint in use comes from :mod:`cryod.control.feedforward.limit_follower`;
+what the learning finds goes to the journal and the record through
+:mod:`cryod.control.feedforward.learning_report`.
 
 Configuration, section ``control.feedforward`` (optional; reloadable, bumpless)::
 

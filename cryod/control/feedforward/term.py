@@ -70,7 +70,7 @@ from cryod.control.feedforward.learning_report import LearningReport
 from cryod.control.feedforward.limit_follower import LimitFollower
 from cryod.control.feedforward.plant_learner import PRIOR_SPREAD, LearnedPlant
 from cryod.control.feedforward.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
-from cryod.control.terms import TickInputs
+from cryod.control.terms import ControlTerm, TickInputs
 from cryod.control.feedforward.unplayed_power import UnplayedPower
 from cryod.cooler.phase import CoolerPhaseTracker
 from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
@@ -377,7 +377,7 @@ class SynchronousEstimator:
             self._update_batch()
 
 
-class FeedforwardTerm:
+class FeedforwardTerm(ControlTerm):
     """The ``feedforward`` control term (module notes)."""
 
     name = "feedforward"

@@ -1,5 +1,7 @@
 """The divergence guard: a learning that makes T2 worse is caught, and the feedforward steps back.
 
+Why, and how well it works: docs/feedforward.md ("Never worse").
+
 The learning converges when the plant it uses is close enough to the
 cryostat's (within 90 degrees, and not too strong); a plant that changes faster
 than it is learned, or a learned value that is wrong, makes each step move the
@@ -18,8 +20,6 @@ to the cooler's amplitude in T5 now). It trips when
 
 What the feedforward then does (fade the waveform out, reset the learned plant
 to the model, say why, try again later) is up to it.
-
-Why, and how well it works: docs/feedforward.md ("Never worse").
 
 Examples
 --------

@@ -1,5 +1,7 @@
 """The physical limit from what the feedforward learned: the cryostat it is on, not the model.
 
+Why, and how well it works: docs/feedforward.md ("The limit from what was learned").
+
 The limit of :mod:`cryod.control.feedforward.limit` is computed from the
 controller's model: its line, its plant at the harmonics, the mean power its
 DC gain says the setpoint needs. On a cryostat that differs from the model
@@ -14,8 +16,6 @@ What would change it is computed from the same: a setpoint moved by ``step_K``
 needs the mean power the measured DC gain, ``(setpoint - T2_0) / P_mean``,
 says (T2_0, the flange's temperature with the heater off, from the model), and
 R * I_max**2 doubled leaves the rest as it is.
-
-Why, and how well it works: docs/feedforward.md ("The limit from what was learned").
 
 Examples
 --------

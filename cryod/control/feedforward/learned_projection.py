@@ -1,5 +1,7 @@
 """A learning step of the waveform, projected onto the heater's bounds in the learned plant's metric.
 
+Why, and how well it works: docs/feedforward.md ("The projection in the learned metric").
+
 Every learning interval the waveform's coefficients step toward cancelling the
 estimated line, ``u_n <- u_n + gain (-L_n / H_n - u_n)``, at each harmonic whose
 plant is learned (:class:`cryod.control.feedforward.plant_learner.LearnedPlant`), and the
@@ -17,8 +19,6 @@ grow) and the metric is the plant as estimated so far (the model's before
 anything is known); the projection may still put content there where that lets
 the learned harmonics come closer to their targets within the bounds (the
 clipped pulse at 5 K is made of them), and its changes teach the plant there.
-
-Why, and how well it works: docs/feedforward.md ("The projection in the learned metric").
 
 Examples
 --------

@@ -1,5 +1,7 @@
 """The physical limit at the setpoint in use, from the model until the plant is learned, then from what was learned.
 
+Why, and how well it works: docs/feedforward.md ("The limit from what was learned").
+
 The feedforward reports the limit (``ff_limit_K``, ``ff_authority``,
 ``cryod ctl feedforward status``) and what would change it. It is computed off
 the loop's thread (some 60 ms with what would change it) and taken a fixed
@@ -18,8 +20,6 @@ virtual time the loop waits for it, so runs stay deterministic):
 
 :attr:`LimitFollower.limit` is the learned one while there is one, else the
 model's; :attr:`LimitFollower.source` says which.
-
-Why, and how well it works: docs/feedforward.md ("The limit from what was learned").
 """
 
 from __future__ import annotations

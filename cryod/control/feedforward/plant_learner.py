@@ -1,5 +1,7 @@
 """The plant the feedforward learns: how the heater reaches T2's readings at each harmonic, and how well it is known.
 
+Why, and how well it works: docs/feedforward.md ("The plant, with its uncertainty").
+
 The feedforward's estimator (:class:`cryod.control.feedforward.SynchronousEstimator`)
 learns, at each harmonic n of the cooler, a complex correction ``k_n`` of the
 controller model's plant ``H_n`` (from a waveform coefficient to T2's readings,
@@ -20,8 +22,6 @@ plant the feedforward uses, over the full +-180 degrees:
 * where the learned plant differs from the model by more than its uncertainty
   (and by more than matters, :data:`DIFFERENCE_GAIN`, :data:`DIFFERENCE_PHASE_DEG`),
   it says so in words, for the status and the journal.
-
-Why, and how well it works: docs/feedforward.md ("The plant, with its uncertainty").
 
 Examples
 --------

@@ -1,5 +1,7 @@
 """The probe: a small, bounded excitation at the harmonics whose plant the waveform's own changes do not tell.
 
+Why, and how well it works: docs/feedforward.md ("The probe").
+
 The feedforward learns the plant at each harmonic from how T2 answers changes
 of what the heater plays (:mod:`cryod.control.feedforward.plant_learner`). The waveform
 changes a lot at the fundamental (it fades in, it learns), but hardly at a
@@ -31,8 +33,6 @@ precision, or to :data:`WORTH` of what it is (a plant too weak for what the
 room allows now), waits while the next one is probed. It comes back when the plant's spread has grown to :data:`RESUME_FACTOR` times
 what it was left at. Its cost, T2's answer to it, ``|H_n p_n|`` through the
 learned plant, is reported.
-
-Why, and how well it works: docs/feedforward.md ("The probe").
 
 Examples
 --------

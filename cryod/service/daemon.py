@@ -611,7 +611,7 @@ def cooler_rad_s(config: DaemonConfig) -> float:
     from cryod.model import DEFAULT_MODEL_PATH
 
     for name, settings in config.control.terms:
-        if name == "feedforward" and settings.model is not None:
+        if name == "feedforward" and getattr(settings, "model", None) is not None:
             return settings.model.ptc.angular_frequency_rad_s
     return _model_cooler_rad_s(DEFAULT_MODEL_PATH)
 

@@ -50,6 +50,7 @@ from cryod.service.web import WebServer
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
 from cryod.service.realtime import RealtimeSession
 from cryod.service.control_socket import ControlSocketServer
+from cryod.service.notes import write_note
 from cryod.service.notify import SystemdNotifier
 from cryod.service.stop_signals import (REQUESTED_STOP_SIGNALS, SignalWatch, exit_code_for,
                                         install_thread_exception_hook, signal_received)
@@ -314,6 +315,12 @@ class Daemon:
 
     # -- the control socket before the loop runs ---------------------------------
     def _submit(self, command: Command) -> Command:
+        if command.name == "note":
+            if self.datalog is None:
+                command.answer(False, "note refused: no record is open yet")
+            else:
+                command.answer(True, write_note(self.datalog.put, str(command.value), command.sender))
+            return command
         if command.name == "reload" and command.value is None:
             # read and checked on the service thread, as for SIGHUP; answered when the loop has taken it
             self._socket_reloads.append(command)
@@ -324,10 +331,16 @@ class Daemon:
             return command
         return self.loop.submit(command)
 
+    def record_path(self) -> str | None:
+        """The record being written now (the data log's latest file), None before the first."""
+        paths = self.datalog.paths if self.datalog is not None else []
+        return str(paths[-1]) if paths else None
+
     def _status(self) -> dict:
         if self.loop is None:
-            return {"state": "waiting", "message": self._waiting, "heater_W": None}
+            return {"state": "waiting", "message": self._waiting, "heater_W": None, "record_path": self.record_path()}
         status = self.loop.status.as_dict()
+        status["record_path"] = self.record_path()
         # figures over the recent past, computed on this (the socket's) thread
         status["T2_average_K"] = self.live_view.flange_average_K()
         status["line_amplitude_K"] = self.live_view.line_amplitude_K()

@@ -4,9 +4,13 @@ The configuration is validated as for ``cryod run``; the drivers are the real
 ones; only the far end differs: the simulated bench (simulated cryostat,
 Keithley 2002s and heater supply speaking their SCPI). By default the drivers
 reach it through pyvisa-py over TCP on 127.0.0.1, in real time. ``--speed X``
-runs the clock X times faster; ``--speed max`` runs on virtual time as fast as
-the CPU allows, with the in-process transport (a virtual clock cannot be
-shared with server threads).
+above 1 runs on simulated time paced to X times real time
+(:class:`~cryod.service.paced_clock.PacedClock`): a machine that cannot keep
+that pace slows the simulated clock instead of missing deadlines, and the
+speed it achieved is in the status line and the summary (``achieved_speed``);
+below 1 the clock runs X times real time. ``--speed max`` runs on virtual time
+as fast as the CPU allows, with the in-process transport (a clock that never
+waits cannot be shared with server threads).
 
 Trigger modes: ``external`` and ``sequential`` are simulated as configured;
 ``gpib-group`` uses the simulated GPIB board in process, and over TCP (which
@@ -31,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from cryod.service.clock import MonotonicClock, ScaledClock, VirtualClock
+from cryod.service.paced_clock import PacedClock
 from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config, located_error
 from cryod.service.daemon import Daemon
 from cryod.service.discovery import simulation_socket
@@ -192,8 +197,11 @@ class SimulatedInstrumentsOpener:
 
 
 def _clock(speed):
+    """The dry run's clock: virtual for "max", paced above real time, real (or slowed) otherwise."""
     if speed == "max":
         return VirtualClock()
+    if speed > 1.0:
+        return PacedClock(speed)
     return MonotonicClock() if speed == 1.0 else ScaledClock(speed)
 
 
@@ -263,7 +271,8 @@ def execute_simulation(args, stream=None) -> SimulationRun:
     daemon = Daemon(config, opener, clock, metadata=metadata, row_taps=[collector],
                     reload_config=lambda: simulation_config(args, load_config(config_path)),
                     install_signal_handlers=threading.current_thread() is threading.main_thread())
-    status_line = StatusLine(daemon.live_view, stream, duration_s=args.duration)
+    status_line = StatusLine(daemon.live_view, stream, duration_s=args.duration,
+                             speed=clock.recent_speed if isinstance(clock, PacedClock) else None)
     logging_service = ServiceLogging(stream=status_line.log_stream)
     logging_service.start()
     status_line.start()
@@ -278,6 +287,7 @@ def execute_simulation(args, stream=None) -> SimulationRun:
         status_line.stop()
         logging_service.stop()
     summary = summarize(result, collector, model.ptc.angular_frequency_rad_s, _cpu_seconds() - cpu_start)
+    summary["achieved_speed"] = achieved_speed(clock, summary["duration_s"], result.wall_s)
     summary.update(simulated_limit(model, config, result.loop, summary["setpoint_K"]))
     summary["trigger"] = opener.trigger_note
     return SimulationRun(result.exit_code, summary, list(result.log_paths))
@@ -418,6 +428,13 @@ def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None)
             "feedforward_limit_changes": [change.to_dict() for change in changes]}
 
 
+def achieved_speed(clock, simulated_s: float, wall_s: float) -> float | None:
+    """Simulated seconds per real second the run achieved (the paced clock's own figure when it has one)."""
+    if isinstance(clock, PacedClock):
+        return round(clock.achieved_speed(), 3)
+    return round(simulated_s / wall_s, 3) if wall_s > 0 else None
+
+
 def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: float) -> dict:
     """The ``--json`` object: timing, regulation metrics over the window, where the log is."""
     loop = result.loop
@@ -450,5 +467,6 @@ def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: floa
         "last_fault": str(loop.last_fault) if loop and loop.last_fault else None,
         "exit_code": result.exit_code,
         "log_path": str(result.log_paths[0]) if result.log_paths else None,
+        "record_path": str(result.log_paths[-1]) if result.log_paths else None,
         "log_paths": [str(path) for path in result.log_paths],
     }

@@ -148,6 +148,8 @@ class Daemon:
         self.instrument_addresses = instrument_addresses
         self.loop: ControlLoop | None = None
         self.datalog: DataLog | None = None
+        #: Why the run did not start because another daemon runs this cryostat (None otherwise).
+        self.not_started: str | None = None
         #: The latest row and faults, for the status line and the metrics endpoint.
         self.live_view = LiveView(config.loop.period_s, cooler_rad_s(config))
         #: The latest rows and events for the web page's history (a row tap only when the page is on).
@@ -542,6 +544,7 @@ class Daemon:
         try:
             lock.acquire()
         except AlreadyRunning as error:
+            self.not_started = str(error)
             log.critical("not started: %s", error)
             return None
         except OSError as error:                # a folder cryod run's checks found usable a moment ago

@@ -37,6 +37,7 @@ from cryod.control.terms import term_columns
 from cryod.records.columns import TIME_DECIMALS, Event, Row, RowSchema, loop_schema
 from cryod.service.commands import Command, CommandRefused, apply_command
 from cryod.service.faults import ExitCode, Fault, FaultCause, ReadingChecks, fault_from_instrument_error
+from cryod.service.logs import reply_for_log
 from cryod.service.realtime import LoopGarbageCollector
 from cryod.service.states import LoopState
 from cryod.service.timing import LoopTiming
@@ -648,7 +649,7 @@ class ControlLoop:
         self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}{sender}")
         if command.name != "reload":              # the daemon's reload says it in the journal itself
             log.log(logging.INFO if ok else logging.WARNING, "command %s %s: %s%s", command.name,
-                    "accepted" if ok else "refused", message, sender)
+                    "accepted" if ok else "refused", reply_for_log(message), sender)
         self._answers.append((command, ok, message))
 
     def _answer_commands(self) -> None:

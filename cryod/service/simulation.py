@@ -39,6 +39,7 @@ from cryod.service.paced_clock import PacedClock
 from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config, located_error
 from cryod.service.daemon import Daemon
 from cryod.service.discovery import simulation_socket
+from cryod.service.instance_lock import AlreadyRunning, InstanceLock
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
 from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit, limit_changes
 from cryod.records.columns import Event, Row
@@ -262,6 +263,9 @@ def execute_simulation(args, stream=None) -> SimulationRun:
     stream = stream if stream is not None else sys.stderr
     config, model, model_path = prepare_simulation(args)
     config_path = args.config or EXAMPLE_CONFIG_PATH
+    refusal = socket_taken(config.control_socket.path)
+    if refusal is not None:
+        raise SimulationNotStarted(refusal)
     clock = _clock(args.speed)
     opener = SimulatedInstrumentsOpener(model, config.simulation.seed)
     collector = WindowCollector(args.window, config.loop.period_s)
@@ -286,11 +290,30 @@ def execute_simulation(args, stream=None) -> SimulationRun:
     finally:
         status_line.stop()
         logging_service.stop()
+    if daemon.not_started is not None:         # another dry run took the socket meanwhile
+        raise SimulationNotStarted(f"{daemon.not_started}; {ANOTHER_SOCKET}")
     summary = summarize(result, collector, model.ptc.angular_frequency_rad_s, _cpu_seconds() - cpu_start)
     summary["achieved_speed"] = achieved_speed(clock, summary["duration_s"], result.wall_s)
     summary.update(simulated_limit(model, config, result.loop, summary["setpoint_K"]))
     summary["trigger"] = opener.trigger_note
     return SimulationRun(result.exit_code, summary, list(result.log_paths))
+
+
+#: What to do when this user's dry run socket is taken.
+ANOTHER_SOCKET = "stop that dry run, or give this one a socket of its own with --socket PATH"
+
+
+def socket_taken(socket_path: Path) -> str | None:
+    """Why a dry run cannot use ``socket_path`` (another daemon holds its lock), or None."""
+    lock = InstanceLock(socket_path)
+    try:
+        lock.acquire()
+    except AlreadyRunning as error:
+        return f"another cryod ({error.holder}) is using the control socket {socket_path}: {ANOTHER_SOCKET}"
+    except OSError:
+        return None             # the daemon says at its start why the lock cannot be taken
+    lock.release()
+    return None
 
 
 def run_simulation(args) -> int:

@@ -80,13 +80,15 @@ def _setpoint(loop: "ControlLoop", value: float) -> str:
                              f"{control.setpoint_max_K:g} K (control.setpoint_min_K/max_K)")
     regulator = loop.regulator
     regulator.ramp.target_K = value
+    warning = loop.warn_about_setpoint(value)
+    said = f"; warning: {warning}" if warning else ""
     if loop.state.waits_for_readings:
         regulator.mode = RegulatorMode.CLOSED
-        return f"setpoint {value:g} K, applied once readings are valid"
+        return f"setpoint {value:g} K, applied once readings are valid{said}"
     if regulator.mode is not RegulatorMode.CLOSED:
         loop.close_loop_now()
     ramp = regulator.ramp.rate_K_per_min
-    return f"setpoint {value:g} K" + (f", ramping at {ramp:g} K/min" if ramp else "")
+    return f"setpoint {value:g} K" + (f", ramping at {ramp:g} K/min" if ramp else "") + said
 
 
 def _ramp(loop: "ControlLoop", value: float) -> str:

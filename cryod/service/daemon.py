@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import collections
 import faulthandler
-import functools
 import logging
 import math
 import os
@@ -35,6 +34,7 @@ import numpy as np
 
 from cryod import __version__
 from cryod.config import DaemonConfig, load_config, located_error
+from cryod.control.setpoint_reach import controller_model
 from cryod.instrument_waits import InstrumentWaits
 from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
@@ -334,15 +334,16 @@ class Daemon:
         return self.loop.submit(command)
 
     def record_path(self) -> str | None:
-        """The record being written now (the data log's latest file), None before the first."""
+        """The record being written now (the data log's latest file, as an absolute path), None before the first."""
         paths = self.datalog.paths if self.datalog is not None else []
-        return str(paths[-1]) if paths else None
+        return str(paths[-1].absolute()) if paths else None
 
     def _status(self) -> dict:
         if self.loop is None:
             return {"state": "waiting", "message": self._waiting, "heater_W": None, "record_path": self.record_path()}
         status = self.loop.status.as_dict()
         status["record_path"] = self.record_path()
+        status["setpoint_warning"] = self.loop.setpoint_warning
         # figures over the recent past, computed on this (the socket's) thread
         status["T2_average_K"] = self.live_view.flange_average_K()
         status["line_amplitude_K"] = self.live_view.line_amplitude_K()
@@ -624,19 +625,7 @@ def stop_grace_s(config: DaemonConfig) -> float:
 
 def cooler_rad_s(config: DaemonConfig) -> float:
     """The cooler's angular frequency (rad/s) in the controller's model (the feedforward's, else the shipped)."""
-    from cryod.model import DEFAULT_MODEL_PATH
-
-    for name, settings in config.control.terms:
-        if name == "feedforward" and getattr(settings, "model", None) is not None:
-            return settings.model.ptc.angular_frequency_rad_s
-    return _model_cooler_rad_s(DEFAULT_MODEL_PATH)
-
-
-@functools.lru_cache(maxsize=4)
-def _model_cooler_rad_s(path) -> float:
-    from cryod.model import load_model
-
-    return load_model(path).ptc.angular_frequency_rad_s
+    return controller_model(config.control)[0].ptc.angular_frequency_rad_s
 
 
 def _fan_out(receivers: list[Callable]) -> Callable:

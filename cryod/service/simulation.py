@@ -193,6 +193,8 @@ class SimulatedInstrumentsOpener:
         except BaseException:
             self._stack.close()
             raise
+        if isinstance(clock, PacedClock) and config.simulation.transport != "in-process":
+            instruments.wait_on_loop_path(config.instruments.timeout_s)
         log.info("simulated instruments over %s; trigger: %s", config.simulation.transport, self.trigger_note)
         return instruments, flange_curve, stage_curve
 
@@ -488,6 +490,7 @@ def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: floa
         "setpoint_K": float(setpoint[-1]) if setpoint.size and np.isfinite(setpoint[-1]) else None,
         "state": loop.status.state if loop else None,
         "last_fault": str(loop.last_fault) if loop and loop.last_fault else None,
+        "setpoint_warning": loop.setpoint_warning if loop else None,
         "exit_code": result.exit_code,
         "log_path": str(result.log_paths[0]) if result.log_paths else None,
         "record_path": str(result.log_paths[-1]) if result.log_paths else None,

@@ -240,7 +240,7 @@ def prepare_simulation(args) -> tuple[DaemonConfig, object, Path]:
         raise SimulationNotStarted(f"configuration not usable, nothing was started: {error}") from None
     except ValueError as error:
         raise SimulationNotStarted(str(error)) from None
-    problem = check_calibrations(config)
+    problem = socket_taken(config.control_socket.path) or check_calibrations(config)
     if problem:
         raise SimulationNotStarted(problem)
     model_path = args.sim_model or config.simulation.model or DEFAULT_MODEL_PATH
@@ -265,9 +265,6 @@ def execute_simulation(args, stream=None) -> SimulationRun:
     stream = stream if stream is not None else sys.stderr
     config, model, model_path = prepare_simulation(args)
     config_path = args.config or EXAMPLE_CONFIG_PATH
-    refusal = socket_taken(config.control_socket.path)
-    if refusal is not None:
-        raise SimulationNotStarted(refusal)
     clock = _clock(args.speed)
     opener = SimulatedInstrumentsOpener(model, config.simulation.seed)
     collector = WindowCollector(args.window, config.loop.period_s)

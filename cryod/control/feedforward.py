@@ -600,9 +600,9 @@ class FeedforwardTerm:
         line = self.line_amplitude_K()
         if math.isfinite(line):
             harmonics = ", ".join(f"{1e6 * abs(value):.1f}" for value in self._synchronous_list())
-            lines.append(f"T2's part synchronous with the cooler: {1e6 * line:.1f} uK (harmonics 1-"
-                         f"{self.settings.harmonics}: {harmonics} uK); without the waveform it would be "
-                         f"{1e6 * float(np.sqrt(np.sum(np.abs(self._estimate.line) ** 2))):.1f} uK")
+            lines.append(f"T2's part synchronous with the cooler: {1e6 * line:.1f} µK (harmonics 1-"
+                         f"{self.settings.harmonics}: {harmonics} µK); without the waveform it would be "
+                         f"{1e6 * float(np.sqrt(np.sum(np.abs(self._estimate.line) ** 2))):.1f} µK")
         amplitude = np.abs(self.coefficients)
         values = waveform_values(self.coefficients, self.other_terms_w or 0.0, BOUND_POINTS)
         lines.append(f"waveform: {', '.join(f'{1e3 * a:.1f}' for a in amplitude)} mW per harmonic, "
@@ -616,11 +616,11 @@ class FeedforwardTerm:
         if limit is None:
             lines.append("physical limit: not computed yet (the daemon computes it for the setpoint in use)")
         else:
-            lines.append(f"physical limit at {limit.setpoint_K:g} K: {1e6 * limit.ptc_periodic_limit_K:.1f} uK of the "
-                         f"{1e6 * limit.open_line_K:.1f} uK line; {limit.limited_by}-limited (authority "
+            lines.append(f"physical limit at {limit.setpoint_K:g} K: {1e6 * limit.ptc_periodic_limit_K:.1f} µK of the "
+                         f"{1e6 * limit.open_line_K:.1f} µK line; {limit.limited_by}-limited (authority "
                          f"{limit.authority:.2f}: the heater can put {1e3 * limit.largest_line_power_W:.0f} mW at the "
                          f"line of the {1e3 * limit.line_power_needed_W:.0f} mW needed); predicted best "
-                         f"{1e6 * limit.predicted_best_residual_K:.1f} uK")
+                         f"{1e6 * limit.predicted_best_residual_K:.1f} µK")
             if self.limit_changes:
                 lines.append("what would change it: " + "; ".join(change.describe() for change in self.limit_changes)
                              + " (R I_max^2 x 2: R x 2 or I_max x 1.41; more: cryod feedforward-limit)")

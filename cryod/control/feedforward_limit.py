@@ -636,7 +636,7 @@ class LimitChange:
         limit = self.point.limit
         if limit is None:
             return f"{self.change}: out of reach"
-        return f"{self.change}: {1e6 * limit.ptc_periodic_limit_K:.1f} uK ({limit.limited_by}-limited)"
+        return f"{self.change}: {1e6 * limit.ptc_periodic_limit_K:.1f} µK ({limit.limited_by}-limited)"
 
     def to_dict(self) -> dict:
         """For ``--json``."""

@@ -129,6 +129,26 @@ class DaemonClient:
         """
         return self.command("reload")["status"]
 
+    def wait(self, seconds: float, poll_s: float = 0.5, sleep=time.sleep) -> dict:
+        """Wait ``seconds`` of the daemon's clock; the status that ended the wait.
+
+        On the real cryostat that is real time; a dry run at ``--speed 20`` waits a twentieth of it.
+
+        Raises
+        ------
+        ConnectionError
+            The daemon went away meanwhile.
+        """
+        start = None
+        while True:
+            status = self.status()
+            now = status.get("time_s")
+            if now is not None:
+                start = now if start is None else start
+                if now - start >= seconds:
+                    return status
+            sleep(poll_s)
+
     def wait_until_stable(self, tolerance_K: float = 1e-4, hold_s: float = 60.0, timeout_s: float = 3600.0,
                           poll_s: float = 0.5, wall_timeout_s: float | None = None, sleep=time.sleep,
                           wall=time.monotonic) -> dict:

@@ -66,7 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--simulate", action="store_true",
                           help="run the daemon against simulated instruments and a simulated cryostat")
     simulate.add_argument("--config", type=Path, default=None, metavar="PATH",
-                          help="daemon configuration (default: the documented example config/cryod.yaml)")
+                          help="daemon configuration (default: the example shipped with cryod, cryod/data/cryod.yaml "
+                               "in the installed package: config/cryod.yaml of the source tree)")
     simulate.add_argument("--duration", type=positive, default=None, metavar="S",
                           help="simulated seconds to run (default: until stopped)")
     simulate.add_argument("--speed", type=_speed, default=1.0,

@@ -464,11 +464,13 @@ def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: floa
     _, flange, stage, setpoint, flange_instants, stage_instants = collector.arrays()
     metrics = regulation_metrics(flange_instants, flange, stage, setpoint, line_rad_s, ptc_stage_time_s=stage_instants,
                                  lead_in_s=TRACKER_LEAD_IN_S)
+    # the loop's time in ticks; deadlines an overrun skipped add missed_deadlines periods to the record's span
     duration = timing.get("ticks", 0) * (loop.period_s if loop else 0.0)
     return {
         "duration_s": round(duration, 3),
         "ticks": timing.get("ticks", 0),
         "overruns": timing.get("overruns", 0),
+        "missed_deadlines": timing.get("missed_deadlines", 0),
         "lateness_ms_p50": timing.get("lateness_ms_p50"),
         "lateness_ms_p99": timing.get("lateness_ms_p99"),
         "lateness_ms_max": timing.get("lateness_ms_max"),

@@ -11,7 +11,7 @@ go (a 2-core machine that other people's test suites keep busy). Printed: the ma
 average, each run's overruns, achieved speed, wall time, the cooler line on T2 over the last 300 s
 (``ptc_periodic_amplitude_K``, all harmonics) and its ratio to ``--speed max``'s.
 ``--fixed-multiple`` runs the paced runs instead on a clock at a fixed multiple of real time
-(:class:`cryod.service.clock.ScaledClock`, which keeps deadlines and counts overruns as real
+(:class:`drivers.clock.ScaledClock`, which keeps deadlines and counts overruns as real
 time does), the baseline the paced clock is measured against.
 """
 
@@ -35,8 +35,8 @@ def spin() -> None:
 
 
 #: ``cryod simulate`` with the dry run's clock at a fixed multiple of real time for speeds above 1.
-FIXED_MULTIPLE = ("import sys; from cryod.service import simulation; from cryod.service.clock import ScaledClock; "
-                  "simulation._clock = lambda speed: ScaledClock(speed); from cryod.cli import main; "
+FIXED_MULTIPLE = ("import sys; from cryod.service import simulation; from drivers.clock import ScaledClock; "
+                  "simulation.clock_for_speed = lambda speed: ScaledClock(speed); from cryod.cli import main; "
                   "sys.exit(main(sys.argv[1:]))")
 
 

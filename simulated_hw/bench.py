@@ -12,8 +12,8 @@ over TCP on 127.0.0.1 through pyvisa-py (:meth:`SimulatedBench.serve_tcp`,
 
 In-process transports run on any clock, a VirtualClock included. Over TCP
 the instruments answer from server threads, so the clock's waits must take
-real time (:class:`cryod.service.clock.MonotonicClock`, ``ScaledClock``, or the
-:class:`cryod.service.paced_clock.PacedClock` of a dry run faster than real
+real time (:class:`drivers.clock.MonotonicClock`, ``ScaledClock``, or the
+:class:`drivers.paced_clock.PacedClock` of a dry run faster than real
 time): on a VirtualClock a trigger could be processed after the driver has
 already moved the clock on.
 """
@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import cryod
-from cryod.service.clock import Clock
+from drivers.clock import Clock
 from cryod.model import CryostatModel, load_model
 from drivers.transports.in_process import InProcessTransport
 from simulated_hw.cryostat import SimulatedCryostat

@@ -5,7 +5,7 @@ import io
 import pytest
 
 import cryod
-from cryod.service.paced_clock import PacedClock
+from drivers.paced_clock import PacedClock
 from cryod.service.status_line import format_status
 
 

@@ -5,7 +5,7 @@ ones; only the far end differs: the simulated bench (simulated cryostat,
 Keithley 2002s and heater supply speaking their SCPI). By default the drivers
 reach it through pyvisa-py over TCP on 127.0.0.1, in real time. ``--speed X``
 above 1 runs on simulated time paced to X times real time
-(:class:`~cryod.service.paced_clock.PacedClock`): a machine that cannot keep
+(:class:`~drivers.paced_clock.PacedClock`): a machine that cannot keep
 that pace slows the simulated clock instead of missing deadlines, and the
 speed it achieved is in the status line and the summary (``achieved_speed``);
 below 1 the clock runs X times real time. ``--speed max`` runs on virtual time
@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cryod.service.clock import MonotonicClock, ScaledClock, VirtualClock
-from cryod.service.paced_clock import PacedClock
+from drivers.clock import clock_for_speed
+from drivers.paced_clock import PacedClock
 from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config, located_error
 from cryod.service.daemon import Daemon
 from cryod.service.discovery import simulation_socket
@@ -199,15 +199,6 @@ class SimulatedInstrumentsOpener:
         return instruments, flange_curve, stage_curve
 
 
-def _clock(speed):
-    """The dry run's clock: virtual for "max", paced above real time, real (or slowed) otherwise."""
-    if speed == "max":
-        return VirtualClock()
-    if speed > 1.0:
-        return PacedClock(speed)
-    return MonotonicClock() if speed == 1.0 else ScaledClock(speed)
-
-
 class SimulationNotStarted(ValueError):
     """The dry run could not start (configuration, calibration, model or command line); says why."""
 
@@ -265,7 +256,7 @@ def execute_simulation(args, stream=None) -> SimulationRun:
     stream = stream if stream is not None else sys.stderr
     config, model, model_path = prepare_simulation(args)
     config_path = args.config or EXAMPLE_CONFIG_PATH
-    clock = _clock(args.speed)
+    clock = clock_for_speed(args.speed)
     opener = SimulatedInstrumentsOpener(model, config.simulation.seed)
     collector = WindowCollector(args.window, config.loop.period_s)
     metadata = {"simulated": "yes (cryod --simulate)", "simulated_model": str(model_path),

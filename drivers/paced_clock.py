@@ -2,7 +2,7 @@
 
 A dry run faster than real time (``cryod simulate --speed 20``) runs on
 :class:`PacedClock`: simulated time advances only when code waits on it
-(``sleep_until``), as on :class:`~cryod.service.clock.VirtualClock`, and each
+(``sleep_until``), as on :class:`~drivers.clock.VirtualClock`, and each
 wait lasts the real time it stands for at the requested speed. The loop's
 computation and the instruments' replies therefore take no simulated time, as
 with ``--speed max``, and the simulated cryostat and instruments, which read
@@ -31,7 +31,7 @@ import collections
 import threading
 import time
 
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 
 #: Real time (s) the clock may fall behind its pace and still catch up; beyond, the lag is given up.
 MAX_LAG_S = 0.5

@@ -265,7 +265,7 @@ class Replayer:
         Samples the nuisance parameters (and any candidate parameters) are fitted on.
     noise_rms_K : tuple of float, optional
         (T2, T5) noise used to weight the two thermometers when columns are
-        fitted jointly; set once measured.
+        fitted jointly (once measured: :meth:`weighted`).
     """
 
     def __init__(self, data: RecordData, fit_mask: np.ndarray, noise_rms_K: tuple[float, float] = (20e-6, 0.3e-3)):
@@ -275,9 +275,13 @@ class Replayer:
         #: Heater power the cryostat had settled at before the first sample (W); None: the first sample's.
         self.initial_heater_power_w: float | None = None
         self._measured_cycle = None
-        #: Makes the linearised model change fitted in every replay: ``basis_for(line)`` gives a
-        #: :class:`LinearBasis` for the line replayed, or None (see :mod:`cryod.analysis.recalibration`).
-        self.basis_for = None
+
+    def weighted(self, noise_rms_K: tuple[float, float]) -> "Replayer":
+        """The same replayer (record, fit samples, settled power, measured cycle) weighting by ``noise_rms_K``."""
+        other = Replayer(self.data, self.fit_mask, noise_rms_K)
+        other.initial_heater_power_w = self.initial_heater_power_w
+        other._measured_cycle = self._measured_cycle
+        return other
 
     def settle_from(self, replay: Replay) -> None:
         """Take the settled power before the record from a replay's T5 initial-state estimate."""
@@ -326,15 +330,8 @@ class Replayer:
         return simulate(model, self.data.time_s, heater_power_w, initial_heater_power_w=initial_heater_power_w,
                         heater_change_s=self.data.heater_change_s, ptc_cycle=cycle)
 
-    def basis(self, line: PtcLine | None, without=()) -> LinearBasis | None:
-        """The linearised model change fitted in replays with ``line`` (None: none), less ``without``."""
-        if self.basis_for is None:
-            return None
-        basis = self.basis_for(line)
-        return basis.without(without) if basis is not None and without else basis
-
     def replay(self, model: CryostatModel, line: PtcLine | None = None, shared_columns=None, *,
-               basis_without=(), basis: LinearBasis | None | bool = True) -> Replay:
+               basis: LinearBasis | None = None) -> Replay:
         """Predict the record with ``model`` (and the measured ``line``).
 
         Parameters
@@ -346,10 +343,8 @@ class Replayer:
             (T2 columns, T5 columns), each n x m: extra regressors whose m
             coefficients are fitted jointly on both thermometers, weighted by
             their noise (e.g. a linear effect's response).
-        basis_without : sequence of str
-            Parameters of the replayer's linearised model change left out of this replay.
-        basis : LinearBasis, bool or None
-            True: the replayer's own (:meth:`basis`); None or False: none; or this one.
+        basis : LinearBasis, optional
+            A linearised model change fitted alongside (the recalibration's, :class:`LinearBasis`).
 
         Returns
         -------
@@ -357,10 +352,8 @@ class Replayer:
         """
         aligned = line.applied_to(model) if line is not None else model
         simulated = self.simulate(aligned, cycle=line.cycle if line is not None else None)
-        if basis is True:
-            basis = self.basis(line, basis_without)
         return self.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K, shared_columns,
-                                     basis=basis or None)
+                                     basis=basis)
 
     def replay_simulated(self, aligned: CryostatModel, flange_K: np.ndarray, stage_K: np.ndarray,
                          shared_columns=None, basis: LinearBasis | None = None) -> Replay:

@@ -188,7 +188,7 @@ def _effect_parameters(name: str):
     return lambda model: dataclasses.asdict(getattr(model.effects, name))
 
 
-def _scalar_search(objective, grid, bounds, tolerance):
+def scalar_search(objective, grid, bounds, tolerance):
     """Minimise a 1-D cost: the best of a grid, then bounded Brent between its neighbours."""
     grid = np.asarray(grid, dtype=float)
     values = np.array([objective(x) for x in grid])
@@ -261,7 +261,7 @@ def fit_sensor_lag(context: FitContext) -> CandidateFit:
         return replay if stage == 0.0 else context.replay(model(tau, stage), context.base_line)
 
     objective = _CachedObjective(context, model, context.base_line, replay_at)
-    tau = _scalar_search(objective, np.geomspace(0.01, 20.0, 15), (0.0, 30.0), 1e-6)
+    tau = scalar_search(objective, np.geomspace(0.01, 20.0, 15), (0.0, 30.0), 1e-6)
     best = objective.replay(tau)
     stage = stage_taus[float(tau)]
     if stage > 0.0:
@@ -286,7 +286,7 @@ def fit_dead_time(context: FitContext) -> CandidateFit:
 
     grid = np.concatenate([np.arange(0.05, 2.0, 0.1), np.geomspace(2.0, longest, 10)])
     objective = _CachedObjective(context, model, context.base_line)
-    delay = _scalar_search(objective, grid, (0.0, longest), 1e-5)
+    delay = scalar_search(objective, grid, (0.0, longest), 1e-5)
     effect = EffectForm((delay,), (0.0,), (longest,), (2e-3,),
                         lambda base, v: base.with_effects(dead_time=DeadTime(max(v[0], 0.0))),
                         _effect_parameters("dead_time"))
@@ -305,7 +305,7 @@ def fit_heat_capacity_temperature(context: FitContext) -> CandidateFit:
         return base.with_effects(heat_capacity_temperature=HeatCapacityTemperature(exponent, reference))
 
     objective = _CachedObjective(context, model, context.base_line)
-    exponent = _scalar_search(objective, [-4.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 4.0], (-6.0, 6.0), 1e-5)
+    exponent = scalar_search(objective, [-4.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 4.0], (-6.0, 6.0), 1e-5)
     point = context.base_replay.operating_point
     effect = EffectForm(
         (exponent,), (-6.0,), (6.0,), (1e-2,),
@@ -473,7 +473,8 @@ def fit_ptc_frequency_drift(context: FitContext) -> CandidateFit:
                         parameter_count=2 + 2 * (drift.wander_amplitude_rad_s > 0.0))
 
 
-FITTERS = {
+#: The fitters of this module's causes (every cause's: :data:`cryod.analysis.fitters.FITTERS`).
+CORE_FITTERS = {
     "sensor_lag": fit_sensor_lag,
     "link_dynamics": fit_link_dynamics,
     "dead_time": fit_dead_time,

@@ -176,7 +176,7 @@ def gain_between(base_sum_of_squares: float, extended_sum_of_squares: float, ter
 #: At equal numbers of parameters, a tie goes to the cause earlier in this list: a link that differs
 #: is more common than two thermometers lagging differently, and so on.
 TIE_PREFERENCE = ("link_dynamics", "sensor_lag", "dead_time", "heater_nonlinearity", "heat_capacity_temperature",
-                  "ptc_harmonics", "ptc_frequency_drift")
+                  "ptc_harmonics", "ptc_frequency_drift", "ptc_amplitude_modulation", "ptc_stage_drift")
 
 
 def _preference(cause: str) -> int:

@@ -35,7 +35,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cryod.analysis.candidates import CANDIDATE_CAUSES, FITTERS, CandidateFit, FitContext
+from cryod.analysis.base_model_off import judged_beyond_recalibration
+from cryod.analysis.candidates import CANDIDATE_CAUSES, CandidateFit, FitContext
+from cryod.analysis.fitters import FITTERS
 from cryod.analysis.decision import (
     CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision, Gain, base_discrepancy, decide, gain_between,
     score_candidate,
@@ -119,6 +121,19 @@ class Analysis:
     final_replay : Replay
     base_discrepancy : BaseDiscrepancy
         The base model as given, on the held-out blocks.
+    final_recalibration : Recalibration or None
+        The recalibration as refitted with the causes named (what the extended model has).
+    remaining : BaseDiscrepancy or None
+        What the extended model (the causes named, or the recalibrated model when none is) still shows on the
+        held-out blocks, by the rule that calls for a cause.
+    beyond_recalibration : object or None
+        For ``base_model_off``: the parameters the record asks beyond the recalibration's tolerance
+        (:class:`cryod.analysis.base_model_off.BeyondRecalibration`).
+    generic : object or None
+        The generic extension fitted on top of the extended model, when a discrepancy remains
+        (:class:`cryod.analysis.generic_extension.GenericExtension`).
+    residual_signature : object or None
+        What the extended model leaves, described (:class:`cryod.analysis.residual_signature.ResidualSignature`).
     """
 
     data: RecordData
@@ -139,6 +154,10 @@ class Analysis:
     final_replay: Replay | None = None
     base_discrepancy: BaseDiscrepancy | None = None
     final_recalibration: Recalibration | None = None
+    remaining: BaseDiscrepancy | None = None
+    beyond_recalibration: object = None
+    generic: object = None
+    residual_signature: object = None
 
     @property
     def cause(self) -> str:
@@ -243,10 +262,14 @@ class CauseSearch:
     base_model : CryostatModel
     causes : sequence of str
         Candidate causes to try.
+    screen_when_fitting : bool
+        Fit the candidates (for the report's table) even when the base model as given shows no discrepancy.
     """
 
-    def __init__(self, data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES):
+    def __init__(self, data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES,
+                 screen_when_fitting: bool = True):
         self.data = data
+        self.screen_when_fitting = screen_when_fitting
         self.base_model = base_model
         self.causes = tuple(causes)
         self.fit_mask = fit_block_mask(data.time_s) & data.valid
@@ -328,7 +351,7 @@ class CauseSearch:
                                       line_model=recalibration.model)
         timings["recalibration"] = time.perf_counter() - started
 
-        fits = self.fit_candidates(context, self.causes)
+        fits = self.fit_candidates(context, self.causes if applied or self.screen_when_fitting else ())
         # A large misfit leaks into the base model's noise floor; the best-fitting replay gives the truer noise.
         replays = [base_replay, recalibration.replay, context.base_replay] + [fit.replay for fit in fits.values()]
         lines = [base_line, base_line, context.base_line] + [fit.line for fit in fits.values()]
@@ -339,7 +362,7 @@ class CauseSearch:
         context = dataclasses.replace(context, noise_rms_K=noise)
         shipped = base_discrepancy(shipped_context)
         first_base = base_discrepancy(context)
-        scores = {cause: score_candidate(context, fits[cause], first_base) for cause in self.causes}
+        scores = {cause: score_candidate(context, fits[cause], first_base) for cause in fits}
         counts = {cause: fit.parameter_count for cause, fit in fits.items()}
         first = decide(first_base, list(scores.values()), _distinctness(context, fits), counts)
 
@@ -352,6 +375,7 @@ class CauseSearch:
             analysis.decision = decide(shipped, [], None, None)
             analysis.decision = dataclasses.replace(
                 analysis.decision, reason=analysis.decision.reason + "; the base model is kept as given")
+            analysis.remaining = shipped
             return analysis
         analysis.recalibrated = True
         analysis.final_model, analysis.final_replay = recalibration.model, recalibrated_replay
@@ -380,6 +404,7 @@ class CauseSearch:
                         f"{base.excess:.4g}, {base.significance:.1f} sigma, {100.0 * base.excess / base.terms:.2f} % "
                         f"of the noise power); the base model as given left {shipped.excess:.4g} "
                         f"({shipped.significance:.1f} sigma): its parameters differ, no effect is needed"))
+            analysis.remaining = base
             return
         path = None
         if first.best is not None and first.best.cause in fits:
@@ -403,6 +428,7 @@ class CauseSearch:
                                          gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares,
                                                       shipped.terms))
             analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
+            analysis.remaining = recalibrated_base
             return
         analysis.causes = path.causes
         base = path.base
@@ -418,6 +444,7 @@ class CauseSearch:
             analysis.decision = Decision(named.cause, reason, named.score, recalibrated_base, total_gain)
             analysis.final_model, analysis.final_replay = path.context.base_model, path.context.base_replay
             analysis.final_recalibration = Recalibration.refitted(path.recalibration_base, path.context.base_replay)
+            analysis.remaining = base
             return
         analysis.decision = Decision(
             "unexplained",
@@ -425,6 +452,7 @@ class CauseSearch:
             f"of {base.significance:.1f} sigma is left", first.best, recalibrated_base,
             gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares, shipped.terms))
         analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
+        analysis.remaining = recalibrated_base
 
     def _follow(self, choice: CandidateScore, refined: dict, recalibrated_base: BaseDiscrepancy) -> _Path:
         """Name ``choice`` (a refined candidate's score) first, then causes on top of it while one counts and
@@ -570,7 +598,9 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
     cryod.analysis.usability.UnusableRecordError
         When the record cannot be analysed, saying what it is missing.
     """
-    return CauseSearch(data, base_model, causes).run()
+    search = CauseSearch(data, base_model, causes)
+    analysis = judged_beyond_recalibration(search, search.run(), lambda model: CauseSearch(data, model, causes, screen_when_fitting=False).run())
+    return analysis
 
 
 def _pair_up(causes: list, earlier: list, others: list):

@@ -35,8 +35,9 @@ from cryod.model.model_file import (
     model_to_dict, save_model,
 )
 from cryod.model.parameters import (
-    EFFECT_NAMES, CryostatModel, DeadTime, Effects, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics,
-    OperatingPoint, PtcFrequencyDrift, PtcHarmonic, PtcSource, SensorLag, SensorNoise,
+    EFFECT_NAMES, GENERIC_EFFECT_NAMES, CryostatModel, DeadTime, Effects, HeatCapacityTemperature,
+    HeaterNonlinearity, HeaterPathCorrection, LinkDynamics, OperatingPoint, PtcAmplitudeModulation,
+    PtcFrequencyDrift, PtcHarmonic, PtcSource, PtcStageDrift, SensorLag, SensorNoise,
 )
 from cryod.model.ptc_cycle import PtcCycle
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
@@ -44,8 +45,8 @@ from cryod.yaml_source import FileFormatError
 
 __all__ = [
     "CryostatModel", "CryostatPlant", "DeadTime", "Effects", "EFFECT_NAMES", "FileFormatError",
-    "HeatCapacityTemperature", "HeaterNonlinearity", "LinkDynamics", "OperatingPoint", "PtcCycle",
-    "PtcFrequencyDrift", "PtcHarmonic", "PtcSource", "SensorLag", "SensorNoise", "SimulatedRecord",
+    "GENERIC_EFFECT_NAMES", "HeatCapacityTemperature", "HeaterNonlinearity", "HeaterPathCorrection", "LinkDynamics",
+    "OperatingPoint", "PtcAmplitudeModulation", "PtcCycle", "PtcFrequencyDrift", "PtcHarmonic", "PtcStageDrift", "PtcSource", "SensorLag", "SensorNoise", "SimulatedRecord",
     "TransferFunction", "TransferFunctionError", "DEFAULT_MODEL_PATH", "MODEL_FORMAT", "TRANSFER_FUNCTION_UNITS",
     "load_model", "load_model_text", "model_from_section", "model_to_dict", "save_model", "simulate",
 ]

@@ -13,7 +13,10 @@ Effects of the model are applied as physics: delivered heater power
 (nonlinearity), a delay queue (dead time), an extra lag on the readings
 (sensor lag), a changed PTC-to-flange path (link dynamics), time constants
 scaled with the flange temperature (heat capacity), harmonics and frequency
-drift of the cooler.
+drift of the cooler, its amplitude modulated (the whole oscillation scaled by a
+slow envelope), the cold end's drift (added to T5, and to T2 through its
+coupling), and the generic correction of the heater paths (terms in parallel
+with G1 and G3).
 
 :class:`CryostatPlant` steps through time, an instant at a time (the
 simulated cryostat on a clock, the closed-loop studies); :func:`simulate`
@@ -70,7 +73,10 @@ def flange_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, T
     builds a plant for the same model many times.
     """
     effects = model.effects
-    heater = model.flange_to_thermometer * model.heater_to_flange
+    heater_to_flange = model.heater_to_flange
+    if effects.heater_path_correction is not None and effects.heater_path_correction.paths()[0] is not None:
+        heater_to_flange = heater_to_flange + effects.heater_path_correction.paths()[0]
+    heater = model.flange_to_thermometer * heater_to_flange
     link = model.ptc_to_flange
     if effects.link_dynamics is not None:
         extra = TransferFunction.first_order_lag(
@@ -88,6 +94,9 @@ def flange_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, T
 def stage_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, TransferFunction]:
     """(heater to PTC-stage thermometer, stage oscillation to PTC-stage thermometer)."""
     heater = model.heater_to_ptc_stage
+    correction = model.effects.heater_path_correction
+    if correction is not None and correction.paths()[1] is not None:
+        heater = heater + correction.paths()[1]
     oscillation = TransferFunction((1.0,), (1.0,))
     lag = model.effects.sensor_lag
     if lag is not None and lag.ptc_stage_thermometer_time_constant_s > 0.0:
@@ -131,6 +140,8 @@ class CryostatPlant:
         self.dead_time_s = effects.dead_time.heater_to_flange_s if effects.dead_time else 0.0
         self.nonlinearity = effects.heater_nonlinearity
         self.heat_capacity = effects.heat_capacity_temperature
+        self.modulation = effects.ptc_amplitude_modulation
+        self.stage_drift = effects.ptc_stage_drift
         self.commanded_power_w = float(initial_heater_power_w)
         delivered = self.delivered_power_w(self.commanded_power_w)
         self.flange_heater.settle(delivered)
@@ -191,14 +202,29 @@ class CryostatPlant:
         self.time_s = time_s
 
     # -- outputs ------------------------------------------------------------
+    def envelope(self, elapsed_s):
+        """Factor on the cooler's oscillation ``elapsed_s`` after the start (1 without amplitude modulation)."""
+        return 1.0 if self.modulation is None else self.modulation.envelope(elapsed_s)
+
+    def drift_offsets_K(self, elapsed_s):
+        """(flange, stage) offsets of the cold end's drift ``elapsed_s`` after the start (K; 0 without)."""
+        if self.stage_drift is None:
+            return 0.0, 0.0
+        return self.stage_drift.offsets_K(elapsed_s)
+
     def temperatures(self) -> tuple[float, float]:
         """(T2, T5) in K at the current instant, noise-free."""
         point = self.model.operating_point
-        rotor, frequency = self.drive.cycle.rotor(self.time_s - self.start_time_s)
+        elapsed = self.time_s - self.start_time_s
+        rotor, frequency = self.drive.cycle.rotor(elapsed)
         heater = self.flange_heater.output()
         scale = 1.0 if self.heat_capacity is None else float(self.time_scale_at(heater))
-        flange = point.flange_temperature_K + heater + self.flange_ptc.value_at(rotor, frequency, scale)
-        stage = point.ptc_stage_temperature_K + self.stage_heater.output() + self.stage_ptc.value_at(rotor, frequency)
+        envelope = float(self.envelope(elapsed))
+        flange_drift, stage_drift = self.drift_offsets_K(elapsed)
+        flange = (point.flange_temperature_K + heater + envelope * self.flange_ptc.value_at(rotor, frequency, scale)
+                  + float(flange_drift))
+        stage = (point.ptc_stage_temperature_K + self.stage_heater.output()
+                 + envelope * self.stage_ptc.value_at(rotor, frequency) + float(stage_drift))
         return flange, stage
 
     def mean_temperatures(self, duration_s: float) -> tuple[float, float]:
@@ -209,10 +235,12 @@ class CryostatPlant:
         point = self.model.operating_point
         elapsed = self.time_s - self.start_time_s
         scale = self.time_scale()
+        envelope = float(self.envelope(elapsed))          # the modulation and the drift are slow: taken at the start
+        flange_drift, stage_drift = self.drift_offsets_K(elapsed)
         flange = (point.flange_temperature_K + self.flange_heater.mean_output(duration_s, scale)
-                  + self.flange_ptc.mean_value(elapsed, duration_s, scale))
+                  + envelope * self.flange_ptc.mean_value(elapsed, duration_s, scale) + float(flange_drift))
         stage = (point.ptc_stage_temperature_K + self.stage_heater.mean_output(duration_s)
-                 + self.stage_ptc.mean_value(elapsed, duration_s))
+                 + envelope * self.stage_ptc.mean_value(elapsed, duration_s) + float(stage_drift))
         return flange, stage
 
 
@@ -324,8 +352,11 @@ def _simulate_whole(plant: CryostatPlant, time_s: np.ndarray, heater_power_w: np
     flange_heater = outputs[np.searchsorted(grid, time_s)] if grid.size != time_s.size else outputs
     elapsed = time_s - plant.start_time_s
     scale = 1.0 if plant.heat_capacity is None else plant.time_scale_at(flange_heater)
-    flange = point.flange_temperature_K + flange_heater + plant.flange_ptc.values(elapsed, scale)
-    stage = point.ptc_stage_temperature_K + stage_heater + plant.stage_ptc.values(elapsed)
+    envelope = plant.envelope(elapsed)
+    flange_drift, stage_drift = plant.drift_offsets_K(elapsed)
+    flange = point.flange_temperature_K + flange_heater + envelope * plant.flange_ptc.values(elapsed, scale) \
+        + flange_drift
+    stage = point.ptc_stage_temperature_K + stage_heater + envelope * plant.stage_ptc.values(elapsed) + stage_drift
     return flange, stage
 
 

@@ -23,8 +23,9 @@ from pathlib import Path
 import yaml
 
 from cryod.model.parameters import (
-    CryostatModel, DeadTime, Effects, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, OperatingPoint,
-    PtcFrequencyDrift, PtcHarmonic, PtcSource, SensorLag, SensorNoise,
+    CryostatModel, DeadTime, Effects, HeatCapacityTemperature, HeaterNonlinearity, HeaterPathCorrection,
+    LinkDynamics, OperatingPoint, PtcAmplitudeModulation, PtcFrequencyDrift, PtcHarmonic, PtcSource, PtcStageDrift,
+    SensorLag, SensorNoise,
 )
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
 from cryod.model.uncertainty import ModelUncertainty, UncertaintyError, check_consistent, inconsistencies
@@ -227,6 +228,37 @@ def _effects(section: Section) -> Effects:
             wander_phase_rad=drift.number("wander_phase_rad", 0.0),
         )
         drift.finish()
+    modulation = section.section("ptc_amplitude_modulation", None)
+    if modulation is not None:
+        found["ptc_amplitude_modulation"] = PtcAmplitudeModulation(
+            depth=modulation.number("depth", minimum=0.0, maximum=0.9),
+            period_s=modulation.number("period_s", minimum=0.0, exclusive_minimum=True),
+            phase_rad=modulation.number("phase_rad", 0.0),
+        )
+        modulation.finish()
+    stage = section.section("ptc_stage_drift", None)
+    if stage is not None:
+        found["ptc_stage_drift"] = PtcStageDrift(
+            rms_K=stage.number("rms_K", minimum=0.0, maximum=1.0),
+            correlation_time_s=stage.number("correlation_time_s", minimum=0.0, exclusive_minimum=True),
+            flange_coupling=stage.number("flange_coupling", minimum=-10.0, maximum=10.0),
+            coupling_time_constant_s=stage.number("coupling_time_constant_s", minimum=0.0),
+            seed=stage.number("seed", 0, minimum=0.0, integer=True),
+        )
+        stage.finish()
+    correction = section.section("heater_path_correction", None)
+    if correction is not None:
+        taus = correction.numbers("time_constants_s")
+        if any(tau <= 0.0 for tau in taus):
+            raise correction.error("time_constants_s", f"each time constant must be positive, got {taus}")
+        gains = {}
+        for key in ("flange_gains_K_per_W", "ptc_stage_gains_K_per_W"):
+            gains[key] = correction.numbers(key)
+            if len(gains[key]) != len(taus):
+                raise correction.error(key, f"needs one gain per time constant ({len(taus)}), got {len(gains[key])}")
+        found["heater_path_correction"] = HeaterPathCorrection(tuple(taus), tuple(gains["flange_gains_K_per_W"]),
+                                                               tuple(gains["ptc_stage_gains_K_per_W"]))
+        correction.finish()
     section.finish()
     return Effects(**found)
 
@@ -234,6 +266,12 @@ def _effects(section: Section) -> Effects:
 # ---------------------------------------------------------------------------
 # writing
 # ---------------------------------------------------------------------------
+def _plain_effect(effect) -> dict:
+    """An effect's fields as a mapping (tuples as lists)."""
+    return {key: list(value) if isinstance(value, tuple) else value
+            for key, value in dataclasses.asdict(effect).items()}
+
+
 def model_to_dict(model: CryostatModel) -> dict:
     """The model as the plain mapping written to a model file."""
     data: dict = {"format": MODEL_FORMAT}
@@ -255,7 +293,7 @@ def model_to_dict(model: CryostatModel) -> dict:
     if model.ptc.harmonics:
         ptc["harmonics"] = [dataclasses.asdict(h) for h in model.ptc.harmonics]
     data["ptc"] = ptc
-    effects = {name: dataclasses.asdict(getattr(model.effects, name)) for name in model.effects.present()}
+    effects = {name: _plain_effect(getattr(model.effects, name)) for name in model.effects.present()}
     if effects:
         data["effects"] = effects
     data["sensor_noise"] = dataclasses.asdict(model.sensor_noise)

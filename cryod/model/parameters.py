@@ -35,7 +35,12 @@ EFFECT_NAMES = (
     "heater_nonlinearity",
     "ptc_harmonics",
     "ptc_frequency_drift",
+    "ptc_amplitude_modulation",
+    "ptc_stage_drift",
 )
+#: The generic, data-driven extension ``cryod analyze`` adds where no cause of :data:`EFFECT_NAMES` explains
+#: the record: an effect of the model file, but no cause.
+GENERIC_EFFECT_NAMES = ("heater_path_correction",)
 
 
 @dataclass(frozen=True)
@@ -156,6 +161,94 @@ class PtcFrequencyDrift:
 
 
 @dataclass(frozen=True)
+class PtcAmplitudeModulation:
+    """The cooler's stroke breathing: the whole oscillation (T5's line and the heat it drives) scaled by
+    ``1 + depth * sin(2 pi t / period_s + phase_rad)``, t from the phase reference."""
+
+    depth: float
+    period_s: float
+    phase_rad: float = 0.0
+
+    def envelope(self, time_s):
+        """Factor on the oscillation at ``time_s`` (dimensionless)."""
+        return 1.0 + self.depth * np.sin(2.0 * math.pi * np.asarray(time_s, dtype=float) / self.period_s
+                                         + self.phase_rad)
+
+
+#: Components of a stage drift's realisation (:meth:`PtcStageDrift.components`).
+STAGE_DRIFT_COMPONENTS = 48
+
+
+@dataclass(frozen=True)
+class PtcStageDrift:
+    """The cold end's base temperature wandering (cooling water, compressor): d(t) added to T5, reaching the
+    flange through ``flange_coupling / (coupling_time_constant_s s + 1)``.
+
+    d(t) is a random process of rms ``rms_K`` whose spectrum is a Lorentzian of correlation time
+    ``correlation_time_s`` (a random walk above ``1 / (2 pi correlation_time_s)``, flat below), realised
+    deterministically from ``seed`` as a sum of sinusoids (:meth:`offsets_K`).
+    """
+
+    rms_K: float
+    correlation_time_s: float
+    flange_coupling: float
+    coupling_time_constant_s: float
+    seed: int = 0
+
+    def components(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(angular frequencies in rad/s, amplitudes in K, phases in rad) of the realisation.
+
+        Frequencies log-spaced from a hundredth to ten times the corner (faster changes are smoothed by the
+        stage's own heat capacity), each amplitude the square root of
+        the Lorentzian's power in its band, scaled to ``rms_K`` in all.
+        """
+        corner = 1.0 / self.correlation_time_s
+        edges = np.geomspace(0.01 * corner, 10.0 * corner, STAGE_DRIFT_COMPONENTS + 1)
+        power = np.diff(np.arctan(edges / corner))          # integral of 1 / (1 + (w / corner)^2) per band
+        frequencies = np.sqrt(edges[:-1] * edges[1:])
+        amplitudes = np.sqrt(2.0 * power / power.sum()) * self.rms_K
+        phases = np.random.default_rng(self.seed).uniform(-math.pi, math.pi, frequencies.size)
+        return frequencies, amplitudes, phases
+
+    def offsets_K(self, time_s) -> tuple[np.ndarray, np.ndarray]:
+        """(flange, stage) temperature offsets (K) at ``time_s``: the drift and its response through the coupling."""
+        time_s = np.asarray(time_s, dtype=float)
+        frequencies, amplitudes, phases = self.components()
+        coupling = self.flange_coupling / (1j * frequencies * self.coupling_time_constant_s + 1.0)
+        angles = np.multiply.outer(time_s, frequencies) + phases
+        stage = np.cos(angles) @ amplitudes
+        flange = np.cos(angles + np.angle(coupling)) @ (amplitudes * np.abs(coupling))
+        return flange, stage
+
+
+@dataclass(frozen=True)
+class HeaterPathCorrection:
+    """Generic, data-driven extension: first-order terms added in parallel to the heater's paths.
+
+    ``G1 -> G1 + sum(flange_gains_K_per_W[i] / (time_constants_s[i] s + 1))`` and the same on G3 with
+    ``ptc_stage_gains_K_per_W``. Not a physical cause: ``cryod analyze`` fits it where no cause explains the
+    record, to model what is left.
+    """
+
+    time_constants_s: tuple
+    flange_gains_K_per_W: tuple
+    ptc_stage_gains_K_per_W: tuple
+
+    def paths(self) -> tuple:
+        """(added to G1, added to G3) as transfer functions (None where every gain is 0)."""
+        found = []
+        for gains in (self.flange_gains_K_per_W, self.ptc_stage_gains_K_per_W):
+            total = None
+            for tau, gain in zip(self.time_constants_s, gains):
+                if gain == 0.0:
+                    continue
+                term = TransferFunction.first_order_lag(tau, gain)
+                total = term if total is None else total + term
+            found.append(total)
+        return tuple(found)
+
+
+@dataclass(frozen=True)
 class SensorNoise:
     """White reading noise of each thermometer, rms in K."""
 
@@ -173,6 +266,10 @@ class Effects:
     heat_capacity_temperature: HeatCapacityTemperature | None = None
     heater_nonlinearity: HeaterNonlinearity | None = None
     ptc_frequency_drift: PtcFrequencyDrift | None = None
+    ptc_amplitude_modulation: PtcAmplitudeModulation | None = None
+    #: A :class:`PtcStageDrift`, or any object with its ``offsets_K(time_s)`` (a drift measured in a record).
+    ptc_stage_drift: PtcStageDrift | None = None
+    heater_path_correction: HeaterPathCorrection | None = None
 
     def present(self) -> list[str]:
         """Names of the effects that are set."""

@@ -21,7 +21,9 @@ within the tolerance:
 3. With a parameter beyond, the causes are searched again on the widened
    model (its own recalibration of 10 % around it, every candidate). The
    verdict is ``base_model_off`` (with what that search names on top of it)
-   when that search's extended model is significantly better on the held-out
+   when that search explains the record (its verdict is not ``unexplained``:
+   a record with something outside the catalogue is not put down to the base
+   model) and its extended model is significantly better on the held-out
    blocks than the first one's (improvement at least 25 and 5 sigma), or, when
    a parameter was at its tolerance, not significantly worse. Otherwise the
    first verdict stands: a catalogue cause that explains the record better
@@ -129,8 +131,6 @@ def _reason(beyond: list, inner) -> str:
                       f"({100.0 * (row.fitted / row.shipped - 1.0):+.0f} %)".replace("  ", " ") for row in beyond)
     if inner.cause == "none":
         then = "with those values the model leaves no discrepancy beyond the noise"
-    elif inner.cause == "unexplained":
-        then = f"with those values a discrepancy is still left that no catalogue cause explains ({inner.decision.reason})"
     else:
         then = f"with those values, {inner.decision.reason}"
     return (f"the base model is further off than the recalibration allows: the record asks {asked}; {ADVICE}; "
@@ -157,7 +157,7 @@ def judged_beyond_recalibration(search, analysis, search_on):
     spread = significance(improvement, _distinct(analysis, analysis.extended_replay, inner.extended_replay))
     better = improvement >= CANDIDATE_MINIMUM_IMPROVEMENT and spread >= CANDIDATE_SIGMA
     worse = -improvement >= CANDIDATE_MINIMUM_IMPROVEMENT and -spread >= CANDIDATE_SIGMA
-    if not (better or (at_tolerance and not worse)):
+    if inner.cause == "unexplained" or not (better or (at_tolerance and not worse)):
         return analysis
     shipped = analysis.base_discrepancy
     gain = gain_between(shipped.sum_of_squares, inner_sum, shipped.terms)

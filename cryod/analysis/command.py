@@ -22,6 +22,7 @@ import sys
 import time
 from pathlib import Path
 
+from cryod.analysis.cooler_causes import in_file_form
 from cryod.analysis.discrepancies import find_discrepancies
 from cryod.analysis.model_uncertainty import model_uncertainty_check, report_section
 from cryod.analysis.pipeline import analyze
@@ -137,10 +138,11 @@ def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Pat
                                       frequency, segments)
     analysis.timings_s["discrepancies"] = time.perf_counter() - moment
     model_path_out = out / EXTENDED_MODEL_NAME
-    extended_model = analysis.extended_model
+    extended_model = in_file_form(analysis.extended_model)
     if analysis.extended:
         base_name = model.name or "model"
         added = [named.cause for named in analysis.causes] if analysis.cause not in ("none", "unexplained") else []
+        added += ["generic heater_path_correction"] if analysis.generic is not None and analysis.generic.added else []
         what = " + ".join((["recalibrated"] if analysis.recalibrated else []) + added)
         extended_model = dataclasses.replace(
             extended_model, name=f"{base_name} + {what}",

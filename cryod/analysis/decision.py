@@ -141,6 +141,8 @@ class Decision:
     best: CandidateScore | None
     base: BaseDiscrepancy
     gain: Gain
+    #: Causes the record cannot tell from the one named (rule 4).
+    tied: tuple = ()
 
 
 def base_discrepancy(context: FitContext) -> BaseDiscrepancy:
@@ -217,7 +219,7 @@ def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=Non
     unchanged = gain_between(base.sum_of_squares, base.sum_of_squares, base.terms)
     counting = [score for score in scores if score.counts]
     best = max(counting, key=lambda score: score.improvement) if counting else None
-    tie_text = ""
+    tie_text, tied_causes = "", ()
     if best is not None and distinctness is not None:
         tied = _tied_with(best, counting, distinctness)
         if tied:
@@ -231,6 +233,7 @@ def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=Non
                    else "with the fewest parameters or, at equal numbers, the more common cause")
             tie_text = (f"; this record cannot tell {simplest.cause} from {others} (within {TIE_SIGMA:g} standard "
                         f"deviations on the held-out data): {simplest.cause} is named, {why}")
+            tied_causes = tuple(score.cause for score in [best] + tied if score is not simplest)
             best = simplest
     excess_text = (f"the base model's held-out excess is {base.excess:.4g} "
                    f"({base.significance:.1f} sigma, {100.0 * base.excess / base.terms:.2f} % of the noise power)")
@@ -249,7 +252,7 @@ def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=Non
     if best.explained_fraction >= EXPLAINED_FRACTION or leaves_nothing:
         reason = (f"{excess_text}; {best.cause} removes {100.0 * best.explained_fraction:.1f} % of it "
                   f"({best.significance:.1f} sigma)" + (tie_text or ", the most of any candidate"))
-        return Decision(best.cause, reason, best, base, best.gain)
+        return Decision(best.cause, reason, best, base, best.gain, tied_causes)
     reason = (f"{excess_text}; the best candidate, {best.cause}, removes only "
               f"{100.0 * best.explained_fraction:.1f} % of it and leaves a discrepancy of "
               f"{remaining_significance:.1f} sigma")

@@ -38,6 +38,7 @@ import numpy as np
 from cryod.analysis.base_model_off import judged_beyond_recalibration
 from cryod.analysis.candidates import CANDIDATE_CAUSES, CandidateFit, FitContext
 from cryod.analysis.fitters import FITTERS
+from cryod.analysis.generic_extension import fit_generic_extension
 from cryod.analysis.decision import (
     CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision, Gain, base_discrepancy, decide, gain_between,
     score_candidate,
@@ -50,6 +51,7 @@ from cryod.analysis.recalibration import (
 from cryod.analysis.record_data import RecordData, fit_block_mask
 from cryod.analysis.refinement import NamedEffect, combined_effect, joint_basis, refine
 from cryod.analysis.replay import Replay, Replayer
+from cryod.analysis.residual_signature import describe_residual
 from cryod.analysis.usability import check_usable
 from cryod.model import CryostatModel
 
@@ -441,7 +443,8 @@ class CauseSearch:
             tie = first.reason.find("this record cannot tell")
             if len(analysis.causes) == 1 and first.best is not None and first.best.cause == named.cause and tie >= 0:
                 reason += "; " + first.reason[tie:]
-            analysis.decision = Decision(named.cause, reason, named.score, recalibrated_base, total_gain)
+            tied = first.tied if tie >= 0 and len(analysis.causes) == 1 and first.best.cause == named.cause else ()
+            analysis.decision = Decision(named.cause, reason, named.score, recalibrated_base, total_gain, tied)
             analysis.final_model, analysis.final_replay = path.context.base_model, path.context.base_replay
             analysis.final_recalibration = Recalibration.refitted(path.recalibration_base, path.context.base_replay)
             analysis.remaining = base
@@ -599,8 +602,26 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
         When the record cannot be analysed, saying what it is missing.
     """
     search = CauseSearch(data, base_model, causes)
-    analysis = judged_beyond_recalibration(search, search.run(), lambda model: CauseSearch(data, model, causes, screen_when_fitting=False).run())
+    analysis = judged_beyond_recalibration(
+        search, search.run(), lambda model: CauseSearch(data, model, causes, screen_when_fitting=False).run())
+    started = time.perf_counter()
+    described_and_extended(analysis)
+    analysis.timings_s["residual and generic extension"] = time.perf_counter() - started
     return analysis
+
+
+def described_and_extended(analysis: Analysis) -> None:
+    """The residual's signature, and the generic extension added where the extended model leaves a discrepancy."""
+    analysis.residual_signature = describe_residual(analysis)
+    if analysis.remaining is None or not analysis.remaining.present:
+        return
+    context = analysis.context
+    on_extended = FitContext(analysis.data, context.replayer, analysis.extended_model, analysis.base_line,
+                             analysis.extended_replay, analysis.noise_rms_K, context.fit_mask, context.held_out_mask)
+    analysis.generic = fit_generic_extension(on_extended, analysis.remaining)
+    if analysis.generic.added:
+        analysis.final_model = analysis.generic.fit.extended_model
+        analysis.final_replay = analysis.generic.fit.replay
 
 
 def _pair_up(causes: list, earlier: list, others: list):

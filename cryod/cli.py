@@ -1,6 +1,6 @@
 """Command line of cryod.
 
-    cryod run --config PATH [--check]           the service
+    cryod run --config PATH [--check]           the service (--supply-off: only the heater supply to 0 A)
     cryod --simulate [--config PATH] [...]      the same daemon on the simulated cryostat
     cryod simulate [...]                        the same as cryod --simulate
     cryod ctl [--socket PATH] COMMAND           talk to the running daemon (found by itself)
@@ -99,6 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="only validate the configuration and the calibration files, then exit")
     run.add_argument("--duration", type=positive, default=None, dest="run_duration", metavar="S",
                      help="stop after this many seconds (default: until SIGTERM)")
+    run.add_argument("--supply-off", action="store_true",
+                     help="only set the heater supply to 0 A with its output off, then exit (what the unit runs "
+                          "after the daemon ended, however it ended; left alone while another cryod drives it)")
 
     ctl = commands.add_parser("ctl", help="talk to the running daemon",
                               description="Send one command to the running daemon's control socket.")
@@ -187,7 +190,8 @@ def _main(argv: list[str] | None) -> int:
 
 def _run_service(args) -> int:
     from cryod.service.daemon import Daemon, config_or_exit
-    from cryod.service.instruments import open_instruments, check_calibrations, check_instrument_support
+    from cryod.service.instruments import (check_calibrations, check_instrument_locking, check_instrument_support,
+                                           instrument_addresses, open_instruments)
     from cryod.service.clock import MonotonicClock
     from cryod.service.logs import ServiceLogging
 
@@ -196,14 +200,16 @@ def _run_service(args) -> int:
     config = config_or_exit(args.run_config, sys.stderr)
     if config is None:
         return 2
-    problem = check_calibrations(config) or check_instrument_support(config)
+    problem = check_calibrations(config) or check_instrument_support(config) or check_instrument_locking(config)
     if problem:
         print(f"cryod: {problem}", file=sys.stderr)
         return 2
     if args.check:
         print(f"{args.run_config}: configuration and calibration files are valid")
         return 0
-    daemon = Daemon(config, open_instruments, MonotonicClock())
+    if args.supply_off:
+        return _supply_off(config)
+    daemon = Daemon(config, open_instruments, MonotonicClock(), instrument_addresses=instrument_addresses)
     status_line = StatusLine(daemon.live_view, sys.stderr, duration_s=args.run_duration)   # a terminal only
     logging_service = ServiceLogging(stream=status_line.log_stream)
     logging_service.start()
@@ -219,8 +225,31 @@ def _run_service(args) -> int:
     return result.exit_code
 
 
+def _supply_off(config) -> int:
+    """``cryod run --supply-off``: 0 done, 2 another cryod drives the supply, 4 the supply out of reach."""
+    from cryod.service.clock import MonotonicClock
+    from cryod.service.instance_lock import InstrumentInUse
+    from cryod.service.instruments import switch_supply_off
+    from drivers.errors import InstrumentError
+
+    ended = ", ".join(f"{name} {os.environ[name]}" for name in ("SERVICE_RESULT", "EXIT_CODE", "EXIT_STATUS")
+                      if os.environ.get(name))          # how the daemon ended, when systemd runs this
+    after = f" (the daemon ended: {ended})" if ended else ""
+    try:
+        switch_supply_off(config, MonotonicClock())
+    except InstrumentInUse as error:
+        print(f"cryod: supply left alone{after}: {error}", file=sys.stderr)
+        return 2
+    except (InstrumentError, OSError) as error:
+        print(f"cryod: could not switch the heater supply off{after}: {error}; check it at the supply",
+              file=sys.stderr)
+        return 4
+    print(f"cryod: heater supply at 0 A, output off{after}", file=sys.stderr)
+    return 0
+
+
 def _ctl(args) -> int:
-    from cryod.service.control_socket import send_command
+    from cryod.service.control_socket import CLIENT_TIMEOUT_S, send_command
     from cryod.service.discovery import find_daemon_socket
     from cryod.yaml_source import FileFormatError
 
@@ -243,7 +272,9 @@ def _ctl(args) -> int:
         print(f"cryod ctl: {error}", file=sys.stderr)
         return 3
     try:
-        reply = send_command(path, " ".join(args.words))
+        reply = send_command(path, " ".join(args.words), on_busy=lambda message: print(
+            f"cryod ctl: the daemon answered {message}; trying again for up to {CLIENT_TIMEOUT_S:g} s",
+            file=sys.stderr))
     except ValueError as error:
         print(f"cryod ctl: {error}", file=sys.stderr)
         return 2

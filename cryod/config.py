@@ -44,6 +44,9 @@ MAX_RAMP_K_PER_MIN = 100.0
 #: socket needs write permission, and whoever connects can set the heater; read or execute bits
 #: for others mean nothing on a socket but show a mode meant for a file, so all three are refused.
 SOCKET_MODE_OTHERS = 0o007
+#: Where every cryod on the host locks the instruments it drives (``instruments.lock_directory``): the
+#: system's place for lock files, shared by all users and units; created at boot by systemd/cryod-tmpfiles.conf.
+DEFAULT_LOCK_DIRECTORY = Path("/run/lock/cryod")
 
 
 @dataclass(frozen=True)
@@ -100,6 +103,8 @@ class InstrumentsConfig:
     heater_model: str
     dmm: DmmSettings
     trigger_output: TriggerOutputConfig | None = None
+    #: Where this daemon locks each instrument's address against other cryod daemons on the host.
+    lock_directory: Path = DEFAULT_LOCK_DIRECTORY
 
 
 @dataclass(frozen=True)
@@ -420,6 +425,8 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         heater_supply=heater_address,
         heater_model=heater_model,
         dmm=dmm,
+        lock_directory=(_directory(section, "lock_directory", base) if section.text("lock_directory", None) is not None
+                        else DEFAULT_LOCK_DIRECTORY),
     )
     timing = ReadingTiming(nplc=dmm.nplc, line_frequency_hz=dmm.line_frequency_hz,
                            offset_compensation=dmm.offset_compensation, autozero=dmm.autozero,

@@ -13,10 +13,15 @@ output enable is open: the output stays off when asked on) and
 
 from __future__ import annotations
 
+import collections
 import math
 
 from simulated_hw.cryostat import SimulatedCryostat
 from simulated_hw.instrument import EmulatedInstrument
+
+
+#: Output changes :attr:`EmulatedCurrentSource.delivered_w` keeps.
+DELIVERED_LOG_LENGTH = 100_000
 
 
 class EmulatedCurrentSource(EmulatedInstrument):
@@ -43,6 +48,9 @@ class EmulatedCurrentSource(EmulatedInstrument):
         self.output_on = False
         self.current_setpoint_a = 0.0
         self.compliance_v = 10.0
+        #: What the heater got: (clock time s, power W) at every change of the output, the last
+        #: :data:`DELIVERED_LOG_LENGTH` of them (for checks of what really reached the heater, and when).
+        self.delivered_w: collections.deque[tuple[float, float]] = collections.deque(maxlen=DELIVERED_LOG_LENGTH)
 
     # -- faults ----------------------------------------------------------------------
     def inject_refuse_output(self, blocked: bool = True) -> None:
@@ -96,7 +104,17 @@ class EmulatedCurrentSource(EmulatedInstrument):
 
     def apply_to_heater(self) -> None:
         """Give the cryostat the heater power of the present output state, from now on."""
-        self.cryostat.set_heater_power(abs(self.heater_power_w))
+        power_w = abs(self.heater_power_w)
+        self.cryostat.set_heater_power(power_w)
+        if not self.delivered_w or self.delivered_w[-1][1] != power_w:
+            self.delivered_w.append((self.clock.now(), power_w))
+
+    def zero_since(self, time_s: float) -> float | None:
+        """The first clock time at or after ``time_s`` from which the heater got 0 W for good (so far), or None."""
+        changes = list(self.delivered_w)
+        if not changes or changes[-1][1] != 0.0:
+            return None
+        return max(time_s, changes[-1][0])
 
     def turn_output(self, on: bool) -> bool:
         """Turn the output on or off; False when on was asked but the output is blocked."""

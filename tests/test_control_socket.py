@@ -143,26 +143,92 @@ def test_a_hundred_clients_at_once_on_the_running_daemon_all_get_their_reply(tmp
     assert overruns == 0
 
 
-def test_one_connection_over_the_limit_gets_a_busy_reply(served):
-    path, loop, server = served(max_clients=3)
+def wait_for_connections(server, count, timeout_s=10.0):
+    end = time.monotonic() + timeout_s
+    while server.clients != count and time.monotonic() < end:
+        time.sleep(0.005)
+    assert server.clients == count
+
+
+class SlowLoop(AnsweringLoop):
+    """A loop that answers heater-off at once and every other command only when :meth:`release` is called."""
+
+    def __init__(self):
+        self.released = threading.Event()
+        super().__init__()
+
+    def submit(self, command):
+        if command.name == "heater-off":
+            self.seen.append((command.name, command.value))
+            command.answer(True, "heater-off done")
+            return command
+        return super().submit(command)
+
+    def _answer(self):
+        self.released.wait()
+        super()._answer()
+
+    def release(self):
+        self.released.set()
+        self._wake.set()
+
+
+def test_with_every_connection_waiting_for_the_loop_only_heater_off_is_taken_and_cryod_ctl_retries(tmp_path):
+    loop = SlowLoop()
+    server = ControlSocketServer(tmp_path / "control.sock", 0o660, None, None, loop.submit, lambda: dict(STATUS),
+                                 reply_timeout_s=60.0, max_clients=3)
+    server.start()
+    path = server.path
     holders = [socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) for _ in range(3)]
     try:
         for holder in holders:
             holder.connect(str(path))
-            holder.sendall(b"sta")                     # a line not finished yet: each keeps its connection
+            holder.sendall(b"setpoint 6\n")            # each waits for the loop's answer: none is idle
+        wait_for_connections(server, 3)
         end = time.monotonic() + 5.0
-        while server.clients < 3 and time.monotonic() < end:
+        while len(loop.seen) < 3 and time.monotonic() < end:
             time.sleep(0.005)
-        busy = send_command(path, "setpoint 5")
-        assert busy == {"ok": False, "message": "busy: 3 connections open at once (at most 3); try again in a moment"}
-        assert loop.seen == []                         # the busy client's command never reached the loop
+        busy = raw_exchange(path, b"setpoint 5\n")
+        assert busy == {"ok": False, "message": "busy: 4 connections open at once (at most 3 for commands; beyond "
+                                                "that only heater-off is taken); try again in a moment"}
+        assert ("setpoint", 5.0) not in loop.seen      # the busy client's command never reached the loop
+        assert raw_exchange(path, b"heater-off\n")["message"] == "heater-off done"
+        assert ("heater-off", None) in loop.seen
+        with pytest.raises(ConnectionError, match=r"stayed busy for 0.3 s \(\d+ attempts\); its last answer: busy:"):
+            send_command(path, "setpoint 5", timeout_s=0.3)
+        releaser = threading.Timer(0.3, loop.release)
+        releaser.start()                               # cryod ctl asks again until there is room
+        assert main(["ctl", "--socket", str(path), "setpoint", "5"]) == 0
+        releaser.join()
     finally:
+        loop.release()
         for holder in holders:
             holder.close()
-    end = time.monotonic() + 5.0
-    while server.clients and time.monotonic() < end:
-        time.sleep(0.005)
-    assert send_command(path, "status")["ok"]
+        server.stop()
+
+
+def test_idle_connections_however_many_cannot_keep_heater_off_out(served, capsys):
+    """Before: 256 idle connections got every cryod ctl heater-off "busy: 256 connections open" for as long as
+    they stayed. Now a connection beyond the limit closes the one that has waited longest without a line."""
+    path, loop, server = served(max_clients=40)
+    idle = []
+    try:
+        for _ in range(120):                           # three times the limit, none sending anything
+            client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            client.connect(str(path))
+            idle.append(client)
+        end = time.monotonic() + 10.0
+        while (server.connections.closed_for_room < 80 or server.clients > 40) and time.monotonic() < end:
+            time.sleep(0.005)
+        assert server.clients == 40                    # the limit: no more held open
+        assert main(["ctl", "--socket", str(path), "heater-off"]) == 0
+        assert loop.seen == [("heater-off", None)] and "heater-off done" in capsys.readouterr().out
+        closed = json.loads(idle[0].makefile("rb").readline())       # the idlest, closed for room, were told
+        assert closed["ok"] is False and closed["message"].startswith("closed: no command line yet when the 40 "
+                                                                      "connections open at once were all taken")
+    finally:
+        for client in idle:
+            client.close()
 
 
 def test_cryod_ctl_waits_while_the_backlog_is_full(tmp_path):

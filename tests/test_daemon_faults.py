@@ -52,6 +52,7 @@ class FaultDrill:
         self.before_start = before_start
         self.rows = []
         self.heater_at_fault = []
+        self.install_signal_handlers = False        # the daemon's own signal handling (the test's main thread)
 
     def tap(self, item):
         if not isinstance(item, Row):
@@ -68,12 +69,17 @@ class FaultDrill:
         return opened
 
     def run(self, duration_s):
-        daemon = Daemon(self.config, self.open_instruments, VirtualClock(), notifier=SystemdNotifier({}),
-                        row_taps=[self.tap], install_signal_handlers=False, datalog_options=self.datalog_options)
-        self.result = daemon.run(duration_s)
-        self.record = read_record(self.result.log_paths[-1])
+        self.daemon = Daemon(self.config, self.open_instruments, VirtualClock(), notifier=SystemdNotifier({}),
+                             row_taps=[self.tap], install_signal_handlers=self.install_signal_handlers,
+                             datalog_options=self.datalog_options)
+        self.result = self.daemon.run(duration_s)
+        self.record = self.daemon_record()
         self.states = [str(state) for state in self.record.columns["state"]]
         return self.result
+
+    def daemon_record(self):
+        """The record the daemon wrote last (also after its run raised)."""
+        return read_record(self.daemon.datalog.paths[-1])
 
     def supply_current_a(self):
         return self.opener.bench.heater_supply.output_current_a
@@ -200,6 +206,21 @@ def test_waiting_for_instruments_is_bounded_when_configured(tmp_path):
     result = Daemon(config, opener, VirtualClock(), notifier=SystemdNotifier({}), install_signal_handlers=False).run(60.0)
     assert result.exit_code == 4 and result.loop is None
     assert 200.0 < opener.attempts[-1] - opener.attempts[0] <= 300.0
+
+
+@pytest.mark.parametrize("wait_s", [5.0, 0.5, 61.0])
+def test_the_wait_for_instruments_lasts_the_configured_time(tmp_path, wait_s):
+    """The last attempt comes when the configured wait is up, not at the last doubling of the pause before it."""
+    config = simulated_config(tmp_path)
+    config = dataclasses.replace(config, safety=dataclasses.replace(config.safety, instruments_wait_s=wait_s))
+    opener = FlakyOpener(failures=10 ** 6)
+    result = Daemon(config, opener, VirtualClock(), notifier=SystemdNotifier({}), install_signal_handlers=False).run(60.0)
+    assert result.exit_code == 4
+    assert opener.attempts[-1] - opener.attempts[0] == pytest.approx(wait_s, abs=1e-9)
+    assert all(later > earlier for earlier, later in zip(opener.attempts, opener.attempts[1:]))
+    stop = [text for _, text in read_record(result.log_paths[0]).events if text.startswith("event: stop:")]
+    assert stop == [f"event: stop: instruments out of reach for {wait_s:.1f} s (safety.instruments_wait_s {wait_s:g}): "
+                    f"flange DMM (T2): cannot open TCPIP0::10.0.0.7::1234::SOCKET: no route to host (exit 4)"]
 
 
 def test_a_second_daemon_touches_no_instrument(tmp_path):

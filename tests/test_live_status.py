@@ -17,6 +17,8 @@ import struct
 import subprocess
 import sys
 import termios
+import time
+import urllib.error
 import urllib.request
 
 import pytest
@@ -179,3 +181,33 @@ def test_metrics_addresses_are_checked_and_a_busy_port_is_named():
             second.start()
     finally:
         first.stop()
+
+
+def test_hundreds_of_idle_connections_to_the_metrics_cost_no_thread_each_and_a_scrape_still_answers():
+    """Before: prometheus_client's server took a thread per connection (800 idle ones: 808 threads in the daemon)."""
+    import threading
+
+    before = threading.active_count()
+    endpoint = MetricsEndpoint(LiveView(0.08, 10.83), "127.0.0.1:0", max_connections=32)
+    endpoint.start()
+    idle = []
+    try:
+        for _ in range(300):
+            idle.append(socket.create_connection(("127.0.0.1", endpoint.port)))
+            idle[-1].sendall(b"GET /metr")                   # a request begun, never finished
+        assert scrape(endpoint.port)[("cryod_loop_ticks_total", ())] == 0.0
+        assert threading.active_count() == before + 1        # one thread for every client
+        end = time.monotonic() + 10.0
+        while (endpoint.connections.closed_for_room < 268 or endpoint.connections.open > 32) \
+                and time.monotonic() < end:
+            time.sleep(0.01)
+        assert endpoint.connections.closed_for_room >= 268 and endpoint.connections.open <= 32
+        with urllib.request.urlopen(f"http://127.0.0.1:{endpoint.port}/nothing", timeout=5) as reply:
+            raise AssertionError(f"a path that is not the metrics answered {reply.status}")
+    except urllib.error.HTTPError as error:
+        assert error.code == 404
+    finally:
+        for connection in idle:
+            connection.close()
+        endpoint.stop()
+    assert threading.active_count() == before

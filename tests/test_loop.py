@@ -153,6 +153,51 @@ def test_unexpected_exception_turns_heater_off_and_propagates(reference_model, c
     assert cryostat.heater_power_w == 0.0
 
 
+def test_a_stop_asked_for_while_the_tick_reads_sets_no_new_power(reference_model, curves, base_config):
+    """A signal arriving while the loop waits for its readings: the tick ends in the stop, with the readings
+    kept in its row, and the supply is told 0 W, not the tick's new power first."""
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    original = instruments.measure
+
+    def measure_then_signal():
+        reading = original()
+        if instruments.measurements == 800:
+            loop.request_stop("SIGUSR1 received", 138, "signal")
+        return reading
+
+    instruments.measure = measure_then_signal
+    assert loop.run(duration_s=600.0, manage_gc=False) == 138
+    asked_at = rows[-1].time_s
+    assert [power for time_s, power in instruments.heater_log if time_s >= asked_at] == [0.0]
+    assert rows[-1].heater_W == 0.0 and rows[-1].state == "stopped" and np.isfinite(rows[-1].T2_K)
+    assert [str(event) for event in events if event.kind == "stop"] == ["stop: signal: SIGUSR1 received (exit 138)"]
+
+
+def test_a_heater_held_off_from_outside_ends_in_the_stop_asked_for(reference_model, curves, base_config):
+    """The stop's last resort switches the heater off from another thread; a setting the loop then still
+    tries is refused, and the loop stops as asked (not as for a heater fault)."""
+    from cryod.service.heater_guard import HeaterGuard
+
+    clock = VirtualClock()
+    instruments = DirectInstruments(SimulatedCryostat(reference_model, clock, seed=2), *curves, clock)
+    guard = HeaterGuard(instruments)
+    rows, events = [], []
+    loop = ControlLoop(base_config, guard, *curves, clock,
+                       emit=lambda item: (rows if isinstance(item, Row) else events).append(item))
+    original = guard.set_heater_power
+
+    def held_off_just_before_setting(power_w):
+        if instruments.measurements == 800:         # between the loop's look at the stop and its setting
+            loop.request_stop("SIGABRT received", 134, "signal")
+            assert guard.hold_off("SIGABRT received", 1.0) is None
+        return original(power_w)
+
+    guard.set_heater_power = held_off_just_before_setting
+    assert loop.run(duration_s=600.0, manage_gc=False) == 134
+    assert instruments.heater_log[-1][1] == 0.0 and loop.last_fault.cause == "signal"
+    assert guard.held_off == "SIGABRT received"
+
+
 def test_stop_request_turns_heater_off(reference_model, curves, base_config):
     loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
     original = instruments.measure

@@ -29,6 +29,8 @@ def test_unit_settings_the_daemon_relies_on(unit, directory):
     assert service["Type"] == "notify"
     assert "cryod run --config /etc/cryod/" + ("%i" if unit == TEMPLATE else "cryod") + ".yaml" in service["ExecStart"]
     assert service["ExecReload"] == "/bin/kill -HUP $MAINPID"
+    # after any end (SIGKILL, a crash) the supply is switched off by a process of its own
+    assert service["ExecStopPost"] == service["ExecStart"].replace("/opt/", "-/opt/", 1) + " --supply-off"
     assert int(service["WatchdogSec"]) >= 5
     assert service["Restart"] == "on-failure" and service["RestartPreventExitStatus"].split() == ["2", "7"]
     assert service["RuntimeDirectory"] == directory and service["StateDirectory"] == directory
@@ -36,6 +38,9 @@ def test_unit_settings_the_daemon_relies_on(unit, directory):
     assert documentation == "file:/opt/cryod/docs/operations.md"      # where docs/operations.md installs it
     assert service["DevicePolicy"] == "closed" and "dialout" in service["SupplementaryGroups"]
     assert service["NoNewPrivileges"] == "yes" and service["ProtectSystem"] == "strict"
+    # the instrument locks' directory, shared by every unit, made before the start and writable in the sandbox
+    assert service["ExecStartPre"].startswith("+/usr/bin/install -d -o cryod -g cryod")
+    assert service["ExecStartPre"].endswith(" /run/lock/cryod") and service["ReadWritePaths"] == "/run/lock/cryod"
 
 
 @pytest.mark.parametrize("unit, name", [(UNIT, "cryod.service"), (TEMPLATE, "cryod@k2-flange.service")])

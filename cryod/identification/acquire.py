@@ -135,7 +135,8 @@ class ProgressDisplay:
 def acquire(config: DaemonConfig, plan: ExperimentPlan, open_instruments: Callable, clock, *,
             metadata: dict | None = None, expected_settle_s: float = 900.0, progress: bool | None = None,
             progress_stream=None, install_signal_handlers: bool = True, row_taps: list | None = None,
-            notifier: SystemdNotifier | None = None, datalog_options: dict | None = None) -> Acquisition:
+            notifier: SystemdNotifier | None = None, datalog_options: dict | None = None,
+            instrument_addresses: Callable | None = None) -> Acquisition:
     """Run the identification experiment through the daemon.
 
     Parameters
@@ -159,6 +160,8 @@ def acquire(config: DaemonConfig, plan: ExperimentPlan, open_instruments: Callab
         Ctrl-C (SIGINT) and SIGTERM stop the experiment (main thread only).
     row_taps : list of callable, optional
         Also receive every row and event (tests).
+    instrument_addresses : callable, optional
+        As for :class:`~cryod.service.daemon.Daemon`: the real instruments' addresses, locked for the run.
 
     Returns
     -------
@@ -187,7 +190,7 @@ def acquire(config: DaemonConfig, plan: ExperimentPlan, open_instruments: Callab
     runner = ExperimentRunner(plan, submit, stop, note, expected_settle_s=expected_settle_s)
     daemon = Daemon(config, open_instruments, clock, notifier=notifier or SystemdNotifier({}), metadata=header,
                     row_taps=[runner, *(row_taps or [])], install_signal_handlers=install_signal_handlers,
-                    datalog_options=datalog_options)
+                    datalog_options=datalog_options, instrument_addresses=instrument_addresses)
     holder["daemon"] = daemon
     started = time.perf_counter()
     with ProgressDisplay(lambda: runner.progress, stream=progress_stream, enabled=progress):
@@ -197,8 +200,9 @@ def acquire(config: DaemonConfig, plan: ExperimentPlan, open_instruments: Callab
     where = ", ".join(map(str, paths)) if paths else "no record was written"
     if result.exit_code == ExitCode.CONFIG and result.loop is None:
         return Acquisition("not_started", int(ExitCode.CONFIG), paths, runner,
-                           f"the experiment did not start: another cryod holds {config.control_socket.path} (stop "
-                           f"the service first: systemctl stop cryod), or the configuration was refused; see above",
+                           f"the experiment did not start: another cryod holds {config.control_socket.path} or one "
+                           f"of the instruments (stop the service first: systemctl stop cryod), or the configuration "
+                           f"was refused; see above",
                            wall)
     if runner.outcome == "finished":
         unsettled = (f"; NOT settled within --max-settle: {', '.join(runner.unsettled)}" if runner.unsettled else "")

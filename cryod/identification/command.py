@@ -202,15 +202,16 @@ def _acquire(args, config, base) -> tuple[int, object]:
         except (ValueError, FileFormatError) as error:
             print(f"{PROGRAM}: {error}", file=sys.stderr)
             return 2, None
-        opener = SimulatedInstrumentsOpener(simulated, config.simulation.seed)
+        opener, claims = SimulatedInstrumentsOpener(simulated, config.simulation.seed), None
         clock = _clock(args.speed)
         metadata.update({"simulated": "yes (cryod identify --acquire --simulate)",
                          "simulated_model": str(args.sim_model or config.simulation.model or DEFAULT_MODEL_PATH),
                          "simulation_seed": config.simulation.seed})
     else:
-        from cryod.service.instruments import check_calibrations, open_instruments
+        from cryod.service.instruments import (check_calibrations, check_instrument_locking, instrument_addresses,
+                                               open_instruments)
 
-        problem = check_calibrations(config)
+        problem = check_calibrations(config) or check_instrument_locking(config)
         if problem:
             print(f"{PROGRAM}: {problem}", file=sys.stderr)
             return 2, None
@@ -220,10 +221,12 @@ def _acquire(args, config, base) -> tuple[int, object]:
                 control_socket=dataclasses.replace(config.control_socket,
                                                    path=args.socket or config.control_socket.path))
         opener, clock = open_instruments, MonotonicClock()
+        claims = instrument_addresses
     logging_service = ServiceLogging(level=logging.WARNING)
     logging_service.start()
     try:
-        acquisition = acquire(config, plan, opener, clock, metadata=metadata, expected_settle_s=expected)
+        acquisition = acquire(config, plan, opener, clock, metadata=metadata, expected_settle_s=expected,
+                              instrument_addresses=claims)
     finally:
         logging_service.stop()
     print(f"{PROGRAM}: {acquisition.message}", file=sys.stderr)

@@ -232,6 +232,8 @@ class DataLog:
                 for item in batch:
                     if item is _STOP:
                         stopping = True
+                        if self._pending and self._day is None and self.failure is None:
+                            self._open_without_rows()
                         break
                     if isinstance(item, threading.Event):      # drain(): what came before is written
                         self._write_pending()
@@ -335,14 +337,20 @@ class DataLog:
                        f"hold for the record")
 
     # -- files ---------------------------------------------------------------------
-    def _open(self, day: str, origin_s: float) -> None:
+    def _open_without_rows(self) -> None:
+        """A run that stops before its first row (instruments never came, a signal while waiting) still
+        leaves its events: a record of the header and those events, dated now."""
+        wall = time.time()
+        self._open(dt.datetime.fromtimestamp(wall, dt.timezone.utc).strftime("%Y-%m-%d"), 0.0, start_wall_s=wall)
+
+    def _open(self, day: str, origin_s: float, start_wall_s: float | None = None) -> None:
         """Start the day's file (the one before is closed)."""
         self._close()
         self._day = day
         self._file = self._new_file(day)
         if self._file is None:
             return
-        self._start_file(origin_s)
+        self._start_file(origin_s, start_wall_s)
         if self.compress_finished and (self._compressing is None or not self._compressing.is_alive()):
             self._compressing = compress_in_background(self.directory, day)
 
@@ -365,10 +373,11 @@ class DataLog:
                            f"takes no new file ({error.strerror or error})"))
                 return None
 
-    def _start_file(self, origin_s: float) -> None:
+    def _start_file(self, origin_s: float, start_wall_s: float | None = None) -> None:
         """Write the header of the new file, hold room after it, and check the free space."""
         self._origin_s = origin_s
-        header = {"record_start_utc": _utc_text(self.monotonic_to_wall(origin_s)), **self.metadata}
+        start_wall_s = self.monotonic_to_wall(origin_s) if start_wall_s is None else start_wall_s
+        header = {"record_start_utc": _utc_text(start_wall_s), **self.metadata}
         try:
             self._file.write(format_header(header, self.schema.names).encode("utf-8"))
             self._file.sync()

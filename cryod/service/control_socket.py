@@ -12,12 +12,19 @@ refuses anything outside them. Commands reach the loop through its queue and tak
 next tick boundary.
 
 Every connection gets one reply line, whatever it sent: a line longer than :data:`MAX_LINE` bytes,
-text that is not UTF-8, no complete line within :data:`LINE_TIMEOUT_S`, or more than
-:data:`MAX_CLIENTS` connections open at once (``busy``) are refused with the reason. All clients are
-served by one thread with an asyncio event loop, so however many connect, the socket competes with
-the control loop's thread as one thread, not one per client; the kernel holds up to
-:data:`BACKLOG` connections until the server takes them, and a client finding even that full
-waits for its turn (:func:`send_command`).
+text that is not UTF-8, or no complete line within :data:`LINE_TIMEOUT_S` are refused with the
+reason. All clients are served by one thread with an asyncio event loop, so however many connect,
+the socket competes with the control loop's thread as one thread, not one per client; the kernel
+holds up to :data:`BACKLOG` connections until the server takes them, and a client finding even
+that full waits for its turn (:func:`send_command`).
+
+``heater-off`` always gets through. Up to :data:`MAX_CLIENTS` connections are open at once; one
+more closes the one that has waited longest without sending its line
+(:class:`cryod.service.async_clients.ConnectionBook`), so idle clients, however many, keep no one
+out. When every connection open is waiting for the loop's answer, the :data:`RESERVED_CONNECTIONS`
+beyond them carry only ``heater-off`` (anything else is answered ``busy: ...``, which
+:func:`send_command` retries) and have :data:`RESERVED_LINE_TIMEOUT_S` to send it; beyond those, a
+connection is answered ``busy`` at once.
 """
 
 from __future__ import annotations
@@ -32,12 +39,12 @@ import pwd
 import socket
 import stat
 import struct
-import threading
 import time
 from pathlib import Path
 from typing import Callable
 
 from cryod.service.commands import Command, parse_command, wait_for
+from cryod.service.async_clients import ClientsThread, ConnectionBook, resolve
 
 log = logging.getLogger("cryod.control")
 
@@ -45,11 +52,19 @@ log = logging.getLogger("cryod.control")
 MAX_LINE = 256
 #: Connections the kernel holds until the server takes them (a full backlog makes a client wait).
 BACKLOG = 256
-#: Connections open at once; one more gets a busy reply at once (each costs a file descriptor, and a
-#: command waiting for the loop: at 8 a tick, 256 commands are answered within 2.6 s).
+#: Connections open at once that carry any command (each costs a file descriptor, and a command waiting
+#: for the loop: at 8 a tick, 256 commands are answered within 2.6 s); one more closes the one that has
+#: waited longest without sending its line.
 MAX_CLIENTS = 256
+#: Connections beyond :data:`MAX_CLIENTS`, when every one open waits for the loop's answer, that carry only
+#: heater-off.
+RESERVED_CONNECTIONS = 64
 #: How long a client has to send its command line, s.
 LINE_TIMEOUT_S = 5.0
+#: How long a connection beyond :data:`MAX_CLIENTS` has to send its line (a client sends it as it connects), s.
+RESERVED_LINE_TIMEOUT_S = 1.0
+#: The one command a connection beyond :data:`MAX_CLIENTS` may carry.
+RESERVED_FOR = "heater-off"
 
 
 class ControlSocketServer:
@@ -70,14 +85,17 @@ class ControlSocketServer:
     reply_timeout_s : float
         How long to wait for the loop's answer.
     max_clients : int, optional
-        Connections open at once (default :data:`MAX_CLIENTS`); one more gets a busy reply.
+        Connections open at once carrying any command (default :data:`MAX_CLIENTS`).
     line_timeout_s : float, optional
         How long a client has to send its line, s (default :data:`LINE_TIMEOUT_S`).
+    reserved_connections : int, optional
+        Connections beyond ``max_clients`` carrying only heater-off (default :data:`RESERVED_CONNECTIONS`).
     """
 
     def __init__(self, path: Path, mode: int, owner: str | None, group: str | None,
                  submit: Callable[[Command], Command], status: Callable[[], dict], reply_timeout_s: float = 5.0,
-                 max_clients: int | None = None, line_timeout_s: float | None = None):
+                 max_clients: int | None = None, line_timeout_s: float | None = None,
+                 reserved_connections: int | None = None):
         self.path = Path(path)
         self.mode = mode
         self.owner = owner
@@ -87,13 +105,11 @@ class ControlSocketServer:
         self.reply_timeout_s = reply_timeout_s
         self.max_clients = MAX_CLIENTS if max_clients is None else max_clients
         self.line_timeout_s = LINE_TIMEOUT_S if line_timeout_s is None else line_timeout_s
-        #: Connections open now, and the most at once since the start.
-        self.clients = 0
-        self.most_clients = 0
-        self._event_loop: asyncio.AbstractEventLoop | None = None
-        self._stopping: asyncio.Future | None = None
-        self._failure: str | None = None
-        self._thread: threading.Thread | None = None
+        reserved = RESERVED_CONNECTIONS if reserved_connections is None else reserved_connections
+        #: The connections open now (:attr:`ConnectionBook.open`), the most at once, those closed for room.
+        self.connections = ConnectionBook(self.max_clients, reserved)
+        self._clients = ClientsThread("control socket", lambda listener: asyncio.start_unix_server(
+            self._serve_client, sock=listener, limit=MAX_LINE, backlog=BACKLOG))
 
     # -- replies ----------------------------------------------------------------------
     def handle_line(self, line: str) -> dict:
@@ -123,7 +139,7 @@ class ControlSocketServer:
 
         def wake() -> None:                     # on the loop's thread: hand over, never raise
             try:
-                event_loop.call_soon_threadsafe(_resolve, answered)
+                event_loop.call_soon_threadsafe(resolve, answered)
             except RuntimeError:                # the socket has stopped meanwhile
                 pass
 
@@ -140,38 +156,63 @@ class ControlSocketServer:
                     "status": self.status()}
         return {"ok": command.ok, "message": command.message, "status": self.status()}
 
-    async def _read_line(self, reader: asyncio.StreamReader) -> bytes | dict:
+    @property
+    def clients(self) -> int:
+        """Connections open now."""
+        return self.connections.open
+
+    @property
+    def most_clients(self) -> int:
+        """The most connections open at once since the start."""
+        return self.connections.most_seen
+
+    async def _read_line(self, reader: asyncio.StreamReader, timeout_s: float) -> bytes | dict:
         """The client's line without its newline (its last bytes when it ends without one), or the refusal."""
         try:
-            return (await asyncio.wait_for(reader.readuntil(b"\n"), self.line_timeout_s))[:-1]
+            return (await asyncio.wait_for(reader.readuntil(b"\n"), timeout_s))[:-1]
         except asyncio.IncompleteReadError as ended:
             return ended.partial
         except asyncio.LimitOverrunError:
             return {"ok": False, "message": f"command longer than {MAX_LINE} bytes refused"}
         except asyncio.TimeoutError:
-            return {"ok": False, "message": f"no complete command line within {self.line_timeout_s:g} s; "
+            return {"ok": False, "message": f"no complete command line within {timeout_s:g} s; "
                                             f"send one line ending in a newline"}
 
+    def _busy(self, open_now: int) -> dict:
+        return {"ok": False, "message": f"busy: {open_now} connections open at once (at most {self.max_clients} "
+                                        f"for commands; beyond that only {RESERVED_FOR} is taken); "
+                                        f"try again in a moment"}
+
     async def _serve_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        if self.clients >= self.max_clients:
-            reply = {"ok": False, "message": f"busy: {self.clients} connections open at once "
-                                             f"(at most {self.max_clients}); try again in a moment"}
-            await self._send(writer, reply)
-            return
-        self.clients += 1
-        self.most_clients = max(self.most_clients, self.clients)
+        place = self.connections.arrived()
+        open_now = self.connections.open
+        reserved = place is not ConnectionBook.TAKEN
         try:
-            line = await self._read_line(reader)
-            reply = line if isinstance(line, dict) else await self._reply_to_line(line, peer(writer))
+            if place is ConnectionBook.FULL:
+                await self._send(writer, self._busy(open_now))
+                return
+            line = await self._read_line(reader, RESERVED_LINE_TIMEOUT_S if reserved else self.line_timeout_s)
+            self.connections.request_received()
+            if isinstance(line, dict):
+                reply = line
+            elif reserved and line.strip().split(maxsplit=1)[:1] != [RESERVED_FOR.encode("ascii")]:
+                reply = self._busy(open_now)
+            else:
+                reply = await self._reply_to_line(line, peer(writer))
             await self._send(writer, reply)
-        except asyncio.CancelledError:          # the daemon is stopping: say so, without waiting for the client
-            writer.write(b'{"ok": false, "message": "the daemon is stopping; nothing more is answered"}\n')
+        except asyncio.CancelledError:
+            if self.connections.closed_for_room_now():
+                message = (f"closed: no command line yet when the {self.connections.most_open} connections open "
+                           f"at once were all taken; send the line as you connect")
+            else:                               # the daemon is stopping: say so, without waiting for the client
+                message = "the daemon is stopping; nothing more is answered"
+            writer.write((json.dumps({"ok": False, "message": message}) + "\n").encode("utf-8"))
             writer.close()
         except Exception as error:              # one client's trouble never ends the socket
             log.warning("control socket: a client's command failed: %s: %s", type(error).__name__, error)
             await self._send(writer, {"ok": False, "message": f"internal error: {type(error).__name__}"})
         finally:
-            self.clients -= 1
+            self.connections.left()
 
     async def _send(self, writer: asyncio.StreamWriter, reply: dict) -> None:
         try:
@@ -212,53 +253,13 @@ class ControlSocketServer:
             listener.close()
             self.path.unlink(missing_ok=True)
             raise
-        self._event_loop = asyncio.new_event_loop()
-        ready = threading.Event()
-        self._failure = None
-        self._thread = threading.Thread(target=self._run, args=(listener, ready), name="cryod-control", daemon=True)
-        self._thread.start()
-        ready.wait(10.0)
-        if self._failure is not None:
-            self.stop()
-            raise OSError(f"control socket {self.path} could not be served: {self._failure}")
+        self._clients.start(listener)
         log.info("control socket: %s (mode %o)", self.path, self.mode)
-
-    def _run(self, listener: socket.socket, ready: threading.Event) -> None:
-        asyncio.set_event_loop(self._event_loop)
-        try:
-            self._event_loop.run_until_complete(self._serve(listener, ready))
-        except Exception as error:              # said by start(), or in the journal once serving
-            self._failure = f"{type(error).__name__}: {error}"
-            log.error("control socket stopped: %s", self._failure)
-        finally:
-            ready.set()
-            self._event_loop.close()
-
-    async def _serve(self, listener: socket.socket, ready: threading.Event) -> None:
-        self._stopping = asyncio.get_running_loop().create_future()
-        server = await asyncio.start_unix_server(self._serve_client, sock=listener, limit=MAX_LINE,
-                                                 backlog=BACKLOG)
-        ready.set()
-        try:
-            await self._stopping
-        finally:
-            server.close()
-            clients = [task for task in asyncio.all_tasks() if task is not asyncio.current_task()]
-            for task in clients:
-                task.cancel()
-            await asyncio.gather(*clients, return_exceptions=True)
 
     def stop(self) -> None:
         """Stop serving (clients waiting for the loop's answer are told the daemon is stopping) and remove
         the socket file."""
-        if self._thread is None:
-            return
-        try:
-            self._event_loop.call_soon_threadsafe(_resolve, self._stopping)
-        except RuntimeError:                    # the event loop has already ended
-            pass
-        self._thread.join(5.0)
-        self._thread = None
+        self._clients.stop()
         try:
             self.path.unlink()
         except FileNotFoundError:
@@ -278,11 +279,6 @@ def peer(writer: asyncio.StreamWriter) -> str:
     except KeyError:
         name = "no user name"
     return f"uid {uid} ({name}), pid {pid}"
-
-
-def _resolve(future: asyncio.Future | None) -> None:
-    if future is not None and not future.done():
-        future.set_result(None)
 
 
 def finite_or_none(value):
@@ -310,10 +306,24 @@ def _socket_answers(path: Path) -> bool:
         probe.close()
 
 
-def send_command(path: Path, line: str, timeout_s: float = 10.0) -> dict:
+#: How long a client waits for the daemon in all (connecting, retrying while it is busy, the reply), s.
+CLIENT_TIMEOUT_S = 10.0
+#: First pause before asking a busy daemon again, and the longest, s.
+BUSY_RETRY_FIRST_S = 0.05
+BUSY_RETRY_LONGEST_S = 0.5
+
+
+def is_busy(reply: dict) -> bool:
+    """Whether ``reply`` is the daemon's ``busy`` refusal (too many connections at once: try again)."""
+    return reply.get("ok") is False and str(reply.get("message", "")).startswith("busy:")
+
+
+def send_command(path: Path, line: str, timeout_s: float = CLIENT_TIMEOUT_S,
+                 on_busy: Callable[[str], None] | None = None) -> dict:
     """Client side: send one command line, return the daemon's reply.
 
-    A daemon whose connection backlog is full is waited for (up to ``timeout_s``). When the
+    A daemon whose connection backlog is full is waited for, and one that answers ``busy`` is
+    asked again (pauses from 50 ms to 0.5 s), both up to ``timeout_s`` in all. When the
     daemon refuses the line before reading all of it (a line too long) and closes, its reply
     is still read and returned.
 
@@ -324,7 +334,9 @@ def send_command(path: Path, line: str, timeout_s: float = 10.0) -> dict:
     line : str
         One command line (no line breaks inside).
     timeout_s : float
-        For connecting and for the reply, s.
+        For connecting, the replies and the retries in all, s.
+    on_busy : callable, optional
+        ``on_busy(message)`` once, at the first ``busy`` answer (``cryod ctl`` says it is retrying).
 
     Returns
     -------
@@ -342,9 +354,26 @@ def send_command(path: Path, line: str, timeout_s: float = 10.0) -> dict:
     if "\n" in text or "\r" in text:
         raise ValueError("a command is one line: it cannot hold a line break")
     deadline = time.monotonic() + timeout_s
+    pause_s, attempts = BUSY_RETRY_FIRST_S, 0
+    while True:
+        reply = _exchange(path, text, deadline, timeout_s)
+        attempts += 1
+        if not is_busy(reply):
+            return reply
+        if time.monotonic() + pause_s > deadline:
+            raise ConnectionError(f"the daemon at {path} stayed busy for {timeout_s:g} s ({attempts} attempts); "
+                                  f"its last answer: {reply['message']}")
+        if on_busy is not None and attempts == 1:
+            on_busy(reply["message"])
+        time.sleep(pause_s)
+        pause_s = min(2.0 * pause_s, BUSY_RETRY_LONGEST_S)
+
+
+def _exchange(path: Path, text: str, deadline: float, timeout_s: float) -> dict:
+    """One connection: ``text`` out, the reply in (waiting for a full backlog until ``deadline``)."""
     while True:
         client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        client.settimeout(timeout_s)
+        client.settimeout(max(0.01, deadline - time.monotonic()))
         try:
             client.connect(str(path))
             break

@@ -1,22 +1,29 @@
 """The daemon: configuration, instruments, loop, data log, control socket, systemd, signals.
 
 ``cryod run`` and ``cryod --simulate`` both come here; they differ only in
-the instruments handed over (real ones, or drivers talking to simulated ones)
-and the clock.
+the instruments handed over (real ones, locked against other daemons, or drivers
+talking to simulated ones) and the clock.
 
 Threads: the main thread runs the control loop and nothing else. The data
 log writer, the control socket, the status/reload service thread and the log
-listener run beside it and talk to the loop through queues and snapshots.
+listener run beside it and talk to the loop through queues and snapshots. The
+signal watch sees every terminating signal at once; when the loop does not stop
+within :func:`stop_grace_s` of one (or of an exception in another thread), a
+thread of the daemon switches the heater off through the :class:`HeaterGuard`
+and, if the loop thread stays stuck, ends the process.
 """
 
 from __future__ import annotations
 
 import collections
+import faulthandler
 import functools
 import logging
+import math
+import os
 import platform
-import signal
 import socket
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -31,12 +38,15 @@ from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
 from cryod.service.commands import Command, wait_for
 from cryod.service.faults import ExitCode, Fault, FaultCause
-from cryod.service.instance_lock import AlreadyRunning, InstanceLock
+from cryod.service.heater_guard import HeaterGuard
+from cryod.service.instance_lock import AlreadyRunning, InstanceLock, InstrumentLocks
 from cryod.service.live_view import LiveView
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
 from cryod.service.realtime import RealtimeSession
 from cryod.service.control_socket import ControlSocketServer
 from cryod.service.notify import SystemdNotifier
+from cryod.service.stop_signals import (REQUESTED_STOP_SIGNALS, SignalWatch, exit_code_for,
+                                        install_thread_exception_hook, signal_received)
 from cryod.yaml_source import FileFormatError
 from drivers.clock import Clock
 from drivers.errors import IdentityMismatch, InstrumentError
@@ -94,7 +104,9 @@ class Daemon:
     row_taps : list of callable, optional
         Also receive every row and event (e.g. the --simulate metrics).
     install_signal_handlers : bool
-        SIGTERM/SIGINT stop, SIGHUP reloads (main thread only).
+        Every signal that would end the process stops the daemon with the heater off, SIGHUP reloads,
+        and an exception nobody caught in another thread stops it too (main thread only;
+        :mod:`cryod.service.stop_signals`).
     reload_config : callable, optional
         Reads and validates the configuration again on reload (default:
         :func:`cryod.config.load_config` of the file it came from);
@@ -102,12 +114,17 @@ class Daemon:
     datalog_options : dict, optional
         More keyword arguments of :class:`~cryod.records.datalog.DataLog` (tests: a fake disk's
         ``free_space``).
+    instrument_addresses : callable, optional
+        ``instrument_addresses(config) -> {canonical address: [keys]}`` of the real instruments, locked
+        host-wide for the whole run before any is touched (``cryod run``:
+        :func:`cryod.service.instruments.instrument_addresses`); a simulation's instruments are its own.
     """
 
     def __init__(self, config: DaemonConfig, open_instruments: Callable, clock: Clock,
                  notifier: SystemdNotifier | None = None, metadata: dict | None = None,
                  row_taps: list[Callable] | None = None, install_signal_handlers: bool = True,
-                 reload_config: Callable[[], DaemonConfig] | None = None, datalog_options: dict | None = None):
+                 reload_config: Callable[[], DaemonConfig] | None = None, datalog_options: dict | None = None,
+                 instrument_addresses: Callable[[DaemonConfig], dict[str, list[str]]] | None = None):
         self.config = config
         self.reload_config = reload_config or (lambda: load_config(self.config.source))
         self.open_instruments = open_instruments
@@ -117,6 +134,7 @@ class Daemon:
         self.row_taps = row_taps or []
         self.datalog_options = datalog_options or {}      # e.g. a fake disk's free space, for tests
         self.install_signal_handlers = install_signal_handlers
+        self.instrument_addresses = instrument_addresses
         self.loop: ControlLoop | None = None
         self.datalog: DataLog | None = None
         #: The latest row and faults, for the status line and the metrics endpoint.
@@ -124,17 +142,88 @@ class Daemon:
         self._reload_wanted = False
         self._socket_reloads: collections.deque[Command] = collections.deque()   # "reload" from the socket
         self._stop_reason: str | None = None
+        self._stop_as: tuple[int, FaultCause] = (ExitCode.OK, FaultCause.STOP_REQUESTED)
         self._waiting = "opening the instruments"
         self._service_stop = False
         self._service_wake = threading.Event()      # a reload or the stop
+        self._guard: HeaterGuard | None = None      # the loop's instruments, once open
+        self._loop_done = threading.Event()         # the loop has stopped (the heater off), or never ran
+        self._outside_stop: threading.Thread | None = None
+        self._outside_stop_lock = threading.Lock()
 
-    # -- signals ----------------------------------------------------------------
-    def _on_stop_signal(self, number, frame) -> None:
-        self._stop_reason = f"{signal.Signals(number).name} received"
-        if self.loop is not None:
-            self.loop.request_stop(self._stop_reason)
+    # -- stops from outside the loop: signals, exceptions in other threads ---------------
+    def _request_stop(self, reason: str, exit_code: int = ExitCode.OK,
+                      cause: FaultCause = FaultCause.STOP_REQUESTED) -> None:
+        """Ask for the stop (flags only: safe in a signal handler); the first reason is kept."""
+        if self._stop_reason is None:
+            self._stop_as = (exit_code, cause)
+            self._stop_reason = reason
+        loop = self.loop
+        if loop is not None:
+            loop.request_stop(reason, exit_code, cause)
 
-    def _on_reload_signal(self, number, frame) -> None:
+    def _on_stop_signal(self, number: int) -> None:
+        """Main thread, as the signal handler."""
+        self._request_stop(signal_received(number), exit_code_for(number),
+                           FaultCause.STOP_REQUESTED if number in REQUESTED_STOP_SIGNALS else FaultCause.SIGNAL)
+
+    def _on_signal_seen(self, number: int) -> None:
+        """The signal-watching thread, as soon as a terminating signal arrives."""
+        reason = signal_received(number)
+        if self._outside_stop is not None:
+            log.warning("%s while stopping", reason)
+            return
+        requested = number in REQUESTED_STOP_SIGNALS
+        log.log(logging.INFO if requested else logging.CRITICAL, "%s: stopping with the heater at 0 W (exit %d)",
+                reason, exit_code_for(number))
+        if not requested:                   # where every thread was: for a watchdog's SIGABRT, what hung
+            faulthandler.dump_traceback(all_threads=True)
+        self._stop_from_outside(reason, exit_code_for(number),
+                                FaultCause.STOP_REQUESTED if requested else FaultCause.SIGNAL)
+
+    def _on_thread_exception(self, thread_name: str, error: BaseException) -> None:
+        self._stop_from_outside(f"unhandled {type(error).__name__} in thread {thread_name}: {error}",
+                                ExitCode.EXCEPTION, FaultCause.EXCEPTION)
+
+    def _stop_from_outside(self, reason: str, exit_code: int, cause: FaultCause) -> None:
+        """Ask the loop to stop, and see it through from a thread of its own (:meth:`_see_the_stop_through`)."""
+        self._request_stop(reason, exit_code, cause)
+        with self._outside_stop_lock:
+            if self._outside_stop is not None:
+                return
+            self._outside_stop = threading.Thread(target=self._see_the_stop_through, args=(reason, exit_code, cause),
+                                                  name="cryod-stop", daemon=True)
+            self._outside_stop.start()
+
+    def _see_the_stop_through(self, reason: str, exit_code: int, cause: FaultCause) -> None:
+        """The loop stops by itself within :func:`stop_grace_s`; when it does not (it is stuck in an instrument
+        call or a bug), the heater is switched off from here and held off, and said; when the loop thread is
+        still stuck after as long again, the process is ended from here, its record and journal written."""
+        grace_s = stop_grace_s(self.config)
+        if self._loop_done.wait(grace_s):
+            return
+        guard = self._guard
+        if guard is None:               # the instruments are not open: the heater was never set
+            return
+        problem = guard.hold_off(reason, wait_s=self.config.instruments.timeout_s)
+        message = (f"{reason}; the loop did not stop within {grace_s:.3g} s: "
+                   + ("heater switched off from outside the loop" if problem is None else problem))
+        log.critical("%s", message)
+        self.datalog.put(Event("stopping", message))
+        if self._loop_done.wait(grace_s):
+            return
+        log.critical("the loop thread is stuck: ending the process with the heater %s (exit %d)",
+                     "off" if problem is None else "UNKNOWN", exit_code)
+        self.datalog.put(Event("stop", f"{cause}: {reason}; the loop thread was stuck, the process was ended "
+                                       f"from outside it with the heater {'off' if problem is None else 'UNKNOWN'} "
+                                       f"(exit {int(exit_code)})"))
+        self.datalog.stop(timeout_s=2.0)
+        self.notifier.stopping(message)
+        time.sleep(0.2)                 # the journal's writer thread empties its queue
+        sys.stderr.flush()
+        os._exit(int(exit_code))
+
+    def _on_reload_signal(self) -> None:
         self._reload_wanted = True
         self._service_wake.set()
 
@@ -230,7 +319,7 @@ class Daemon:
 
     # -- the run --------------------------------------------------------------------
     def run(self, duration_s: float | None = None) -> RunResult:
-        """Take the lock, open everything, run the loop, close everything with the heater off.
+        """Take the locks, open everything, run the loop, close everything with the heater off.
 
         Instruments that do not answer at start are retried with a growing
         pause (1 s to 60 s) for ``safety.instruments_wait_s`` (without end when
@@ -238,18 +327,17 @@ class Daemon:
         """
         started = time.perf_counter()
         config = self.config
-        lock = InstanceLock(config.control_socket.path)
-        try:
-            lock.acquire()
-        except AlreadyRunning as error:
-            log.critical("not started: %s", error)
+        locks = self._take_locks(config)
+        if locks is None:
             return RunResult(ExitCode.CONFIG, None, [], time.perf_counter() - started)
         instruments: Instruments | None = None
         control_socket: ControlSocketServer | None = None
         realtime: RealtimeSession | None = None
         metrics = None
         service = threading.Thread(target=self._service, name="cryod-service", daemon=True)
-        previous_handlers = {}
+        signals = SignalWatch(self._on_stop_signal, self._on_reload_signal, self._on_signal_seen) \
+            if self.install_signal_handlers else None
+        restore_exception_hook = None
         exit_code = ExitCode.OK
         try:
             clock_start = self.clock.now()
@@ -262,6 +350,9 @@ class Daemon:
                                    on_failure=self._on_data_log_failure,
                                    compress_finished=config.data.compress_finished, **self.datalog_options)
             self.datalog.start()
+            if signals is not None:
+                signals.install()
+                restore_exception_hook = install_thread_exception_hook(self._on_thread_exception)
             control_socket = ControlSocketServer(config.control_socket.path, config.control_socket.mode,
                                                  config.control_socket.owner, config.control_socket.group,
                                                  self._submit, self._status)
@@ -277,10 +368,6 @@ class Daemon:
                     metrics = None
                 else:
                     log.info("Prometheus metrics on http://%s:%d/metrics", metrics.host, metrics.port)
-            if self.install_signal_handlers:
-                for number, handler in ((signal.SIGTERM, self._on_stop_signal), (signal.SIGINT, self._on_stop_signal),
-                                        (signal.SIGHUP, self._on_reload_signal)):
-                    previous_handlers[number] = signal.signal(number, handler)
             service.start()
             self.notifier.ready("started: opening the instruments")
             opened = self._open_instruments_waiting(config) if self.datalog.failure is None \
@@ -288,13 +375,14 @@ class Daemon:
             if isinstance(opened, int):
                 exit_code = opened
             else:
-                instruments, flange_curve, stage_curve = opened
+                opened_instruments, flange_curve, stage_curve = opened
+                instruments = self._guard = HeaterGuard(opened_instruments)
                 taps = [self.datalog.put, self.live_view, *self.row_taps]
                 self.loop = ControlLoop(config, instruments, flange_curve, stage_curve, self.clock,
                                         emit=_fan_out(taps), watchdog=self.notifier.watchdog)
                 self.live_view.attach_timing(self.loop.timing.summary)
                 if self._stop_reason:
-                    self.loop.request_stop(self._stop_reason)
+                    self.loop.request_stop(self._stop_reason, *self._stop_as)
                 if self.datalog.failure is not None:
                     self.loop.fail(Fault(FaultCause.DATA_LOG_FAILED, self.datalog.failure))
                 realtime = RealtimeSession(config.loop.realtime_priority, config.loop.lock_memory)
@@ -308,7 +396,13 @@ class Daemon:
                 log.info("cryod %s: loop period %.0f ms, data in %s, control socket %s", __version__,
                          config.loop.period_s * 1e3, config.data.directory, config.control_socket.path)
                 exit_code = self.loop.run(duration_s)
+        except BaseException as error:
+            # the heater goes off below (closing the instruments); the record says why, unless the loop did
+            if self.datalog is not None and (self.loop is None or self.loop.exit_code is None):
+                self._stop_event(f"exception: {type(error).__name__}: {error}", ExitCode.EXCEPTION)
+            raise
         finally:
+            self._loop_done.set()
             if realtime is not None:
                 realtime.end()
             self._service_stop = True
@@ -325,11 +419,14 @@ class Daemon:
                 metrics.stop()
             if self.datalog is not None:
                 self.datalog.stop()
-            for number, handler in previous_handlers.items():
-                signal.signal(number, handler)
+            if signals is not None:
+                signals.uninstall()
+            if restore_exception_hook is not None:
+                restore_exception_hook()
             if service.is_alive():
                 service.join(2.0)
-            lock.release()
+            for lock in reversed(locks):
+                lock.release()
         status = self.loop.status.one_line() if self.loop else f"not started: {self._waiting}"
         self.notifier.stopping(status)
         if self.datalog is not None and self.datalog.error is not None:
@@ -337,10 +434,35 @@ class Daemon:
         return RunResult(exit_code, self.loop, list(self.datalog.paths) if self.datalog else [],
                          time.perf_counter() - started)
 
+    def _take_locks(self, config: DaemonConfig) -> list | None:
+        """This cryostat's lock, then its instruments' (when real): the locks held, or None when another daemon
+        holds one (said in the journal; nothing was touched)."""
+        lock = InstanceLock(config.control_socket.path)
+        try:
+            lock.acquire()
+        except AlreadyRunning as error:
+            log.critical("not started: %s", error)
+            return None
+        if self.instrument_addresses is None:
+            return [lock]
+        try:
+            instrument_locks = InstrumentLocks(config.instruments.lock_directory, self.instrument_addresses(config),
+                                               config.source)
+            instrument_locks.acquire()
+        except (AlreadyRunning, OSError, ValueError) as error:
+            lock.release()
+            log.critical("not started: %s", error)
+            return None
+        return [lock, instrument_locks]
+
     def _open_instruments_waiting(self, config: DaemonConfig):
-        """The opened instruments and curves, or the exit code when they never came (or a stop came first)."""
+        """The opened instruments and curves, or the exit code when they never came (or a stop came first).
+
+        With ``safety.instruments_wait_s`` the last attempt is made when that time is up, not
+        before: the pause before it is shortened to fit."""
         wait_limit = config.safety.instruments_wait_s
         first_try = self.clock.now()
+        give_up_at = math.inf if wait_limit is None else first_try + wait_limit
         pause, attempt = 1.0, 0
         while True:
             attempt += 1
@@ -352,26 +474,30 @@ class Daemon:
                 self._stop_event(f"{error}: another instrument answers at a configured address", ExitCode.CONFIG)
                 return ExitCode.CONFIG
             except InstrumentError as error:
-                waited = self.clock.now() - first_try
-                if wait_limit is not None and waited + pause > wait_limit:
-                    self._stop_event(f"instruments out of reach for {waited:.0f} s "
+                now = self.clock.now()
+                waited = now - first_try
+                if now >= give_up_at:
+                    self._stop_event(f"instruments out of reach for {waited:.1f} s "
                                      f"(safety.instruments_wait_s {wait_limit:g}): {error}",
                                      ExitCode.INSTRUMENTS_LOST)
                     return ExitCode.INSTRUMENTS_LOST
+                retry_at = min(now + pause, give_up_at)
                 self._waiting = f"waiting for the instruments (attempt {attempt}, {waited:.0f} s): {error}"
-                log.warning("instruments out of reach, heater untouched; retrying in %.0f s: %s", pause, error)
-                self.datalog.put(Event("waiting", f"instruments out of reach, retrying in {pause:.0f} s: {error}"))
+                log.warning("instruments out of reach, heater untouched; retrying in %.3g s: %s", retry_at - now,
+                            error)
+                self.datalog.put(Event("waiting", f"instruments out of reach, retrying in {retry_at - now:.3g} s: "
+                                                  f"{error}"))
                 self.notifier.status(self._waiting)
-            if self._pause(pause):
-                self._stop_event(self._stop_reason, ExitCode.OK)
-                return ExitCode.OK
+            if self._pause_until(retry_at):
+                exit_code, cause = self._stop_as
+                self._stop_event(f"{cause}: {self._stop_reason}", exit_code)
+                return exit_code
             pause = min(2.0 * pause, MAX_RETRY_PAUSE_S)
 
-    def _pause(self, duration_s: float) -> bool:
-        """Wait on the clock, keeping the watchdog fed; True when a stop was asked for meanwhile."""
-        end = self.clock.now() + duration_s
-        while not self._stop_reason and self.clock.now() < end:
-            self.clock.sleep_until(min(end, self.clock.now() + 1.0))
+    def _pause_until(self, end_s: float) -> bool:
+        """Wait on the clock until ``end_s``, keeping the watchdog fed; True when a stop was asked for meanwhile."""
+        while not self._stop_reason and self.clock.now() < end_s:
+            self.clock.sleep_until(min(end_s, self.clock.now() + 1.0))
             self.notifier.watchdog()
         return bool(self._stop_reason)
 
@@ -379,6 +505,13 @@ class Daemon:
         level = logging.INFO if exit_code == ExitCode.OK else logging.CRITICAL
         log.log(level, "stopping before the loop ran (exit %d): %s", exit_code, reason)
         self.datalog.put(Event("stop", f"{reason} (exit {int(exit_code)})"))
+
+
+def stop_grace_s(config: DaemonConfig) -> float:
+    """How long the loop has to stop by itself once told to (s): a period and one instrument call to its
+    timeout (a tick asked to stop after its readings sets no new power, so a loop that answers stops
+    within that); after it, the heater is switched off from outside the loop."""
+    return config.loop.period_s + config.instruments.timeout_s
 
 
 def cooler_rad_s(config: DaemonConfig) -> float:
@@ -414,4 +547,4 @@ def config_or_exit(path: str | Path, stderr) -> DaemonConfig | None:
         return None
 
 
-__all__ = ["Daemon", "RunResult", "record_metadata", "config_or_exit"]
+__all__ = ["Daemon", "RunResult", "record_metadata", "config_or_exit", "stop_grace_s"]

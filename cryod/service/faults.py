@@ -25,6 +25,7 @@ with any other cause cannot be made.
 | overrun_streak             | no        |             | 5                  |
 | exception                  | no        |             | 1                  |
 | stop_requested (SIGTERM)   | no        |             | 0                  |
+| signal (SIGABRT, SIGUSR1, ...) | no    |             | 128 + its number   |
 
 Examples
 --------
@@ -98,6 +99,9 @@ class FaultCause(StrEnum):
     OVERRUN_STREAK = ("overrun_streak", False, ExitCode.OVERRUN_STREAK)
     EXCEPTION = ("exception", False, ExitCode.EXCEPTION)
     STOP_REQUESTED = ("stop_requested", False, ExitCode.OK)
+    #: Another signal that ends the process (cryod.service.stop_signals); the process's exit code is
+    #: 128 + its number (the shell's), the daemon's nominal one a failure.
+    SIGNAL = ("signal", False, ExitCode.EXCEPTION)
 
 
 @dataclass(frozen=True)

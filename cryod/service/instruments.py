@@ -17,6 +17,7 @@ import sys
 from typing import Callable
 
 from cryod.config import DaemonConfig, DmmSettings, InstrumentAddress
+from cryod.service.instance_lock import InstrumentLocks, lock_directory_problem
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError
 from drivers.errors import InstrumentError
@@ -27,6 +28,8 @@ from drivers.keithley6221 import Keithley6221
 from drivers.pair_triggers import (GpibGroupTrigger, HardwareTrigger, PairTrigger, PrologixGroupTrigger,
                                    SequentialTrigger)
 from drivers.thermometer_pair import PairReading, ThermometerPair
+from drivers.transports.addresses import (canonical_prologix, canonical_prologix_adapter, canonical_resource,
+                                         canonical_serial_port)
 from drivers.transports.base import Transport
 from drivers.transports.prologix import PrologixAdapter
 from drivers.transports.visa import VisaTransport, resource_manager
@@ -79,6 +82,54 @@ def check_instrument_support(config: DaemonConfig) -> str | None:
             f"Python binding (module 'gpib') or gpib-ctypes, and neither is installed in {sys.prefix}. Install "
             f"linux-gpib with its Python binding into this environment (docs/operations.md, 'GPIB card'), or "
             f"use NI-VISA (instruments.visa_library: \"\") or a Prologix adapter")
+
+
+# ---------------------------------------------------------------------------
+# which instruments: what cryod run locks against other daemons
+# ---------------------------------------------------------------------------
+def instrument_addresses(config: DaemonConfig) -> dict[str, list[str]]:
+    """Every instrument ``cryod run`` drives, by its canonical address, with the configuration keys naming it.
+
+    The two DMMs and the heater supply; the Prologix controller they are behind, if any (two
+    programs on one controller mix their GPIB traffic); the serial port of an external trigger.
+
+    Raises
+    ------
+    ValueError
+        An address that is not one (the message names its key).
+    """
+    instruments = config.instruments
+    addresses: dict[str, list[str]] = {}
+
+    def claim(address: str, key: str) -> None:
+        keys = addresses.setdefault(address, [])
+        if key not in keys:
+            keys.append(key)
+
+    for name in ("heater_supply", "flange_dmm", "ptc_stage_dmm"):
+        address: InstrumentAddress = getattr(instruments, name)
+        key = f"instruments.{name}"
+        if address.resource:
+            try:
+                claim(canonical_resource(address.resource), f"{key}.resource")
+            except ValueError as error:
+                raise ValueError(f"{key}.resource: {error}") from None
+        else:
+            where = dict(port=address.prologix_port, host=address.prologix_host)
+            claim(canonical_prologix(**where, gpib_address=address.gpib_address), f"{key}.prologix")
+            claim(canonical_prologix_adapter(**where), f"{key}.prologix")
+    if instruments.trigger == "external" and instruments.trigger_output is not None:
+        claim(f"serial:{canonical_serial_port(instruments.trigger_output.port)}", "instruments.trigger_output.port")
+    return addresses
+
+
+def check_instrument_locking(config: DaemonConfig) -> str | None:
+    """None if ``cryod run`` can lock the configured instruments' addresses, else what stands in the way."""
+    try:
+        instrument_addresses(config)
+    except ValueError as error:
+        return f"{config.source}: {error}"
+    return lock_directory_problem(config.instruments.lock_directory)
 
 
 # ---------------------------------------------------------------------------
@@ -267,6 +318,40 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
     instruments_set = assemble_instruments(config, clock, flange, stage, heater, make_trigger,
                                            on_close=close_others)
     return (instruments_set, *curves)
+
+
+def switch_supply_off(config: DaemonConfig, clock) -> None:
+    """The configured heater supply to 0 A with its output off, without a daemon (``cryod run --supply-off``).
+
+    What the service unit runs after the daemon ended, however it ended (``ExecStopPost``): after
+    SIGKILL or a crash the supply would keep its last setting until the next start. The supply's
+    address is locked first, as a daemon locks it, so a supply another daemon drives is left alone.
+
+    Raises
+    ------
+    InstrumentInUse
+        Another cryod drives the supply (nothing was sent).
+    InstrumentError
+        The supply is out of reach or did not confirm the off.
+    """
+    supply = {address: keys for address, keys in instrument_addresses(config).items()
+              if any(key.startswith("instruments.heater_supply.") for key in keys)}
+    locks = InstrumentLocks(config.instruments.lock_directory, supply, config.source)
+    locks.acquire()
+    adapters: dict = {}
+    try:
+        transport = open_transport(config.instruments.heater_supply, config, adapters, "heater supply")
+        try:
+            heater = HEATER_DRIVERS[config.instruments.heater_model](      # opening sets 0 A, output off
+                transport, clock, config.heater.resistance_ohm, max_current_a=config.heater.max_current_A,
+                voltage_compliance_v=config.heater.voltage_compliance_V, name="heater supply")
+            heater.output_off()
+        finally:
+            transport.close()
+    finally:
+        for adapter in adapters.values():
+            adapter.close()
+        locks.release()
 
 
 def _gpib_board(*addresses: InstrumentAddress) -> int:

@@ -166,6 +166,7 @@ class ControlLoop:
         self._answers: list[tuple[Command, bool, str]] = []
         self.exit_code: int | None = None
         self._stop_reason: str | None = None
+        self._stop_as: tuple[int, FaultCause] = (ExitCode.OK, FaultCause.STOP_REQUESTED)
         self._outside_fault: Fault | None = None
         self._valid_in_a_row = 0
         self._hold_reported = False         # a reading above a limit kept the heater off (said once per hold)
@@ -189,9 +190,20 @@ class ControlLoop:
         self.commands.append(command)
         return command
 
-    def request_stop(self, reason: str) -> None:
-        """Stop at the next tick with the heater at 0 W (safe from a signal handler)."""
-        self._stop_reason = reason
+    def request_stop(self, reason: str, exit_code: int = ExitCode.OK,
+                     cause: FaultCause = FaultCause.STOP_REQUESTED) -> None:
+        """Stop at the next tick with the heater at 0 W, for ``reason``, with ``exit_code`` (safe from a
+        signal handler; a tick that has its readings but not yet its heater setting stops before setting it).
+        The first request is kept."""
+        if self._stop_reason is None:
+            self._stop_as = (exit_code, cause)
+            self._stop_reason = reason
+
+    def _stop_as_requested(self, row: Row | None = None) -> None:
+        """Stop for the requested reason; ``row``, the readings of a tick cut short by it, is kept, with the
+        heater as the stop left it."""
+        exit_code, cause = self._stop_as
+        self._stop(exit_code, Fault(cause, self._stop_reason), row=row)
 
     def fail(self, fault: Fault) -> None:
         """A fault found outside the loop (the data log): handled at the next tick like one found in it
@@ -222,6 +234,8 @@ class ControlLoop:
                 self._tick(deadline)
                 self._answer_commands()         # after the tick: the reply's status shows the command's effect
                 self.watchdog()                 # every tick that returns: a call that hangs trips it
+                if self.exit_code is not None:  # stopped: the stop is the record's last word, not its timing
+                    break
                 now = self.clock.now()
                 missed = int((now - deadline) // self.period_s) if now > deadline + self.period_s else 0
                 if missed and self.state.waits_for_readings:
@@ -265,7 +279,7 @@ class ControlLoop:
             if self.exit_code is not None:
                 return
         if self._stop_reason is not None:
-            self._stop(ExitCode.OK, Fault(FaultCause.STOP_REQUESTED, self._stop_reason))
+            self._stop_as_requested()
             return
         row = Row(time_s=tick_start, lateness_ms=(tick_start - deadline) * 1e3)
         if self.state is LoopState.RECOVERING and self._maybe_reconnect(tick_start):
@@ -313,11 +327,17 @@ class ControlLoop:
                                    flange_time_s=_or(reading.flange_sample_time_s, reading.trigger_time_s),
                                    ptc_stage_time_s=_or(reading.ptc_stage_sample_time_s, reading.trigger_time_s),
                                    output_time_s=computing_since + self._setting_time_s)
+        if self._stop_reason is not None:        # asked to stop while this tick read: no new setting
+            self._stop_as_requested(row)
+            return
         self.last_commanded_w = step.power_w
         try:
             self.instruments.set_heater_power(step.power_w)
         except InstrumentError as error:
-            self._fault(fault_from_instrument_error(error), row)
+            if self._stop_reason is not None:    # held off from outside on the way to the stop
+                self._stop_as_requested(row)
+            else:
+                self._fault(fault_from_instrument_error(error), row)
             return
         row.heater_set_s = self.clock.now()
         # how long computing and setting take, smoothed: when the next setting will take effect
@@ -490,12 +510,18 @@ class ControlLoop:
         self.heater_w = 0.0
         return None
 
-    def _stop(self, exit_code: int, fault: Fault | None, reason: str = "") -> None:
-        """Heater off, then stop with ``exit_code`` because of ``fault`` (or for ``reason``, no fault).
+    def _stop(self, exit_code: int, fault: Fault | None, reason: str = "", row: Row | None = None) -> None:
+        """Heater off, then stop with ``exit_code`` because of ``fault`` (or for ``reason``, no fault);
+        ``row``, the readings of a tick the stop cut short, is kept with the heater as the stop left it.
 
         The first fatal cause is kept: a stop after one changes nothing.
         """
         off_failure = self._switch_heater_off()
+        if row is not None:
+            row.heater_W = self.heater_w
+            row.state = LoopState.STOPPED
+            row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
+            self.emit(row)
         if off_failure is not None and exit_code != ExitCode.HEATER_FAULT:
             exit_code, fault = ExitCode.HEATER_FAULT, Fault(
                 FaultCause.HEATER_FAULT, f"{off_failure.message}; on stopping after {fault or reason}")

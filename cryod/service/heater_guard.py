@@ -1,0 +1,74 @@
+"""The heater between two threads: the loop's settings, and an off from outside that holds.
+
+The loop thread sets the heater every cycle. When the process is told to end (a signal, an
+exception in another thread) and the loop does not stop by itself in time (it is stuck in an
+instrument call, or in a bug), the heater is switched off from another thread
+(:meth:`HeaterGuard.hold_off`). :class:`HeaterGuard` wraps the loop's instruments so that the
+two never talk to the supply at once, and so that once held off, no later setting of the loop
+turns the heater back on: it fails with :class:`HeaterHeldOff` instead, and the loop stops.
+"""
+
+from __future__ import annotations
+
+import threading
+
+from drivers.errors import InstrumentError
+from drivers.thermometer_pair import PairReading
+
+
+class HeaterHeldOff(InstrumentError):
+    """The heater was switched off from outside the loop; no setting turns it back on."""
+
+
+class HeaterGuard:
+    """The loop's :class:`~cryod.service.loop.Instruments` with every heater call serialised.
+
+    Parameters
+    ----------
+    instruments : Instruments
+        What the loop would use directly.
+    """
+
+    def __init__(self, instruments):
+        self.instruments = instruments
+        self._heater = threading.Lock()
+        #: Why the heater is held off (None while the loop may set it).
+        self.held_off: str | None = None
+
+    def measure(self) -> PairReading:
+        return self.instruments.measure()
+
+    def set_heater_power(self, power_w: float) -> None:
+        with self._heater:
+            if self.held_off is not None:
+                raise HeaterHeldOff("heater supply", f"{power_w:.4g} W not applied: held off ({self.held_off})")
+            self.instruments.set_heater_power(power_w)
+
+    def heater_off(self) -> None:
+        with self._heater:
+            self.instruments.heater_off()
+
+    def reconnect(self) -> None:
+        with self._heater:          # reconfigures the supply (output off): not while another thread uses it
+            self.instruments.reconnect()
+
+    def close(self) -> None:
+        with self._heater:
+            self.instruments.close()
+
+    def hold_off(self, reason: str, wait_s: float) -> str | None:
+        """Heater off from this thread and held off; None when done, else why not.
+
+        Waits up to ``wait_s`` for a heater call of the loop in progress; a supply that does not
+        answer within that is reported, not waited for."""
+        if not self._heater.acquire(timeout=wait_s):
+            return (f"the loop's heater call did not end within {wait_s:g} s: the supply may still deliver "
+                    f"the last setting; check it at the supply")
+        try:
+            self.held_off = reason
+            self.instruments.heater_off()
+        except InstrumentError as error:
+            return f"could not switch the heater off ({error}); check it at the supply"
+        finally:
+            self._heater.release()
+        return None

@@ -47,8 +47,10 @@ from cryod.records.quick_look import folded_frequency
 
 #: Welch window length (samples) at most; peaks at least this many sigma over the floor; this many listed.
 WELCH_SAMPLES = 2 ** 14
-PEAK_SIGMA = 5.0
+PEAK_SIGMA = 6.0
 MOST_PEAKS = 8
+#: Bins either side of a peak that its window leaks into.
+LEAKAGE_BINS = 4
 #: Sidebands: a peak within this of a harmonic (Hz) but not on it.
 SIDEBAND_SPAN_HZ = 0.05
 HARMONIC_ORDERS = (1, 2, 3, 4, 5)
@@ -157,7 +159,7 @@ def _welch(values: np.ndarray, sample_hz: float):
     length = min(values.size, WELCH_SAMPLES)
     frequencies, power = signal.welch(values, sample_hz, window="hann", nperseg=length, scaling="spectrum",
                                       detrend="linear")
-    windows = max(1.0, 2.0 * values.size / length - 1.0)
+    windows = max(1.0, values.size / length)      # overlapping windows are not independent: count them whole
     return frequencies, power, windows
 
 
@@ -165,21 +167,27 @@ def spectral_peaks(residual: np.ndarray, name: str, sample_hz: float, line_hz: f
     """Peaks of a residual's spectrum above its local floor (see the module doc)."""
     frequencies, power, windows = _welch(residual, sample_hz)
     floor = ndimage.median_filter(power, size=51, mode="nearest")
-    floor = np.maximum(floor, 1e-300)
+    dof = 2.0 * windows
+    # the running median is the floor's median: the mean of a chi-square over its degrees of freedom is larger
+    floor = np.maximum(floor / stats.chi2.median(dof) * dof, 1e-300)
     # a bin's power over the floor is chi-square with 2K degrees of freedom over 2K; its tail probability,
     # times the number of bins looked at, as a normal deviate
-    dof = 2.0 * windows
     tail = stats.chi2.logsf(power / floor * dof, dof) + math.log(power.size)
     sigma = stats.norm.isf(np.exp(np.minimum(tail, math.log(0.5))))
     sigma = np.where(np.isfinite(sigma), sigma, 40.0)
     resolution = frequencies[1] - frequencies[0]
     lowest = 4.0 / (residual.size / sample_hz)
     candidates, _ = signal.find_peaks(sigma)
-    found = []
+    found, taken = [], []
     for index in candidates[np.argsort(-power[candidates])]:
-        if sigma[index] < PEAK_SIGMA or frequencies[index] < max(lowest, DRIFT_BELOW_HZ / 4):
+        if sigma[index] < PEAK_SIGMA or frequencies[index] < max(lowest, DRIFT_BELOW_HZ / 4) \
+                or index >= frequencies.size - LEAKAGE_BINS:                       # the Nyquist bin's own statistics
             continue
-        amplitude = math.sqrt(2.0 * float(power[max(index - 1, 0):index + 2].sum()))
+        if any(abs(index - other) <= LEAKAGE_BINS for other in taken):      # a stronger peak's window leakage
+            continue
+        taken.append(index)
+        # a sinusoid's power spreads over the Hann window's 1.5 bins of equivalent noise bandwidth
+        amplitude = math.sqrt(2.0 * float(power[max(index - 2, 0):index + 3].sum()) / 1.5)
         found.append(SpectralPeak(name, float(frequencies[index]), amplitude, float(sigma[index]),
                                   classify_peak(float(frequencies[index]), line_hz, sample_hz, resolution)))
         if len(found) == MOST_PEAKS:

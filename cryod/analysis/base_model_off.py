@@ -19,26 +19,36 @@ within the tolerance:
    parameter is *beyond* the recalibration when its widened value is past its
    usual tolerance by at least :data:`BEYOND_SIGMA` standard errors.
 3. With a parameter beyond, the causes are searched again on the widened
-   model (its own recalibration of 10 % around it, every candidate). The
-   verdict is ``base_model_off`` (with what that search names on top of it)
-   when that search explains the record (its verdict is not ``unexplained``:
-   a record with something outside the catalogue is not put down to the base
-   model) and its extended model is significantly better on the held-out
-   blocks than the first one's (improvement at least 25 and 5 sigma), or, when
-   a parameter was at its tolerance, not significantly worse. Otherwise the
-   first verdict stands: a catalogue cause that explains the record better
-   than any change of the base model's parameters is named, and a parameter
-   at its tolerance is reported with it.
+   model (its own recalibration of 10 % around it; the causes tried are those
+   that improved the held-out residual within the tolerance,
+   :func:`cryod.analysis.pipeline.improving_causes`; one cause at most). The verdict is ``base_model_off``
+   (with what that search names on top of it) when that search explains the
+   record to the noise (no discrepancy left by the rule that calls for a
+   cause: a record with something outside the catalogue is not put down to
+   the base model, nor is a widened model patched by causes) and its extended
+   model is significantly better on the held-out blocks than the first one's
+   (improvement at least 25 and 5 sigma), or, when a parameter was at its
+   tolerance, not significantly worse. Otherwise the first verdict stands: a
+   catalogue cause that explains the record better than any change of the base
+   model's parameters is named, and a parameter at its tolerance is reported
+   with it.
+
+When the recalibration alone leaves a parameter at its tolerance and the
+widened recalibration alone leaves no discrepancy (:func:`explained_by_widening`),
+the search within the tolerance looks for the first cause only (what a
+catalogue cause alone would say), not for a path of several: the record is
+explained without any.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from dataclasses import dataclass
 
 from cryod.analysis.decision import (
-    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, Decision, gain_between, significance,
+    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, Decision, base_discrepancy, gain_between, significance,
 )
 from cryod.analysis.recalibration import (
     RecalibratedParameter, Recalibration, Tolerances, recalibrate, structure_parameters,
@@ -137,6 +147,24 @@ def _reason(beyond: list, inner) -> str:
             f"{then}")
 
 
+def widened_recalibration(search, analysis) -> Recalibration:
+    """The base model alone recalibrated with :data:`WIDE` tolerances (made once per analysis)."""
+    if analysis.widened is None:
+        started = time.perf_counter()
+        analysis.widened = recalibrate(search.replayer, analysis.base_model, analysis.base_line, WIDE)
+        analysis.timings_s["wider recalibration"] = time.perf_counter() - started
+    return analysis.widened
+
+
+def explained_by_widening(search, analysis) -> bool:
+    """Whether the widened recalibration alone moves a parameter beyond its usual tolerance and leaves no
+    discrepancy on the held-out blocks (the rule that calls for a cause)."""
+    widened = widened_recalibration(search, analysis)
+    if not beyond_parameters(widened, analysis.base_model):
+        return False
+    return not base_discrepancy(dataclasses.replace(analysis.context, base_replay=widened.replay)).present
+
+
 def judged_beyond_recalibration(search, analysis, search_on):
     """``analysis`` (from ``search``, a :class:`~cryod.analysis.pipeline.CauseSearch`), or the ``base_model_off``
     verdict when the rule of this module says so; ``search_on(model)`` searches the causes on another base model."""
@@ -147,11 +175,14 @@ def judged_beyond_recalibration(search, analysis, search_on):
     remaining = analysis.remaining is not None and analysis.remaining.present
     if not at_tolerance and not remaining:
         return analysis
-    widened = recalibrate(search.replayer, analysis.base_model, analysis.base_line, WIDE)
+    widened = widened_recalibration(search, analysis)
     beyond = beyond_parameters(widened, analysis.base_model)
     if not beyond:
         return analysis
     inner = search_on(widened.model)
+    analysis.timings_s.update({f"{step} (widened model)": seconds for step, seconds in inner.timings_s.items()})
+    if inner.remaining is not None and inner.remaining.present:
+        return analysis
     first_sum, inner_sum = _held_out(analysis, analysis.extended_replay), _held_out(analysis, inner.extended_replay)
     improvement = first_sum - inner_sum
     spread = significance(improvement, _distinct(analysis, analysis.extended_replay, inner.extended_replay))
@@ -170,11 +201,10 @@ def judged_beyond_recalibration(search, analysis, search_on):
         recalibration_gain=gain_between(shipped.sum_of_squares, widened_sum, shipped.terms),
         causes=list(inner.causes) if inner.cause not in ("none", "unexplained") else [],
         final_model=inner.extended_model, final_replay=inner.extended_replay,
-        timings_s={**analysis.timings_s, **{f"{step} (widened model)": seconds
-                                             for step, seconds in inner.timings_s.items()}},
+        timings_s=analysis.timings_s,
         beyond_recalibration=BeyondRecalibration(beyond, at_tolerance, widened, analysis, inner.cause,
                                                  float(improvement)))
 
 
 __all__ = ["ADVICE", "BEYOND_SIGMA", "WIDE", "BeyondRecalibration", "beyond_parameters",
-           "judged_beyond_recalibration"]
+           "explained_by_widening", "judged_beyond_recalibration", "widened_recalibration"]

@@ -22,7 +22,6 @@ import sys
 import time
 from pathlib import Path
 
-from cryod.analysis.cooler_causes import in_file_form
 from cryod.analysis.discrepancies import find_discrepancies
 from cryod.analysis.model_uncertainty import model_uncertainty_check, report_section
 from cryod.analysis.pipeline import analyze
@@ -30,6 +29,7 @@ from cryod.analysis.record_data import analysed_stretch, read_record_data
 from cryod.analysis.record_window import ANALYSIS_WINDOW_S
 from cryod.analysis.report import REPORT_NAME, write_report
 from cryod.analysis.segments import find_segments
+from cryod.analysis.slow_series import in_file_form
 from cryod.analysis.summary import json_summary, model_header
 from cryod.analysis.usability import check_usable
 from cryod.argument_types import not_negative
@@ -142,7 +142,8 @@ def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Pat
     if analysis.extended:
         base_name = model.name or "model"
         added = [named.cause for named in analysis.causes] if analysis.cause not in ("none", "unexplained") else []
-        added += ["generic heater_path_correction"] if analysis.generic is not None and analysis.generic.added else []
+        added += ([f"generic {' + '.join(analysis.generic.used)}"]
+                  if analysis.generic is not None and analysis.generic.added else [])
         what = " + ".join((["recalibrated"] if analysis.recalibrated else []) + added)
         extended_model = dataclasses.replace(
             extended_model, name=f"{base_name} + {what}",

@@ -15,7 +15,8 @@ ptc_amplitude_modulation     depth m, period P and phase of ``1 + m sin(2 pi t /
 ptc_stage_drift              the drift d(t) of T5 as a cubic B-spline with knots two blocks apart
                              (so each held-out block is predicted from the fit blocks around it),
                              fitted on T5; its response on T2 ``g / (tau s + 1)`` applied to d:
-                             g linear, tau searched (grid, then bounded Brent on log tau)
+                             g linear within 0 to 1, tau searched (grid, then bounded Brent on
+                             log tau)
 ===========================  ===================================================================
 
 The drift found in the record is the record's own (:class:`MeasuredStageDrift`);
@@ -31,10 +32,10 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import interpolate, signal
+from scipy import signal
 
 from cryod.analysis.candidates import CandidateFit, EffectForm, FitContext, scalar_search
-from cryod.analysis.record_data import block_length_s
+from cryod.analysis.slow_series import correlation_time_s, slow_splines
 from cryod.model import CryostatModel, PtcAmplitudeModulation, PtcStageDrift
 
 #: Periods of the amplitude modulation searched: from this many seconds to this many record durations.
@@ -44,6 +45,9 @@ LONGEST_MODULATION_PERIOD_DURATIONS = 3.0
 COUPLING_TIME_CONSTANTS_S = (1.0, 1000.0)
 #: Largest depth of a modulation the model takes.
 LARGEST_DEPTH = 0.9
+#: The drift's gain on the flange: a passive link carries at most the stage's own change to the flange (the
+#: flange's other heat paths and the link's conductance rising with temperature make it less).
+FLANGE_COUPLING_BOUNDS = (0.0, 1.0)
 
 
 def _line_parts(context: FitContext, model: CryostatModel):
@@ -135,14 +139,7 @@ class MeasuredStageDrift:
 
     def correlation_time_s(self) -> float:
         """Where the drift's autocorrelation falls to 1/e (s)."""
-        interval = float(np.median(np.diff(self.elapsed_s)))
-        centred = self.drift_K - self.drift_K.mean()
-        spectrum = np.fft.rfft(centred, 2 * centred.size)
-        correlation = np.fft.irfft(spectrum * np.conj(spectrum))[:centred.size]
-        if correlation[0] <= 0.0:
-            return interval
-        below = np.flatnonzero(correlation < correlation[0] / math.e)
-        return float((below[0] if below.size else centred.size) * interval)
+        return correlation_time_s(self.drift_K, float(np.median(np.diff(self.elapsed_s))))
 
     def parameters(self) -> dict:
         """What the model file keeps: rms, correlation time, coupling gain and time constant."""
@@ -154,31 +151,12 @@ class MeasuredStageDrift:
         return PtcStageDrift(**self.parameters())
 
 
-def in_file_form(model: CryostatModel) -> CryostatModel:
-    """``model`` with a measured stage drift replaced by its statistics (what a model file holds)."""
-    drift = model.effects.ptc_stage_drift
-    if isinstance(drift, MeasuredStageDrift):
-        return model.with_effects(ptc_stage_drift=drift.model_form())
-    return model
-
-
-def drift_splines(data, fit_mask: np.ndarray) -> np.ndarray:
-    """Cubic B-splines on the record's time with knots two blocks apart, less the first (the offset is fitted
-    anyway)."""
-    elapsed = data.elapsed_s
-    spacing = 2.0 * block_length_s(data.duration_s)
-    inner = np.arange(0.0, elapsed[-1], spacing)[1:]
-    knots = np.concatenate([[elapsed[0]] * 4, inner, [elapsed[-1] + 1e-9] * 4])
-    design = interpolate.BSpline.design_matrix(elapsed, knots, 3).toarray()
-    return design[:, 1:]
-
-
 def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
     """T5 drifting slowly, reaching T2 through ``g / (tau s + 1)``: the drift from T5 on the fit blocks, then g, tau."""
     data, replayer, base, line = context.data, context.replayer, context.base_model, context.base_line
     aligned, simulated, _, _ = _line_parts(context, base)
     basis = context.basis(line)
-    splines = drift_splines(data, context.fit_mask)
+    splines = slow_splines(data)
     zeros = np.zeros_like(splines)
     found = replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K, (zeros, splines), basis)
     # the drift is what the splines change in T5's prediction, the offset and the state refitted with them
@@ -196,7 +174,12 @@ def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
             response = first_order_response(drift, interval, math.exp(log_tau))
             replay = replayer.replay_simulated(aligned, simulated.flange_K, stage,
                                                (response[:, None], np.zeros((response.size, 1))), basis)
-            replays[log_tau], gains[log_tau] = replay, float(replay.shared_coefficients[0])
+            gain = float(replay.shared_coefficients[0])
+            bounded = float(np.clip(gain, *FLANGE_COUPLING_BOUNDS))
+            if bounded != gain:             # the gain at its bound, the rest refitted without it
+                replay = replayer.replay_simulated(aligned, simulated.flange_K + bounded * response, stage,
+                                                   basis=basis)
+            replays[log_tau], gains[log_tau] = replay, bounded
         return context.fit_chi_square(replays[log_tau])
 
     low, high = (math.log(value) for value in COUPLING_TIME_CONSTANTS_S)
@@ -210,10 +193,11 @@ def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
 
     model = apply(base, (gain, tau))
     measured = model.effects.ptc_stage_drift
-    effect = EffectForm((gain, tau), (-10.0, 0.0), (10.0, 10.0 * COUPLING_TIME_CONSTANTS_S[1]), (1e-3, 1e-2 * tau),
+    effect = EffectForm((gain, tau), (FLANGE_COUPLING_BOUNDS[0], 0.0),
+                        (FLANGE_COUPLING_BOUNDS[1], 10.0 * COUPLING_TIME_CONSTANTS_S[1]), (1e-3, 1e-2 * tau),
                         apply, lambda extended: extended.effects.ptc_stage_drift.parameters())
     return CandidateFit("ptc_stage_drift", measured.parameters(), model, context.replay(model, line), line,
                         parameter_count=2 + splines.shape[1], effect=effect)
 
 
-__all__ = ["MeasuredStageDrift", "fit_ptc_amplitude_modulation", "fit_ptc_stage_drift", "in_file_form"]
+__all__ = ["MeasuredStageDrift", "fit_ptc_amplitude_modulation", "fit_ptc_stage_drift"]

@@ -35,13 +35,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cryod.analysis.base_model_off import judged_beyond_recalibration
+from cryod.analysis.base_model_off import explained_by_widening, judged_beyond_recalibration
 from cryod.analysis.candidates import CANDIDATE_CAUSES, CandidateFit, FitContext
 from cryod.analysis.fitters import FITTERS
 from cryod.analysis.generic_extension import fit_generic_extension
 from cryod.analysis.decision import (
-    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision, Gain, base_discrepancy, decide, gain_between,
-    score_candidate,
+    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision,
+    Gain, base_discrepancy, decide, gain_between, score_candidate, significance,
 )
 from cryod.analysis.noise import white_noise_rms
 from cryod.analysis.ptc_line import PtcLine
@@ -57,6 +57,9 @@ from cryod.model import CryostatModel
 
 #: Causes named in one record at most.
 MOST_CAUSES = 3
+#: The noise is the lowest white floor of the base model's, the recalibration's and this many candidates' replays
+#: (those closest to the record on the fit blocks).
+NOISE_FROM_FITS = 3
 
 
 @dataclass
@@ -136,6 +139,9 @@ class Analysis:
         (:class:`cryod.analysis.generic_extension.GenericExtension`).
     residual_signature : object or None
         What the extended model leaves, described (:class:`cryod.analysis.residual_signature.ResidualSignature`).
+    widened : Recalibration or None
+        The base model alone recalibrated with the wider tolerances of :mod:`cryod.analysis.base_model_off`,
+        once a parameter reached its usual tolerance.
     """
 
     data: RecordData
@@ -160,6 +166,7 @@ class Analysis:
     beyond_recalibration: object = None
     generic: object = None
     residual_signature: object = None
+    widened: Recalibration | None = None
 
     @property
     def cause(self) -> str:
@@ -266,17 +273,31 @@ class CauseSearch:
         Candidate causes to try.
     screen_when_fitting : bool
         Fit the candidates (for the report's table) even when the base model as given shows no discrepancy.
+    widen : bool
+        When the recalibration leaves a parameter at its tolerance, recalibrate with the wider tolerances of
+        :mod:`cryod.analysis.base_model_off`; if that alone explains the record, only the first cause is looked
+        for within the tolerance (what a catalogue cause alone would say), not a path of several.
+    cycle_from : Replayer, optional
+        A replayer of the same record whose cooler's phase, measured sample by sample in T5, is reused (the
+        phase hardly depends on the model's heater part taken out of T5).
+    most_causes : int
+        Causes named at most (with 1, no second path is followed either).
     """
 
     def __init__(self, data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES,
-                 screen_when_fitting: bool = True):
+                 screen_when_fitting: bool = True, widen: bool = True, cycle_from: Replayer | None = None,
+                 most_causes: int = MOST_CAUSES):
         self.data = data
+        self.most_causes = most_causes
         self.screen_when_fitting = screen_when_fitting
+        self.widen = widen
         self.base_model = base_model
         self.causes = tuple(causes)
         self.fit_mask = fit_block_mask(data.time_s) & data.valid
         self.held_out_mask = ~fit_block_mask(data.time_s) & data.valid
         self.replayer = Replayer(data, self.fit_mask)
+        if cycle_from is not None:
+            self.replayer.share_measured_cycle(cycle_from)
         self.noise_rms_K: tuple[float, float] = self.replayer.noise_rms_K
         self.timings_s: dict[str, float] = {}
         self.analysis: Analysis | None = None
@@ -354,9 +375,10 @@ class CauseSearch:
         timings["recalibration"] = time.perf_counter() - started
 
         fits = self.fit_candidates(context, self.causes if applied or self.screen_when_fitting else ())
-        # A large misfit leaks into the base model's noise floor; the best-fitting replay gives the truer noise.
-        replays = [base_replay, recalibration.replay, context.base_replay] + [fit.replay for fit in fits.values()]
-        lines = [base_line, base_line, context.base_line] + [fit.line for fit in fits.values()]
+        # A large misfit leaks into the base model's noise floor; the best-fitting replays give the truer noise.
+        closest = sorted(fits.values(), key=lambda fit: context.fit_chi_square(fit.replay))[:NOISE_FROM_FITS]
+        replays = [base_replay, recalibration.replay, context.base_replay] + [fit.replay for fit in closest]
+        lines = [base_line, base_line, context.base_line] + [fit.line for fit in closest]
         self.noise_rms_K = noise = tuple(
             min(measured_noise(data, replay, line)[channel] for replay, line in zip(replays, lines))
             for channel in (0, 1))
@@ -382,18 +404,20 @@ class CauseSearch:
         analysis.recalibrated = True
         analysis.final_model, analysis.final_replay = recalibration.model, recalibrated_replay
         recalibrated_context = dataclasses.replace(context, base_replay=recalibrated_replay)
+        first_only = self.widen and any(row.at_tolerance for row in recalibration.table()) \
+            and explained_by_widening(self, analysis)
         started = time.perf_counter()
-        self._name_causes(base_discrepancy(recalibrated_context))
+        self._name_causes(base_discrepancy(recalibrated_context), 1 if first_only else self.most_causes)
         timings["naming the causes"] = time.perf_counter() - started
         return analysis
 
-    def _name_causes(self, recalibrated: BaseDiscrepancy) -> None:
+    def _name_causes(self, recalibrated: BaseDiscrepancy, most: int) -> None:
         """Add causes to the recalibrated model while the record shows a discrepancy (see the module doc).
 
         The best candidate is added first and the next ones on top of it. When that leaves a discrepancy, the
         path that starts from the second-best candidate is followed too (one cause can stand in for most of two:
         a thermometer lag with the stage lagging alike looks much like a dead time plus a link that differs), and
-        the path that explains clearly more is kept.
+        the path that explains clearly more is kept. At most ``most`` causes; with 1, no second path.
         """
         analysis = self.analysis
         context, fits, scores, first = analysis.context, analysis.fits, analysis.scores, analysis.decision
@@ -413,12 +437,13 @@ class CauseSearch:
             start = _Path([], context, base, [], context.recalibrated, [])
             decision, refined = self._refined_decision(start, fits, scores)
             if decision.best is not None:
-                path = self._follow(decision.best, refined, recalibrated_base)
-                alternatives = sorted((score_candidate(context, refined[cause][0], base) for cause in refined
-                                       if cause != decision.best.cause), key=lambda score: -score.improvement)
+                path = self._follow(decision.best, refined, recalibrated_base, most)
+                alternatives = [] if most == 1 else sorted(
+                    (score_candidate(context, refined[cause][0], base) for cause in refined
+                     if cause != decision.best.cause), key=lambda score: -score.improvement)
                 alternatives = [score for score in alternatives if score.counts]
                 if path.base.present and alternatives:
-                    other = self._follow(alternatives[0], refined, recalibrated_base)
+                    other = self._follow(alternatives[0], refined, recalibrated_base, most)
                     if other.base.excess < ALTERNATIVE_FRACTION * path.base.excess and len(other.causes) > 1:
                         path = other
         excess_text = (f"the recalibrated base model's held-out excess is {recalibrated_base.excess:.4g} "
@@ -437,6 +462,17 @@ class CauseSearch:
         explained = (recalibrated_base.excess - base.excess) / recalibrated_base.excess
         total_gain = gain_between(shipped.sum_of_squares, shipped.sum_of_squares - shipped.excess + base.excess,
                                   shipped.terms)
+        if base.present and explained >= EXPLAINED_FRACTION:
+            beaten = self._against_generic(path, recalibrated_base)
+            if beaten:
+                analysis.causes = []
+                analysis.decision = Decision(
+                    "unexplained", f"{excess_text}; {'; '.join(path.reasons)}: together {100.0 * explained:.1f} % of "
+                    f"it, and a discrepancy of {base.significance:.1f} sigma is left; {beaten}", first.best,
+                    recalibrated_base, gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares,
+                                                    shipped.terms))
+                analysis.remaining = recalibrated_base
+                return
         if explained >= EXPLAINED_FRACTION or not base.present:
             named = analysis.causes[0]
             reason = f"{excess_text}; " + ", then ".join(path.reasons)
@@ -457,14 +493,49 @@ class CauseSearch:
         analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
         analysis.remaining = recalibrated_base
 
-    def _follow(self, choice: CandidateScore, refined: dict, recalibrated_base: BaseDiscrepancy) -> _Path:
+    def _against_generic(self, path: _Path, recalibrated_base: BaseDiscrepancy) -> str:
+        """When the causes on ``path`` leave a discrepancy: whether they add anything significant to the generic
+        extension. The extension fitted on the recalibrated model alone is compared, on the held-out blocks, with
+        the extension fitted on top of the causes; if the causes add less than a candidate must (5 sigma and 25),
+        they stand in for something the catalogue does not have, and the reason is returned ('' when they add).
+        The extension that goes with the verdict is kept for the analysis."""
+        analysis = self.analysis
+        alone = fit_generic_extension(self._extension_context(analysis.final_model, analysis.final_replay),
+                                      recalibrated_base)
+        on_causes = fit_generic_extension(
+            self._extension_context(path.context.base_model, path.context.base_replay), path.base)
+        mask, noise = self.held_out_mask, self.noise_rms_K
+        context = path.context
+        without, with_causes = alone.fit.replay, on_causes.fit.replay
+        adds = sum(context.chi_square(without, mask)) - sum(context.chi_square(with_causes, mask))
+        flange = (without.flange_K - with_causes.flange_K)[mask] / noise[0]
+        stage = (without.ptc_stage_K - with_causes.ptc_stage_K)[mask] / noise[1]
+        sigma = significance(adds, float(flange @ flange + stage @ stage))
+        if adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA:
+            analysis.generic = on_causes
+            return ""
+        analysis.generic = alone
+        return (f"with the generic extension ({' + '.join(alone.used)}) the causes add only {adds:.4g} "
+                f"({sigma:.1f} sigma) on the held-out blocks: they stand in for something outside the catalogue, "
+                "and no physical cause is named")
+
+    def _extension_context(self, model: CryostatModel, replay: Replay) -> FitContext:
+        """A context on ``model`` and its replay, without a linearised recalibration (for the generic extension)."""
+        context = self.analysis.context
+        return FitContext(self.data, self.replayer, model, context.base_line, replay, self.noise_rms_K,
+                          self.fit_mask, self.held_out_mask)
+
+    def _follow(self, choice: CandidateScore, refined: dict, recalibrated_base: BaseDiscrepancy,
+                most: int = MOST_CAUSES) -> _Path:
         """Name ``choice`` (a refined candidate's score) first, then causes on top of it while one counts and
-        removes at least 70 % of what is left."""
+        removes at least 70 % of what is left (``most`` causes in all)."""
         context = self.analysis.context
         path = _Path([], context, recalibrated_base, [], context.recalibrated, [])
-        remaining = list(self.causes)
+        remaining = improving_causes(self.analysis.scores) if self.analysis.scores else list(self.causes)
+        if choice.cause not in remaining:
+            remaining.append(choice.cause)
         best = choice
-        for round_index in range(MOST_CAUSES):
+        for round_index in range(most):
             if round_index > 0:
                 fits = self.fit_candidates(path.context, [c for c in remaining
                                                           if not _already_in(c, path.context.base_model)],
@@ -497,7 +568,7 @@ class CauseSearch:
             self._settle(path, best.cause, refined[best.cause])
             if len(path.causes) > 1:
                 self._drop_unneeded(path)
-            if not path.base.present or len(path.causes) == MOST_CAUSES:
+            if not path.base.present or len(path.causes) == most:
                 break
         return path
 
@@ -582,6 +653,14 @@ class CauseSearch:
         return decision, refined
 
 
+def improving_causes(scores: dict) -> list[str]:
+    """The causes whose first fit improved the held-out residual at all: the only ones tried again on top of a
+    cause named, and on a base model widened beyond the recalibration. A cause the record holds improves it from
+    the first round on, whatever else the record holds; one that makes it worse only fits the fit blocks' noise
+    or another effect's misfit."""
+    return [cause for cause, score in scores.items() if score.improvement > 0.0]
+
+
 def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES) -> Analysis:
     """Analyse one record against a model.
 
@@ -603,7 +682,9 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
     """
     search = CauseSearch(data, base_model, causes)
     analysis = judged_beyond_recalibration(
-        search, search.run(), lambda model: CauseSearch(data, model, causes, screen_when_fitting=False).run())
+        search, search.run(), lambda model: CauseSearch(
+            data, model, improving_causes(search.analysis.scores) or causes, screen_when_fitting=False,
+            widen=False, cycle_from=search.replayer, most_causes=1).run())
     started = time.perf_counter()
     described_and_extended(analysis)
     analysis.timings_s["residual and generic extension"] = time.perf_counter() - started
@@ -611,17 +692,25 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
 
 
 def described_and_extended(analysis: Analysis) -> None:
-    """The residual's signature, and the generic extension added where the extended model leaves a discrepancy."""
+    """The residual's signature, and the generic extension added where the extended model leaves a discrepancy
+    (the one fitted when the causes were weighed against it, if they were); the gain is then the base model's
+    against the model extended by both."""
     analysis.residual_signature = describe_residual(analysis)
     if analysis.remaining is None or not analysis.remaining.present:
+        analysis.generic = None
         return
-    context = analysis.context
-    on_extended = FitContext(analysis.data, context.replayer, analysis.extended_model, analysis.base_line,
-                             analysis.extended_replay, analysis.noise_rms_K, context.fit_mask, context.held_out_mask)
-    analysis.generic = fit_generic_extension(on_extended, analysis.remaining)
+    if analysis.generic is None or analysis.generic.on_model is not analysis.extended_model:
+        context = analysis.context
+        on_extended = FitContext(analysis.data, context.replayer, analysis.extended_model, analysis.base_line,
+                                 analysis.extended_replay, analysis.noise_rms_K, context.fit_mask,
+                                 context.held_out_mask)
+        analysis.generic = fit_generic_extension(on_extended, analysis.remaining)
     if analysis.generic.added:
         analysis.final_model = analysis.generic.fit.extended_model
         analysis.final_replay = analysis.generic.fit.replay
+        score, shipped = analysis.generic.score, analysis.base_discrepancy
+        analysis.decision = dataclasses.replace(analysis.decision, gain=gain_between(
+            shipped.sum_of_squares, score.held_out_flange + score.held_out_stage, shipped.terms))
 
 
 def _pair_up(causes: list, earlier: list, others: list):
@@ -655,4 +744,4 @@ def _already_in(cause: str, model: CryostatModel) -> bool:
     return cause in model.effect_names()
 
 
-__all__ = ["Analysis", "CauseSearch", "ModelPoint", "NamedCause", "analyze"]
+__all__ = ["Analysis", "CauseSearch", "ModelPoint", "NamedCause", "analyze", "improving_causes"]

@@ -283,6 +283,12 @@ class Replayer:
         other._measured_cycle = self._measured_cycle
         return other
 
+    def share_measured_cycle(self, other: "Replayer") -> None:
+        """Use ``other``'s cooler phase measured in T5 (same record) instead of measuring it again."""
+        if other.data is not self.data:
+            raise ValueError("the measured cooler phase belongs to another record")
+        self._measured_cycle = other._measured_cycle
+
     def settle_from(self, replay: Replay) -> None:
         """Take the settled power before the record from a replay's T5 initial-state estimate."""
         start = self.initial_heater_power_w if self.initial_heater_power_w is not None else float(self.data.heater_w[0])

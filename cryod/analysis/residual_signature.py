@@ -79,7 +79,11 @@ def classify_peak(frequency_hz: float, line_hz: float, sample_hz: float, resolut
     if abs(offset) <= SIDEBAND_SPAN_HZ:
         return (f"sideband of harmonic {order} at {offset:+.3g} Hz (period {1.0 / abs(offset):.0f} s): "
                 "modulation of the line")
-    return "not at the cooler's harmonics"
+    return NOT_AT_HARMONICS
+
+
+#: A peak away from every harmonic of the cooler and its sidebands.
+NOT_AT_HARMONICS = "not at the cooler's harmonics"
 
 
 @dataclass(frozen=True)
@@ -163,8 +167,14 @@ def _welch(values: np.ndarray, sample_hz: float):
     return frequencies, power, windows
 
 
-def spectral_peaks(residual: np.ndarray, name: str, sample_hz: float, line_hz: float) -> list[SpectralPeak]:
-    """Peaks of a residual's spectrum above its local floor (see the module doc)."""
+#: A residual's peak where the heater has one too.
+AT_HEATER_LINE = "where the heater has a line too: a heater path's error, or the loop answering a disturbance"
+
+
+def spectral_peaks(residual: np.ndarray, name: str, sample_hz: float, line_hz: float,
+                   heater_lines_hz=()) -> list[SpectralPeak]:
+    """Peaks of a residual's spectrum above its local floor (see the module doc); a peak away from the cooler's
+    harmonics but at one of ``heater_lines_hz`` (Hz) says so."""
     frequencies, power, windows = _welch(residual, sample_hz)
     floor = ndimage.median_filter(power, size=51, mode="nearest")
     dof = 2.0 * windows
@@ -188,11 +198,22 @@ def spectral_peaks(residual: np.ndarray, name: str, sample_hz: float, line_hz: f
         taken.append(index)
         # a sinusoid's power spreads over the Hann window's 1.5 bins of equivalent noise bandwidth
         amplitude = math.sqrt(2.0 * float(power[max(index - 2, 0):index + 3].sum()) / 1.5)
-        found.append(SpectralPeak(name, float(frequencies[index]), amplitude, float(sigma[index]),
-                                  classify_peak(float(frequencies[index]), line_hz, sample_hz, resolution)))
+        relation = classify_peak(float(frequencies[index]), line_hz, sample_hz, resolution)
+        if relation == NOT_AT_HARMONICS and any(abs(frequencies[index] - line) <= 2.0 * resolution
+                                                for line in heater_lines_hz):
+            relation = AT_HEATER_LINE
+        found.append(SpectralPeak(name, float(frequencies[index]), amplitude, float(sigma[index]), relation))
         if len(found) == MOST_PEAKS:
             break
     return found
+
+
+def heater_frequencies_hz(data, line_hz: float) -> list[float]:
+    """Frequencies (Hz) of the heater's own spectral lines away from the cooler's harmonics (a modulation, the loop's
+    answer to a periodic disturbance), by the rule of :func:`spectral_peaks`."""
+    heater = data.heater_w[data.valid]
+    peaks = spectral_peaks(heater - float(np.mean(heater)), "heater", 1.0 / data.sample_interval_s, line_hz)
+    return [peak.frequency_hz for peak in peaks if peak.relation == NOT_AT_HARMONICS]
 
 
 def drift(residual: np.ndarray, name: str, sample_interval_s: float, noise_rms_K: float) -> Drift:
@@ -282,8 +303,9 @@ def describe_residual(analysis, replay=None) -> ResidualSignature:
     flange = np.where(valid, replay.flange_residual_K, 0.0)
     stage = np.where(valid, replay.ptc_stage_residual_K, 0.0)
     found = ResidualSignature()
+    heater_lines = heater_frequencies_hz(data, line_hz)
     for name, residual, rms in (("T2", flange, noise[0]), ("T5", stage, noise[1])):
-        found.peaks += spectral_peaks(residual[valid], name, sample_hz, line_hz)
+        found.peaks += spectral_peaks(residual[valid], name, sample_hz, line_hz, heater_lines)
         found.drifts.append(drift(residual[valid], name, interval, rms))
     found.peaks.sort(key=lambda peak: -peak.significance)
     samples = max(1, int(round(2.0 * 2.0 * math.pi / analysis.base_line.angular_frequency_rad_s / interval)))
@@ -330,4 +352,5 @@ def _worst_blocks(data, flange, stage, noise, count: int = 3) -> list[dict]:
              "chi_square_per_term": float(per_term[block])} for block in order]
 
 
-__all__ = ["ResidualSignature", "classify_peak", "describe_residual"]
+__all__ = ["AT_HEATER_LINE", "NOT_AT_HARMONICS", "ResidualSignature", "classify_peak", "describe_residual",
+           "heater_frequencies_hz", "spectral_peaks"]

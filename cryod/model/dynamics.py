@@ -15,8 +15,9 @@ Effects of the model are applied as physics: delivered heater power
 scaled with the flange temperature (heat capacity), harmonics and frequency
 drift of the cooler, its amplitude modulated (the whole oscillation scaled by a
 slow envelope), the cold end's drift (added to T5, and to T2 through its
-coupling), and the generic correction of the heater paths (terms in parallel
-with G1 and G3).
+coupling), and the generic extension: a correction of the heater paths (terms
+in parallel with G1 and G3) and a disturbance (an unrecorded heat load, slow
+offsets and pickups of the readings).
 
 :class:`CryostatPlant` steps through time, an instant at a time (the
 simulated cryostat on a clock, the closed-loop studies); :func:`simulate`
@@ -142,6 +143,8 @@ class CryostatPlant:
         self.heat_capacity = effects.heat_capacity_temperature
         self.modulation = effects.ptc_amplitude_modulation
         self.stage_drift = effects.ptc_stage_drift
+        self.disturbance = effects.disturbance
+        self._heater_responses = (flange_heater.frequency_response, stage_heater.frequency_response)
         self.commanded_power_w = float(initial_heater_power_w)
         delivered = self.delivered_power_w(self.commanded_power_w)
         self.flange_heater.settle(delivered)
@@ -207,10 +210,15 @@ class CryostatPlant:
         return 1.0 if self.modulation is None else self.modulation.envelope(elapsed_s)
 
     def drift_offsets_K(self, elapsed_s):
-        """(flange, stage) offsets of the cold end's drift ``elapsed_s`` after the start (K; 0 without)."""
-        if self.stage_drift is None:
-            return 0.0, 0.0
-        return self.stage_drift.offsets_K(elapsed_s)
+        """(flange, stage) offsets ``elapsed_s`` after the start (K; 0 without): the cold end's drift, and the
+        generic disturbance (its unrecorded heat through the heater paths without their dead time)."""
+        flange, stage = 0.0, 0.0
+        if self.stage_drift is not None:
+            flange, stage = self.stage_drift.offsets_K(elapsed_s)
+        if self.disturbance is not None:
+            extra_flange, extra_stage = self.disturbance.offsets_K(elapsed_s, *self._heater_responses)
+            flange, stage = flange + extra_flange, stage + extra_stage
+        return flange, stage
 
     def temperatures(self) -> tuple[float, float]:
         """(T2, T5) in K at the current instant, noise-free."""

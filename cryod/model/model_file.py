@@ -23,9 +23,9 @@ from pathlib import Path
 import yaml
 
 from cryod.model.parameters import (
-    CryostatModel, DeadTime, Effects, HeatCapacityTemperature, HeaterNonlinearity, HeaterPathCorrection,
-    LinkDynamics, OperatingPoint, PtcAmplitudeModulation, PtcFrequencyDrift, PtcHarmonic, PtcSource, PtcStageDrift,
-    SensorLag, SensorNoise,
+    PICKUP_THERMOMETERS, CryostatModel, DeadTime, Disturbance, Effects, HeatCapacityTemperature, HeaterNonlinearity,
+    HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, PtcAmplitudeModulation, PtcFrequencyDrift,
+    PtcHarmonic, PtcSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
 )
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
 from cryod.model.uncertainty import ModelUncertainty, UncertaintyError, check_consistent, inconsistencies
@@ -259,8 +259,49 @@ def _effects(section: Section) -> Effects:
         found["heater_path_correction"] = HeaterPathCorrection(tuple(taus), tuple(gains["flange_gains_K_per_W"]),
                                                                tuple(gains["ptc_stage_gains_K_per_W"]))
         correction.finish()
+    disturbance = section.section("disturbance", None)
+    if disturbance is not None:
+        found["disturbance"] = _disturbance(disturbance)
     section.finish()
     return Effects(**found)
+
+
+#: The disturbance's slow processes: (key, unit of its rms).
+DISTURBANCE_PROCESSES = (("unrecorded_heat", "W"), ("flange_offset", "K"), ("ptc_stage_offset", "K"))
+
+
+def _disturbance(section: Section) -> Disturbance:
+    processes = {}
+    for key, unit in DISTURBANCE_PROCESSES:
+        process = section.section(key, None)
+        if process is not None:
+            processes[key] = SlowProcess(
+                rms=process.number(f"rms_{unit}", minimum=0.0, maximum=1.0),
+                correlation_time_s=process.number("correlation_time_s", minimum=0.0, exclusive_minimum=True),
+                seed=process.number("seed", 0, minimum=0.0, integer=True))
+            process.finish()
+    pickups = []
+    for pickup in section.sections("pickups", []):
+        pickups.append(Pickup(
+            thermometer=pickup.text("thermometer", choices=PICKUP_THERMOMETERS),
+            frequency_hz=pickup.number("frequency_hz", minimum=0.0, exclusive_minimum=True),
+            amplitude_K=pickup.number("amplitude_K", minimum=0.0, maximum=1.0),
+            phase_rad=pickup.number("phase_rad", 0.0)))
+        pickup.finish()
+    section.finish()
+    return Disturbance(pickups=tuple(pickups), **processes)
+
+
+def _disturbance_dict(disturbance: Disturbance) -> dict:
+    data = {}
+    for key, unit in DISTURBANCE_PROCESSES:
+        process = getattr(disturbance, key)
+        if process is not None:
+            data[key] = {f"rms_{unit}": process.rms, "correlation_time_s": process.correlation_time_s,
+                         "seed": process.seed}
+    if disturbance.pickups:
+        data["pickups"] = [dataclasses.asdict(pickup) for pickup in disturbance.pickups]
+    return data
 
 
 # ---------------------------------------------------------------------------
@@ -293,7 +334,8 @@ def model_to_dict(model: CryostatModel) -> dict:
     if model.ptc.harmonics:
         ptc["harmonics"] = [dataclasses.asdict(h) for h in model.ptc.harmonics]
     data["ptc"] = ptc
-    effects = {name: _plain_effect(getattr(model.effects, name)) for name in model.effects.present()}
+    effects = {name: _disturbance_dict(model.effects.disturbance) if name == "disturbance"
+               else _plain_effect(getattr(model.effects, name)) for name in model.effects.present()}
     if effects:
         data["effects"] = effects
     data["sensor_noise"] = dataclasses.asdict(model.sensor_noise)

@@ -158,6 +158,12 @@ class CandidateFit:
     effect: "EffectForm | None" = None
     excluded: tuple = ()
 
+    @property
+    def at_limit(self) -> bool:
+        """Whether the effect's values sit at a physical limit of the effect (:attr:`EffectForm.at_limit`)."""
+        effect = self.effect
+        return bool(effect is not None and effect.at_limit is not None and effect.at_limit(effect.values))
+
 
 @dataclass(frozen=True)
 class EffectForm:
@@ -174,6 +180,9 @@ class EffectForm:
         ``apply(model, values)``: the model with the effect at these values.
     describe : callable
         ``describe(model)``: the fitted parameters (a dict) of a model with the effect.
+    at_limit : callable, optional
+        ``at_limit(values)``: whether these values sit at a physical limit of the effect (a bound the physics
+        sets, not the search's).
     """
 
     values: tuple
@@ -182,6 +191,7 @@ class EffectForm:
     steps: tuple
     apply: object
     describe: object
+    at_limit: object = None
 
 
 def _effect_parameters(name: str):

@@ -195,8 +195,11 @@ def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
     measured = model.effects.ptc_stage_drift
     effect = EffectForm((gain, tau), (FLANGE_COUPLING_BOUNDS[0], 0.0),
                         (FLANGE_COUPLING_BOUNDS[1], 10.0 * COUPLING_TIME_CONSTANTS_S[1]), (1e-3, 1e-2 * tau),
-                        apply, lambda extended: extended.effects.ptc_stage_drift.parameters())
-    return CandidateFit("ptc_stage_drift", measured.parameters(), model, context.replay(model, line), line,
+                        apply, lambda extended: extended.effects.ptc_stage_drift.parameters(),
+                        lambda values: values[0] >= FLANGE_COUPLING_BOUNDS[1] * (1.0 - 1e-6))
+    note = ("the flange follows the drift at its physical limit (coupling 1): the record asks for more than a "
+            "passive link carries, so it does not count" if effect.at_limit(effect.values) else "")
+    return CandidateFit("ptc_stage_drift", measured.parameters(), model, context.replay(model, line), line, note,
                         parameter_count=2 + splines.shape[1], effect=effect)
 
 

@@ -20,7 +20,9 @@ The rules:
    noise's; below that the model agrees within the noise in any practical
    sense). No discrepancy: the cause is ``none``, whatever a candidate does.
 2. A candidate counts when its significance is at least 5 and its
-   improvement at least 25. The one with the largest improvement is the best.
+   improvement at least 25, and its fit is not at a physical limit of its
+   effect (the cold end's drift reaching the flange more than fully: the
+   record then asks for more than the cause can be). The one with the largest improvement is the best.
 3. With a discrepancy, the best candidate is named if it explains at least
    70 % of the excess (``Delta / E``), or leaves no discrepancy by rule 1.
    Otherwise, or when no candidate counts, the cause is ``unexplained``.
@@ -111,10 +113,13 @@ class CandidateScore:
     significance: float
     explained_fraction: float
     gain: Gain
+    #: Its fit sits at a physical limit of the effect: the record asks for more than the cause can be.
+    at_limit: bool = False
 
     @property
     def counts(self) -> bool:
-        return self.significance >= CANDIDATE_SIGMA and self.improvement >= CANDIDATE_MINIMUM_IMPROVEMENT
+        return (self.significance >= CANDIDATE_SIGMA and self.improvement >= CANDIDATE_MINIMUM_IMPROVEMENT
+                and not self.at_limit)
 
 
 @dataclass(frozen=True)
@@ -166,7 +171,7 @@ def score_candidate(context: FitContext, fit: CandidateFit, base: BaseDiscrepanc
     explained = improvement / base.excess if base.excess > 0.0 else 0.0
     gain = gain_between(base.sum_of_squares, flange + stage, base.terms)
     return CandidateScore(fit.cause, flange, stage, improvement, distinctness,
-                          significance(improvement, distinctness), explained, gain)
+                          significance(improvement, distinctness), explained, gain, fit.at_limit)
 
 
 def gain_between(base_sum_of_squares: float, extended_sum_of_squares: float, terms: int) -> Gain:

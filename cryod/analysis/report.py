@@ -75,12 +75,21 @@ def _recalibration_section(analysis: Analysis) -> list[str]:
 
 
 def _still_left(analysis: Analysis) -> str:
-    """The first line's warning when the causes named leave a discrepancy."""
+    """The first line's words on what is left: a discrepancy the causes named leave, and the generic extension."""
     left = analysis.remaining
-    if left is None or not left.present or analysis.cause in ("none", "unexplained"):
+    if left is None or not left.present or analysis.cause == "none":
         return ""
-    return (f", and a discrepancy is still left ({left.significance:.1f} sigma, "
-            f"{100.0 * left.excess / left.terms:.2f} % of the noise power: see \"What is left\")")
+    text = "" if analysis.cause == "unexplained" else (
+        f", and a discrepancy is still left ({left.significance:.1f} sigma, "
+        f"{100.0 * left.excess / left.terms:.2f} % of the noise power)")
+    generic = analysis.generic
+    if generic is not None:
+        verb = "extended by" if generic.added else "not extended: it does not count,"
+        text += (f"; {'no physical cause is named, ' if analysis.cause == 'unexplained' else ''}the model is {verb} "
+                 f"the generic extension ({' + '.join(generic.used)}), which removes "
+                 f"{100.0 * generic.score.explained_fraction:.1f} % of what is left (held-out gain "
+                 f"{generic.score.gain.ratio:.3g})")
+    return text + ": see \"What is left\""
 
 
 def _base_model_off_section(analysis: Analysis) -> list[str]:
@@ -117,13 +126,23 @@ def _left_section(analysis: Analysis) -> list[str]:
     generic = analysis.generic
     if generic is not None:
         gain = generic.score.gain
-        state = ("added to the extended model (marked generic: `heater_path_correction`)" if generic.added
+        state = ("added to the extended model (marked generic: effects "
+                 f"{', '.join(_generic_effects(generic))}, no cause)" if generic.added
                  else "not added: it does not count on the held-out blocks")
-        lines += ["", f"Generic extension (a low-order error model of the heater's paths, data-driven, not a "
-                      f"physical cause): removes {100.0 * generic.score.explained_fraction:.1f} % of what is left "
+        lines += ["", f"**Generic extension** (data-driven, not a physical cause; fitted on the fit blocks, judged on "
+                      f"the held-out ones): {' + '.join(generic.used)} removes "
+                      f"{100.0 * generic.score.explained_fraction:.1f} % of what is left "
                       f"({generic.score.significance:.1f} sigma), held-out gain {gain.ratio:.4g} "
-                      f"({_number(gain.base)} -> {_number(gain.extended)} times the noise); {state}."]
+                      f"({_number(gain.base)} -> {_number(gain.extended)} times the noise); {state}. "
+                      "Each family alone:", ""]
+        lines += [f"- {text}" for text in generic.sentences()]
     return lines
+
+
+def _generic_effects(generic) -> list[str]:
+    """The model file's effects the generic extension adds."""
+    return [f"`{name}`" for name, used in (("heater_path_correction", "heater_path_correction" in generic.used),
+                                           ("disturbance", set(generic.used) - {"heater_path_correction"})) if used]
 
 
 def _causes_section(analysis: Analysis) -> list[str]:

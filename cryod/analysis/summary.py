@@ -8,15 +8,17 @@ parameters: list of {parameter, unit, shipped, fitted, uncertainty,
 significance, at_tolerance}, gain, tolerance}), ``discrepancies`` (list of
 {quantity, model, measured, significance}), ``extended_model`` (path of the
 model file written), ``gain`` ({metric, base, extended, ratio}: the base model
-as given against the extended one), ``candidates`` (list, one per cause tried
+as given against the extended one, generic extension included), ``candidates`` (list, one per cause tried
 on the recalibrated model: {cause, score, parameters, significance,
 explained_fraction, gain_ratio}; ``score`` is the held-out improvement in
 noise-variance units); ``remaining`` (what the causes' model still shows:
 {discrepancy, excess, significance, fraction_of_noise_power}); ``base_model_off``
 (for that verdict: the parameters the record asks beyond the tolerance, with
 the values asked for, the advice, what a catalogue cause alone would have
-said); ``generic_extension`` (the generic heater-path correction, its gain and
-whether it is in the extended model); ``residual_signature`` (spectral peaks,
+said); ``generic_extension`` (what is left modelled without physics: each
+family alone, the families used, the heater-path terms and the disturbance's
+statistics, its held-out gain and whether it is in the extended model: then
+``gain`` counts it); ``residual_signature`` (spectral peaks,
 drift, cross-correlations, segments, the resid-style correlations:
 :mod:`cryod.analysis.residual_signature`). Each named cause also carries
 ``equivalent_to`` (other readings that fit alike: :mod:`cryod.analysis.equivalence`).
@@ -181,8 +183,8 @@ def model_header(analysis: Analysis, record_path: Path, base_model_path: Path) -
         lines.append(f"Fitted effect: {named.cause}: {format_parameters(named.fit.parameters)}")
     if analysis.generic is not None and analysis.generic.added:
         gain = analysis.generic.score.gain
-        lines.append(f"Generic (data-driven, not a physical cause): heater_path_correction, held-out gain "
-                     f"{gain.ratio:.4g} on top of the causes")
+        lines.append(f"Generic (data-driven, not a physical cause): {' + '.join(analysis.generic.used)}, held-out "
+                     f"gain {gain.ratio:.4g} on top of the causes")
     if analysis.extended:
         lines.append(f"Gain on held-out data: {decision.gain.ratio:.4g} ({decision.gain.metric}: "
                      f"base {decision.gain.base:.4g}, extended {decision.gain.extended:.4g})")

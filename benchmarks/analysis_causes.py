@@ -1,6 +1,7 @@
 """How often ``cryod analyze`` names the right causes on records like real ones.
 
 Run: PYTHONPATH=. python3 benchmarks/analysis_causes.py [--records N] [--processes 2] [--seed S] [--json PATH]
+     [--only INDEXES]
 
 Every record comes from a cryostat whose base parameters are off the shipped
 model's at random (each gain and time constant by up to +-5 %, the line's phase
@@ -22,7 +23,12 @@ Three kinds of record:
   model's (:data:`FAR_OFF_PARAMETERS`; the answer is ``base_model_off``);
 * outside the catalogue: :data:`OUTSIDE_EFFECTS`, twice each (the answer is
   ``unexplained``, or ``none`` for an effect too small to matter), with the
-  generic extension's held-out gain.
+  generic extension's held-out gain;
+* the daemon's own records: ``cryod --simulate --sim-model MODEL`` (30 min of
+  the daemon regulating at its configured setpoint with its feedforward) on a
+  model file with one parameter 10-30 % off (the answer is ``base_model_off``),
+  or with a disturbance of the model's generic kind (:data:`DAEMON_OUTSIDE`:
+  an unrecorded heat load, a pickup; the answer is ``unexplained`` or ``none``).
 
 Every record is analysed against the shipped model (``config/model.yaml``), as a
 user would; a multiprocessing pool of ``--processes`` (2 at most) shares the
@@ -38,6 +44,7 @@ import json
 import math
 import multiprocessing
 import sys
+import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -167,6 +174,10 @@ def plan(records: int, seed: int) -> list[dict]:
         for repeat in range(2):
             jobs.append({"kind": "outside the catalogue", "causes": [], "protocol": protocols[(index + repeat) % 3],
                          "outside": name})
+    for name in FAR_OFF_PARAMETERS:
+        jobs.append({"kind": "base model off", "causes": [], "protocol": DAEMON, "off": name})
+    for name in DAEMON_OUTSIDE:
+        jobs.append({"kind": "outside the catalogue", "causes": [], "protocol": DAEMON, "outside": name})
     for index, job in enumerate(jobs):
         job["index"] = index
         job["seed"] = int(generator.integers(1, 2 ** 31))
@@ -221,12 +232,41 @@ def _outside(name: str, model, duration_s: float):
 #: Effects outside the catalogue (the answer is ``unexplained``, or ``none`` when too small to matter).
 OUTSIDE_EFFECTS = ("heat leak step", "slow heat load drift", "thermometer drift", "extra flange mode",
                    "periodic heat load", "thermometer pickup")
+#: The daemon's own records: ``cryod --simulate --sim-model`` for this long.
+DAEMON = "daemon"
+DAEMON_DURATION_S = 1800.0
+#: Disturbances put into the daemon's simulated cryostat (the model's generic kind).
+DAEMON_OUTSIDE = ("daemon: unrecorded heat load", "daemon: flange thermometer pickup")
+
+
+def _daemon_disturbance(name: str):
+    from cryod.model import Disturbance, Pickup, SlowProcess
+
+    if name == "daemon: unrecorded heat load":
+        return Disturbance(unrecorded_heat=SlowProcess(1e-3, 600.0, 7))
+    return Disturbance(pickups=(Pickup("flange", 0.37, 20e-6, 0.5),))
+
+
+def daemon_record(model, folder: Path, seed: int) -> Path:
+    """A record of the daemon (``cryod --simulate``, the example configuration) on a cryostat of ``model``."""
+    import io
+
+    from cryod.model import save_model
+    from cryod.service.simulation import simulate
+
+    model_path = folder / "simulated-cryostat.yaml"
+    save_model(model, model_path)
+    run = simulate(DAEMON_DURATION_S, sim_model=model_path, seed=seed, data_dir=folder / "data",
+                   socket=folder / "control.sock", log_stream=io.StringIO())
+    if run.exit_code != 0:
+        raise RuntimeError(f"the simulated daemon stopped with {run.exit_code}: {run.summary.get('last_fault')}")
+    return Path(run.log_paths[0])
 
 
 def run_one(job: dict) -> dict:
     """Make one record and analyse it; returns what was found."""
     from cryod.analysis.pipeline import analyze
-    from cryod.analysis.record_data import RecordData
+    from cryod.analysis.record_data import RecordData, read_record_data
     from cryod.model import load_model
     from cryod.records.record import Record
     from simulated_hw.hidden_effects import other_day, perturbed_base
@@ -248,11 +288,17 @@ def run_one(job: dict) -> dict:
     extra = {}
     if job.get("off"):
         model, truths["base_model_off"] = far_off(model, job["off"], generator)
-    if job.get("outside"):
-        model, extra = _outside(job["outside"], model, PROTOCOL_DURATIONS_S[protocol])
-    record = make_record(model, protocol, duration_s=PROTOCOL_DURATIONS_S[protocol],
-                         seed=int(generator.integers(1, 2 ** 31)), controller_model=shipped, **extra)
-    data = RecordData.from_record(Record(record.metadata, record.columns, source=f"record {job['index']}"))
+    if protocol == DAEMON:
+        if job.get("outside"):
+            model = model.with_effects(disturbance=_daemon_disturbance(job["outside"]))
+        with tempfile.TemporaryDirectory() as folder:
+            data = read_record_data(daemon_record(model, Path(folder), int(generator.integers(1, 2 ** 31))))
+    else:
+        if job.get("outside"):
+            model, extra = _outside(job["outside"], model, PROTOCOL_DURATIONS_S[protocol])
+        record = make_record(model, protocol, duration_s=PROTOCOL_DURATIONS_S[protocol],
+                             seed=int(generator.integers(1, 2 ** 31)), controller_model=shipped, **extra)
+        data = RecordData.from_record(Record(record.metadata, record.columns, source=f"record {job['index']}"))
     started, cpu = time.perf_counter(), time.process_time()
     try:
         analysis = analyze(data, shipped)
@@ -263,13 +309,26 @@ def run_one(job: dict) -> dict:
     named = {item.cause: _plain(item.fit.parameters) for item in analysis.causes} \
         if analysis.cause not in ("none", "unexplained") else {}
     generic = analysis.generic
+    families = {item.family: item.score.explained_fraction for item in generic.families if item.score is not None} \
+        if generic is not None else {}
     return {**job, "truths": truths, "named": list(named), "cause": analysis.cause,
+            "generic_used": list(generic.used) if generic is not None else [],
+            "generic_removed": generic.score.explained_fraction if generic is not None else None,
+            "generic_families": families, "at_tolerance_within": _at_tolerance(analysis),
             "reason": analysis.decision.reason, "parameters": named, "wall_s": wall, "cpu_s": cpu,
             "gain": analysis.decision.gain.ratio, "recalibrated": analysis.recalibrated,
             "perturbation": perturbation,
             "generic_gain": generic.score.gain.ratio if generic is not None else None,
             "generic_added": bool(generic is not None and generic.added),
             "remaining": bool(analysis.remaining is not None and analysis.remaining.present)}
+
+
+def _at_tolerance(analysis) -> list[str]:
+    beyond = analysis.beyond_recalibration
+    if beyond is not None:
+        return list(beyond.at_tolerance)
+    recalibration = analysis.final_recalibration or analysis.recalibration
+    return [row.parameter for row in recalibration.table() if row.at_tolerance] if recalibration else []
 
 
 def _plain(parameters: dict) -> dict:
@@ -324,15 +383,38 @@ def tables(results: list[dict]) -> str:
     wrong = sum(judged(result)["wrong_cause"] for result in results)
     lines += ["", f"A wrong catalogue cause (or `base_model_off` where the base model is not far off) in {wrong} "
                   f"of {len(results)} records ({100.0 * wrong / max(len(results), 1):.1f} %; goal at most 3 %)."]
-    lines += ["", "| effect | protocol | verdict | discrepancy left | generic extension's held-out gain | added |",
-              "|---|---|---|---|---|---|"]
+    lines += ["", "| effect | protocol | verdict | discrepancy left | generic families used | removes | "
+                  "held-out gain | added | each family alone removes |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for result in results:
         if result["kind"] in ("outside the catalogue", "base model off"):
-            what = result.get("outside") or f"base model off: {result.get('off')} x{result['truths'].get('base_model_off', 1):.2f}"
-            gain = result.get("generic_gain")
+            what = result.get("outside") or (f"base model off: {result.get('off')} "
+                                             f"x{result['truths'].get('base_model_off', 1):.2f}")
+            gain, removed = result.get("generic_gain"), result.get("generic_removed")
+            alone = ", ".join(f"{family} {100.0 * fraction:.0f} %" for family, fraction in
+                              sorted(result.get("generic_families", {}).items(), key=lambda item: -item[1]))
             lines.append(f"| {what} | {result['protocol']} | {', '.join(result['named']) or result['cause']} | "
                          f"{'yes' if result.get('remaining') else 'no'} | "
-                         f"{'-' if gain is None else f'{gain:.3g}'} | {'yes' if result.get('generic_added') else 'no'} |")
+                         f"{' + '.join(result.get('generic_used', [])) or '-'} | "
+                         f"{'-' if removed is None else f'{100.0 * removed:.1f} %'} | "
+                         f"{'-' if gain is None else f'{gain:.3g}'} | {'yes' if result.get('generic_added') else 'no'} | "
+                         f"{alone or '-'} |")
+    lines += ["", "| kind | records | verdict right | generic extension added | its held-out gain: median (least, "
+                  "most) | families used |", "|---|---|---|---|---|---|"]
+    kinds = defaultdict(list)
+    for result in results:
+        if result["kind"] in ("outside the catalogue", "base model off"):
+            kinds[result.get("outside") or f"base model off: {result.get('off')}"].append(result)
+    for kind, items in kinds.items():
+        gains = [item["generic_gain"] for item in items if item.get("generic_added")]
+        used = defaultdict(int)
+        for item in items:
+            for family in item.get("generic_used", []) if item.get("generic_added") else []:
+                used[family] += 1
+        spread = (f"{np.median(gains):.3g} ({min(gains):.3g}, {max(gains):.3g})" if gains else "-")
+        lines.append(f"| {kind} | {len(items)} | {sum(judged(item)['right'] for item in items)} | "
+                     f"{sum(bool(item.get('generic_added')) for item in items)} | {spread} | "
+                     f"{', '.join(f'{family} ({count})' for family, count in used.items()) or '-'} |")
     lines += ["", "| cause | protocol | records | named right | parameters within 20 % |", "|---|---|---|---|---|"]
     cells = defaultdict(lambda: [0, 0, 0])
     for result, judgement in by_kind.get("one effect", []):
@@ -381,8 +463,13 @@ def main() -> None:
     parser.add_argument("--processes", type=int, default=2, help="worker processes, at most 2 (default 2)")
     parser.add_argument("--seed", type=int, default=12, help="seed of the plan (default 12)")
     parser.add_argument("--json", default=None, help="also write every result to this JSON file")
+    parser.add_argument("--only", default=None, metavar="INDEXES",
+                        help="run only these records of the plan (comma-separated indexes)")
     args = parser.parse_args()
     jobs = plan(args.records, args.seed)
+    if args.only:
+        wanted = {int(index) for index in args.only.split(",")}
+        jobs = [job for job in jobs if job["index"] in wanted]
     processes = max(1, min(args.processes, 2))
     results = []
     started = time.perf_counter()

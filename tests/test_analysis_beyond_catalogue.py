@@ -1,32 +1,99 @@
-"""The analysis beyond its catalogue: the new cooler causes in the model, base_model_off, what is left, equivalences."""
+"""The analysis beyond its catalogue: the new cooler causes in the model, base_model_off, what is left, the generic
+extension, equivalences, and the daemon's own records of a cryostat the model does not describe."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import yaml
 
+from cryod import cli
+from cryod.analysis.candidates import CandidateFit, EffectForm
+from cryod.analysis.decision import BaseDiscrepancy, score_candidate
 from cryod.analysis.equivalence import equivalents
+from cryod.analysis.generic_extension import MeasuredDisturbance
 from cryod.analysis.residual_signature import classify_peak, spectral_peaks
+from cryod.analysis.slow_series import correlation_time_s, in_file_form
 from cryod.model import (
-    CryostatPlant, FileFormatError, HeaterPathCorrection, PtcAmplitudeModulation, PtcStageDrift, load_model, load_model_text, model_to_dict,
-    save_model, simulate,
+    CryostatPlant, Disturbance, FileFormatError, HeaterPathCorrection, Pickup, PtcAmplitudeModulation, PtcStageDrift,
+    SlowProcess, load_model, load_model_text, model_to_dict, save_model, simulate,
 )
+from cryod.records.record import write_record
+from cryod.service.simulation import simulate as simulate_daemon
+from simulated_hw.hidden_effects import perturbed_base
+from simulated_hw.measurement_programs import make_record
 from tests.hidden_effects import analysed, base_model, other_day
 
 MODULATION = PtcAmplitudeModulation(0.15, 600.0, 0.4)
 DRIFT = PtcStageDrift(1.5e-3, 600.0, 0.6, 150.0, 4)
 CORRECTION = HeaterPathCorrection((3.0, 30.0), (0.2, -0.1), (0.0, 0.05))
+DISTURBANCE = Disturbance(SlowProcess(1e-3, 300.0, 3), SlowProcess(2e-4, 600.0, 4), None,
+                          (Pickup("flange", 0.37, 2e-5, 0.3),))
 
 
 def test_new_effects_round_trip_through_the_model_file(tmp_path):
     model = load_model().with_effects(ptc_amplitude_modulation=MODULATION, ptc_stage_drift=DRIFT,
-                                      heater_path_correction=CORRECTION)
+                                      heater_path_correction=CORRECTION, disturbance=DISTURBANCE)
     save_model(model, tmp_path / "m.yaml")
     assert load_model(tmp_path / "m.yaml").effects == model.effects
+    assert "rms_W: 0.001" in (tmp_path / "m.yaml").read_text()
+
+
+def test_a_pickup_on_an_unknown_thermometer_is_refused_with_its_key():
+    data = model_to_dict(load_model())
+    data["effects"] = {"disturbance": {"pickups": [{"thermometer": "sample", "frequency_hz": 0.37,
+                                                    "amplitude_K": 1e-5}]}}
+    with pytest.raises(FileFormatError, match=r"pickups\[0\]\.thermometer.*flange, ptc_stage"):
+        load_model_text(yaml.safe_dump(data))
+
+
+def test_a_disturbance_reaches_the_readings_as_its_parts_say():
+    model = load_model()
+    t = np.arange(0.0, 3000.0, 0.08)
+    plain = simulate(model, t, np.zeros(t.size))
+    pickup = Disturbance(pickups=(Pickup("ptc_stage", 0.2, 1e-4, 0.0),))
+    disturbed = simulate(model.with_effects(disturbance=pickup), t, np.zeros(t.size))
+    assert np.allclose(disturbed.ptc_stage_K - plain.ptc_stage_K, 1e-4 * np.sin(2 * np.pi * 0.2 * t), atol=1e-12)
+    assert np.allclose(disturbed.flange_K, plain.flange_K, atol=1e-12)
+    load = SlowProcess(1e-3, 600.0, 1)
+    heat = simulate(model.with_effects(disturbance=Disturbance(load)), t, np.zeros(t.size))
+    flange, stage = heat.flange_K - plain.flange_K, heat.ptc_stage_K - plain.ptc_stage_K
+    # the heat load's every component through G3 (to T5) and G2 G1 (to T2), as the heater's power would go
+    assert np.allclose(stage, load.values(t, model.heater_to_ptc_stage.frequency_response), atol=1e-12)
+    assert np.allclose(flange, load.values(t, model.heater_to_thermometer.frequency_response), atol=1e-12)
+    # slow: the flange moves about G1(0) / G3(0) = 2.5 times as much as the stage, and in step with it
+    assert 1.8 < np.std(flange) / np.std(stage) < 2.6 and np.corrcoef(flange, stage)[0, 1] > 0.9
+
+
+def test_measured_series_go_to_the_model_file_as_their_statistics():
+    t = np.arange(0.0, 1800.0, 0.08)
+    heat = 1e-3 * np.sin(2 * np.pi * t / 900.0)
+    measured = MeasuredDisturbance(t, 2e-3 * heat, 1e-3 * heat, unrecorded_heat_w=heat,
+                                   pickups=(Pickup("flange", 0.37, 2e-5, 0.1),))
+    form = in_file_form(load_model().with_effects(disturbance=measured)).effects.disturbance
+    assert isinstance(form, Disturbance) and form.pickups == measured.pickups
+    assert form.unrecorded_heat.rms == pytest.approx(1e-3 / np.sqrt(2), rel=1e-3)
+    assert form.unrecorded_heat.correlation_time_s == pytest.approx(correlation_time_s(heat, 0.08))
+    assert 150.0 < form.unrecorded_heat.correlation_time_s < 300.0       # a sine's 1/e point: 0.21 of its period
+    assert form.flange_offset is None and form.ptc_stage_offset is None
+
+
+def test_a_fit_at_a_physical_limit_does_not_count():
+    t = np.arange(0.0, 10.0, 1.0)
+    context = SimpleNamespace(held_out_mask=np.ones(t.size, bool), noise_rms_K=(1.0, 1.0),
+                              base_replay=SimpleNamespace(flange_K=t * 0 + 5.0, ptc_stage_K=t * 0),
+                              chi_square=lambda replay, mask: (0.0, 0.0))
+    base = BaseDiscrepancy(20, 1000.0, 980.0, 155.0)
+    replay = SimpleNamespace(flange_K=t * 0, ptc_stage_K=t * 0)
+    effect = EffectForm((1.0, 100.0), (0.0, 0.0), (1.0, 1e4), (1e-3, 1.0), None, None, lambda v: v[0] >= 1.0)
+    fit = CandidateFit("ptc_stage_drift", {}, None, replay, None, effect=effect)
+    assert fit.at_limit and not score_candidate(context, fit, base).counts
+    inside = dataclasses.replace(fit, effect=dataclasses.replace(effect, values=(0.6, 100.0)))
+    assert not inside.at_limit and score_candidate(context, inside, base).counts
 
 
 def test_a_correction_with_a_gain_short_is_refused():
@@ -56,7 +123,7 @@ def test_the_envelope_scales_both_lines_and_the_drift_reaches_the_flange():
 
 def test_the_stepping_plant_agrees_with_the_whole_record_simulation():
     model = load_model().with_effects(ptc_amplitude_modulation=MODULATION, ptc_stage_drift=DRIFT,
-                                      heater_path_correction=CORRECTION)
+                                      heater_path_correction=CORRECTION, disturbance=DISTURBANCE)
     t = np.arange(0.0, 300.0, 0.08)
     heater = np.where(t > 50.0, 0.01, 0.0)
     whole = simulate(model, t, heater, initial_heater_power_w=0.0)
@@ -115,12 +182,78 @@ def test_a_breathing_stroke_is_named_with_its_depth_and_period():
     assert abs(parameters["depth"] - 0.15) < 0.01 and abs(parameters["period_s"] - 600.0) < 20.0
 
 
+def test_a_pickup_is_described_extended_and_simulated(tmp_path, capsys):
+    """A 0.37 Hz pickup on the flange thermometer: `unexplained`, the residual's peak at 0.37 Hz in the report, the
+    generic extension's pickup taking the held-out residual to the noise, and the simulator running it."""
+    model, _ = perturbed_base(other_day(base_model(), 2), 3)
+    record = make_record(model, "pi_only", duration_s=900.0, seed=4,
+                         flange_offset_K=lambda t: 20e-6 * np.sin(2.0 * np.pi * 0.37 * t))
+    path = write_record(tmp_path / "pickup.csv", record.columns, record.metadata)
+    assert cli.main(["analyze", str(path), "--out", str(tmp_path / "out"), "--json", "--no-figures"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["cause"] == "unexplained" and not result["causes"]
+    generic = result["generic_extension"]
+    assert generic["added"] and generic["families_used"] == ["pickups"]
+    assert generic["gain"]["extended"] < 1.02 < generic["gain"]["base"]
+    pickup = load_model(result["extended_model"]).effects.disturbance.pickups[0]
+    assert pickup.thermometer == "flange" and abs(pickup.frequency_hz - 0.37) < 2e-3
+    assert pickup.amplitude_K == pytest.approx(20e-6, rel=0.1)
+    report = (tmp_path / "out" / "report.md").read_text()
+    first = report.splitlines()[2]
+    assert "no physical cause is named" in first and "pickups" in first
+    assert "T2 residual peak at 0.37" in report and "pickups (sinusoids on a reading" in report
+    assert cli.main(["--simulate", "--sim-model", result["extended_model"], "--duration", "8", "--speed", "max",
+                     "--data-dir", str(tmp_path / "data"), "--socket", str(tmp_path / "c.sock"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["ticks"] == 100
+
+
 @pytest.mark.slow
 def test_an_effect_outside_the_catalogue_is_described_and_extended():
+    """A mode G1 does not have (a stage hanging off the flange): `unexplained`, and the generic heater-path
+    correction takes most of what is left."""
     model = other_day(base_model(), 0)
     model = dataclasses.replace(model, heater_to_flange=model.heater_to_flange
                                 + load_model().heater_to_flange.first_order_lag(20.0, 0.4))
     analysis = analysed(model, "identification", 1800.0, 2)
     assert analysis.cause == "unexplained", analysis.decision.reason
-    assert analysis.generic is not None and analysis.generic.score.gain.ratio > 1.0
-    assert analysis.residual_signature.sentences()
+    generic = analysis.generic
+    assert generic.added and "heater_path_correction" in generic.used and generic.score.gain.ratio > 3.0
+    assert analysis.residual_signature.sentences() and generic.sentences()
+
+
+@pytest.mark.slow
+def test_a_drifting_cold_end_is_named_with_its_coupling():
+    model, _ = perturbed_base(other_day(base_model(), 1).with_effects(ptc_stage_drift=DRIFT), 9)
+    analysis = analysed(model, "identification", 3600.0, 3)
+    assert analysis.cause_names == ["ptc_stage_drift"], analysis.decision.reason
+    assert analysis.causes[0].fit.parameters["flange_coupling"] == pytest.approx(0.6, rel=0.2)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, factor", [("heater power scale", 1.2), ("flange time constant", 0.8)])
+def test_the_daemons_own_record_of_a_cryostat_further_off_is_base_model_off(tmp_path, name, factor):
+    """`cryod --simulate --sim-model` on a model file with a parameter 20 % off the shipped one: the daemon's
+    record (PI and feedforward at its setpoint) analysed with the shipped model asks for that parameter."""
+    model = load_model()
+    if name == "heater power scale":
+        model = dataclasses.replace(model, heater_to_flange=model.heater_to_flange * factor,
+                                    heater_to_ptc_stage=model.heater_to_ptc_stage * factor)
+        asked = {"heater_to_flange static gain": factor, "heater_to_ptc_stage static gain": factor}
+    else:
+        (zero, gain), (pole, one) = model.heater_to_flange.numerator, model.heater_to_flange.denominator
+        model = dataclasses.replace(model, heater_to_flange=type(model.heater_to_flange)((zero, gain),
+                                                                                        (pole * factor, one)))
+        asked = {"heater_to_flange time constant": factor}
+    save_model(model, tmp_path / "cryostat.yaml")
+    run = simulate_daemon(1800.0, sim_model=tmp_path / "cryostat.yaml", seed=5, data_dir=tmp_path / "data",
+                          socket=tmp_path / "c.sock", log_stream=open(tmp_path / "log", "w"))
+    assert run.exit_code == 0
+    from cryod.analysis.pipeline import analyze
+    from cryod.analysis.record_data import read_record_data
+
+    analysis = analyze(read_record_data(run.log_paths[0]), load_model())
+    assert analysis.cause == "base_model_off", analysis.decision.reason
+    found = {row.parameter: row.fitted / row.shipped for row in analysis.beyond_recalibration.parameters}
+    assert set(found) == set(asked)
+    for parameter, value in asked.items():
+        assert found[parameter] == pytest.approx(value, abs=0.02)

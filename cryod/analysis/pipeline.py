@@ -500,17 +500,9 @@ class CauseSearch:
         they stand in for something the catalogue does not have, and the reason is returned ('' when they add).
         The extension that goes with the verdict is kept for the analysis."""
         analysis = self.analysis
-        alone = fit_generic_extension(self._extension_context(analysis.final_model, analysis.final_replay),
-                                      recalibrated_base)
-        on_causes = fit_generic_extension(
-            self._extension_context(path.context.base_model, path.context.base_replay), path.base)
-        mask, noise = self.held_out_mask, self.noise_rms_K
-        context = path.context
-        without, with_causes = alone.fit.replay, on_causes.fit.replay
-        adds = sum(context.chi_square(without, mask)) - sum(context.chi_square(with_causes, mask))
-        flange = (without.flange_K - with_causes.flange_K)[mask] / noise[0]
-        stage = (without.ptc_stage_K - with_causes.ptc_stage_K)[mask] / noise[1]
-        sigma = significance(adds, float(flange @ flange + stage @ stage))
+        adds, sigma, alone, on_causes = self._added_to_generic(
+            (analysis.final_model, analysis.final_replay, recalibrated_base),
+            (path.context.base_model, path.context.base_replay, path.base))
         if adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA:
             analysis.generic = on_causes
             return ""
@@ -518,6 +510,19 @@ class CauseSearch:
         return (f"with the generic extension ({' + '.join(alone.used)}) the causes add only {adds:.4g} "
                 f"({sigma:.1f} sigma) on the held-out blocks: they stand in for something outside the catalogue, "
                 "and no physical cause is named")
+
+    def _added_to_generic(self, without: tuple, with_: tuple):
+        """What the causes of one model add to the generic extension over another's: each given as (model, replay,
+        its held-out discrepancy). Returns (held-out improvement, its significance, the extension on each)."""
+        first = fit_generic_extension(self._extension_context(without[0], without[1]), without[2])
+        second = fit_generic_extension(self._extension_context(with_[0], with_[1]), with_[2])
+        mask, noise = self.held_out_mask, self.noise_rms_K
+        context = self.analysis.context
+        a, b = first.fit.replay, second.fit.replay
+        adds = sum(context.chi_square(a, mask)) - sum(context.chi_square(b, mask))
+        flange = (a.flange_K - b.flange_K)[mask] / noise[0]
+        stage = (a.ptc_stage_K - b.ptc_stage_K)[mask] / noise[1]
+        return adds, significance(adds, float(flange @ flange + stage @ stage)), first, second
 
     def _extension_context(self, model: CryostatModel, replay: Replay) -> FitContext:
         """A context on ``model`` and its replay, without a linearised recalibration (for the generic extension)."""
@@ -528,7 +533,9 @@ class CauseSearch:
     def _follow(self, choice: CandidateScore, refined: dict, recalibrated_base: BaseDiscrepancy,
                 most: int = MOST_CAUSES) -> _Path:
         """Name ``choice`` (a refined candidate's score) first, then causes on top of it while one counts and
-        removes at least 70 % of what is left (``most`` causes in all)."""
+        removes at least 70 % of what is left (``most`` causes in all). A further cause that leaves a discrepancy
+        must also add significantly to the generic extension on the model without it: a leftover of the causes
+        named (a drift's spline that is a little too stiff) is not taken for another cause."""
         context = self.analysis.context
         path = _Path([], context, recalibrated_base, [], context.recalibrated, [])
         remaining = improving_causes(self.analysis.scores) if self.analysis.scores else list(self.causes)
@@ -554,6 +561,8 @@ class CauseSearch:
                     break
             if not best.counts:
                 break
+            before = dataclasses.replace(path, causes=list(path.causes), named_effects=list(path.named_effects),
+                                         reasons=list(path.reasons))
             fit, refined_base, others = refined[best.cause]
             after = gain_between(path.base.sum_of_squares, path.base.sum_of_squares - best.improvement,
                                  path.base.terms)
@@ -568,6 +577,16 @@ class CauseSearch:
             self._settle(path, best.cause, refined[best.cause])
             if len(path.causes) > 1:
                 self._drop_unneeded(path)
+            if round_index > 0 and path.base.present:
+                adds, sigma, _, _ = self._added_to_generic(
+                    (before.context.base_model, before.context.base_replay, before.base),
+                    (path.context.base_model, path.context.base_replay, path.base))
+                if not (adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA):
+                    before.reasons.append(f"{best.cause} would remove {100.0 * best.explained_fraction:.1f} % of what "
+                                          f"is left but adds only {adds:.4g} ({sigma:.1f} sigma) to the generic "
+                                          "extension: not a further cause")
+                    path.__dict__.update(vars(before))
+                    break
             if not path.base.present or len(path.causes) == most:
                 break
         return path

@@ -96,7 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--config", type=Path, default=DEFAULT_CONFIG, dest="run_config", metavar="PATH",
                      help=f"daemon configuration (default {DEFAULT_CONFIG})")
     run.add_argument("--check", action="store_true",
-                     help="only validate the configuration and the calibration files, then exit")
+                     help="only validate the configuration, the calibration files and what they need of this "
+                          "computer (VISA library, serial devices, socket owner and folders), then exit; no "
+                          "instrument is touched")
     run.add_argument("--duration", type=positive, default=None, dest="run_duration", metavar="S",
                      help="stop after this many seconds (default: until SIGTERM)")
     run.add_argument("--supply-off", action="store_true",
@@ -190,25 +192,29 @@ def _main(argv: list[str] | None) -> int:
 
 def _run_service(args) -> int:
     from cryod.service.daemon import Daemon, config_or_exit
-    from cryod.service.instruments import (check_calibrations, check_instrument_locking, check_instrument_support,
-                                           instrument_addresses, open_instruments)
+    from cryod.service.instruments import instrument_addresses, open_instruments
     from cryod.service.clock import MonotonicClock
     from cryod.service.logs import ServiceLogging
-
+    from cryod.service.startup_checks import check_before_run
     from cryod.service.status_line import StatusLine
+    from cryod.yaml_source import FileFormatError
 
     config = config_or_exit(args.run_config, sys.stderr)
     if config is None:
         return 2
-    problem = check_calibrations(config) or check_instrument_support(config) or check_instrument_locking(config)
-    if problem:
-        print(f"cryod: {problem}", file=sys.stderr)
+    if args.supply_off:                 # the heater off whatever else this computer lacks
+        return _supply_off(config)
+    try:
+        notes = check_before_run(config, before_systemd_start=args.check)
+    except FileFormatError as error:
+        print(f"cryod: configuration not usable on this computer, nothing was started: {error}", file=sys.stderr)
         return 2
     if args.check:
-        print(f"{args.run_config}: configuration and calibration files are valid")
+        for note in notes:
+            print(f"note: {note}")
+        print(f"{args.run_config}: configuration and calibration files are valid, and this computer has what "
+              f"they name")
         return 0
-    if args.supply_off:
-        return _supply_off(config)
     daemon = Daemon(config, open_instruments, MonotonicClock(), instrument_addresses=instrument_addresses)
     status_line = StatusLine(daemon.live_view, sys.stderr, duration_s=args.run_duration)   # a terminal only
     logging_service = ServiceLogging(stream=status_line.log_stream)

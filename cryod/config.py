@@ -10,19 +10,23 @@ Examples
 >>> config = load_config(EXAMPLE_CONFIG_PATH)
 >>> config.loop.period_s, config.heater.max_current_A
 (0.08, 0.1)
->>> round(config.heater.max_power_w, 3)      # R * I_max**2
+>>> round(config.heater.max_power_w, 3)      # R * I_max**2, as the supply driver takes it
 0.5
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from cryod.control.ramp import MIN_RATE_K_PER_MIN, rate_refusal
 from cryod.control.terms import term_settings_from
+from cryod.instrument_waits import InstrumentWaits
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError, Section, read_text_file, shown
+from drivers.heater_limits import largest_power_w
 from drivers.keithley2002_timing import ReadingTiming
 
 CONFIG_FORMAT = "cryod-config v1"
@@ -44,6 +48,12 @@ MAX_RAMP_K_PER_MIN = 100.0
 #: socket needs write permission, and whoever connects can set the heater; read or execute bits
 #: for others mean nothing on a socket but show a mode meant for a file, so all three are refused.
 SOCKET_MODE_OTHERS = 0o007
+#: Longest path a Unix socket can be bound to (bytes): the kernel's ``sun_path`` holds 108, the
+#: terminating NUL included.
+SOCKET_PATH_MAX_BYTES = 107
+#: The instruments' keys under ``instruments``, with the names the drivers give them.
+INSTRUMENT_KEYS = {"flange_dmm": "flange DMM (T2)", "ptc_stage_dmm": "PTC-stage DMM (T5)",
+                   "heater_supply": "heater supply"}
 #: Where every cryod on the host locks the instruments it drives (``instruments.lock_directory``): the
 #: system's place for lock files, shared by all users and units; created at boot by systemd/cryod-tmpfiles.conf.
 DEFAULT_LOCK_DIRECTORY = Path("/run/lock/cryod")
@@ -121,8 +131,8 @@ class HeaterConfig:
 
     @property
     def max_power_w(self) -> float:
-        """R * I_max**2 (W)."""
-        return self.resistance_ohm * self.max_current_A ** 2
+        """R * I_max**2 (W), rounded as the supply driver tests a power (:func:`drivers.heater_limits.largest_power_w`)."""
+        return largest_power_w(self.resistance_ohm, self.max_current_A)
 
 
 @dataclass(frozen=True)
@@ -182,6 +192,23 @@ class MetricsConfig:
 
 
 @dataclass(frozen=True)
+class WebConfig:
+    """The ``web`` section: the live page (off when the section is absent or null)."""
+
+    address: str                        # host:port, 127.0.0.1 unless stated otherwise
+    writable: bool = False              # control from the page (needs token_file)
+    token_file: Path | None = None      # the token a write must carry; readable by the service's group only
+
+
+@dataclass(frozen=True)
+class Lakeshore336Config:
+    """The ``lakeshore336`` section: the Lake Shore 336 command set over TCP (off when absent or null)."""
+
+    address: str                        # host:port, 127.0.0.1 unless stated otherwise
+    writable: bool = False              # SETP, RAMP and RANGE taken (within the same limits as every path)
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     model: Path | None
     seed: int
@@ -202,6 +229,8 @@ class DaemonConfig:
     control_socket: SocketConfig
     simulation: SimulationConfig
     metrics: MetricsConfig = MetricsConfig()
+    web: WebConfig | None = None
+    lakeshore336: Lakeshore336Config | None = None
     source: str = ""
     text: str = ""
 
@@ -317,6 +346,10 @@ def _socket_path(section: Section, key: str, base: Path) -> Path:
     if candidate.is_dir():
         raise section.error(key, f"{candidate} is a directory: give the socket's own path in it, "
                                  f"e.g. {candidate / 'control.sock'}")
+    length = len(os.fsencode(str(candidate)))
+    if length > SOCKET_PATH_MAX_BYTES:
+        raise section.error(key, f"{length} bytes long: a Unix socket's path holds at most {SOCKET_PATH_MAX_BYTES} "
+                                 f"bytes; give a shorter one (e.g. /run/cryod/control.sock)")
     return candidate
 
 
@@ -344,7 +377,11 @@ def _range_text(curve: CalibrationCurve) -> str:
     return " and ".join(f"{low:.5g}..{high:.5g} K" for low, high in ranges)
 
 
-def _address(section: Section) -> InstrumentAddress:
+def _address(section: Section) -> tuple[InstrumentAddress, str, Section, str]:
+    """The instrument's address, its canonical form (:mod:`drivers.transports.addresses`: what the host-wide
+    instrument lock takes), and the section and key that say so (for later errors)."""
+    from drivers.transports.addresses import instrument_resource, prologix_instrument
+
     resource = section.text("resource", None)
     prologix = section.section("prologix", None)
     if (resource is None) == (prologix is None):
@@ -354,11 +391,55 @@ def _address(section: Section) -> InstrumentAddress:
         host = prologix.text("host", None)
         if (port is None) == (host is None):
             raise prologix.error(None, "give either 'port' (GPIB-USB serial device) or 'host' (GPIB-ETHERNET)")
+        if not (port or host or "").strip():
+            raise prologix.error("port" if port is not None else "host", "is empty")
         address = InstrumentAddress(prologix_port=port, prologix_host=host,
                                     gpib_address=prologix.number("address", minimum=0, maximum=30, integer=True))
         prologix.finish()
-        return address
-    return InstrumentAddress(resource=resource)
+        try:
+            canonical = prologix_instrument(port=port, host=host, gpib_address=address.gpib_address)
+        except ValueError as error:
+            raise prologix.error("port" if port is not None else "host", str(error)) from None
+        return address, canonical, prologix, "address"
+    try:
+        canonical = instrument_resource(resource)
+    except ValueError as error:
+        raise section.error("resource", f"not a VISA resource cryod can open: {error}") from None
+    return InstrumentAddress(resource=resource), canonical, section, "resource"
+
+
+def _instruments_apart(places: dict) -> None:
+    """Refuse two instruments at one address (the second one named, with the first): one address, one lock."""
+    seen: dict = {}
+    for name, (_, canonical, section, key) in places.items():
+        if canonical in seen:
+            raise section.error(key, f"{canonical} is instruments.{seen[canonical]}'s already: two instruments "
+                                     f"cannot share an address")
+        seen[canonical] = name
+
+
+def _trigger_reaches_both_dmms(trigger: str, places: dict, section: Section) -> None:
+    """``gpib-group`` needs both DMMs on one GPIB card, ``prologix`` both behind one Prologix controller."""
+    from pyvisa import rname
+
+    from drivers.transports.addresses import canonical_prologix_adapter
+
+    dmms = [places[name][0] for name in ("flange_dmm", "ptc_stage_dmm")]
+    described = " and ".join(f"the {name} DMM is {address.resource or 'behind a Prologix controller'}"
+                             for name, address in zip(("flange", "PTC-stage"), dmms))
+    if trigger == "gpib-group":
+        parsed = [rname.parse_resource_name(places[name][1]) for name in ("flange_dmm", "ptc_stage_dmm")
+                  if places[name][0].resource]
+        if len(parsed) != 2 or not all(isinstance(each, rname.GPIBInstr) for each in parsed) \
+                or parsed[0].board != parsed[1].board:
+            raise section.error("trigger", f"gpib-group triggers both DMMs on one GPIB card, but {described}: give "
+                                           f"both GPIBn::address::INSTR resources on one board, or another trigger")
+    if trigger == "prologix":
+        adapters = {canonical_prologix_adapter(port=address.prologix_port, host=address.prologix_host)
+                    for address in dmms if not address.resource}
+        if any(address.resource for address in dmms) or len(adapters) != 1:
+            raise section.error("trigger", f"prologix triggers both DMMs behind one Prologix controller, but "
+                                           f"{described}: give both a prologix: section with the same port or host")
 
 
 def _config_from_section(top: Section, base: Path) -> DaemonConfig:
@@ -366,7 +447,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     if config_format != CONFIG_FORMAT:
         raise top.error("format", f"expected '{CONFIG_FORMAT}', got {config_format!r}")
 
-    section = top.section("loop")
+    loop_section = section = top.section("loop")
     loop = LoopConfig(
         period_s=section.number("period_s", 0.08, minimum=0.01, maximum=10.0),
         overrun_streak_limit=section.number("overrun_streak_limit", 5, minimum=1, maximum=1000, integer=True),
@@ -394,15 +475,15 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     dmm_section.finish()
     heater_section = section.section("heater_supply")
     heater_model = heater_section.text("model", choices=HEATER_MODELS)
-    heater_address = _address(heater_section)
+    places = {"heater_supply": _address(heater_section)}
     heater_section.finish()
-    flange_section = section.section("flange_dmm")
-    flange_address = _address(flange_section)
-    flange_section.finish()
-    stage_section = section.section("ptc_stage_dmm")
-    stage_address = _address(stage_section)
-    stage_section.finish()
+    for name in ("flange_dmm", "ptc_stage_dmm"):
+        instrument_section = section.section(name)
+        places[name] = _address(instrument_section)
+        instrument_section.finish()
+    _instruments_apart(places)
     trigger = section.text("trigger", choices=TRIGGER_MODES)
+    _trigger_reaches_both_dmms(trigger, places, section)
     output_section = section.section("trigger_output", None)
     trigger_output = None
     if output_section is not None:
@@ -420,9 +501,9 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         trigger_output=trigger_output,
         timeout_s=section.number("timeout_s", 1.0, minimum=0.01, maximum=60.0),
         visa_library=section.text("visa_library", "@py"),
-        flange_dmm=flange_address,
-        ptc_stage_dmm=stage_address,
-        heater_supply=heater_address,
+        flange_dmm=places["flange_dmm"][0],
+        ptc_stage_dmm=places["ptc_stage_dmm"][0],
+        heater_supply=places["heater_supply"][0],
         heater_model=heater_model,
         dmm=dmm,
         lock_directory=(_directory(section, "lock_directory", base) if section.text("lock_directory", None) is not None
@@ -438,6 +519,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
                                         f"leaves no time in a {loop.period_s * 1e3:.0f} ms loop period (at least "
                                         f"{CYCLE_MARGIN_S * 1e3:.0f} ms are needed to fetch, convert and set the "
                                         f"heater)")
+    _check_waits_against_watchdog(InstrumentWaits(loop.period_s, instruments.timeout_s), section, loop_section)
     section.finish()
 
     section = top.section("sensors")
@@ -514,10 +596,25 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         )
         section.finish()
     metrics = _metrics(top.section("metrics", None))
+    web = _web(top.section("web", None), base)
+    lakeshore336 = _lakeshore336(top.section("lakeshore336", None))
     top.finish()
     return DaemonConfig(loop=loop, instruments=instruments, sensors=sensors, heater=heater, control=control,
                         safety=safety, data=data, control_socket=socket_config, simulation=simulation,
-                        metrics=metrics)
+                        metrics=metrics, web=web, lakeshore336=lakeshore336)
+
+
+def _check_waits_against_watchdog(waits: InstrumentWaits, instruments_section: Section,
+                                  loop_section: Section) -> None:
+    """``instruments.timeout_s`` (or a ``loop.period_s`` no timeout fits) that could leave systemd's
+    watchdog unfed: each tick feeds it, and the longest tick follows from these two
+    (:mod:`cryod.instrument_waits`)."""
+    problem = waits.watchdog_problem()
+    if problem is None:
+        return
+    if waits.largest_timeout_s() < 0.01:
+        raise loop_section.error("period_s", f"{waits.loop_period_s:g} s: {problem}")
+    raise instruments_section.error("timeout_s", problem)
 
 
 def _metrics(section: Section | None) -> MetricsConfig:
@@ -536,6 +633,46 @@ def _metrics(section: Section | None) -> MetricsConfig:
     return metrics
 
 
+def _listen_address(section: Section) -> str:
+    """The section's ``address`` (host:port), checked; port 0 (any free port) is taken for tests."""
+    from cryod.service.listen_address import parse_address
+
+    address = section.text("address")
+    try:
+        parse_address(address, allow_any_port=True)
+    except ValueError as error:
+        raise section.error("address", str(error)) from None
+    return address
+
+
+def _web(section: Section | None, base: Path) -> WebConfig | None:
+    if section is None:
+        return None
+    web = WebConfig(address=_listen_address(section), writable=section.flag("writable", False),
+                    token_file=_existing_file(section, "token_file", base, None))
+    if web.writable and web.token_file is None:
+        raise section.error("writable", "control from the page needs web.token_file: a file holding the token "
+                                        "a write must carry (at least 16 characters), readable by the service's "
+                                        "group only (docs/operations.md)")
+    if web.token_file is not None:
+        from cryod.service.web_token import read_token
+
+        try:
+            read_token(web.token_file)
+        except ValueError as error:
+            raise section.error("token_file", str(error)) from None
+    section.finish()
+    return web
+
+
+def _lakeshore336(section: Section | None) -> Lakeshore336Config | None:
+    if section is None:
+        return None
+    lakeshore = Lakeshore336Config(address=_listen_address(section), writable=section.flag("writable", False))
+    section.finish()
+    return lakeshore
+
+
 def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
     setpoint_min = section.number("setpoint_min_K", 1.0, minimum=0.0, exclusive_minimum=True)
     setpoint_max = section.number("setpoint_max_K", minimum=0.0, exclusive_minimum=True)
@@ -545,6 +682,9 @@ def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
         raise section.error("setpoint_max_K", f"must be below the over-temperature limit safety.flange_max_K "
                                               f"({safety.flange_max_K:g} K)")
     max_ramp = section.number("max_ramp_K_per_min", 10.0, minimum=0.0, exclusive_minimum=True)
+    if max_ramp < MIN_RATE_K_PER_MIN:
+        raise section.error("max_ramp_K_per_min", f"{max_ramp!r} K/min would allow no ramp that moves the "
+                                                  f"setpoint: at least {MIN_RATE_K_PER_MIN:g} K/min")
     if max_ramp > MAX_RAMP_K_PER_MIN:
         raise section.error("max_ramp_K_per_min", f"{max_ramp:g} K/min is beyond what a cryostat flange can "
                                                   f"follow; at most {MAX_RAMP_K_PER_MIN:g} K/min (a Lake Shore "
@@ -557,9 +697,12 @@ def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
     for moved in MOVED_TO_PI:
         if moved in section.data:
             raise section.error(moved, f"the PI gains have a section of their own: give it as control.pi.{moved}")
+    ramp = section.number("ramp_K_per_min", 0.0, minimum=0.0, maximum=max_ramp)
+    if rate_refusal(ramp) is not None:
+        raise section.error("ramp_K_per_min", rate_refusal(ramp))
     control = ControlConfig(
         setpoint_K=setpoint,
-        ramp_K_per_min=section.number("ramp_K_per_min", 0.0, minimum=0.0, maximum=max_ramp),
+        ramp_K_per_min=ramp,
         setpoint_min_K=setpoint_min,
         setpoint_max_K=setpoint_max,
         max_ramp_K_per_min=max_ramp,

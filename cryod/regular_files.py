@@ -50,13 +50,16 @@ class NotARegularFile(ValueError):
         super().__init__(f"{self.path}: {reason}")
 
 
-def _kind(mode: int) -> str:
+def kind_of(mode: int) -> str:
+    """What a file of ``mode`` (``st_mode``) is, in words: ``a FIFO (named pipe)``, ``a regular file``, ..."""
+    if stat.S_ISREG(mode):
+        return "a regular file"
     return next((name for test, name in _KINDS if test(mode)), "not a regular file")
 
 
 def _refuse_unless_regular(path, status: os.stat_result) -> None:
     if not stat.S_ISREG(status.st_mode):
-        raise NotARegularFile(path, f"is {_kind(status.st_mode)}, not a regular file")
+        raise NotARegularFile(path, f"is {kind_of(status.st_mode)}, not a regular file")
 
 
 def regular_file_status(path: str | os.PathLike) -> os.stat_result:
@@ -108,4 +111,4 @@ def open_regular_file(path: str | os.PathLike) -> io.BufferedReader:
         raise
 
 
-__all__ = ["NotARegularFile", "open_regular_file", "regular_file_status"]
+__all__ = ["NotARegularFile", "kind_of", "open_regular_file", "regular_file_status"]

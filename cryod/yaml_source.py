@@ -27,8 +27,21 @@ from typing import Any, Iterable
 import yaml
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
-_FLOAT_PATTERN = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
-_OCTAL_PATTERN = re.compile(r"^(0o)?[0-7]{1,4}$")
+from cryod.regular_files import NotARegularFile, open_regular_file
+
+#: A number as these files write it: plain decimal digits with an optional sign, point and exponent
+#: (``5``, ``-0.5``, ``.5``, ``2.5e-3``), which YAML 1.1 and YAML 1.2 read alike. A whole number with a
+#: leading zero is not one (``010`` is octal 8 in YAML 1.1 and 10 in YAML 1.2), nor are underscores
+#: (``1_2``), base 60 (``1:30``) and the ``0x``, ``0o``, ``0b`` forms: the loader keeps those as the text
+#: written, and :meth:`Section.number` refuses them, saying what each YAML version would make of them.
+_PLAIN_NUMBER = re.compile(r"[-+]?((0|[1-9][0-9]*)|[0-9]+\.[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?", re.ASCII)
+#: Numbers in forms YAML 1.1 reads and YAML 1.2 reads otherwise or not at all: digits with underscores, base
+#: 60 (colons), leading zeros; and the 0x, 0o, 0b prefixes.
+_YAML_1_1_FORM = re.compile(r"[-+]?([0-9][0-9_:]*(\.[0-9_]*)?|0[xXoObB][0-9a-fA-F_]+)", re.ASCII)
+_LEADING_ZERO = re.compile(r"[-+]?0[0-9]+", re.ASCII)
+_BASE_PREFIX = re.compile(r"[-+]?0([xX]|[oO]|[bB])[0-9a-fA-F_]+", re.ASCII)
+_BASE_NAMES = {"x": "hexadecimal", "o": "octal", "b": "binary"}
+_OCTAL_MODE = re.compile(r"(0o)?[0-7]{1,4}", re.ASCII)
 
 #: Largest YAML file read (bytes): a configuration or a model is a few kB.
 MAX_FILE_BYTES = 1_000_000
@@ -255,9 +268,55 @@ def _construct_mapping(loader: _LocatingLoader, node: MappingNode) -> _LocatedDi
     return mapping
 
 
+def _construct_number(loader: _LocatingLoader, node: ScalarNode):
+    """A number as YAML builds it, but one of YAML 1.1's own forms (``010``, ``1_2``, ``1:30``, ``0x1F``) as
+    the text written."""
+    text = node.value
+    if _YAML_1_1_FORM.fullmatch(text) and not _PLAIN_NUMBER.fullmatch(text):
+        return text                        # Section.number says why it is not taken
+    return yaml.SafeLoader.construct_yaml_int(loader, node) if node.tag.endswith(":int") \
+        else yaml.SafeLoader.construct_yaml_float(loader, node)
+
+
 _LocatingLoader.add_constructor(
     yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping
 )
+_LocatingLoader.add_constructor("tag:yaml.org,2002:int", _construct_number)
+_LocatingLoader.add_constructor("tag:yaml.org,2002:float", _construct_number)
+
+
+def _yaml_1_1_number(text: str) -> int | float | None:
+    """What YAML 1.1 (PyYAML's reading) makes of a short number-like text, or None when not a number."""
+    try:
+        value = yaml.safe_load(text) if len(text) <= 40 else None
+    except yaml.YAMLError:
+        return None
+    return value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+
+
+def _not_plain_number(text: str) -> str:
+    """Why ``text``, given where a number belongs, is not taken as one: what YAML versions make of it."""
+    plain = "write it as plain decimal digits"
+    read_1_1 = _yaml_1_1_number(text)
+    if _LEADING_ZERO.fullmatch(text):
+        decimal = int(text, 10)
+        if read_1_1 is None:
+            return f"{shown(text)} has a leading zero: YAML 1.2 reads it as {decimal}, YAML 1.1 as text; {plain}"
+        return (f"{shown(text)} has a leading zero: YAML 1.1 reads it as octal {read_1_1}, YAML 1.2 as {decimal}; "
+                f"write the number meant without the leading zero")
+    prefix = _BASE_PREFIX.fullmatch(text)
+    if prefix:
+        try:
+            decimal = f" ({int(text.replace('_', ''), 0)})"
+        except ValueError:
+            decimal = ""
+        return f"{shown(text)} is {_BASE_NAMES[prefix.group(1).lower()]}: {plain}{decimal}"
+    if read_1_1 is not None and "_" in text:
+        return f"{shown(text)} has an underscore: YAML 1.1 reads it as {read_1_1}, YAML 1.2 as text; write {read_1_1}"
+    if read_1_1 is not None and ":" in text:
+        return (f"{shown(text)} is a base-60 number in YAML 1.1 ({read_1_1}) and text in YAML 1.2; "
+                f"write {read_1_1}")
+    return f"{shown(text)} is not a plain decimal number (e.g. 5, -0.5, 2.5e-3)"
 
 
 def _parse(text: str, source: str) -> Any:
@@ -304,11 +363,12 @@ def read_text_file(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
     Raises
     ------
     FileFormatError
-        The file is missing, a directory, too large, unreadable or not UTF-8.
+        The file is missing, a directory, a named pipe, a device or a socket (refused without
+        waiting on it), too large, unreadable or not UTF-8.
     """
     path = Path(path)
     try:
-        with path.open("rb") as stream:
+        with open_regular_file(path) as stream:
             data = stream.read(max_bytes + 1)
         if len(data) > max_bytes:
             raise FileFormatError(str(path), None, "", f"larger than {max_bytes} bytes: not a configuration "
@@ -316,8 +376,8 @@ def read_text_file(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
         return data.decode("utf-8")
     except FileNotFoundError:
         raise FileFormatError(str(path), None, "", "file not found") from None
-    except IsADirectoryError:
-        raise FileFormatError(str(path), None, "", "is a directory, not a file") from None
+    except NotARegularFile as error:
+        raise FileFormatError(str(path), None, "", error.reason) from None
     except UnicodeDecodeError as error:
         raise FileFormatError(str(path), None, "", f"not UTF-8 text: {error}") from None
     except (OSError, ValueError) as error:          # ValueError: a NUL character in the path
@@ -390,7 +450,10 @@ class Section:
     def number(self, key: str, default: Any = _MISSING, *, minimum: float | None = None,
                maximum: float | None = None, exclusive_minimum: bool = False,
                integer: bool = False) -> float:
-        """A finite number (int or float; '20e-6' style strings accepted)."""
+        """A finite number in plain decimal (int or float; '20e-6' style strings accepted).
+
+        ``010``, ``1_2``, ``1:30``, ``0x1F`` are refused with what YAML 1.1 and 1.2 would read.
+        """
         value = self._get(key, default)
         if value is default and default is not _MISSING:
             return value
@@ -409,8 +472,11 @@ class Section:
     def _as_number(self, key: str, value: Any) -> float:
         if isinstance(value, bool):
             raise self.error(key, f"must be a number, got {shown(value)}")
-        if isinstance(value, str) and _FLOAT_PATTERN.match(value.strip()):
-            value = float(value)
+        if isinstance(value, str):
+            text = value.strip()
+            if not _PLAIN_NUMBER.fullmatch(text):
+                raise self.error(key, f"must be a number: {_not_plain_number(text)}")
+            value = float(text)
         if not isinstance(value, (int, float)):
             kind = "mapping" if isinstance(value, dict) else type(value).__name__
             raise self.error(key, f"must be a number, got {kind} {shown(value)}")
@@ -453,14 +519,13 @@ class Section:
         return value
 
     def file_mode(self, key: str, default: Any = _MISSING) -> int:
-        """A Unix file mode written in octal, e.g. "0660" (quoted or not)."""
+        """A Unix file mode written in octal digits, e.g. "0660" (quoted or not; 660 too, as chmod reads it)."""
         value = self._get(key, default)
         if value is default and default is not _MISSING:
             return value
-        if isinstance(value, int) and not isinstance(value, bool):
-            mode = value            # YAML 1.1 reads an unquoted 0660 as octal already
-        elif isinstance(value, str) and _OCTAL_PATTERN.match(value.strip()):
-            mode = int(value.strip().removeprefix("0o"), 8)
+        text = str(value).strip() if isinstance(value, (int, str)) and not isinstance(value, bool) else ""
+        if _OCTAL_MODE.fullmatch(text):
+            mode = int(text.removeprefix("0o"), 8)
         else:
             raise self.error(key, f"must be an octal file mode like \"0660\", got {shown(value)}")
         if not 0 <= mode <= 0o777:

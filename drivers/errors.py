@@ -15,9 +15,16 @@ flange DMM: reading is not a number (reply '#@!')
 flange DMM: reading is not a number (reply '#@!'); error queue: -113,"Undefined header"
 >>> isinstance(HeaterLimitRefused("heater", "0.2 A above 0.1 A"), ValueError)
 True
+
+A caller that must act before it asks a failing instrument anything (the daemon
+switches the heater off first) has the driver leave the error queue for later
+(:attr:`drivers.scpi.ScpiInstrument.examines_faults_at_once`) and calls
+:meth:`InstrumentError.examine` when it is ready.
 """
 
 from __future__ import annotations
+
+from typing import Callable
 
 #: One error-queue entry: (code, message), e.g. ``(-113, "Undefined header")``.
 QueueEntry = tuple[int, str]
@@ -45,6 +52,7 @@ class InstrumentError(Exception):
         self.reason = reason
         self.reply = reply
         self.error_queue = tuple(error_queue)
+        self._examine: Callable[["InstrumentError"], None] | None = None
 
     def __str__(self) -> str:
         text = f"{self.instrument}: {self.reason}"
@@ -54,6 +62,17 @@ class InstrumentError(Exception):
             text += "; error queue: " + "; ".join(
                 f'{code},"{message}"' for code, message in self.error_queue)
         return text
+
+    def examine_later(self, examine: Callable[["InstrumentError"], None]) -> None:
+        """Leave reading the failing instrument's error queue to :meth:`examine` (the first one given counts)."""
+        if self._examine is None:
+            self._examine = examine
+
+    def examine(self) -> None:
+        """Attach what the failing instrument's error queue holds, if reading it was left for later (once)."""
+        examine, self._examine = self._examine, None
+        if examine is not None:
+            examine(self)
 
     def relabelled(self, instrument: str) -> "InstrumentError":
         """The same error naming ``instrument`` (a driver adds its name to a transport's)."""

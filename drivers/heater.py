@@ -12,11 +12,25 @@ configured heater resistance R. Limits refuse, they never clip:
 Safe by construction: the output is off until the first accepted power;
 it goes to 0 A and off on :meth:`HeaterSupply.close`, on leaving a ``with``
 block, and whenever an operation inside the driver fails for any reason
-other than a refused request — the error then carries the supply's error
-queue. If the connection itself dropped, the driver reopens it once to
-send the supply to 0 A: a supply left alone keeps its last current. The
-supply reaching voltage compliance (an open heater) is such a failure: :class:`~drivers.errors.HeaterCompliance`. An output that does not
-come on (interlock, output enable) is :class:`~drivers.errors.HeaterRefused`.
+other than a refused request — first, before anything else is asked of the
+supply; the error then carries the supply's error queue if the supply
+answered the off. If the connection itself dropped, the driver reopens it
+once to send the supply to 0 A: a supply left alone keeps its last current.
+The supply reaching voltage compliance (an open heater) is such a failure:
+:class:`~drivers.errors.HeaterCompliance`. An output that does not come on
+(interlock, output enable) is :class:`~drivers.errors.HeaterRefused`.
+
+The off is one program message, 0 A, output off and the output state read
+back (:meth:`HeaterSupply.write_output_off`): the supply's reply confirms
+it, at an instant the driver notes (:attr:`HeaterSupply.off_confirmed_s`).
+An off that could not be confirmed leaves the output's state unknown
+(:attr:`HeaterSupply.off_failure`); :meth:`HeaterSupply.output_off` then
+says so at once instead of waiting on the supply again, and
+:meth:`HeaterSupply.close` tries once more.
+
+The largest power and the current for a power follow one rounding rule,
+:mod:`drivers.heater_limits`, which the daemon's regulator uses too: the
+heater's own maximum is always a power the driver accepts.
 """
 
 from __future__ import annotations
@@ -30,6 +44,7 @@ from drivers.clock import Clock
 from drivers.errors import (
     BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterOutputOff, HeaterRefused, InstrumentError,
 )
+from drivers.heater_limits import current_for_power_a, largest_power_w
 from drivers.scpi import Control, ScpiInstrument, on_off, parse_bool
 from drivers.transports.base import Transport
 
@@ -128,6 +143,10 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         self.verify_each_setting = verify_each_setting
         self.output_is_on = False
         self.current_a = 0.0
+        #: Clock time the supply last confirmed 0 A and output off, with nothing sent since (None: not so).
+        self.off_confirmed_s: float | None = None
+        #: Why the last off could not be confirmed (None: it was, or the supply has been driven since).
+        self.off_failure: InstrumentError | None = None
         with self.safe_on_fault():
             if check_identity:
                 self.check_identity()
@@ -141,12 +160,14 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         self.configure_source()
         self.output_is_on = False
         self.current_a = 0.0
+        self.off_confirmed_s = None             # off as configured, but not read back: output_off() asks
+        self.off_failure = None
 
     # -- limits ------------------------------------------------------------------------
     @property
     def max_power_w(self) -> float:
-        """Largest power the limits allow: R I_max^2 (W)."""
-        return self.heater_resistance_ohm * self.max_current_a ** 2
+        """Largest power the limits allow (W): R I_max^2, to the rounding of :func:`~drivers.heater_limits.largest_power_w`."""
+        return largest_power_w(self.heater_resistance_ohm, self.max_current_a)
 
     def current_for_power(self, power_w: float) -> float:
         """I = sqrt(P / R) for ``power_w``; :class:`HeaterLimitRefused` outside the limits."""
@@ -154,7 +175,7 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
             raise HeaterLimitRefused(self.label, f"heater power {power_w!r} W refused: not a finite number")
         if power_w < 0.0:
             raise HeaterLimitRefused(self.label, f"heater power {power_w:g} W refused: the heater cannot cool")
-        current = math.sqrt(power_w / self.heater_resistance_ohm)
+        current = current_for_power_a(power_w, self.heater_resistance_ohm)
         self._check_current(current, f"{power_w:g} W")
         return current
 
@@ -176,23 +197,31 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         """
         return _SafeOnFault(self)
 
-    def _force_off(self) -> None:
-        """0 A and output off whatever happened; a dropped connection is reopened once for it."""
-        for attempt in (1, 2):
+    def _force_off(self) -> float | None:
+        """0 A and output off whatever happened (never raises); a dropped connection is reopened once for it.
+
+        Returns
+        -------
+        float or None
+            The clock time the supply confirmed it; None when it could not be confirmed
+            (:attr:`off_failure` says why: the output's state is unknown).
+        """
+        try:
             try:
                 self.write_output_off()
-                break
             except ConnectionLost:
-                if attempt == 2:
-                    break
-                try:
-                    self.transport.reopen()
-                except Exception:  # noqa: BLE001 - unreachable: nothing more a driver can do
-                    break
-            except Exception:  # noqa: BLE001 - the fault being handled is reported by the caller
-                break
+                self.transport.reopen()
+                self.write_output_off()
+        except Exception as error:  # noqa: BLE001 - kept as off_failure; the caller reports the fault it handles
+            self.off_confirmed_s = None
+            self.off_failure = error if isinstance(error, InstrumentError) else \
+                ConnectionLost(self.label, f"switching the output off failed: {type(error).__name__}: {error}")
+        else:
+            self.off_confirmed_s = self.clock.now()
+            self.off_failure = None
         self.output_is_on = False
         self.current_a = 0.0
+        return self.off_confirmed_s
 
     # -- the loop's interface ----------------------------------------------------------------
     def set_power_w(self, power_w: float) -> HeaterSetting:
@@ -213,6 +242,7 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         """Apply ``current_a`` (A) directly; same limits and safety as :meth:`set_power_w`."""
         self._check_current(current_a, f"{current_a * 1e3:.4g} mA")
         with self.safe_on_fault():
+            self.off_confirmed_s = self.off_failure = None      # from here on the supply is being driven
             if self.output_is_on and self.verify_each_setting:
                 # every cycle, in one program message: the setting, whether the output is still on (an
                 # interlock that opens turns it off unseen otherwise), and its compliance
@@ -237,12 +267,26 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         with self.safe_on_fault():
             return self.measure_output()
 
-    def output_off(self) -> None:
-        """Current to 0 A and output off."""
-        with self.safe_on_fault():
-            self.write_output_off()
-        self.output_is_on = False
-        self.current_a = 0.0
+    def output_off(self) -> float:
+        """Current to 0 A and output off, confirmed by the supply; returns the clock time it was.
+
+        Asks nothing when the output is already confirmed off with nothing sent since (returns
+        that time). A dropped connection is reopened once for it.
+
+        Raises
+        ------
+        InstrumentError
+            The off could not be confirmed: the output's state is unknown. An off that already
+            failed so is not tried again here (the caller is to stop and go to the supply;
+            :meth:`close` tries once more): the same error is raised at once.
+        """
+        if self.off_confirmed_s is not None:
+            return self.off_confirmed_s
+        if self.off_failure is None:
+            self._force_off()
+        if self.off_failure is not None:
+            raise self.off_failure
+        return self.off_confirmed_s
 
     shutdown = output_off
 
@@ -312,11 +356,16 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
                                                "its resistance too high")
 
     def write_output_off(self) -> None:
-        """0 A and output off, confirmed by reading the output state back (which also waits
-        until the supply has executed the off)."""
-        self.source_current_a = 0.0  # type: ignore[attr-defined]
-        self.output_enabled = False
-        if self.output_enabled:
+        """0 A and output off in one program message, confirmed by the output state it reads back
+        (the reply comes once the supply has executed the off)."""
+        reply = self.query(f"{self.current_command(0.0)};{type(self).output_enabled.command(False, self.label)};"
+                           f"{OUTPUT_STATE_QUERY}")
+        try:
+            on = parse_bool(reply)
+        except ValueError:
+            raise BadReply(self.label, f"output state after the off: reply to {OUTPUT_STATE_QUERY} is not 1 or 0",
+                           reply=reply) from None
+        if on:
             raise HeaterRefused(self.label, "output still on after :OUTPut:STATe OFF")
 
     # -- per model -----------------------------------------------------------------------------
@@ -347,7 +396,7 @@ class _SafeOnFault:
     def __exit__(self, kind, error, traceback) -> bool:
         if error is None or isinstance(error, HeaterLimitRefused):
             return False
-        self.supply._force_off()
-        if isinstance(error, InstrumentError):
+        confirmed = self.supply._force_off()         # the heater first; then, if the supply answers, why
+        if confirmed is not None and isinstance(error, InstrumentError):
             self.supply.examine_fault(error)
         return False

@@ -220,6 +220,10 @@ class ScpiInstrument:
 
     #: The ``*IDN?`` model field this driver expects (e.g. ``MODEL 2002``); empty: any.
     expected_model: ClassVar[str] = ""
+    #: Read the error queue as soon as an operation fails (True), or leave it to
+    #: :meth:`~drivers.errors.InstrumentError.examine` (False: for a caller that acts first,
+    #: as the daemon switches the heater off before it asks a failing DMM anything).
+    examines_faults_at_once: bool = True
 
     def __init__(self, transport: Transport, clock: Clock, name: str):
         self.transport = transport
@@ -304,7 +308,8 @@ class ScpiInstrument:
             pass
 
     def reporting_faults(self) -> "_ReportingFaults":
-        """Around driver operations: a fault leaves with the instrument's error queue attached.
+        """Around driver operations: a fault leaves with the instrument's error queue attached (or, when
+        :attr:`examines_faults_at_once` is False, with the means to attach it later).
 
         (A plain class rather than a generator context manager: it wraps every
         operation of every cycle.)
@@ -326,5 +331,8 @@ class _ReportingFaults:
     def __exit__(self, kind, error, traceback) -> bool:
         if error is None or isinstance(error, InstrumentReportedError) or not isinstance(error, InstrumentError):
             return False
-        self.instrument.examine_fault(error)
+        if self.instrument.examines_faults_at_once:
+            self.instrument.examine_fault(error)
+        else:
+            error.examine_later(self.instrument.examine_fault)
         return False

@@ -100,6 +100,7 @@ class SimulatedBench:
         self.trigger_line = SimulatedTriggerLine([self.flange_dmm, self.ptc_stage_dmm], kind="external")
         self.trigger_port = SimulatedSerialPort(self.trigger_line, wired="rts")
         self.gpib_interface = SimulatedGpibInterface()
+        self._servers: list = []             # the TCP servers running now (serve_tcp, serve_prologix)
 
     @property
     def instruments(self) -> tuple:
@@ -113,15 +114,25 @@ class SimulatedBench:
                                InProcessTransport(self.heater_supply, "simulated heater supply",
                                                   timeout_s=timeout_s))
 
+    def drop_every_connection(self) -> None:
+        """Fault: every connection to the bench drops at once, as when a Prologix or LAN adapter that all
+        three instruments share resets (new connections are taken)."""
+        for instrument in self.instruments:
+            instrument.drop_connections()
+        for server in list(self._servers):
+            server.drop_connections()
+
     @contextlib.contextmanager
     def serve_tcp(self) -> Iterator[dict[str, str]]:
         """Each instrument on its own 127.0.0.1 port; yields their VISA resource names."""
         servers = [ScpiServer(instrument).start() for instrument in self.instruments]
+        self._servers += servers
         try:
             yield dict(zip(("flange_dmm", "ptc_stage_dmm", "heater_supply"),
                            (server.resource_name for server in servers)))
         finally:
             for server in servers:
+                self._servers.remove(server)
                 server.stop()
 
     @contextlib.contextmanager
@@ -130,7 +141,9 @@ class SimulatedBench:
         server = PrologixServer({PROLOGIX_ADDRESSES["flange"]: self.flange_dmm,
                                  PROLOGIX_ADDRESSES["ptc_stage"]: self.ptc_stage_dmm,
                                  PROLOGIX_ADDRESSES["heater"]: self.heater_supply}).start()
+        self._servers.append(server)
         try:
             yield server
         finally:
+            self._servers.remove(server)
             server.stop()

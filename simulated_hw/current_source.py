@@ -9,6 +9,11 @@ simulated cryostat at the instant of the command that changed it.
 Faults (issue 3, section 6): :meth:`inject_refuse_output` (the interlock or
 output enable is open: the output stays off when asked on) and
 :meth:`inject_open_heater` (a broken heater wire: infinite resistance).
+
+The supply keeps its own log of the power it delivered,
+:attr:`EmulatedCurrentSource.delivered_w`: every change, at the clock instant
+it executed the command. That is the heater's power as the instrument saw it,
+against which a test holds what the daemon recorded.
 """
 
 from __future__ import annotations
@@ -108,6 +113,21 @@ class EmulatedCurrentSource(EmulatedInstrument):
         self.cryostat.set_heater_power(power_w)
         if not self.delivered_w or self.delivered_w[-1][1] != power_w:
             self.delivered_w.append((self.clock.now(), power_w))
+
+    def power_at(self, time_s: float) -> float:
+        """The power (W) the heater got at clock time ``time_s`` (from the log; 0 before its first entry)."""
+        power_w = 0.0
+        for instant, logged_w in self.delivered_w:
+            if instant > time_s:
+                break
+            power_w = logged_w
+        return power_w
+
+    def first_off_after(self, time_s: float) -> float | None:
+        """The first clock time at or after ``time_s`` at which the heater got 0 W (None: not so far)."""
+        if self.power_at(time_s) == 0.0:
+            return time_s
+        return next((instant for instant, power_w in self.delivered_w if instant >= time_s and power_w == 0.0), None)
 
     def zero_since(self, time_s: float) -> float | None:
         """The first clock time at or after ``time_s`` from which the heater got 0 W for good (so far), or None."""

@@ -64,8 +64,9 @@ class TickGate:
 class GatedDaemon:
     """``with GatedDaemon(tmp_path) as daemon:`` a regulating daemon whose loop stands between two ticks."""
 
-    def __init__(self, tmp_path, **control):
+    def __init__(self, tmp_path, sections: dict | None = None, **control):
         config = load_config(CONFIG / "cryod.yaml")
+        config = dataclasses.replace(config, **(sections or {}))        # e.g. web, lakeshore336
         self.config = dataclasses.replace(
             config,
             loop=dataclasses.replace(config.loop, realtime_priority=0, lock_memory=False),

@@ -6,7 +6,19 @@ test_daemon_faults.py; this double only lets loop tests script faults exactly.
 
 from __future__ import annotations
 
+import math
+
 from drivers.thermometer_pair import PairReading
+
+
+def tick_rows(rows):
+    """The rows that stand for a tick: without the heater-off's own rows (no lateness: no tick)."""
+    return [row for row in rows if not math.isnan(row.lateness_ms)]
+
+
+def heater_off_rows(rows):
+    """The rows of the instants the supply confirmed a heater-off (or found it could not)."""
+    return [row for row in rows if math.isnan(row.lateness_ms)]
 
 
 class DirectInstruments:
@@ -50,11 +62,15 @@ class DirectInstruments:
         self.cryostat.set_heater_power(power_w)
         self.heater_log.append((self.clock.now(), power_w))
 
-    def heater_off(self) -> None:
+    def heater_off(self) -> float:
         if self.heater_off_error is not None:
             raise self.heater_off_error
         self.cryostat.set_heater_power(0.0)
         self.heater_log.append((self.clock.now(), 0.0))
+        return self.clock.now()
+
+    def examine(self, error) -> None:
+        error.examine()
 
     def reconnect(self) -> None:
         self.reconnects += 1

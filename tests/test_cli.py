@@ -11,6 +11,7 @@ import pytest
 from cryod.cli import main
 from cryod.records.record import read_record
 from tests.conftest import CONFIG, REPOSITORY
+from tests.test_config import line_of
 
 CONTRACT_KEYS = {"duration_s", "ticks", "overruns", "lateness_ms_p50", "lateness_ms_p99", "lateness_ms_max",
                  "wall_s", "ptc_line_amplitude_K", "rms_K", "mean_error_K", "lowfreq_rms_K", "log_path"}
@@ -110,9 +111,12 @@ def test_run_check_validates_without_instruments(tmp_path):
     lan = tmp_path / "lan.yaml"          # the instruments behind a LAN-to-GPIB gateway: no GPIB card binding needed
     lan.write_text(text.replace("GPIB0::16::INSTR", "TCPIP0::192.168.1.20::1234::SOCKET")
                    .replace("GPIB0::17::INSTR", "TCPIP0::192.168.1.21::1234::SOCKET")
-                   .replace("GPIB0::12::INSTR", "TCPIP0::192.168.1.22::1234::SOCKET"))
+                   .replace("GPIB0::12::INSTR", "TCPIP0::192.168.1.22::1234::SOCKET")
+                   .replace("trigger: gpib-group", "trigger: sequential")       # no GPIB card to trigger on
+                   .replace("/var/lib/cryod", str(tmp_path / "data"))
+                   .replace("/run/cryod/control.sock", str(tmp_path / "control.sock")))
     result = cryod("run", "--config", str(lan), "--check")
-    assert result.returncode == 0 and "valid" in result.stdout
+    assert result.returncode == 0 and "valid" in result.stdout, result.stderr
 
 
 def test_a_gpib_card_without_its_python_binding_is_an_installation_error_not_an_outage():
@@ -122,7 +126,9 @@ def test_a_gpib_card_without_its_python_binding_is_an_installation_error_not_an_
         pytest.skip("a GPIB binding is installed here")
     result = cryod("run", "--config", str(CONFIG / "cryod.yaml"), "--check")
     assert result.returncode == 2
-    assert "instruments.flange_dmm: GPIB0::16::INSTR" in result.stderr and "linux-gpib" in result.stderr
+    line = line_of((CONFIG / "cryod.yaml").read_text(), "GPIB0::16::INSTR")
+    assert f"cryod.yaml:{line}: instruments.flange_dmm.resource: GPIB0::16::INSTR is on a GPIB card" in result.stderr
+    assert "linux-gpib" in result.stderr
     assert "Traceback" not in result.stderr
 
 

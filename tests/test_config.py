@@ -1,8 +1,10 @@
 """The daemon configuration: every error names file, line and key; nothing runs on a bad file."""
 
 import dataclasses
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -99,3 +101,52 @@ def test_a_control_term_section_that_is_required_is_named(tmp_path):
                     .replace(EXAMPLE[start:end], "\n"))
     with pytest.raises(FileFormatError, match="control.pi: missing required key"):
         load_config(path)
+
+
+# -- the web page and the Lake Shore 336 command set ---------------------------------------------
+def _with(tmp_path, text: str) -> Path:
+    source = (CONFIG / "cryod.yaml").read_text().replace("calibration: calibration/",
+                                                          f"calibration: {CONFIG}/calibration/")
+    source = re.sub(r"(?m)^(web|lakeshore336): null.*$", "", source)
+    path = tmp_path / "cryod.yaml"
+    path.write_text(source + "\n" + text)
+    return path
+
+
+def test_web_and_lakeshore336_are_off_in_the_example_and_read_when_given(tmp_path):
+    example = load_config(CONFIG / "cryod.yaml")
+    assert example.web is None and example.lakeshore336 is None
+    text = (CONFIG / "cryod.yaml").read_text()
+    for line in ('#   address: "127.0.0.1:8336"', '#   address: "127.0.0.1:7777"', "#   writable: false"):
+        assert line in text                                     # the lines that turn them on
+    token = tmp_path / "web.token"
+    token.write_text("0123456789abcdef0123456789abcdef\n")
+    token.chmod(0o640)
+    config = load_config(_with(tmp_path, f'web: {{address: "0.0.0.0:8336", writable: true, token_file: {token}}}\n'
+                                         'lakeshore336: {address: "127.0.0.1:7777"}\n'))
+    assert (config.web.address, config.web.writable, config.web.token_file) == ("0.0.0.0:8336", True, token)
+    assert (config.lakeshore336.address, config.lakeshore336.writable) == ("127.0.0.1:7777", False)
+
+
+@pytest.mark.parametrize("text, message", [
+    ('web: {address: ":8336"}', "web.address: ':8336' is not host:port"),
+    ('web: {address: "labpc:8336"}', "the host must be an IP address"),
+    ('lakeshore336: {address: "127.0.0.1:77777"}', "lakeshore336.address: '127.0.0.1:77777': the port"),
+    ('lakeshore336: {address: "127.0.0.1:7777", writeable: true}', "lakeshore336.writeable"),
+    ('web: {address: "127.0.0.1:8336", writable: true}', "web.writable: control from the page needs web.token_file"),
+])
+def test_web_and_lakeshore336_refusals_name_the_key(tmp_path, text, message):
+    with pytest.raises(FileFormatError, match=re.escape(message)):
+        load_config(_with(tmp_path, text + "\n"))
+
+
+def test_a_token_file_others_may_read_or_without_a_token_is_refused(tmp_path):
+    token = tmp_path / "web.token"
+    token.write_text("0123456789abcdef0123456789abcdef\n")
+    token.chmod(0o644)
+    with pytest.raises(FileFormatError, match="mode 0644: every user of this computer could read the token"):
+        load_config(_with(tmp_path, f'web: {{address: "127.0.0.1:8336", writable: true, token_file: {token}}}\n'))
+    token.chmod(0o600)
+    token.write_text("short\n")
+    with pytest.raises(FileFormatError, match="holds no usable token"):
+        load_config(_with(tmp_path, f'web: {{address: "127.0.0.1:8336", writable: true, token_file: {token}}}\n'))

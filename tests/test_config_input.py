@@ -120,6 +120,7 @@ def test_a_merge_key_takes_the_mappings_own_keys_as_overrides(tmp_path):
     prologix:
       <<: *adapter
       address: 17""")
+    path.write_text(path.read_text().replace("trigger: gpib-group", "trigger: prologix"))   # both DMMs on the adapter
     config = load_config(path)
     assert config.instruments.flange_dmm.gpib_address == 16
     assert config.instruments.ptc_stage_dmm.gpib_address == 17

@@ -142,18 +142,16 @@ def test_simulate_refuses_a_limit_the_cryostat_is_above_with_the_heater_off(tmp_
     assert not (tmp_path / "data").exists()
 
 
-def test_cryod_ctl_reload_applies_a_good_file_refuses_a_bad_one_and_says_who_asked(tmp_path):
-    """An operator in the socket's group cannot signal a daemon run by root: the socket's ``reload`` does
-    what SIGHUP does, and its client gets the answer (the refusal with file, line and key)."""
-    path = config_file(tmp_path)
+def reloads_over_the_socket(tmp_path, path, first, second):
+    """The daemon on the file at ``path``: ``first()`` changes the file after row 100 and ``second()`` after row
+    400, each followed by ``cryod ctl reload`` from a client thread; the loop ticks slowly until the client has
+    its answer. Returns the daemon, its result and the two replies."""
     replies = {}
     asking = []
 
-    def reload_over_the_socket(name, old, new):
+    def reload_over_the_socket(name, change):
         def action(daemon):
-            text = path.read_text()
-            assert old in text
-            path.write_text(text.replace(old, new, 1))
+            change()
             asking.append(threading.Thread(target=lambda: replies.update(
                 {name: send_command(tmp_path / "control.sock", "reload", timeout_s=20.0)})))
             asking[-1].start()
@@ -165,16 +163,33 @@ def test_cryod_ctl_reload_applies_a_good_file_refuses_a_bad_one_and_says_who_ask
                 time.sleep(0.002)
         return action
 
-    actions = {row: until_answered("good") for row in range(101, 390)}
-    actions.update({row: until_answered("bad") for row in range(401, 740)})
-    actions[100] = reload_over_the_socket("good", "    proportional_W_per_K: 10.0", "    proportional_W_per_K: 12.0")
-    actions[400] = reload_over_the_socket("bad", "  max_current_A: 0.1", "  max_current_A: " + "1" * 400)
+    actions = {row: until_answered("first") for row in range(101, 390)}
+    actions.update({row: until_answered("second") for row in range(401, 740)})
+    actions[100] = reload_over_the_socket("first", first)
+    actions[400] = reload_over_the_socket("second", second)
     daemon, _ = daemon_from_file(tmp_path, path, actions, reload_config=lambda: in_tmp(load_config(path), tmp_path))
     result = daemon.run(60.0)
     for thread in asking:
         thread.join(20.0)
+    return daemon, result, (replies.get("first"), replies.get("second"))
+
+
+def replacing(path, old, new):
+    def change():
+        text = path.read_text()
+        assert old in text
+        path.write_text(text.replace(old, new, 1))
+    return change
+
+
+def test_cryod_ctl_reload_applies_a_good_file_refuses_a_bad_one_and_says_who_asked(tmp_path):
+    """An operator in the socket's group cannot signal a daemon run by root: the socket's ``reload`` does
+    what SIGHUP does, and its client gets the answer (the refusal with file, line and key)."""
+    path = config_file(tmp_path)
+    daemon, result, (good, bad) = reloads_over_the_socket(
+        tmp_path, path, replacing(path, "    proportional_W_per_K: 10.0", "    proportional_W_per_K: 12.0"),
+        replacing(path, "  max_current_A: 0.1", "  max_current_A: " + "1" * 400))
     assert result.exit_code == 0
-    good, bad = replies["good"], replies["bad"]
     assert good["ok"] and good["message"] == f"configuration reloaded from {path}"
     assert daemon.loop.regulator.term("pi").controller.gains.proportional_w_per_K == 12.0
     assert not bad["ok"]

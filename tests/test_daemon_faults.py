@@ -15,6 +15,7 @@ import pytest
 
 from cryod.service.clock import VirtualClock
 from cryod.config import load_config
+from cryod.instrument_waits import InstrumentWaits
 from cryod.service.daemon import Daemon
 from cryod.model import load_model
 from cryod.records.record import read_record
@@ -24,6 +25,7 @@ from drivers.errors import ConnectionLost
 from cryod.service.notify import SystemdNotifier
 from cryod.service.simulation import SimulatedInstrumentsOpener
 from tests.conftest import CONFIG
+from tests.fault_drills import reading_delay_s
 
 
 def in_tmp(config, tmp_path, **control):
@@ -75,6 +77,8 @@ class FaultDrill:
         self.result = self.daemon.run(duration_s)
         self.record = self.daemon_record()
         self.states = [str(state) for state in self.record.columns["state"]]
+        #: The rows that stand for a tick (a heater-off's own row has no lateness).
+        self.ticks = np.isfinite(self.record.columns["lateness_ms"])
         return self.result
 
     def daemon_record(self):
@@ -104,14 +108,41 @@ def test_transient_faults_heater_off_then_recover(tmp_path, cause, inject, clear
     assert drill.run(300.0).exit_code == 0
     index = first_fault(drill, cause)
     assert 1500 <= index <= 1502
-    assert drill.record.heater_w[index] == 0.0
+    # the fault tick's row: the power the supply had; then the off's own row: 0 W from then on
+    assert drill.record.heater_w[index] == drill.record.heater_w[index - 1] > 0.0
+    assert not drill.ticks[index + 1] and drill.states[index + 1] == f"fault:{cause}"
+    assert drill.record.heater_w[index + 1] == 0.0
     assert any(f"fault: {cause}" in text for _, text in drill.record.events)
     resumed = next(i for i in range(index, len(drill.states)) if drill.states[i].startswith("closed"))
-    assert all(drill.record.heater_w[index:resumed] == 0.0)
+    assert all(drill.record.heater_w[index + 1:resumed] == 0.0)
     assert resumed - index < 40                        # reconnected and 5 valid readings, within ~3 s
     late = drill.record.time_s > drill.record.time_s[-1] - 60
     assert np.mean(drill.record.flange_K[late]) == pytest.approx(5.0, abs=2e-3)
     assert drill.supply_current_a() == 0.0             # off at the end of the run
+
+
+@pytest.mark.parametrize("timeout_s", [0.3, 1.0, 1.9])
+def test_a_silent_dmm_has_the_supply_at_0_W_within_the_loops_bound_whatever_the_timeout(tmp_path, timeout_s):
+    """The supply's own log: 0 W within one loop period, the reading's time, one loop-path reply and the
+    heater-off after the DMM falls silent, not after instruments.timeout_s; the record's 0 W not before."""
+    config = simulated_config(tmp_path)
+    config = dataclasses.replace(config, instruments=dataclasses.replace(config.instruments, timeout_s=timeout_s))
+    silent = {}
+
+    def fall_silent(bench):
+        silent["at"] = bench.clock.now()
+        bench.flange_dmm.inject_no_reply(True)
+
+    drill = FaultDrill(tmp_path, {300: fall_silent}, config=config)
+    assert drill.run(40.0).exit_code == 0
+    supply = drill.opener.bench.heater_supply
+    off_s = supply.first_off_after(silent["at"])
+    waits = InstrumentWaits(config.loop.period_s, timeout_s)
+    assert off_s - silent["at"] <= waits.fault_to_off_s(reading_delay_s(drill.result.loop))
+    index = first_fault(drill, "instrument_timeout")
+    fault_row, off_row = drill.rows[index], drill.rows[index + 1]           # as emitted: clock times
+    assert fault_row.heater_W == pytest.approx(supply.power_at(fault_row.time_s), rel=1e-6) and fault_row.heater_W > 0
+    assert off_row.heater_W == 0.0 and off_s <= off_row.heater_set_s <= off_row.time_s
 
 
 def test_heater_supply_refusing_output_stops_with_exit_6(tmp_path):
@@ -131,7 +162,7 @@ def test_an_output_that_goes_off_mid_run_is_seen_at_the_next_setting_and_stops_w
     fault = drill.result.loop.last_fault
     assert fault.cause == "heater_output_off" and "interlock not asserted" in fault.message
     index = first_fault(drill, "heater_output_off")
-    assert index <= 502 and drill.record.heater_w[index] == 0.0 and len(drill.states) == index + 1
+    assert index <= 502 and drill.record.heater_w[index + 1] == 0.0 and len(drill.states) == index + 2
     supply = drill.opener.bench.heater_supply
     supply.inject_refuse_output(False)                 # the interlock closes again
     assert supply.current_setpoint_a == 0.0 and not supply.output_on and supply.output_current_a == 0.0
@@ -154,7 +185,8 @@ def test_over_temperature_stops_with_exit_3(tmp_path):
     assert drill.run(600.0).exit_code == 3
     assert drill.result.loop.last_fault.cause == "over_temperature"
     index = first_fault(drill, "over_temperature")
-    assert drill.record.flange_K[index] > 5.3 and drill.record.heater_w[index] == 0.0
+    assert drill.record.flange_K[index] > 5.3 and drill.record.heater_w[index] > 0.0
+    assert drill.record.heater_w[index + 1] == 0.0 and drill.states[index + 1] == "fault:over_temperature"
     assert drill.supply_current_a() == 0.0
 
 
@@ -196,7 +228,7 @@ def test_instruments_out_of_reach_at_start_are_waited_for_then_the_loop_runs(tmp
     waiting = [text for _, text in record.events if text.startswith("event: waiting:")]
     assert len(waiting) == 12 and "no route to host" in waiting[0]
     assert sum("instruments out of reach" in r.message for r in caplog.records) == 12
-    assert np.mean(record.flange_K[record.time_s > record.time_s[-1] - 20]) == pytest.approx(5.0, abs=0.05)
+    assert np.nanmean(record.flange_K[record.time_s > record.time_s[-1] - 20]) == pytest.approx(5.0, abs=0.05)
 
 
 def test_waiting_for_instruments_is_bounded_when_configured(tmp_path):

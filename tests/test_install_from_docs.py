@@ -47,7 +47,8 @@ def test_the_install_steps_work_as_written(tmp_path):
     # what the operator edits next (docs: "Edit /etc/cryod/cryod.yaml"): here, instruments behind a LAN gateway
     config.write_text(config.read_text().replace("GPIB0::16::INSTR", "TCPIP0::10.0.0.2::1234::SOCKET")
                       .replace("GPIB0::17::INSTR", "TCPIP0::10.0.0.3::1234::SOCKET")
-                      .replace("GPIB0::12::INSTR", "TCPIP0::10.0.0.4::1234::SOCKET"))
+                      .replace("GPIB0::12::INSTR", "TCPIP0::10.0.0.4::1234::SOCKET")
+                      .replace("trigger: gpib-group", "trigger: sequential"))
     check = subprocess.run([cryod, "run", "--config", config, "--check"], capture_output=True, text=True,
                            env=dict(os.environ, PYTHONPATH=""))
     assert check.returncode == 0 and "valid" in check.stdout, check.stderr

@@ -11,12 +11,12 @@ from cryod.config import load_config
 from cryod.control.pi import PiGains
 from cryod.records.columns import Row
 from cryod.service.commands import Command
-from cryod.service.loop import ControlLoop
+from cryod.service.loop import HEATER_OFF_ROW_SPACING_S, ControlLoop
 from cryod.thermometry import load_calibration
 from drivers.errors import BadReply, ConnectionLost, HeaterCompliance, InstrumentTimeout, OverflowReading
 from simulated_hw.cryostat import SimulatedCryostat
 from tests.conftest import CONFIG
-from tests.loop_doubles import DirectInstruments
+from tests.loop_doubles import DirectInstruments, heater_off_rows, tick_rows
 
 
 @pytest.fixture(scope="module")
@@ -43,6 +43,7 @@ def make_loop(reference_model, curves, config, **instrument_options):
 def test_regulates_to_setpoint_with_contract_columns(reference_model, curves, base_config):
     loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
     assert loop.run(duration_s=900.0, manage_gc=False) == 0
+    assert not heater_off_rows(rows) and events[-1].kind == "stop"      # a stop's off is its event
     assert len(rows) == pytest.approx(900 / 0.08, abs=1)
     assert loop.schema.names[:5] == ("time_s", "T2_K", "T5_K", "heater_W", "setpoint_K")
     assert {"pi_proportional_W", "pi_integral_W", "ff_W", "ff_phase_rad"} <= set(rows[-1].control) \
@@ -88,12 +89,21 @@ def test_transient_fault_heater_off_at_once_then_resume_after_valid_readings(ref
     loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
     instruments.measure_faults = {2000: error, 2001: error, 2002: error}
     assert loop.run(duration_s=200.0, manage_gc=False) == 0
+    # the fault tick's row carries the power the supply had during it; a row of its own at the instant the
+    # supply confirmed the off carries the 0 W (written to the supply in the tick that found the fault; here,
+    # where the off takes no time, two record steps after the fault's row, so that they print apart)
+    off = rows[rows.index(tick_rows(rows)[2000]) + 1]
+    fault_time = tick_rows(rows)[2000].time_s
+    assert heater_off_rows([off]) and off.state == f"fault:{cause}" and off.heater_W == 0.0
+    assert (off.heater_set_s, 0.0) in instruments.heater_log and fault_time <= off.heater_set_s < fault_time + 0.08
+    assert off.time_s == max(off.heater_set_s, fault_time + HEATER_OFF_ROW_SPACING_S)
+    assert sum(row.state.startswith("fault") for row in heater_off_rows(rows)) == 1    # off since then
+    applied = tick_rows(rows)[1999].heater_W
+    rows = tick_rows(rows)
     fault_rows = [i for i, row in enumerate(rows) if row.state == f"fault:{cause}"]
     assert len(fault_rows) == 3 and fault_rows[0] == 2000
-    assert all(rows[i].heater_W == 0.0 for i in fault_rows)
-    # heater written to 0 W in the tick that found the fault
-    fault_time = rows[2000].time_s
-    assert any(t >= fault_time and t < fault_time + 0.08 and p == 0.0 for t, p in instruments.heater_log)
+    assert applied > 0.0 and rows[2000].heater_W == applied
+    assert all(rows[i].heater_W == 0.0 for i in fault_rows[1:])
     if cause in ("instrument_timeout", "connection_lost"):     # the tick that reconnects takes no reading
         assert fault_rows == [2000, 2002, 2003] and rows[2001].state == "recovering"
         assert math.isnan(rows[2001].T2_K) and rows[2001].heater_W == 0.0
@@ -121,7 +131,8 @@ def test_over_temperature_exits_3_with_heater_off(reference_model, curves, base_
     loop.submit(Command("manual", 0.3))                     # heat open loop until the limit trips
     assert loop.run(duration_s=600.0, manage_gc=False) == 3
     assert loop.last_fault.cause == "over_temperature" and "T2" in loop.last_fault.message
-    assert rows[-1].heater_W == 0.0 and rows[-1].T2_K > 4.6
+    assert rows[-2].heater_W == 0.3 and rows[-2].T2_K > 4.6 and rows[-2].state == "fault:over_temperature"
+    assert rows[-1].heater_W == 0.0 and rows[-1].state == "fault:over_temperature"
     assert cryostat.heater_power_w == 0.0
 
 
@@ -130,7 +141,7 @@ def test_sensor_out_of_calibration_and_stale_readings(reference_model, curves, b
     instruments.resistance_override = {500: (1.0, 3000.0)}                        # 1 ohm: far outside the curve
     instruments.resistance_override.update({1000 + k: (2800.0, 3000.0) for k in range(50)})  # frozen DMM
     assert loop.run(duration_s=120.0, manage_gc=False) == 0
-    states = [row.state for row in rows]
+    states = [row.state for row in tick_rows(rows)]
     assert states[500] == "fault:sensor_out_of_calibration"
     assert states[1049] == "fault:sensor_stale"
     assert states[-1].startswith("closed")
@@ -142,6 +153,16 @@ def test_heater_fault_exits_6(reference_model, curves, base_config):
     assert loop.run(duration_s=60.0, manage_gc=False) == 6
     assert loop.last_fault.cause == "heater_fault"
     assert cryostat.heater_power_w == 0.0
+
+
+def test_a_long_stop_tick_writes_no_overrun_after_the_stop(reference_model, curves, base_config):
+    """A heater fault found in a tick that ran long: the stop event is the loop's last word."""
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    instruments.measure_delays = {45: 0.5}             # the tick of the 40th setting (the first 5 hold)
+    instruments.heater_faults = {40: HeaterCompliance("heater", "compliance reached: open heater?")}
+    assert loop.run(duration_s=60.0, manage_gc=False) == 6
+    assert events[-1].kind == "stop" and not any(event.kind == "overrun" for event in events)
+    assert rows[-2].state == "fault:heater_fault" and rows[-1].heater_W == 0.0 and heater_off_rows(rows[-1:])
 
 
 def test_unexpected_exception_turns_heater_off_and_propagates(reference_model, curves, base_config):
@@ -209,7 +230,7 @@ def test_stop_request_turns_heater_off(reference_model, curves, base_config):
 
     instruments.measure = measure_then_stop
     assert loop.run(duration_s=600.0, manage_gc=False) == 0
-    assert len(rows) == 801 and loop.last_fault.cause == "stop_requested"
+    assert len(rows) == 801 and loop.last_fault.cause == "stop_requested" and events[-1].kind == "stop"
     assert cryostat.heater_power_w == 0.0
 
 
@@ -227,6 +248,7 @@ def test_commands_are_checked_against_limits(reference_model, curves, base_confi
 
     instruments.measure = measure_and_command
     loop.run(duration_s=400.0, manage_gc=False)
+    assert not heater_off_rows(rows)          # a command's heater-off is in its tick's row
     assert not answers[100].ok and "outside 3..20 K" in answers[100].message
     assert not answers[101].ok and "max_ramp" in answers[101].message
     assert not answers[102].ok and "0..0.5 W" in answers[102].message
@@ -299,11 +321,12 @@ def test_no_reload_leaves_the_setpoint_in_use_outside_the_limits(reference_model
             answers["setpoint"] = loop.submit(Command("setpoint", 15.0))
         if count == reload_at:
             answers["reload"] = loop.submit(Command("reload", narrowed))
-            answers["state"] = rows[-1].state
+            answers["state"] = tick_rows(rows)[-1].state
         return original()
 
     instruments.measure = measure
     assert loop.run(duration_s=60.0, manage_gc=False) == 0
+    rows = tick_rows(rows)
     assert answers["setpoint"].ok and answers["state"].startswith(state_then)
     assert not answers["reload"].ok and "15 K" in answers["reload"].message and "10 K" in answers["reload"].message
     assert loop.config.control.setpoint_max_K == 20.0 and rows[-1].setpoint_K <= 20.0
@@ -325,6 +348,7 @@ def test_recovery_returns_to_the_mode_that_was_running(reference_model, curves, 
     instruments.measure = measure
     instruments.measure_faults = {500: InstrumentTimeout("flange DMM", "no reply")}
     assert loop.run(duration_s=60.0, manage_gc=False) == 0
+    rows = tick_rows(rows)
     assert rows[499].state == state and rows[500].state == "fault:instrument_timeout"
     assert rows[-1].state == state and rows[-1].heater_W == heater
 
@@ -347,6 +371,7 @@ def test_a_fault_from_the_first_reading_that_clears_closes_the_loop_from_0_W(ref
     loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
     instruments.measure_faults = {k: InstrumentTimeout("flange DMM", "no reply") for k in range(50)}
     assert loop.run(duration_s=900.0, manage_gc=False) == 0
+    rows = tick_rows(rows)
     first_closed = next(i for i, row in enumerate(rows) if row.state.startswith("closed"))
     reconnect_ticks = [i for i, row in enumerate(rows[:first_closed]) if row.state == "recovering"
                        and math.isnan(row.T2_K)]

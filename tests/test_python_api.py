@@ -12,6 +12,7 @@ import pytest
 
 import cryod
 from tests.conftest import CONFIG, REPOSITORY
+from tests.test_config import line_of
 
 
 def test_import_cryod_exposes_the_documented_api_and_stays_light():
@@ -147,7 +148,8 @@ def test_operator_actions_reach_the_journal_and_the_record_with_who_sent_them(ru
     assert f"<4>cryod.loop: command manual refused: " in journal and journal.count(f"(by {who})") == 5
     assert "command heater-off accepted" in journal
     assert f"<6>cryod.daemon: configuration reloaded from {config} (by {who})" in journal
-    assert f"<3>cryod.daemon: kept the running configuration: changes to loop need a restart" in journal
+    assert (f"<3>cryod.daemon: kept the running configuration: {config}:{line_of(config.read_text(), 'loop:')}: loop: "
+            f"changes to loop need a restart" in journal)
     (path,) = (tmp_path / "data").glob("cryod-*.csv")
     events = [text for _, text in cryod.read_record(path).events]
     assert f"event: command: setpoint accepted: setpoint 5.05 K (by {who})" in events

@@ -179,6 +179,9 @@ class Regulator:
         self.columns = term_columns(control.terms)
         self.ramp = SetpointRamp(control.setpoint_K or 0.0, control.ramp_K_per_min)
         self.mode = RegulatorMode.CLOSED if control.setpoint_K is not None else RegulatorMode.OFF
+        #: The terms run on the ramp's setpoint: the loop was closed (:meth:`close_loop`) and not opened since.
+        #: False while the mode is closed but the loop waits for valid readings to close it.
+        self.regulating = False
         self.manual_power_w = 0.0
         self.modulation: HeaterModulation | None = None      # manual mode: a sinusoid instead of a constant
         self._feedback_offset_K = 0.0       # T2 less what the feedback terms saw of it, last tick
@@ -251,6 +254,7 @@ class Regulator:
         for term in self.terms:
             term.start(tick, present)
         self.mode = RegulatorMode.CLOSED
+        self.regulating = True
 
     def set_manual(self, power_w: float) -> None:
         """Open loop at ``power_w`` (W) until the loop is closed again; refused outside the heater's range."""
@@ -260,6 +264,7 @@ class Regulator:
         self.manual_power_w = float(power_w)
         self.modulation = None
         self.mode = RegulatorMode.MANUAL
+        self.regulating = False
 
     def set_modulated(self, modulation: "HeaterModulation") -> None:
         """Open loop with the heater following ``modulation`` (its phase counted from the next step);
@@ -272,6 +277,7 @@ class Regulator:
         self.modulation = HeaterModulation(modulation.mean_w, modulation.amplitude_w,
                                            modulation.angular_frequency_rad_s)
         self.mode = RegulatorMode.MANUAL
+        self.regulating = False
 
     def close(self) -> None:
         """Release what the terms hold (the feedforward's learning thread)."""
@@ -288,20 +294,43 @@ class Regulator:
         self.manual_power_w = 0.0
         self.modulation = None
         self.mode = RegulatorMode.OFF
+        self.regulating = False
 
     # -- configuration -------------------------------------------------------------------
-    def refusal(self, control: "ControlConfig") -> str | None:
-        """Why ``control`` cannot be applied now (a limit the running values would exceed), or None."""
+    def refusal(self, control: "ControlConfig") -> tuple[str, str] | None:
+        """Why ``control`` cannot be applied now: (the key it breaks, the reason), or None.
+
+        In every mode the ramp rate that would be in use must be within the new
+        ``max_ramp_K_per_min`` (a rate set by command outlives a heater-off). While the mode is
+        closed, the setpoint aimed at, and once regulating the setpoint in use (where a ramp has
+        got to; with steps, the target from the next tick on), must be within the new
+        ``setpoint_min_K..setpoint_max_K``. In manual and off no setpoint is in use: the next
+        ``setpoint`` command is checked against the new limits.
+        """
         names = [name for name, _ in control.terms]
         if names != [term.name for term in self.terms]:
-            return f"the control terms would change ({', '.join(names)}): that needs a restart"
+            return "control", f"the control terms would change ({', '.join(names)}): that needs a restart"
         rate, target = self._rate_and_target(control)
         if rate > control.max_ramp_K_per_min:
-            return (f"the ramp in use, {rate:g} K/min, is above the new control.max_ramp_K_per_min "
-                    f"{control.max_ramp_K_per_min:g}")
-        if self.mode is RegulatorMode.CLOSED and not control.setpoint_min_K <= target <= control.setpoint_max_K:
-            return (f"the setpoint in use, {target:g} K, is outside the new limits "
-                    f"{control.setpoint_min_K:g}..{control.setpoint_max_K:g} K")
+            return ("control.max_ramp_K_per_min",
+                    f"{control.max_ramp_K_per_min:g} K/min is below the ramp rate in use, {rate:g} K/min (set with "
+                    f"cryod ctl ramp): set a slower ramp first")
+        if self.mode is not RegulatorMode.CLOSED:
+            return None
+        in_use = self.ramp.setpoint_K if self.regulating and rate > 0.0 else target
+        aimed = "the setpoint in use" if self.regulating else "the setpoint asked for"
+        setpoints = [(target, f"{aimed}, {target:g} K", "give a setpoint within the new limits first")]
+        if in_use != target:
+            setpoints.insert(0, (in_use, f"the setpoint in use, {in_use:.6g} K, ramping to {target:g} K at {rate:g} "
+                                         f"K/min", "reload once the ramp has passed it, or step to the target "
+                                                   "first (cryod ctl ramp 0)"))
+        for value, what, advice in setpoints:
+            if value > control.setpoint_max_K:
+                return ("control.setpoint_max_K",
+                        f"{control.setpoint_max_K:g} K is below {what}: {advice}")
+            if value < control.setpoint_min_K:
+                return ("control.setpoint_min_K",
+                        f"{control.setpoint_min_K:g} K is above {what}: {advice}")
         return None
 
     def reconfigure(self, control: "ControlConfig") -> None:

@@ -68,7 +68,11 @@ class Column:
 
 
 # -- the cryod-log v1 contract -------------------------------------------------
-TIME = Column("time_s", "s", "since the record start, at the row's trigger instant (monotonic clock)", "{:.4f}",
+#: Digits of ``time_s`` after the point: rows must lie further apart than 10**-TIME_DECIMALS s, or they
+#: would print as one instant (the records' times strictly increase).
+TIME_DECIMALS = 4
+TIME = Column("time_s", "s", "since the record start, at the row's trigger instant (monotonic clock); a row of "
+                             "its own at the instant the supply confirmed a heater-off", f"{{:.{TIME_DECIMALS}f}}",
               is_time=True)
 FLANGE_TEMPERATURE = Column("T2_K", "K", "flange (control) thermometer", "{:.7f}")
 PTC_STAGE_TEMPERATURE = Column("T5_K", "K", "PTC second-stage thermometer", "{:.6f}")
@@ -87,7 +91,8 @@ PTC_STAGE_SAMPLE_TIME = Column("T5_sample_s", "s", "since the record start, the 
 HEATER_SET_TIME = Column("heater_set_s", "s", "since the record start, when this row's heater power was set "
                                              "(the supply's write returned)", "{:.5f}", is_time=True)
 TRIGGER_SKEW = Column("trigger_skew_ms", "ms", "PTC-stage trigger minus flange trigger (0: simultaneous)", "{:.3f}")
-LATENESS = Column("lateness_ms", "ms", "tick start after its deadline", "{:.2f}")
+LATENESS = Column("lateness_ms", "ms", "tick start after its deadline (empty on a heater-off's own row: not a tick)",
+                  "{:.2f}")
 CYCLE = Column("cycle_ms", "ms", "tick start to row", "{:.2f}")
 STATE = Column("state", "", "loop state: holding, closed, closed-limited (heater at a limit), manual, off, "
                             "recovering, fault:<cause>")

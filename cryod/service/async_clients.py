@@ -29,6 +29,8 @@ import socket
 import threading
 from typing import Awaitable, Callable
 
+from cryod.service.commands import Command
+
 log = logging.getLogger("cryod.clients")
 
 
@@ -174,3 +176,32 @@ def resolve(future: asyncio.Future | None) -> None:
 
 
 __all__ = ["ClientsThread", "ConnectionBook", "resolve"]
+
+
+async def loop_answer(command: Command, submit, timeout_s: float) -> Command:
+    """Hand ``command`` to the loop with ``submit`` and wait for its answer without blocking the event loop.
+
+    Returns
+    -------
+    Command
+        Answered, or (after ``timeout_s``) marked refused with the reason.
+    """
+    event_loop = asyncio.get_running_loop()
+    answered = event_loop.create_future()
+
+    def wake() -> None:                     # on the loop's thread: hand over, never raise
+        try:
+            event_loop.call_soon_threadsafe(resolve, answered)
+        except RuntimeError:                # the interface has stopped meanwhile
+            pass
+
+    command.on_answer = wake
+    submit(command)
+    if not command.done.is_set():
+        try:
+            await asyncio.wait_for(answered, timeout_s)
+        except asyncio.TimeoutError:
+            pass
+    if not command.done.is_set():
+        command.ok, command.message = False, f"no answer from the control loop within {timeout_s:g} s"
+    return command

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable
 
 from cryod.argument_types import plain_decimal, shown
+from cryod.control.ramp import MIN_RATE_K_PER_MIN, rate_refusal
 from cryod.control.regulator import RegulatorMode
 
 if TYPE_CHECKING:
@@ -89,6 +90,9 @@ def _setpoint(loop: "ControlLoop", value: float) -> str:
 
 def _ramp(loop: "ControlLoop", value: float) -> str:
     limit = loop.config.control.max_ramp_K_per_min
+    refusal = rate_refusal(value)
+    if refusal is not None:
+        raise CommandRefused(f"ramp refused: {refusal}")
     if not 0.0 <= value <= limit:
         raise CommandRefused(f"ramp {value:g} K/min refused: outside 0..{limit:g} K/min (control.max_ramp_K_per_min)")
     loop.regulator.ramp.rate_K_per_min = value
@@ -187,8 +191,8 @@ class CommandSpec:
 COMMANDS: dict[str, CommandSpec] = {spec.name: spec for spec in (
     CommandSpec("status", None, "the loop's state, temperatures, heater, setpoint and timing", None),
     CommandSpec("setpoint", "K", "regulate to K (within control.setpoint_min_K..setpoint_max_K)", _setpoint),
-    CommandSpec("ramp", "K_PER_MIN", "setpoint ramp rate, 0 for steps (at most control.max_ramp_K_per_min)",
-                _ramp),
+    CommandSpec("ramp", "K_PER_MIN", f"setpoint ramp rate, 0 for steps (at least {MIN_RATE_K_PER_MIN:g}, at most "
+                "control.max_ramp_K_per_min)", _ramp),
     CommandSpec("heater-off", None, "heater to 0 W, loop open, until a new setpoint", _heater_off),
     CommandSpec("manual", "W", "open loop at W (at most R * I_max^2)", _manual),
     CommandSpec("feedforward", "on|off|status", "switch the feedforward locked to the cooler (fades in or out), "

@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Callable
 
 from cryod.service.commands import Command, parse_command, wait_for
-from cryod.service.async_clients import ClientsThread, ConnectionBook, resolve
+from cryod.service.async_clients import ClientsThread, ConnectionBook, loop_answer
 
 log = logging.getLogger("cryod.control")
 
@@ -134,27 +134,9 @@ class ControlSocketServer:
             return {"ok": False, "message": str(error)}
         if command.name == "status":
             return {"ok": True, "message": "status", "status": self.status()}
-        event_loop = asyncio.get_running_loop()
-        answered = event_loop.create_future()
-
-        def wake() -> None:                     # on the loop's thread: hand over, never raise
-            try:
-                event_loop.call_soon_threadsafe(resolve, answered)
-            except RuntimeError:                # the socket has stopped meanwhile
-                pass
-
-        command.on_answer = wake
         command.sender = sender
-        self.submit(command)
-        if not command.done.is_set():
-            try:
-                await asyncio.wait_for(answered, self.reply_timeout_s)
-            except asyncio.TimeoutError:
-                pass
-        if not command.done.is_set():
-            return {"ok": False, "message": f"no answer from the control loop within {self.reply_timeout_s:g} s",
-                    "status": self.status()}
-        return {"ok": command.ok, "message": command.message, "status": self.status()}
+        answered = await loop_answer(command, self.submit, self.reply_timeout_s)
+        return {"ok": answered.ok, "message": answered.message, "status": self.status()}
 
     @property
     def clients(self) -> int:

@@ -5,9 +5,10 @@ the instruments handed over (real ones, locked against other daemons, or drivers
 talking to simulated ones) and the clock.
 
 Threads: the main thread runs the control loop and nothing else. The data
-log writer, the control socket, the status/reload service thread and the log
-listener run beside it and talk to the loop through queues and snapshots. The
-signal watch sees every terminating signal at once; when the loop does not stop
+log writer, the control socket, the status/reload service thread, the log
+listener and the network interfaces (metrics, web page, Lake Shore 336 command
+set; each on a thread of its own when configured) run beside it and talk to the
+loop through queues and snapshots. The signal watch sees every terminating signal at once; when the loop does not stop
 within :func:`stop_grace_s` of one (or of an exception in another thread), a
 thread of the daemon switches the heater off through the :class:`HeaterGuard`
 and, if the loop thread stays stuck, ends the process.
@@ -33,14 +34,19 @@ from typing import Callable
 import numpy as np
 
 from cryod import __version__
-from cryod.config import DaemonConfig, load_config
+from cryod.config import DaemonConfig, load_config, located_error
+from cryod.instrument_waits import InstrumentWaits
 from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
 from cryod.service.commands import Command, wait_for
 from cryod.service.faults import ExitCode, Fault, FaultCause
 from cryod.service.heater_guard import HeaterGuard
+from cryod.service.history import RecentRows
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock, InstrumentLocks
+from cryod.service.lakeshore336 import Lakeshore336Setup
+from cryod.service.lakeshore336_server import Lakeshore336Server
 from cryod.service.live_view import LiveView
+from cryod.service.web import WebServer
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
 from cryod.service.realtime import RealtimeSession
 from cryod.service.control_socket import ControlSocketServer
@@ -55,6 +61,10 @@ log = logging.getLogger("cryod.daemon")
 
 #: Longest pause between two attempts to open instruments that do not answer (s).
 MAX_RETRY_PAUSE_S = 60.0
+
+
+class _NotStarted(Exception):
+    """The daemon stops before touching an instrument (said in the journal and the record already)."""
 
 
 @dataclass
@@ -139,6 +149,12 @@ class Daemon:
         self.datalog: DataLog | None = None
         #: The latest row and faults, for the status line and the metrics endpoint.
         self.live_view = LiveView(config.loop.period_s, cooler_rad_s(config))
+        #: The latest rows and events for the web page's history (a row tap only when the page is on).
+        self.recent_rows = RecentRows()
+        self._instrument_status: tuple[object, dict] = (None, {})
+        self._lakeshore_setup: tuple[object, Lakeshore336Setup | None] = (None, None)
+        #: The web page and Lake Shore 336 interfaces serving now (their ports, for tests and tools).
+        self.network_interfaces: list = []
         self._reload_wanted = False
         self._socket_reloads: collections.deque[Command] = collections.deque()   # "reload" from the socket
         self._stop_reason: str | None = None
@@ -317,6 +333,53 @@ class Daemon:
         status["line_amplitude_K"] = self.live_view.line_amplitude_K()
         return status
 
+    def _status_for_instruments(self) -> dict:
+        """The loop's status with the thermometers' resistances, built once a tick (the 336's queries).
+
+        Without the averages :meth:`_status` computes, so that a client polling fast costs little.
+        """
+        loop = self.loop
+        if loop is None:
+            return self._status()
+        status = loop.status
+        cached_for, cached = self._instrument_status
+        if cached_for is not status:
+            row = self.live_view.latest_row()
+            cached = dict(status.as_dict(), T2_ohm=getattr(row, "T2_ohm", None), T5_ohm=getattr(row, "T5_ohm", None))
+            self._instrument_status = (status, cached)
+        return cached
+
+    def _lakeshore336_setup(self) -> Lakeshore336Setup:
+        """The 336's view of the configuration in force (built again after a reload)."""
+        config = self.config
+        built_for, setup = self._lakeshore_setup
+        if built_for is not config:
+            from cryod.thermometry import load_calibration
+
+            setup = Lakeshore336Setup.from_config(config, load_calibration(config.sensors.flange_calibration),
+                                                  load_calibration(config.sensors.ptc_stage_calibration))
+            self._lakeshore_setup = (config, setup)
+        return setup
+
+    def _start_network_interfaces(self, config: DaemonConfig) -> list:
+        """The web page and the Lake Shore 336 command set, as configured; one that cannot listen is said in
+        the journal and left out (the cryostat is regulated all the same)."""
+        started = []
+        if config.web is not None:
+            started.append(WebServer(config.web.address, config.web.writable, config.web.token_file, self._status,
+                                     self._submit, self.recent_rows, self.live_view.line_amplitude_K))
+        if config.lakeshore336 is not None:
+            self._lakeshore336_setup()
+            started.append(Lakeshore336Server(config.lakeshore336.address, config.lakeshore336.writable,
+                                              self._status_for_instruments, self._submit, self._lakeshore336_setup))
+        for interface in list(started):
+            try:
+                interface.start()
+            except OSError as error:
+                log.error("not started: %s", error)
+                started.remove(interface)
+        return started
+
     # -- the run --------------------------------------------------------------------
     def run(self, duration_s: float | None = None) -> RunResult:
         """Take the locks, open everything, run the loop, close everything with the heater off.
@@ -327,6 +390,7 @@ class Daemon:
         """
         started = time.perf_counter()
         config = self.config
+        self._check_watchdog_interval(config)
         locks = self._take_locks(config)
         if locks is None:
             return RunResult(ExitCode.CONFIG, None, [], time.perf_counter() - started)
@@ -334,6 +398,7 @@ class Daemon:
         control_socket: ControlSocketServer | None = None
         realtime: RealtimeSession | None = None
         metrics = None
+        interfaces: list = []
         service = threading.Thread(target=self._service, name="cryod-service", daemon=True)
         signals = SignalWatch(self._on_stop_signal, self._on_reload_signal, self._on_signal_seen) \
             if self.install_signal_handlers else None
@@ -356,7 +421,12 @@ class Daemon:
             control_socket = ControlSocketServer(config.control_socket.path, config.control_socket.mode,
                                                  config.control_socket.owner, config.control_socket.group,
                                                  self._submit, self._status)
-            control_socket.start()
+            try:
+                control_socket.start()
+            except (OSError, KeyError) as error:         # KeyError: an owner or group gone since the checks
+                self._stop_event(str(located_error(config, "control_socket.path",
+                                                   f"the control socket cannot be served: {error}")), ExitCode.CONFIG)
+                raise _NotStarted from None
             if config.metrics.address is not None:
                 from cryod.service.metrics_export import MetricsEndpoint
 
@@ -368,6 +438,7 @@ class Daemon:
                     metrics = None
                 else:
                     log.info("Prometheus metrics on http://%s:%d/metrics", metrics.host, metrics.port)
+            interfaces = self.network_interfaces = self._start_network_interfaces(config)
             service.start()
             self.notifier.ready("started: opening the instruments")
             opened = self._open_instruments_waiting(config) if self.datalog.failure is None \
@@ -378,6 +449,8 @@ class Daemon:
                 opened_instruments, flange_curve, stage_curve = opened
                 instruments = self._guard = HeaterGuard(opened_instruments)
                 taps = [self.datalog.put, self.live_view, *self.row_taps]
+                if config.web is not None:
+                    taps.append(self.recent_rows)
                 self.loop = ControlLoop(config, instruments, flange_curve, stage_curve, self.clock,
                                         emit=_fan_out(taps), watchdog=self.notifier.watchdog)
                 self.live_view.attach_timing(self.loop.timing.summary)
@@ -396,6 +469,8 @@ class Daemon:
                 log.info("cryod %s: loop period %.0f ms, data in %s, control socket %s", __version__,
                          config.loop.period_s * 1e3, config.data.directory, config.control_socket.path)
                 exit_code = self.loop.run(duration_s)
+        except _NotStarted:
+            exit_code = ExitCode.CONFIG
         except BaseException as error:
             # the heater goes off below (closing the instruments); the record says why, unless the loop did
             if self.datalog is not None and (self.loop is None or self.loop.exit_code is None):
@@ -417,6 +492,8 @@ class Daemon:
                 control_socket.stop()
             if metrics is not None:
                 metrics.stop()
+            for interface in interfaces:
+                interface.stop()
             if self.datalog is not None:
                 self.datalog.stop()
             if signals is not None:
@@ -434,6 +511,17 @@ class Daemon:
         return RunResult(exit_code, self.loop, list(self.datalog.paths) if self.datalog else [],
                          time.perf_counter() - started)
 
+    def _check_watchdog_interval(self, config: DaemonConfig) -> None:
+        """Warn when systemd's watchdog (WATCHDOG_USEC) is shorter than the configuration was checked against."""
+        interval = self.notifier.watchdog_interval_s
+        if interval is None:
+            return
+        problem = InstrumentWaits(config.loop.period_s, config.instruments.timeout_s).watchdog_problem(
+            interval, "WatchdogSec of this service")
+        if problem:
+            log.warning("systemd's watchdog may stop this daemon while it waits on an instrument: "
+                        "instruments.timeout_s %s", problem)
+
     def _take_locks(self, config: DaemonConfig) -> list | None:
         """This cryostat's lock, then its instruments' (when real): the locks held, or None when another daemon
         holds one (said in the journal; nothing was touched)."""
@@ -442,6 +530,10 @@ class Daemon:
             lock.acquire()
         except AlreadyRunning as error:
             log.critical("not started: %s", error)
+            return None
+        except OSError as error:                # a folder cryod run's checks found usable a moment ago
+            log.critical("not started: %s", located_error(config, "control_socket.path",
+                                                          f"the lock {lock.path} cannot be taken: {error}"))
             return None
         if self.instrument_addresses is None:
             return [lock]

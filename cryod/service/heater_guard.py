@@ -44,9 +44,13 @@ class HeaterGuard:
                 raise HeaterHeldOff("heater supply", f"{power_w:.4g} W not applied: held off ({self.held_off})")
             self.instruments.set_heater_power(power_w)
 
-    def heater_off(self) -> None:
+    def heater_off(self) -> float:
         with self._heater:
-            self.instruments.heater_off()
+            return self.instruments.heater_off()
+
+    def examine(self, error: InstrumentError) -> None:
+        """A failing DMM's error queue (the supply's is read by its driver, after its own off)."""
+        self.instruments.examine(error)
 
     def reconnect(self) -> None:
         with self._heater:          # reconfigures the supply (output off): not while another thread uses it

@@ -185,21 +185,4 @@ class InstrumentLocks:
             os.close(fd)
 
 
-def lock_directory_problem(directory: Path) -> str | None:
-    """None when instrument locks can be taken in ``directory`` (it exists and is writable, or can be
-    made), else what stands in the way, naming ``instruments.lock_directory`` (``cryod run --check``)."""
-    directory = Path(directory)
-    place = directory
-    while not place.exists():
-        place = place.parent
-    if not place.is_dir():
-        return f"instruments.lock_directory {directory}: {place} is not a directory"
-    if not os.access(place, os.W_OK | os.X_OK):
-        what = "is not writable" if place == directory else f"does not exist and {place} is not writable"
-        return (f"instruments.lock_directory {directory} {what} for this user: create it for the service "
-                f"(systemd/cryod-tmpfiles.conf, docs/operations.md) or name another directory")
-    return None
-
-
-__all__ = ["AlreadyRunning", "InstanceLock", "InstrumentInUse", "InstrumentLocks", "lock_directory_problem",
-           "lock_file_name"]
+__all__ = ["AlreadyRunning", "InstanceLock", "InstrumentInUse", "InstrumentLocks", "lock_file_name"]

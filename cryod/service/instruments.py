@@ -7,20 +7,28 @@ same drivers and the same :class:`DriverInstruments`.
 
 Opening is all or nothing: if any instrument fails, the ones already open are
 closed with the heater output off, and the error names the instrument.
+
+Opened, the instruments wait for a reply at most as long as the loop allows
+(:attr:`cryod.instrument_waits.InstrumentWaits.loop_reply_s`), and
+``instruments.timeout_s`` only while they are configured again after a
+reconnect; a failing DMM's error queue is read only when the loop asks
+(:meth:`DriverInstruments.examine`), after the heater is off.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import logging
-import sys
 from typing import Callable
 
-from cryod.config import DaemonConfig, DmmSettings, InstrumentAddress
-from cryod.service.instance_lock import InstrumentLocks, lock_directory_problem
+from pyvisa import rname
+from pyvisa.errors import VisaIOError
+
+from cryod.config import INSTRUMENT_KEYS, DaemonConfig, DmmSettings, InstrumentAddress
+from cryod.instrument_waits import InstrumentWaits
+from cryod.service.instance_lock import InstrumentLocks
 from cryod.thermometry import CalibrationCurve, load_calibration
 from cryod.yaml_source import FileFormatError
-from drivers.errors import InstrumentError
+from drivers.errors import ConnectionLost, InstrumentError
 from drivers.heater import HeaterSupply
 from drivers.keithley2002 import FourWireSettings, Keithley2002, TriggerSource
 from drivers.keithley2400 import Keithley2400
@@ -56,32 +64,6 @@ def check_calibrations(config: DaemonConfig) -> str | None:
     except FileFormatError as error:
         return f"calibration file not usable: {error}"
     return None
-
-
-def check_instrument_support(config: DaemonConfig) -> str | None:
-    """None if this installation can open every configured instrument, else what is missing.
-
-    pyvisa-py reaches a GPIB card only through linux-gpib's Python binding (the
-    ``gpib`` module) or gpib-ctypes; without either, the instruments could never be
-    opened, which is an installation to fix, not an outage to wait out.
-    """
-    instruments = config.instruments
-    if instruments.visa_library != "@py":
-        return None
-    gpib = [(name, address.resource) for name, address in (
-        ("flange_dmm", instruments.flange_dmm), ("ptc_stage_dmm", instruments.ptc_stage_dmm),
-        ("heater_supply", instruments.heater_supply))
-        if address.resource and address.resource.upper().startswith("GPIB")]
-    if not gpib:
-        return None
-    for module in ("gpib", "gpib_ctypes"):
-        if importlib.util.find_spec(module) is not None:
-            return None
-    name, resource = gpib[0]
-    return (f"instruments.{name}: {resource} is on a GPIB card, which pyvisa-py reaches through linux-gpib's "
-            f"Python binding (module 'gpib') or gpib-ctypes, and neither is installed in {sys.prefix}. Install "
-            f"linux-gpib with its Python binding into this environment (docs/operations.md, 'GPIB card'), or "
-            f"use NI-VISA (instruments.visa_library: \"\") or a Prologix adapter")
 
 
 # ---------------------------------------------------------------------------
@@ -125,11 +107,13 @@ def instrument_addresses(config: DaemonConfig) -> dict[str, list[str]]:
 
 def check_instrument_locking(config: DaemonConfig) -> str | None:
     """None if ``cryod run`` can lock the configured instruments' addresses, else what stands in the way."""
+    from cryod.service.startup_checks import directory_problem
+
     try:
         instrument_addresses(config)
     except ValueError as error:
         return f"{config.source}: {error}"
-    return lock_directory_problem(config.instruments.lock_directory)
+    return directory_problem(config, "instruments.lock_directory", config.instruments.lock_directory)
 
 
 # ---------------------------------------------------------------------------
@@ -146,17 +130,27 @@ class DriverInstruments:
         Applied again after a reconnect.
     transports : list of Transport
         Everything to reopen on :meth:`reconnect` and close on :meth:`close`.
+    waits : InstrumentWaits
+        How long to wait for a reply: on the loop's path, and while configuring after a reconnect.
     on_close : callable, optional
         Releases what else was opened (a trigger port, a GPIB board).
     """
 
     def __init__(self, pair: ThermometerPair, heater: HeaterSupply, dmm_settings: FourWireSettings,
-                 transports: list[Transport], on_close: Callable[[], None] | None = None):
+                 transports: list[Transport], waits: InstrumentWaits, on_close: Callable[[], None] | None = None):
         self.pair = pair
         self.heater = heater
         self.dmm_settings = dmm_settings
         self.transports = transports
+        self.waits = waits
         self.on_close = on_close
+        for dmm in pair.dmms:                  # asked only after the heater is off (examine)
+            dmm.examines_faults_at_once = False
+        self._wait_for_replies(waits.loop_reply_s)
+
+    def _wait_for_replies(self, timeout_s: float) -> None:
+        for transport in self.transports:
+            transport.timeout_s = timeout_s
 
     def measure(self) -> PairReading:
         return self.pair.measure()
@@ -164,17 +158,28 @@ class DriverInstruments:
     def set_heater_power(self, power_w: float) -> None:
         self.heater.set_power_w(power_w)
 
-    def heater_off(self) -> None:
-        self.heater.output_off()
+    def heater_off(self) -> float:
+        """Heater output to 0 A and off; the clock time the supply confirmed it (InstrumentError: it could not)."""
+        return self.heater.output_off()
+
+    def examine(self, error: InstrumentError) -> None:
+        """Attach what the failing instrument's error queue holds (asked after the heater is off; a
+        queue that cannot be read is left out)."""
+        error.examine()
 
     def reconnect(self) -> None:
-        """Reopen every connection, then configure the DMMs and the heater again (output off)."""
-        for transport in self.transports:
-            transport.reopen()
-        for dmm in self.pair.dmms:
-            dmm.configure_four_wire_resistance(self.dmm_settings)
-        self.pair.prepare()
-        self.heater.configure()
+        """Reopen every connection, then configure the DMMs and the heater again (output off), waiting
+        ``instruments.timeout_s`` for each reply meanwhile."""
+        self._wait_for_replies(self.waits.timeout_s)
+        try:
+            for transport in self.transports:
+                transport.reopen()
+            for dmm in self.pair.dmms:
+                dmm.configure_four_wire_resistance(self.dmm_settings)
+            self.pair.prepare()
+            self.heater.configure()
+        finally:
+            self._wait_for_replies(self.waits.loop_reply_s)
 
     def close(self) -> None:
         """Heater output off first, then everything else (each step best effort)."""
@@ -215,10 +220,10 @@ def assemble_instruments(config: DaemonConfig, clock, flange_transport: Transpor
         heater_config = config.heater
         heater = HEATER_DRIVERS[config.instruments.heater_model](
             heater_transport, clock, heater_config.resistance_ohm, max_current_a=heater_config.max_current_A,
-            voltage_compliance_v=heater_config.voltage_compliance_V, name="heater supply")
+            voltage_compliance_v=heater_config.voltage_compliance_V, name=INSTRUMENT_KEYS["heater_supply"])
         line = config.instruments.dmm.line_frequency_hz
-        flange = Keithley2002(flange_transport, clock, "flange DMM (T2)", line_frequency_hz=line)
-        stage = Keithley2002(stage_transport, clock, "PTC-stage DMM (T5)", line_frequency_hz=line)
+        flange = Keithley2002(flange_transport, clock, INSTRUMENT_KEYS["flange_dmm"], line_frequency_hz=line)
+        stage = Keithley2002(stage_transport, clock, INSTRUMENT_KEYS["ptc_stage_dmm"], line_frequency_hz=line)
         settings = four_wire_settings(config.instruments.dmm)
         for dmm in (flange, stage):
             dmm.configure_four_wire_resistance(settings)
@@ -227,7 +232,8 @@ def assemble_instruments(config: DaemonConfig, clock, flange_transport: Transpor
         if pair.reading_delay_s >= config.loop.period_s:
             raise ValueError(f"a reading takes {pair.reading_delay_s * 1e3:.0f} ms, longer than the "
                              f"{config.loop.period_s * 1e3:.0f} ms loop period: lower instruments.dmm.nplc")
-        return DriverInstruments(pair, heater, settings, transports, on_close)
+        waits = InstrumentWaits(config.loop.period_s, config.instruments.timeout_s)
+        return DriverInstruments(pair, heater, settings, transports, waits, on_close)
     except BaseException:
         if heater is not None:
             heater.close()
@@ -273,12 +279,12 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
     adapters: dict = {}
     opened: list = []
     try:
-        heater = open_transport(instruments.heater_supply, config, adapters, "heater supply")
-        opened.append(heater)
-        flange = open_transport(instruments.flange_dmm, config, adapters, "flange DMM (T2)")
-        opened.append(flange)
-        stage = open_transport(instruments.ptc_stage_dmm, config, adapters, "PTC-stage DMM (T5)")
-        opened.append(stage)
+        for key in ("heater_supply", "flange_dmm", "ptc_stage_dmm"):
+            try:
+                opened.append(open_transport(getattr(instruments, key), config, adapters, INSTRUMENT_KEYS[key]))
+            except InstrumentError as error:
+                raise _with_key(error, key) from error.__cause__
+        heater, flange, stage = opened
     except BaseException:
         for transport in opened:
             transport.close()
@@ -292,16 +298,18 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
         if mode == "sequential":
             return SequentialTrigger([flange, stage], clock)
         if mode == "gpib-group":
-            board = _gpib_board(instruments.flange_dmm, instruments.ptc_stage_dmm)
-            interface = resource_manager(instruments.visa_library).open_resource(f"GPIB{board}::INTFC")
+            board = _gpib_board(instruments.flange_dmm)
+            try:
+                interface = resource_manager(instruments.visa_library).open_resource(f"GPIB{board}::INTFC")
+            except (VisaIOError, OSError) as error:     # a card out of reach: waited for, as an instrument is
+                raise ConnectionLost(f"GPIB{board}::INTFC (instruments.trigger: gpib-group)",
+                                     f"cannot open the GPIB card to trigger both DMMs: {error}") from error
             closers.append(interface.close)
             return GpibGroupTrigger(interface, [flange, stage], clock)
-        if mode == "prologix":
-            keys = {_adapter_key(instruments.flange_dmm), _adapter_key(instruments.ptc_stage_dmm)}
-            if instruments.flange_dmm.resource or instruments.ptc_stage_dmm.resource or len(keys) != 1:
-                raise ValueError("instruments.trigger: prologix needs both DMMs on the same Prologix adapter")
-            return PrologixGroupTrigger(adapters[keys.pop()], [instruments.flange_dmm.gpib_address,
-                                                               instruments.ptc_stage_dmm.gpib_address], clock)
+        if mode == "prologix":           # the configuration puts both DMMs behind one controller
+            return PrologixGroupTrigger(adapters[_adapter_key(instruments.flange_dmm)],
+                                        [instruments.flange_dmm.gpib_address, instruments.ptc_stage_dmm.gpib_address],
+                                        clock)
         output = instruments.trigger_output
         line = SerialControlLine.open(output.port, clock, line=output.line)
         closers.append(line.close)
@@ -315,9 +323,19 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
             except Exception as error:  # noqa: BLE001 - closing; say so and go on
                 log.warning("closing: %s", error)
 
-    instruments_set = assemble_instruments(config, clock, flange, stage, heater, make_trigger,
-                                           on_close=close_others)
+    try:
+        instruments_set = assemble_instruments(config, clock, flange, stage, heater, make_trigger,
+                                               on_close=close_others)
+    except InstrumentError as error:
+        key = next((key for key, name in INSTRUMENT_KEYS.items() if error.instrument == name), None)
+        raise (error if key is None else _with_key(error, key)) from error.__cause__
     return (instruments_set, *curves)
+
+
+def _with_key(error: InstrumentError, key: str) -> InstrumentError:
+    """``error`` naming the configuration's key of its instrument too: ``heater supply (instruments.heater_supply)``,
+    which the lab finds in the file, beside the resource the message quotes."""
+    return error.relabelled(f"{error.instrument} (instruments.{key})")
 
 
 def switch_supply_off(config: DaemonConfig, clock) -> None:
@@ -340,11 +358,12 @@ def switch_supply_off(config: DaemonConfig, clock) -> None:
     locks.acquire()
     adapters: dict = {}
     try:
-        transport = open_transport(config.instruments.heater_supply, config, adapters, "heater supply")
+        transport = open_transport(config.instruments.heater_supply, config, adapters,
+                                   INSTRUMENT_KEYS["heater_supply"])
         try:
             heater = HEATER_DRIVERS[config.instruments.heater_model](      # opening sets 0 A, output off
                 transport, clock, config.heater.resistance_ohm, max_current_a=config.heater.max_current_A,
-                voltage_compliance_v=config.heater.voltage_compliance_V, name="heater supply")
+                voltage_compliance_v=config.heater.voltage_compliance_V, name=INSTRUMENT_KEYS["heater_supply"])
             heater.output_off()
         finally:
             transport.close()
@@ -354,13 +373,6 @@ def switch_supply_off(config: DaemonConfig, clock) -> None:
         locks.release()
 
 
-def _gpib_board(*addresses: InstrumentAddress) -> int:
-    boards = set()
-    for address in addresses:
-        if not address.resource or not address.resource.upper().startswith("GPIB"):
-            raise ValueError("instruments.trigger: gpib-group needs both DMMs on a GPIB card (GPIBn::addr::INSTR)")
-        prefix = address.resource.upper().split("::")[0][4:]
-        boards.add(int(prefix or 0))
-    if len(boards) != 1:
-        raise ValueError("instruments.trigger: gpib-group needs both DMMs on the same GPIB board")
-    return boards.pop()
+def _gpib_board(address: InstrumentAddress) -> int:
+    """The GPIB board of a DMM on a GPIB card (the configuration puts both DMMs of a gpib-group trigger on one)."""
+    return int(rname.parse_resource_name(address.resource).board)

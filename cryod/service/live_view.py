@@ -120,6 +120,10 @@ class LiveView:
             return math.nan
         return float(np.mean(flange[recent]))
 
+    def latest_row(self) -> Row | None:
+        """The last row the loop made (None before the first)."""
+        return self._row
+
     def faults(self) -> dict[str, int]:
         """Faults seen since start, by cause."""
         with self._lock:
@@ -132,7 +136,9 @@ class LiveView:
         row), ``state``, ``T2_K``, ``T2_average_K`` (over the last :data:`AVERAGE_WINDOW_S`),
         ``T5_K``, ``setpoint_K``, ``error_K`` (T2 minus the setpoint), ``heater_W``,
         ``line_amplitude_K``, ``lateness_ms``, ``faults`` (count by cause), ``last_fault``,
-        ``ticks``, ``overruns``.
+        ``ticks``, ``overruns``, ``T2_ohm``, ``T5_ohm`` (the thermometers' resistances), ``pi_W``
+        (PI's part of the heater power), ``ff_W`` (the feedforward's), ``line_limit_K`` (the least line
+        any heater waveform can leave at this setpoint).
         """
         row = self._row
         nan = math.nan
@@ -141,8 +147,10 @@ class LiveView:
                     "T5_K": nan,
                     "setpoint_K": nan, "error_K": nan, "heater_W": nan, "line_amplitude_K": nan,
                     "lateness_ms": nan, "faults": self.faults(), "last_fault": self._last_fault,
-                    "ticks": 0, "overruns": 0}
+                    "ticks": 0, "overruns": 0, "T2_ohm": nan, "T5_ohm": nan, "pi_W": nan, "ff_W": nan,
+                    "line_limit_K": nan}
         timing = self._timing() if self._timing is not None else {}
+        control = row.control or {}
         first = self._first_time_s if self._first_time_s is not None else row.time_s
         return {"time_s": row.time_s, "elapsed_s": row.time_s - first,
                 "state": str(row.state), "T2_K": row.T2_K, "T2_average_K": self.flange_average_K(),
@@ -150,4 +158,8 @@ class LiveView:
                 "error_K": row.T2_K - row.setpoint_K, "heater_W": row.heater_W,
                 "line_amplitude_K": self.line_amplitude_K(), "lateness_ms": row.lateness_ms,
                 "faults": self.faults(), "last_fault": self._last_fault,
-                "ticks": timing.get("ticks", self._next), "overruns": timing.get("overruns", 0)}
+                "ticks": timing.get("ticks", self._next), "overruns": timing.get("overruns", 0),
+                "T2_ohm": row.T2_ohm, "T5_ohm": row.T5_ohm,
+                "pi_W": (control["pi_proportional_W"] + control.get("pi_integral_W", 0.0)
+                         if "pi_proportional_W" in control else nan),
+                "ff_W": control.get("ff_W", nan), "line_limit_K": control.get("ff_limit_K", nan)}

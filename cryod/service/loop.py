@@ -12,6 +12,15 @@ deadline still ahead and never bursts to catch up.
 The heater power comes from the regulator (:mod:`cryod.control.regulator`):
 the control law lives there; the loop schedules it, checks every reading,
 handles faults (:mod:`cryod.service.faults`) and does the I/O.
+
+On any fault the heater-off goes out first, before the loop asks any
+instrument why (a failing DMM's error queue is read after it). The record
+says what the supply was told and when: the fault tick's row carries the
+power the supply had during that tick, and a row at the instant the supply
+confirmed the off carries the 0 W (empty ``heater_W``: the off could not be
+confirmed, the heater's state is unknown). A stop's heater-off is its ``stop``
+event, the last thing the loop writes (and, in a tick the stop cut short, that
+tick's own setting).
 """
 
 from __future__ import annotations
@@ -22,17 +31,18 @@ import math
 from dataclasses import dataclass, replace
 from typing import Callable, Protocol
 
-from cryod.config import DaemonConfig
+from cryod.config import DaemonConfig, located_error
 from cryod.control.regulator import HeaterPowerOutput, Regulator, RegulatorMode
 from cryod.control.terms import term_columns
-from cryod.records.columns import Event, Row, RowSchema, loop_schema
+from cryod.records.columns import TIME_DECIMALS, Event, Row, RowSchema, loop_schema
 from cryod.service.commands import Command, CommandRefused, apply_command
 from cryod.service.faults import ExitCode, Fault, FaultCause, ReadingChecks, fault_from_instrument_error
 from cryod.service.realtime import LoopGarbageCollector
 from cryod.service.states import LoopState
 from cryod.service.timing import LoopTiming
+from cryod.yaml_source import FileFormatError
 from drivers.clock import Clock
-from drivers.errors import InstrumentError
+from drivers.errors import HeaterLimitRefused, InstrumentError
 from drivers.thermometer_pair import PairReading
 
 log = logging.getLogger("cryod.loop")
@@ -40,6 +50,10 @@ log = logging.getLogger("cryod.loop")
 #: Commands carried out at one tick boundary at most; the rest wait, in order, for the next ticks
 #: (many clients of the control socket at once cannot stretch a tick).
 COMMANDS_PER_TICK = 8
+#: A heater-off's own row lies at least this long after the row before it (s): two steps of the record's
+#: time, so that the two never print as one instant. An off confirmed sooner is written this much later:
+#: the record may say the heater was on a fraction of a millisecond longer than it was, never shorter.
+HEATER_OFF_ROW_SPACING_S = 2.0 * 10.0 ** -TIME_DECIMALS
 
 
 # ---------------------------------------------------------------------------
@@ -54,8 +68,11 @@ class Instruments(Protocol):
     def set_heater_power(self, power_w: float) -> None:
         """Apply a heater power (W) within the configured limits."""
 
-    def heater_off(self) -> None:
-        """Heater output to 0 A."""
+    def heater_off(self) -> float:
+        """Heater output to 0 A; the clock time the supply confirmed it (InstrumentError when it could not)."""
+
+    def examine(self, error: InstrumentError) -> None:
+        """After the heater is off: attach what the failing instrument says about ``error`` (its error queue)."""
 
     def reconnect(self) -> None:
         """Reopen connections after a transient fault."""
@@ -66,6 +83,11 @@ class Instruments(Protocol):
 
 class TemperatureCurve(Protocol):
     def temperature_K(self, resistance_ohm: float) -> float: ...
+
+
+def _given(target_K: float) -> float | None:
+    """A ramp's target as a status value: None until a setpoint was given (every setpoint is above 0 K)."""
+    return target_K if target_K > 0.0 else None
 
 
 def _or(value: float | None, default: float) -> float:
@@ -93,6 +115,8 @@ class Status:
     target_K: float | None = None
     ramp_K_per_min: float = 0.0
     last_fault: str | None = None
+    #: The last target given (K), kept while the loop is open: what regulating again heads for.
+    last_target_K: float | None = None
     loop_timing: object = None      # LoopTiming, summarised when asked, not every tick
     control: dict | None = None     # the control terms' columns of the last tick
 
@@ -104,7 +128,8 @@ class Status:
         return {
             "time_s": self.time_s, "state": str(self.state), "T2_K": self.flange_K, "T5_K": self.ptc_stage_K,
             "heater_W": self.heater_w, "setpoint_K": self.setpoint_K, "target_K": self.target_K,
-            "ramp_K_per_min": self.ramp_K_per_min, "last_fault": self.last_fault, **(self.control or {}),
+            "ramp_K_per_min": self.ramp_K_per_min, "last_target_K": self.last_target_K,
+            "last_fault": self.last_fault, **(self.control or {}),
             **self.timing,
         }
 
@@ -157,8 +182,11 @@ class ControlLoop:
         self.checks = ReadingChecks(config.safety.flange_max_K, config.safety.ptc_stage_max_K,
                                     config.safety.max_repeated_readings)
         self.state = LoopState.HOLDING
-        self.heater_w = 0.0                 # applied now; NaN when the supply could not be switched off
+        self.heater_w = 0.0                 # the supply was told this last; NaN when it could not be switched off
         self.last_commanded_w = 0.0         # the last power sent to the supply
+        self._heater_off_s = math.nan       # when the supply last confirmed the off (clock)
+        self._heater_driven = False         # a power went to the supply since it last confirmed the off
+        self._last_row_s = -math.inf        # time of the last row emitted
         self.last_fault: Fault | None = None
         self.status = Status(target_K=config.control.setpoint_K, ramp_K_per_min=config.control.ramp_K_per_min)
         # appended by any thread, taken by the loop's (deque's append and popleft are atomic)
@@ -170,7 +198,6 @@ class ControlLoop:
         self._outside_fault: Fault | None = None
         self._valid_in_a_row = 0
         self._hold_reported = False         # a reading above a limit kept the heater off (said once per hold)
-        self._regulating = False            # the loop has left its start-up hold at least once
         # a fault episode: from a first recoverable fault until the loop has run clean for
         # safety.recovery_timeout_s; the recovery timeout counts from its start, and every resume
         # within it doubles the valid readings the next resume needs (a fault that keeps coming back
@@ -273,15 +300,17 @@ class ControlLoop:
         tick_start = self._tick_start_s = self.clock.now()
         self.timing.record_tick(tick_start - deadline)
         self._apply_commands()
+        # a row without a trigger stands for the instant after the commands (a heater-off among them came first)
+        commands_done = self.clock.now()
         if self._outside_fault is not None:
             fault, self._outside_fault = self._outside_fault, None
-            self._fault(fault, Row(time_s=tick_start, lateness_ms=(tick_start - deadline) * 1e3))
+            self._fault(fault, Row(time_s=commands_done, lateness_ms=(tick_start - deadline) * 1e3))
             if self.exit_code is not None:
                 return
         if self._stop_reason is not None:
             self._stop_as_requested()
             return
-        row = Row(time_s=tick_start, lateness_ms=(tick_start - deadline) * 1e3)
+        row = Row(time_s=commands_done, lateness_ms=(tick_start - deadline) * 1e3)
         if self.state is LoopState.RECOVERING and self._maybe_reconnect(tick_start):
             # one slow thing per tick: the readings come at the next one
             if self.exit_code is None:
@@ -292,7 +321,7 @@ class ControlLoop:
         try:
             reading = self.instruments.measure()
         except InstrumentError as error:
-            self._fault(fault_from_instrument_error(error), row)
+            self._fault(error, row)
             return
         row.time_s = reading.trigger_time_s
         row.T2_ohm = reading.flange_resistance_ohm
@@ -331,13 +360,17 @@ class ControlLoop:
             self._stop_as_requested(row)
             return
         self.last_commanded_w = step.power_w
+        self._heater_driven = True
         try:
             self.instruments.set_heater_power(step.power_w)
+        except HeaterLimitRefused as error:      # refused before anything was sent: the supply kept its power
+            self._fault(error, row)
+            return
         except InstrumentError as error:
             if self._stop_reason is not None:    # held off from outside on the way to the stop
                 self._stop_as_requested(row)
             else:
-                self._fault(fault_from_instrument_error(error), row)
+                self._fault(error, row)
             return
         row.heater_set_s = self.clock.now()
         # how long computing and setting take, smoothed: when the next setting will take effect
@@ -352,9 +385,13 @@ class ControlLoop:
             self._episode_start_s = None         # ran clean long enough: the next fault is a new episode
             self._resumes_in_episode = 0
 
+    def _emit_row(self, row: Row) -> None:
+        self._last_row_s = row.time_s
+        self.emit(row)
+
     def _finish_row(self, row: Row) -> None:
         row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
-        self.emit(row)
+        self._emit_row(row)
         closed = self.state is LoopState.CLOSED
         ramp = self.regulator.ramp
         # the target once a setpoint is asked for (also while holding for valid readings), the setpoint in use
@@ -363,7 +400,7 @@ class ControlLoop:
         # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
         self._latest = (row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
                         ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
-                        ramp.rate_K_per_min, self.last_fault, row.control)
+                        ramp.rate_K_per_min, self.last_fault, row.control, _given(ramp.target_K))
         self._status = None
 
     @property
@@ -371,10 +408,12 @@ class ControlLoop:
         """The loop as of its last tick (built when asked, from the tick's snapshot)."""
         status = self._status
         if status is None:
-            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control = self._latest
+            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control, last_target_K = \
+                self._latest
             status = Status(time_s=time_s, state=state, flange_K=flange_K, ptc_stage_K=stage_K, heater_w=heater_w,
                             setpoint_K=setpoint_K, target_K=target_K, ramp_K_per_min=rate,
-                            last_fault=str(fault) if fault else None, loop_timing=self.timing, control=control)
+                            last_fault=str(fault) if fault else None, loop_timing=self.timing, control=control,
+                            last_target_K=last_target_K)
             self._status = status
         return status
 
@@ -382,7 +421,9 @@ class ControlLoop:
     def status(self, status: Status) -> None:
         self._status = status
         self._latest = (status.time_s, status.state, status.flange_K, status.ptc_stage_K, status.heater_w,
-                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault, status.control)
+                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault, status.control,
+                        status.last_target_K if status.last_target_K is not None
+                        else _given(self.regulator.ramp.target_K))
 
     # -- start-up and recovery ----------------------------------------------------
     def _count_valid(self, in_range: bool, reading: PairReading, row: Row) -> None:
@@ -395,9 +436,10 @@ class ControlLoop:
             previous = self.state
             self._last_trigger_s = reading.trigger_time_s
             self.state = LoopState(self.regulator.mode)
-            if self.state is LoopState.CLOSED and not self._regulating:
+            if self.state is LoopState.CLOSED and not self.regulator.regulating:
+                # start-up, or a setpoint given while the heater was off or manual: close from 0 W, the ramp
+                # from T2; after a fault while regulating the terms go on where they were
                 self.regulator.close_loop(reading.trigger_time_s, row.T2_K, row.T5_K, present_power_w=0.0)
-            self._regulating = True
             self._hold_reported = False
             note = ""
             if self._episode_start_s is not None:
@@ -438,7 +480,7 @@ class ControlLoop:
         for valid readings (it takes the mode up when they come); heater-off acts at once."""
         if not self.state.waits_for_readings:
             self.state = LoopState(self.regulator.mode)
-        if self.regulator.mode is RegulatorMode.OFF:
+        if self.regulator.mode is RegulatorMode.OFF:       # the tick's own row follows, at 0 W
             failure = self._switch_heater_off()
             if failure is not None:
                 self._stop(ExitCode.HEATER_FAULT, failure)
@@ -469,24 +511,36 @@ class ControlLoop:
         return False
 
     # -- faults ---------------------------------------------------------------------
-    def _fault(self, fault: Fault, row: Row | None = None) -> None:
-        """Heater to 0 W now, record why, then recover or stop."""
+    def _fault(self, cause: Fault | InstrumentError, row: Row | None = None) -> None:
+        """Heater to 0 W first, then find out and record why, then recover or stop.
+
+        ``cause`` is a fault, or an instrument's error: that instrument is asked about it (its
+        error queue) only once the heater-off has gone out. ``row`` (the tick's) carries the
+        power the supply had from its start; a row at the instant the off was confirmed follows.
+        """
+        applied_w, driven = self.heater_w, self._heater_driven
         off_failure = self._switch_heater_off()
+        if isinstance(cause, InstrumentError):
+            self.instruments.examine(cause)
+            cause = fault_from_instrument_error(cause)
+        fault = cause
         if off_failure is not None:             # the supply keeps what it had: nothing else matters now
             fault = Fault(FaultCause.HEATER_FAULT, f"{off_failure.message}; it happened on {fault}")
         self._valid_in_a_row = 0
+        state = f"fault:{fault.cause}"
         if row is not None:
-            row.heater_W = self.heater_w
-            row.state = f"fault:{fault.cause}"
+            row.heater_W = applied_w
+            row.state = state
             row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
-            self.emit(row)
+            self._emit_row(row)
+        self._heater_off_row(driven, state)
         if self.state is LoopState.RECOVERING and fault.recoverable:
             self.last_fault = fault
             self._publish_fault_state(self.state)
             return
         self._event("fault", str(fault))
         if not fault.recoverable:
-            self._stop(fault.exit_code, fault)
+            self._stop(fault.exit_code, fault, heater_done=True)
             return
         self.last_fault = fault
         now = self.clock.now()
@@ -499,29 +553,52 @@ class ControlLoop:
         self._publish_fault_state(LoopState.RECOVERING)
 
     def _switch_heater_off(self) -> Fault | None:
-        """Heater output to 0 A; the heater fault when that failed (a supply out of reach keeps its last current)."""
+        """Heater output to 0 A, confirmed by the supply; the heater fault when that failed (a supply out of
+        reach keeps its last current)."""
         try:
-            self.instruments.heater_off()
+            self._heater_off_s = self.instruments.heater_off()
         except InstrumentError as error:
+            self._heater_off_s = math.nan
             self.heater_w = math.nan
+            self._heater_driven = True          # for all that is known
             return Fault(FaultCause.HEATER_FAULT,
                          f"could not switch the heater off ({error}); its state is UNKNOWN: the supply may still "
                          f"deliver the last commanded {self.last_commanded_w:.4g} W: check it at the supply")
         self.heater_w = 0.0
+        self._heater_driven = False
         return None
 
-    def _stop(self, exit_code: int, fault: Fault | None, reason: str = "", row: Row | None = None) -> None:
-        """Heater off, then stop with ``exit_code`` because of ``fault`` (or for ``reason``, no fault);
-        ``row``, the readings of a tick the stop cut short, is kept with the heater as the stop left it.
+    def _heater_off_row(self, driven: bool, state: str) -> None:
+        """After a heater-off of a supply that had been ``driven`` (a power sent since its last confirmed off):
+        a row from the instant the supply confirmed the off, with 0 W; not confirmed, from now with an empty
+        (unknown) power."""
+        confirmed = not math.isnan(self.heater_w)
+        if confirmed and not driven:
+            return
+        at_s = max(self._heater_off_s if confirmed else self.clock.now(), self._last_row_s + HEATER_OFF_ROW_SPACING_S)
+        self._emit_row(Row(time_s=at_s, lateness_ms=math.nan, state=state, heater_W=0.0 if confirmed else math.nan,
+                           heater_set_s=self._heater_off_s))
 
+    def _stop(self, exit_code: int, fault: Fault | None, reason: str = "", row: Row | None = None,
+              heater_done: bool = False) -> None:
+        """Heater off, then stop with ``exit_code`` because of ``fault`` (or for ``reason``, no fault);
+        ``row``, the readings of a tick the stop cut short before it set the heater, is kept with the setting
+        the stop made instead (0 W, set when the supply confirmed the off, as a tick's own setting).
+
+        ``heater_done``: the caller switched the heater off and recorded it already (a fault).
         The first fatal cause is kept: a stop after one changes nothing.
         """
-        off_failure = self._switch_heater_off()
+        off_failure = None
+        if not heater_done:
+            off_failure = self._switch_heater_off()
         if row is not None:
             row.heater_W = self.heater_w
+            row.heater_set_s = self._heater_off_s
             row.state = LoopState.STOPPED
             row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
-            self.emit(row)
+            self._emit_row(row)
+        elif off_failure is not None:           # a row says so; a stop's off is said by its event, the last line
+            self._heater_off_row(True, "fault:heater_fault")
         if off_failure is not None and exit_code != ExitCode.HEATER_FAULT:
             exit_code, fault = ExitCode.HEATER_FAULT, Fault(
                 FaultCause.HEATER_FAULT, f"{off_failure.message}; on stopping after {fault or reason}")
@@ -532,7 +609,7 @@ class ControlLoop:
             self.last_fault = fault
         self._event("stop", f"{fault or reason} (exit {int(exit_code)})")
         level = logging.INFO if exit_code == ExitCode.OK else logging.CRITICAL
-        log.log(level, "%s, stopping (exit %d): %s", "heater off" if off_failure is None else "heater UNKNOWN",
+        log.log(level, "%s, stopping (exit %d): %s", "heater UNKNOWN" if math.isnan(self.heater_w) else "heater off",
                 exit_code, fault or reason)
         self.state = LoopState.STOPPED
         self._publish_fault_state(LoopState.STOPPED)
@@ -580,6 +657,34 @@ class ControlLoop:
         for command, ok, message in answers:
             command.answer(ok, message)
 
+    def reload_refusal(self, new: DaemonConfig) -> FileFormatError | None:
+        """Why ``new`` cannot take over now, at the key of ``new`` it concerns (file, line, key), or None.
+
+        Refused: a change that needs a restart; a setpoint or ramp in use outside the new control
+        limits (:meth:`cryod.control.regulator.Regulator.refusal`); and, while the loop reads and acts
+        on its readings (closed, manual, off), an over-temperature limit below the temperature now,
+        which would stop the daemon at the next reading (exit 3). While it holds the heater off
+        waiting for valid readings, such a limit only holds it off longer, as it would at a start.
+        """
+        restart = self.config.restart_needed_for(new)
+        if restart:
+            return located_error(new, restart[0], f"changes to {', '.join(restart)} need a restart "
+                                                  f"(systemctl restart cryod)")
+        refusal = self.regulator.refusal(new.control)
+        if refusal is not None:
+            return located_error(new, *refusal)
+        if self.state.waits_for_readings or self.state is LoopState.STOPPED:
+            return None
+        status = self.status
+        for key, limit_K, name, now_K in (("safety.flange_max_K", new.safety.flange_max_K, "T2", status.flange_K),
+                                          ("safety.ptc_stage_max_K", new.safety.ptc_stage_max_K, "T5",
+                                           status.ptc_stage_K)):
+            if now_K > limit_K:                 # as ReadingChecks.check_temperatures will see it
+                return located_error(new, key, f"{limit_K:g} K is below {name} now, {now_K:.4f} K ({self.state}): "
+                                               f"the next reading would stop the daemon (over_temperature, exit 3); "
+                                               f"lower the limit once the temperature is below it")
+        return None
+
     def reload(self, new: DaemonConfig) -> str:
         """Apply a validated configuration at this tick boundary, bumplessly, or refuse it (the ``reload`` command).
 
@@ -589,12 +694,8 @@ class ControlLoop:
             Sections that need a restart changed, or the values in use would
             break a new limit; the running configuration stays.
         """
-        restart = self.config.restart_needed_for(new)
-        if restart:
-            raise CommandRefused(f"kept the running configuration: changes to {', '.join(restart)} need a restart "
-                                 f"(systemctl restart cryod)")
-        refusal = self.regulator.refusal(new.control)
-        if refusal:
+        refusal = self.reload_refusal(new)
+        if refusal is not None:
             raise CommandRefused(f"kept the running configuration: {refusal}")
         self.regulator.reconfigure(new.control)
         self.config = new

@@ -17,6 +17,9 @@ once the one that has waited longest without sending it is closed to make room
     cryod_flange_error_kelvin              T2 minus the setpoint
     cryod_heater_power_watts               (absent when the heater's state is unknown)
     cryod_ptc_line_amplitude_kelvin        the cooler line on T2
+    cryod_ptc_line_limit_kelvin            the least line any heater waveform can leave (feedforward)
+    cryod_heater_pi_watts                  PI's part of the heater power
+    cryod_heater_feedforward_watts         the feedforward waveform's part
     cryod_loop_lateness_seconds            the last tick's lateness
     cryod_loop_ticks_total, cryod_loop_overruns_total
     cryod_faults_total{cause}              faults since start, by cause
@@ -100,6 +103,10 @@ class CryodCollector:
                 ("cryod_heater_power_watts", "heater_W", 1.0, "heater power commanded and confirmed"),
                 ("cryod_ptc_line_amplitude_kelvin", "line_amplitude_K", 1.0,
                  "amplitude of the cooler line on T2"),
+                ("cryod_ptc_line_limit_kelvin", "line_limit_K", 1.0,
+                 "least cooler line on T2 any heater waveform can leave at this setpoint"),
+                ("cryod_heater_pi_watts", "pi_W", 1.0, "PI's part of the heater power"),
+                ("cryod_heater_feedforward_watts", "ff_W", 1.0, "the feedforward waveform's part of the heater power"),
                 ("cryod_loop_lateness_seconds", "lateness_ms", 1e-3, "lateness of the last tick")):
             value = snapshot.get(key, math.nan)
             if value is not None and math.isfinite(value):

@@ -20,6 +20,8 @@ import threading
 import time
 from typing import Mapping
 
+from cryod.instrument_waits import WATCHDOG_PING_SHARE
+
 
 class SystemdNotifier:
     """Sends sd_notify messages; rate-limits watchdog pings.
@@ -81,11 +83,12 @@ class SystemdNotifier:
         self.send("STOPPING=1", f"STATUS={status}")
 
     def watchdog(self) -> None:
-        """WATCHDOG=1, at most every quarter of the watchdog interval (cheap to call every tick)."""
+        """WATCHDOG=1, at most once per :data:`~cryod.instrument_waits.WATCHDOG_PING_SHARE` of the watchdog
+        interval (cheap to call every tick)."""
         if self.watchdog_interval_s is None:
             return
         now = time.monotonic()
-        if now - self._last_ping >= self.watchdog_interval_s / 4:
+        if now - self._last_ping >= self.watchdog_interval_s * WATCHDOG_PING_SHARE:
             self._last_ping = now
             self.send("WATCHDOG=1")
 

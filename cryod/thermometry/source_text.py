@@ -21,9 +21,13 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from cryod.regular_files import NotARegularFile, open_regular_file
 from cryod.thermometry.errors import CalibrationFileError
 
 _SPACES = re.compile(r"\s+")
+#: Largest calibration file read (bytes): a .340 curve of 200 points is 6 kB, a raw table of thousands
+#: of points a few hundred kB.
+MAX_FILE_BYTES = 10_000_000
 
 
 @dataclass(frozen=True)
@@ -56,11 +60,16 @@ class CalibrationText:
         """Read a file; a missing, unreadable or binary file is a :class:`CalibrationFileError`."""
         path = Path(path)
         try:
-            raw = path.read_bytes()
+            with open_regular_file(path) as stream:
+                raw = stream.read(MAX_FILE_BYTES + 1)
         except FileNotFoundError:
             raise CalibrationFileError(str(path), None, "file not found") from None
+        except NotARegularFile as error:
+            raise CalibrationFileError(str(path), None, error.reason) from None
         except OSError as error:
             raise CalibrationFileError(str(path), None, f"cannot read: {error.strerror or error}") from None
+        if len(raw) > MAX_FILE_BYTES:
+            raise CalibrationFileError(str(path), None, f"larger than {MAX_FILE_BYTES} bytes: not a calibration file")
         if b"\0" in raw:
             raise CalibrationFileError(str(path), None, "not a text file (contains NUL bytes)")
         try:

@@ -25,7 +25,8 @@ class Transport(Protocol):
 
     #: Where the instrument is (resource name or description), for error messages.
     name: str
-    #: Longest wait for a reply (s).
+    #: Longest wait for a reply (s); may be set at any time and holds from then on (a caller may wait
+    #: less for a reading than for a configuration to be taken in).
     timeout_s: float
 
     def write(self, command: str) -> None:

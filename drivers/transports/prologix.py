@@ -18,7 +18,8 @@ PAD15 [SAD15]]" issues Group Execute Trigger to the listed instruments),
 and recovery of a dropped controller connection.
 
 The controller's timeout governs every instrument behind it: pyvisa-py
-reads through the controller's interface session.
+reads through the controller's interface session, so setting an
+instrument's ``timeout_s`` sets the controller's.
 
 Examples
 --------
@@ -42,6 +43,22 @@ from drivers.transports.visa import VisaTransport, peer_closed, resource_manager
 
 #: TCP port of the Prologix GPIB-ETHERNET controller (its manual, section 5).
 ETHERNET_PORT = 1234
+
+
+def interface_resource_name(serial_port: str | None = None, host: str | None = None, port: int = ETHERNET_PORT,
+                            board: int = 0) -> str:
+    """pyvisa-py's resource name of a Prologix controller on ``serial_port`` (GPIB-USB) or at ``host``
+    (GPIB-ETHERNET).
+
+    Examples
+    --------
+    >>> interface_resource_name(serial_port="/dev/ttyUSB0"), interface_resource_name(host="10.0.0.9")
+    ('PRLGX-ASRL0::/dev/ttyUSB0::INTFC', 'PRLGX-TCPIP0::10.0.0.9::1234::INTFC')
+    """
+    if serial_port is not None:
+        device = serial_port[3:] if serial_port.upper().startswith("COM") else serial_port
+        return f"PRLGX-ASRL{board}::{device}::INTFC"
+    return f"PRLGX-TCPIP{board}::{host}::{port}::INTFC"
 
 
 class PrologixAdapter:
@@ -72,14 +89,13 @@ class PrologixAdapter:
     @classmethod
     def usb(cls, serial_port: str, *, board: int = 0, **options: Any) -> "PrologixAdapter":
         """A GPIB-USB controller on ``serial_port`` (``/dev/ttyUSB0``, ``COM3``)."""
-        port = serial_port[3:] if serial_port.upper().startswith("COM") else serial_port
-        return cls(f"PRLGX-ASRL{board}::{port}::INTFC", **options)
+        return cls(interface_resource_name(serial_port=serial_port, board=board), **options)
 
     @classmethod
     def ethernet(cls, host: str, port: int = ETHERNET_PORT, *, board: int = 0,
                  **options: Any) -> "PrologixAdapter":
         """A GPIB-ETHERNET controller at ``host`` (TCP port 1234)."""
-        return cls(f"PRLGX-TCPIP{board}::{host}::{port}::INTFC", **options)
+        return cls(interface_resource_name(host=host, port=port, board=board), **options)
 
     @property
     def manager(self) -> pyvisa.ResourceManager:
@@ -90,14 +106,25 @@ class PrologixAdapter:
     def _open(self) -> None:
         try:
             self._interface = self.manager.open_resource(self.interface_resource_name,
-                                                         timeout=self.timeout_s * 1000.0)
-        except (VisaIOError, OSError, ValueError) as error:
+                                                         timeout=self.timeout_s * 1000.0,
+                                                         open_timeout=round(self.timeout_s * 1000.0))
+        except Exception as error:  # noqa: BLE001 - pyvisa-py raises a bare Exception for a host it cannot resolve
             self._interface = None
             raise ConnectionLost(self.interface_resource_name,
                                  f"cannot open the Prologix controller: {error}") from error
         if "TCPIP" in self.interface_resource_name:
             send_without_delay(self._interface)
         self.generation += 1
+
+    def use_timeout(self, timeout_s: float) -> None:
+        """Wait at most ``timeout_s`` for any reply through the controller from now on (and after reopening)."""
+        self.timeout_s = float(timeout_s)
+        self.wait_for_replies(self.timeout_s)
+
+    def wait_for_replies(self, timeout_s: float) -> None:
+        """Set the wait for a reply on the controller's session, for now (:meth:`use_timeout` to keep it)."""
+        if self._interface is not None:
+            self._interface.timeout = timeout_s * 1000.0
 
     def close(self) -> None:
         interface, self._interface = self._interface, None
@@ -156,6 +183,18 @@ class PrologixInstrument(VisaTransport):
         # socket is quiet; on a socket the controller has closed that loop never ends. Looking
         # first turns the closed connection into ConnectionLost instead.
         self.check_peer_before_io = True
+
+    @property
+    def timeout_s(self) -> float:
+        return self.adapter.timeout_s
+
+    @timeout_s.setter
+    def timeout_s(self, value: float) -> None:
+        self._timeout_s = float(value)
+        self.adapter.use_timeout(value)
+
+    def _wait_for_replies(self, timeout_s: float) -> None:
+        self.adapter.wait_for_replies(timeout_s)
 
     def reopen(self) -> None:
         self.close()

@@ -51,6 +51,31 @@ def resource_manager(visa_library: str = "@py") -> pyvisa.ResourceManager:
     return _resource_managers[visa_library]
 
 
+def missing_support(resource_name: str, visa_library: str = "@py") -> str | None:
+    """Why ``visa_library`` cannot reach ``resource_name`` on this computer (a package it lacks), or None.
+
+    pyvisa-py keeps a list of the kinds of resource it can open, and of those it cannot open here
+    and why (its sessions whose Python binding is not installed: linux-gpib or gpib-ctypes for a
+    GPIB card, PyUSB for USB); an instrument on a GPIB card needs the card's interface too. Other
+    VISA libraries say nothing in advance: None.
+    """
+    if visa_library != "@py":
+        return None
+    resource_manager(visa_library)                # loads pyvisa-py, which registers its sessions
+    from pyvisa_py.sessions import Session
+
+    issues = dict(Session.iter_session_classes_issues())
+    parsed = rname.parse_resource_name(resource_name)
+    try:
+        Session.get_session_class(parsed.interface_type_const, parsed.resource_class)
+    except ValueError:
+        return f"pyvisa-py has no support for {parsed.interface_type} {parsed.resource_class} resources"
+    for needed in ((parsed.interface_type_const, parsed.resource_class), (parsed.interface_type_const, "INTFC")):
+        if needed in issues:
+            return str(issues[needed]).strip().splitlines()[0]
+    return None
+
+
 #: How long a late reply is waited for, to be dropped, before the query after a timeout (s).
 LATE_REPLY_WINDOW_S = 0.05
 
@@ -109,7 +134,7 @@ class VisaTransport:
     visa_library : str
         ``'@py'`` (pyvisa-py, default) or ``'@ivi'`` (NI-VISA / Keysight VISA).
     timeout_s : float
-        Longest wait for a reply (s).
+        Longest wait for a reply, and for a connection to open (s); may be changed at any time.
     read_termination, write_termination : str or None
         Line terminators (the Keithleys answer with LF; GPIB also asserts EOI). None leaves
         the session's own (a Prologix session ends reads at the LF the instrument sends).
@@ -154,9 +179,9 @@ class VisaTransport:
 
     def _open(self) -> None:
         try:
-            self.resource = self.manager.open_resource(self.resource_name,
-                                                       timeout=self._timeout_s * 1000.0, **self._options)
-        except (VisaIOError, OSError, ValueError) as error:
+            self.resource = self.manager.open_resource(self.resource_name, timeout=self._timeout_s * 1000.0,
+                                                       open_timeout=round(self._timeout_s * 1000.0), **self._options)
+        except Exception as error:  # noqa: BLE001 - pyvisa-py raises a bare Exception for a host it cannot resolve
             self.resource = None
             raise ConnectionLost(self.name, f"cannot open {self.resource_name}: {error}") from error
         if self.is_socket:
@@ -182,8 +207,12 @@ class VisaTransport:
     @timeout_s.setter
     def timeout_s(self, value: float) -> None:
         self._timeout_s = float(value)
+        self._wait_for_replies(self._timeout_s)
+
+    def _wait_for_replies(self, timeout_s: float) -> None:
+        """Set the wait for a reply on the session replies are read through."""
         if self.resource is not None:
-            self.resource.timeout = self._timeout_s * 1000.0
+            self.resource.timeout = timeout_s * 1000.0
 
     # -- I/O ------------------------------------------------------------------------
     def _io(self, method: str, *arguments: Any) -> Any:
@@ -198,7 +227,7 @@ class VisaTransport:
             if error.error_code == constants.StatusCode.error_timeout:
                 if peer_closed(self.resource):
                     raise ConnectionLost(self.name, "the instrument closed the connection") from error
-                raise InstrumentTimeout(self.name, f"no reply within {self._timeout_s:g} s") from error
+                raise InstrumentTimeout(self.name, f"no reply within {self.timeout_s:g} s") from error
             if error.error_code in _CONNECTION_LOST_CODES:
                 raise ConnectionLost(self.name, f"connection failed: {error.description}") from error
             raise ConnectionLost(self.name, f"VISA error {error.abbreviation}: {error.description}") from error
@@ -234,7 +263,7 @@ class VisaTransport:
         dropped = []
         if self.resource is None:
             return dropped
-        self.resource.timeout = window_s * 1000.0
+        self._wait_for_replies(window_s)
         try:
             while len(dropped) < 16:
                 try:
@@ -242,7 +271,7 @@ class VisaTransport:
                 except (VisaIOError, OSError, UnicodeDecodeError):
                     break
         finally:
-            self.resource.timeout = self._timeout_s * 1000.0
+            self._wait_for_replies(self._timeout_s)
         return dropped
 
     def trigger(self) -> None:

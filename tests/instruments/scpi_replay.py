@@ -4,7 +4,9 @@ In the spirit of PyMeasure's ``expected_protocol``: a driver method is run
 against a list of ``(command, reply)`` pairs, ``reply`` None for a write.
 Any other command, or one too many, fails the test at once, naming what was
 expected; a pair left over fails it at the end. A changed command string
-therefore breaks a test.
+therefore breaks a test. A reply that is an exception is raised instead (a
+link that drops, an instrument that does not answer), and ``("<REOPEN>", None)``
+expects the connection to be opened again.
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ class ReplayTransport:
         if command != expected_command:
             raise ProtocolMismatch(f"exchange {self.position}: sent {command!r}, expected {expected_command!r}")
         self.position += 1
+        if isinstance(reply, BaseException):
+            raise reply
         return reply
 
     def write(self, command: str) -> None:
@@ -64,6 +68,7 @@ class ReplayTransport:
         self.closed = True
 
     def reopen(self) -> None:
+        self._next("<REOPEN>")
         self.closed = False
 
     def assert_done(self) -> None:

@@ -4,7 +4,8 @@ import math
 
 import pytest
 
-from drivers.errors import HeaterCompliance, HeaterOutputOff, HeaterLimitRefused, HeaterRefused, InstrumentReportedError
+from drivers.errors import (ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterOutputOff, HeaterRefused,
+                            InstrumentReportedError, InstrumentTimeout)
 from drivers.keithley2002 import (DEFAULT_ELEMENTS, DataElement, FilterType, FourWireSettings, Keithley2002,
                                   TriggerSource)
 from drivers.keithley2400 import Keithley2400
@@ -179,6 +180,25 @@ def test_2002_fetch_new_reading_fetches_again_while_the_number_has_not_advanced(
                                         + meter.fetch_poll_interval_s)
 
 
+def test_2002_left_to_examine_later_asks_its_error_queue_only_when_told(clock):
+    """In the daemon the heater goes off before a failing DMM is asked anything: the fault leaves the
+    driver at once, and the error queue is read when the daemon calls examine()."""
+    with expected_protocol([
+        ("*IDN?", IDN_2002),
+        (":FETCh?", InstrumentTimeout("replay", "no reply within 0.4 s")),
+        (":SYSTem:ERRor?", '-230,"Data corrupt or stale"'),
+        (":SYSTem:ERRor?", '0,"No error"'),
+    ]) as transport:
+        meter = dmm(transport, clock)
+        meter.examines_faults_at_once = False
+        with pytest.raises(InstrumentTimeout) as raised:
+            meter.fetch()
+        assert transport.position == 2 and raised.value.error_queue == ()
+        raised.value.examine()
+        raised.value.examine()                      # once
+    assert raised.value.error_queue == ((-230, "Data corrupt or stale"),)
+
+
 def test_2002_error_queue_read(clock):
     with expected_protocol([
         ("*IDN?", IDN_2002),
@@ -236,7 +256,8 @@ CONFIGURE_6221 = [
     (":SOURce:CURRent 0.000000E+00", None),
     QUEUE_EMPTY,
 ]
-OFF = [(":SOURce:CURRent 0.000000E+00", None), (":OUTPut:STATe OFF", None), (":OUTPut:STATe?", "0")]
+#: The off: 0 A, output off and the output state read back, in one program message.
+OFF = [(":SOURce:CURRent 0.000000E+00;:OUTPut:STATe OFF;:OUTPut:STATe?", "0")]
 OFF_6221 = OFF
 
 
@@ -326,6 +347,45 @@ def test_6221_close_and_context_exit_switch_off(clock):
         with supply_6221(transport, clock):
             pass
     assert transport.closed
+
+
+def test_6221_off_of_a_dropped_link_is_confirmed_on_a_new_connection_and_is_an_off(clock):
+    """Every link dropped at once (a shared adapter reset): the off fails on the old connection, goes out
+    again on a new one and is confirmed there. That is an off, not an unknown state."""
+    with expected_protocol(CONFIGURE_6221 + [
+        (":SOURce:CURRent 1.000000E-02", None),
+        (":OUTPut:STATe ON", None),
+        (":OUTPut:STATe?", "1"),
+        (":STATus:MEASurement:CONDition?", "2"),
+        (OFF[0][0], ConnectionLost("replay", "the other end closed the connection")),
+        ("<REOPEN>", None),
+        *OFF,
+    ]) as transport:
+        heater = supply_6221(transport, clock)
+        heater.set_current_a(0.010)
+        clock.advance(1.5)
+        assert heater.output_off() == 1.5 and heater.off_failure is None
+
+
+def test_6221_off_already_confirmed_asks_nothing_and_an_unconfirmed_one_is_not_waited_on_twice(clock):
+    with expected_protocol(CONFIGURE_6221 + OFF + [
+        (":SOURce:CURRent 1.000000E-02", None),
+        (":OUTPut:STATe ON", None),
+        (":OUTPut:STATe?", "1"),
+        (":STATus:MEASurement:CONDition?", "2"),
+        (OFF[0][0], InstrumentTimeout("replay", "no reply within 0.4 s")),
+        *OFF,                                      # close() tries once more
+    ]) as transport:
+        heater = supply_6221(transport, clock)
+        assert heater.output_off() == 0.0          # read back once...
+        assert heater.output_off() == 0.0          # ...then known: nothing sent
+        heater.set_current_a(0.010)
+        with pytest.raises(InstrumentTimeout):
+            heater.output_off()
+        with pytest.raises(InstrumentTimeout):     # the state is unknown: said at once, nothing sent
+            heater.output_off()
+        heater.close()
+    assert heater.off_failure is None and heater.off_confirmed_s == 0.0
 
 
 CONFIGURE_2400 = [

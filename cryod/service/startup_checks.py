@@ -1,0 +1,233 @@
+"""What ``cryod run`` needs of this computer beyond a valid file, checked before anything starts.
+
+:func:`cryod.config.load_config` checks the file itself. What it names must also be there
+and usable by the user the daemon runs as: the VISA library and the packages it needs for
+each instrument's interface, the serial devices, the socket's owner and group, the folders
+of the control socket and of the data. ``cryod run --check`` and ``cryod run`` make the
+same checks, so a configuration the check passes does not fail when the service starts;
+each problem is a :class:`~cryod.yaml_source.FileFormatError` naming the file, the line
+and the key, exit 2, which systemd does not restart (``RestartPreventExitStatus``).
+
+Nothing here touches an instrument or keeps anything: a folder is tried with a file that
+has no name (or a folder removed at once) and left as it was.
+"""
+
+from __future__ import annotations
+
+import grp
+import os
+import pwd
+import stat
+import sys
+import tempfile
+from pathlib import Path
+
+from cryod.config import INSTRUMENT_KEYS, DaemonConfig, located_error
+from cryod.regular_files import kind_of
+from cryod.yaml_source import FileFormatError, shown
+from drivers.transports.addresses import serial_device
+from drivers.transports.visa import missing_support, resource_manager
+
+#: Where systemd creates a system service's ``RuntimeDirectory=`` and ``StateDirectory=`` when it
+#: starts it (systemd.exec): a folder missing there is made for the service, not by it.
+SYSTEMD_DIRECTORY_ROOTS = (Path("/run"), Path("/var/lib"))
+
+
+def check_before_run(config: DaemonConfig, *, before_systemd_start: bool = False) -> list[str]:
+    """Check what ``config`` needs of this computer; the notes a check could not settle.
+
+    Parameters
+    ----------
+    config : DaemonConfig
+    before_systemd_start : bool
+        ``cryod run --check``: a folder that does not exist yet in /run or /var/lib, which the
+        unit's ``RuntimeDirectory=``/``StateDirectory=`` make at start, is a note, not a problem.
+
+    Returns
+    -------
+    list of str
+        Notes for the user (a folder systemd will make).
+
+    Raises
+    ------
+    cryod.yaml_source.FileFormatError
+        The first problem, at its key.
+    """
+    _check_visa_library(config)
+    _check_interfaces(config)
+    _check_serial_devices(config)
+    _check_socket_owner_and_group(config)
+    notes = []
+    for key, directory in (("control_socket.path", config.control_socket.path.parent),
+                           ("data.directory", config.data.directory),
+                           ("instruments.lock_directory", config.instruments.lock_directory)):
+        note = _check_directory(config, key, directory, before_systemd_start)
+        if note:
+            notes.append(note)
+    _check_socket_path_is_free(config)
+    return notes
+
+
+def _instruments(config: DaemonConfig):
+    """(key, address) of each instrument."""
+    for key in INSTRUMENT_KEYS:
+        yield key, getattr(config.instruments, key)
+
+
+def _check_visa_library(config: DaemonConfig) -> None:
+    library = config.instruments.visa_library
+    try:
+        resource_manager(library)
+    except Exception as error:  # noqa: BLE001 - pyvisa raises OSError, ValueError or its own for a library it cannot load
+        raise located_error(config, "instruments.visa_library",
+                            f"{shown(library)} cannot be loaded as a VISA library ({type(error).__name__}: "
+                            f"{str(error).strip()[:200]}): give \"@py\" (pyvisa-py, installed with cryod) or \"\" "
+                            f"(NI-VISA or another installed VISA)") from None
+
+
+def _check_interfaces(config: DaemonConfig) -> None:
+    """Each resource's interface reachable by the VISA library (a GPIB card needs its Python binding)."""
+    library = config.instruments.visa_library
+    for key, address in _instruments(config):
+        if address.resource is None:
+            continue
+        missing = missing_support(address.resource, library)
+        if not missing:
+            continue
+        if address.resource.upper().startswith("GPIB"):
+            reason = (f"{address.resource} is on a GPIB card, which pyvisa-py cannot reach from the installation in "
+                      f"{sys.prefix} ({missing.rstrip('.')}): install linux-gpib with its Python binding into this "
+                      f"environment (docs/operations.md, 'GPIB card'), or use NI-VISA (instruments.visa_library: "
+                      f"\"\") or a Prologix adapter")
+        elif missing.startswith("pyvisa-py has no support"):
+            reason = (f"{address.resource}: {missing}: give a resource of another kind, or a VISA library that has "
+                      f"them (instruments.visa_library)")
+        else:
+            reason = (f"{address.resource} is out of pyvisa-py's reach from the installation in {sys.prefix} "
+                      f"({missing.rstrip('.')}): install what it names into this environment")
+        raise located_error(config, f"instruments.{key}.resource", reason)
+
+
+def _check_serial_devices(config: DaemonConfig) -> None:
+    """Serial devices named (a Prologix GPIB-USB controller, an ASRL resource, the trigger wire) exist and
+    this user may read and write them."""
+    devices = []
+    for key, address in _instruments(config):
+        if address.prologix_port is not None:
+            devices.append((f"instruments.{key}.prologix.port", address.prologix_port))
+        elif address.resource is not None and serial_device(address.resource):
+            devices.append((f"instruments.{key}.resource", serial_device(address.resource)))
+    output = config.instruments.trigger_output
+    if config.instruments.trigger == "external" and output is not None:
+        devices.append(("instruments.trigger_output.port", output.port))
+    for key, device in devices:
+        problem = _serial_device_problem(device)
+        if problem:
+            raise located_error(config, key, problem)
+
+
+def _serial_device_problem(device: str) -> str | None:
+    try:
+        mode = os.stat(device).st_mode
+    except FileNotFoundError:
+        return (f"{device}: no such device: is the adapter plugged in? (ls /dev/serial/by-id: a name there stays "
+                f"the same across plugging and reboots)")
+    except OSError as error:
+        return f"{device}: {error.strerror or error}"
+    if not stat.S_ISCHR(mode):
+        return f"{device} is {kind_of(mode)}, not a serial device"
+    if not os.access(device, os.R_OK | os.W_OK):
+        return (f"{device}: user {_user()} may not read and write it: add {_user()} to the device's group "
+                f"(dialout for serial adapters; SupplementaryGroups= in the unit)")
+    return None
+
+
+def _user() -> str:
+    try:
+        return pwd.getpwuid(os.geteuid()).pw_name
+    except KeyError:
+        return f"uid {os.geteuid()}"
+
+
+def _check_socket_owner_and_group(config: DaemonConfig) -> None:
+    """The socket's owner and group exist, and this user may give the socket to them (only root gives
+    a file to another user, and a user gives it only to a group of their own)."""
+    socket_config = config.control_socket
+    privileged = os.geteuid() == 0
+    if socket_config.owner is not None:
+        uid = _known_id(config, "control_socket.owner", socket_config.owner, "user")
+        if not privileged and uid != os.geteuid():
+            raise located_error(config, "control_socket.owner",
+                                f"the daemon runs as {_user()} and cannot give the socket to {socket_config.owner}: "
+                                f"only root can; leave owner out (the socket is then {_user()}'s)")
+    if socket_config.group is not None:
+        gid = _known_id(config, "control_socket.group", socket_config.group, "group")
+        if not privileged and gid != os.getegid() and gid not in os.getgroups():
+            raise located_error(config, "control_socket.group",
+                                f"the daemon runs as {_user()}, who is not in the group {socket_config.group}: add "
+                                f"{_user()} to it (SupplementaryGroups= in the unit), or give one of its groups")
+
+
+def _known_id(config: DaemonConfig, key: str, name: str, kind: str) -> int:
+    """The id of the user or group ``name`` on this computer, or the error at ``key``."""
+    try:
+        return pwd.getpwnam(name).pw_uid if kind == "user" else grp.getgrnam(name).gr_gid
+    except KeyError:
+        raise located_error(config, key, f"no {kind} {shown(name)} on this computer") from None
+
+
+def _nearest_existing(directory: Path) -> Path:
+    place = directory
+    while not os.path.lexists(place) and place != place.parent:
+        place = place.parent
+    return place
+
+
+def directory_problem(config: DaemonConfig, key: str, directory: Path) -> str | None:
+    """None when ``directory`` (named at ``key``) takes files or can be made by this user, else why not, at its
+    file, line and key."""
+    try:
+        _check_directory(config, key, directory, before_systemd_start=False)
+    except FileFormatError as error:
+        return str(error)
+    return None
+
+
+def _check_directory(config: DaemonConfig, key: str, directory: Path, before_systemd_start: bool) -> str | None:
+    """``directory`` takes files, or can be made; a note when systemd makes it for the service."""
+    place = _nearest_existing(directory)
+    if not place.is_dir():
+        what = kind_of(os.stat(place).st_mode) if place.exists() else "a link to nothing"
+        raise located_error(config, key, f"{directory} cannot be made: {place} is {what}, not a directory")
+    try:
+        if place == directory:
+            with tempfile.TemporaryFile(dir=directory):
+                pass
+        else:
+            os.rmdir(tempfile.mkdtemp(prefix=".cryod-check-", dir=place))
+    except OSError as error:
+        reason = error.strerror or str(error)
+        if place != directory and before_systemd_start and place in SYSTEMD_DIRECTORY_ROOTS:
+            return (f"{directory} ({key}) does not exist yet and user {_user()} cannot make it in {place} "
+                    f"({reason}): systemd makes it when it starts the service (the unit's RuntimeDirectory= "
+                    f"and StateDirectory=); `cryod run` by hand needs it made first")
+        what = f"cannot be written by user {_user()}" if place == directory else \
+            f"does not exist and user {_user()} cannot make it in {place}"
+        raise located_error(config, key, f"{directory} {what} ({reason})") from None
+    return None
+
+
+def _check_socket_path_is_free(config: DaemonConfig) -> None:
+    """Only a socket left behind is replaced at the socket's path, never another kind of file."""
+    path = config.control_socket.path
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if not stat.S_ISSOCK(mode):
+        raise located_error(config, "control_socket.path",
+                            f"{path} exists and is {kind_of(mode)}: cryod binds its socket "
+                            f"there and replaces only a socket left behind; remove it or give another path")
+
+
+__all__ = ["check_before_run", "directory_problem", "FileFormatError"]

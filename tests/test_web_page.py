@@ -1,0 +1,229 @@
+"""The live web page: its HTTP interface, its limits, writes with the token, and a real headless browser.
+
+The daemon runs with its loop held between two ticks (tests/gated_daemon.py), so what the page
+shows can be compared with ``cryod ctl status`` of the same tick, and the test decides when the
+values change. The browser is Debian's chromium driven through chromedriver by selenium; the
+screenshot is kept under the test's temporary folder (its path is printed).
+"""
+
+import http.client
+import json
+import os
+import shutil
+import socket
+import tempfile
+import threading
+import time
+
+import pytest
+
+from cryod.config import WebConfig
+from cryod.service import web
+from cryod.service.control_socket import send_command
+from tests.gated_daemon import GatedDaemon
+
+TOKEN = "f3a9c1d27b4e8a6f0c5d9e2b1a7f4c3d"
+
+
+def web_daemon(tmp_path, writable=False):
+    token_file = None
+    if writable:
+        token_file = tmp_path / "web.token"
+        token_file.write_text(TOKEN + "\n")
+        token_file.chmod(0o640)
+    return GatedDaemon(tmp_path, sections={"web": WebConfig("127.0.0.1:0", writable, token_file)})
+
+
+def port_of(daemon) -> int:
+    return next(interface.port for interface in daemon.daemon.network_interfaces if "web" in interface.what)
+
+
+def request(daemon, method, path, body=None, headers=None, run_ticks=False):
+    """(status code, decoded JSON or bytes) of one request; ticks run while it waits when asked."""
+    result = {}
+
+    def client():
+        connection = http.client.HTTPConnection("127.0.0.1", port_of(daemon), timeout=20)
+        connection.request(method, path, body=body, headers=headers or {})
+        response = connection.getresponse()
+        data = response.read()
+        result["answer"] = (response.status, json.loads(data) if response.getheader("Content-Type", "").startswith(
+            "application/json") else data, dict(response.getheaders()))
+        connection.close()
+
+    thread = threading.Thread(target=client)
+    thread.start()
+    while thread.is_alive():
+        if run_ticks:
+            daemon.gate.run_ticks(1)
+        thread.join(0.005)
+    return result["answer"]
+
+
+def test_the_page_its_status_and_history_are_served_with_a_strict_policy(tmp_path):
+    with web_daemon(tmp_path) as daemon:
+        code, page, headers = request(daemon, "GET", "/")
+        assert code == 200 and b"<canvas" in page and b"http" not in page.replace(b"http-equiv", b"")
+        assert "default-src 'none'" in headers["Content-Security-Policy"]
+        for asset in ("/app.js", "/style.css", "/icon.svg"):
+            assert request(daemon, "GET", asset)[0] == 200
+        code, answer, _ = request(daemon, "GET", "/api/status")
+        status = send_command(daemon.socket_path, "status")["status"]
+        assert answer["writable"] is False and answer["page_commands"] == []
+        assert answer["status"]["T2_K"] == status["T2_K"] and answer["status"]["time_s"] == status["time_s"]
+        daemon.gate.run_ticks(40)                                    # more than a second of rows
+        deadline = time.monotonic() + 10
+        while not request(daemon, "GET", "/api/history")[1]["bins"]:
+            assert time.monotonic() < deadline, "no history bin"
+            time.sleep(0.05)
+        bins = request(daemon, "GET", "/api/history")[1]["bins"]
+        rows = [row for row in daemon.gate.rows if bins[0]["time_s"] <= row.time_s < bins[0]["time_s"] + 1.0]
+        assert bins[0]["T2_min_K"] == min(row.T2_K for row in rows)
+        assert bins[0]["T2_max_K"] == max(row.T2_K for row in rows)
+        assert bins[0]["pi_W"] is not None and bins[0]["ff_min_W"] <= bins[0]["ff_max_W"]
+        assert request(daemon, "GET", "/nothing")[0] == 404
+        assert request(daemon, "DELETE", "/api/status")[0] == 405
+        assert request(daemon, "GET", "/../etc/passwd")[0] == 404
+
+
+def test_a_read_only_page_refuses_commands_and_says_so_in_the_journal(tmp_path, caplog):
+    with web_daemon(tmp_path) as daemon:
+        before = daemon.regulator_state()
+        code, answer, _ = request(daemon, "POST", "/api/command", json.dumps({"command": "heater-off"}),
+                                  {"X-Cryod-Token": TOKEN, "Content-Type": "application/json"})
+        assert code == 403 and "read-only" in answer["message"]
+        daemon.gate.run_ticks(2)
+        assert daemon.regulator_state() == before
+    assert "web page: a command refused: web.writable is false (by web page, 127.0.0.1:" in caplog.text
+
+
+def test_writes_need_the_token_go_through_the_limits_and_are_journaled_with_the_peer(tmp_path, caplog):
+    with web_daemon(tmp_path, writable=True) as daemon:
+        before = daemon.regulator_state()
+        command = json.dumps({"command": "setpoint 5.2"})
+        for headers in ({}, {"X-Cryod-Token": "wrong" * 8}, {"X-Cryod-Token": TOKEN, "Origin": "http://evil.test"}):
+            code, answer, _ = request(daemon, "POST", "/api/command", command, headers)
+            assert code == 403, answer
+        assert request(daemon, "POST", "/api/command", json.dumps({"command": "reload"}),
+                       {"X-Cryod-Token": TOKEN})[0] == 400                      # not taken from the page
+        assert request(daemon, "POST", "/api/command", "x" * 5000, {"X-Cryod-Token": TOKEN})[0] == 413
+        assert request(daemon, "POST", "/api/command", "{", {"X-Cryod-Token": TOKEN})[0] == 400
+        daemon.gate.run_ticks(2)
+        assert daemon.regulator_state() == before
+        code, answer, _ = request(daemon, "POST", "/api/command", command, {"X-Cryod-Token": TOKEN}, run_ticks=True)
+        assert code == 200 and answer["ok"] and answer["status"]["target_K"] == 5.2
+        code, answer, _ = request(daemon, "POST", "/api/command", json.dumps({"command": "setpoint 50"}),
+                                  {"X-Cryod-Token": TOKEN}, run_ticks=True)
+        assert not answer["ok"] and "outside 3..20 K" in answer["message"]
+        assert daemon.loop.regulator.ramp.target_K == 5.2
+        messages = [event.message for _, event in daemon.gate.events if event.kind == "command"]
+        assert any(message.startswith("setpoint accepted: setpoint 5.2 K (by web page, 127.0.0.1:") for message in messages)
+    assert caplog.text.count("wrong or missing token (by web page, 127.0.0.1:") == 2
+    assert "another site's page refused" in caplog.text
+
+
+def test_slow_broken_and_excess_clients_are_closed_and_change_nothing(tmp_path, monkeypatch):
+    monkeypatch.setattr(web, "HEAD_TIMEOUT_S", 0.5)
+    monkeypatch.setattr(web, "MAX_CLIENTS", 4)
+    with web_daemon(tmp_path) as daemon:
+        port = port_of(daemon)
+        with socket.create_connection(("127.0.0.1", port), timeout=10) as slow:
+            slow.sendall(b"GET / HTTP/1.1\r\nHost: x\r\n")           # never finishes its head
+            assert slow.recv(100).startswith(b"HTTP/1.1 408")
+        with socket.create_connection(("127.0.0.1", port), timeout=10) as long_line:
+            long_line.sendall(b"GET /" + b"a" * 20000 + b" HTTP/1.1\r\n\r\n")
+            assert long_line.recv(100).startswith(b"HTTP/1.1 431")
+        with socket.create_connection(("127.0.0.1", port), timeout=10) as garbage:
+            garbage.sendall(bytes(range(256)) + b"\r\n\r\n")
+            assert garbage.recv(100).startswith(b"HTTP/1.1 400")
+        held = [socket.create_connection(("127.0.0.1", port), timeout=10) for _ in range(4)]
+        try:
+            time.sleep(0.1)
+            with socket.create_connection(("127.0.0.1", port), timeout=10) as extra:
+                assert extra.recv(100).startswith(b"HTTP/1.1 503")
+        finally:
+            for connection in held:
+                connection.close()
+        daemon.gate.run_ticks(3)
+        assert daemon.loop.exit_code is None and request(daemon, "GET", "/api/status")[0] == 200
+
+
+def test_open_pages_receive_the_status_at_each_new_tick(tmp_path):
+    with web_daemon(tmp_path) as daemon:
+        with socket.create_connection(("127.0.0.1", port_of(daemon)), timeout=20) as page:
+            page.sendall(b"GET /api/events HTTP/1.1\r\nHost: test\r\n\r\n")
+            stream = page.makefile("rb")
+            assert stream.readline().startswith(b"HTTP/1.1 200")
+            frames = []
+            while len(frames) < 3:
+                line = stream.readline()
+                if line.startswith(b"data: "):
+                    frames.append(json.loads(line[6:]))
+                    daemon.gate.run_ticks(1)
+            times = [frame["status"]["time_s"] for frame in frames]
+            assert times == sorted(times) and len(set(times)) == 3
+
+
+# -- a real browser ---------------------------------------------------------------------------------
+def chromium():
+    """(chromium, chromedriver) of this machine, or the reason there are none."""
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    driver = shutil.which("chromedriver")
+    if browser and driver:
+        return browser, driver
+    if os.environ.get("CI") or os.environ.get("CRYOD_REQUIRE_BROWSER"):
+        pytest.fail("the browser test needs Debian's chromium and chromium-driver (.ci/run installs them)")
+    pytest.skip("no chromium and chromedriver on this machine: apt-get install chromium chromium-driver")
+
+
+@pytest.fixture
+def browser(tmp_path):
+    selenium = pytest.importorskip("selenium.webdriver")
+    binary, driver = chromium()
+    options = selenium.ChromeOptions()
+    options.binary_location = binary
+    for argument in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                     "--disable-component-update", "--disable-sync", "--no-first-run", "--window-size=1300,1500",
+                     f"--user-data-dir={tempfile.mkdtemp(dir=tmp_path)}"):
+        options.add_argument(argument)
+    from selenium.webdriver.chrome.service import Service
+
+    session = selenium.Chrome(options=options, service=Service(driver))
+    yield session
+    session.quit()
+
+
+def shown(browser, element_id) -> str:
+    return browser.find_element("id", element_id).get_attribute("data-value")
+
+
+def wait_until(condition, what: str, timeout_s: float = 20.0):
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"the page did not {what} within {timeout_s:g} s"
+        time.sleep(0.05)
+
+
+def test_the_page_in_a_browser_shows_ctl_status_and_follows_the_loop(tmp_path, browser):
+    with web_daemon(tmp_path) as daemon:
+        daemon.gate.run_ticks(300)                                      # 24 s: the averages have their windows
+        browser.get(f"http://127.0.0.1:{port_of(daemon)}/")
+        wait_until(lambda: browser.find_element("id", "connection").text == "live", "connect")
+        for _ in range(3):
+            status = send_command(daemon.socket_path, "status")["status"]
+            wait_until(lambda: shown(browser, "time_s") == repr(status["time_s"]), "show this tick")
+            assert shown(browser, "state") == status["state"]
+            for key in ("T2_K", "T5_K", "setpoint_K", "heater_W", "T2_average_K", "line_amplitude_K", "ff_limit_K"):
+                assert status[key] is not None, key
+                assert float(shown(browser, key)) == pytest.approx(status[key], rel=1e-12, abs=1e-15), key
+            assert browser.find_element("id", "T2_K").text == f"{status['T2_K']:.6f} K"
+            assert float(shown(browser, "error_K")) == pytest.approx(status["T2_K"] - status["setpoint_K"], abs=1e-12)
+            assert float(shown(browser, "pi_W")) == pytest.approx(status["pi_proportional_W"] + status["pi_integral_W"])
+            daemon.gate.run_ticks(15)                                   # the page follows the loop
+        assert browser.find_element("id", "control").get_attribute("hidden") is not None    # read-only page
+        errors = [entry for entry in browser.get_log("browser") if entry["level"] == "SEVERE"]
+        assert not errors, errors
+        screenshot = tmp_path / "web-page.png"
+        browser.save_screenshot(str(screenshot))
+        print(f"screenshot of the page: {screenshot}")
+        assert screenshot.stat().st_size > 10_000

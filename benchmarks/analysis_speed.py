@@ -66,13 +66,15 @@ def _hidden(model):
 
 
 def analysed_in_child(tree: Path, record: Path, out: Path, figures: bool) -> dict:
-    """``cryod analyze`` in a fresh process on ``tree``'s code: verdict, wall and CPU time, step times."""
+    """``cryod analyze`` in a fresh process on ``tree``'s code: verdict, wall and CPU time, step times.
+
+    The child runs in ``tree`` (``python -m`` puts the working directory first on the path)."""
     arguments = [sys.executable, "-m", "cryod.cli", "analyze", str(record), "--out", str(out), "--json"]
     arguments += [] if figures else ["--no-figures"]
     environment = dict(os.environ, PYTHONPATH=str(tree), MPLBACKEND="Agg", OMP_NUM_THREADS="1",
                        OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
     started = time.perf_counter()
-    child = subprocess.Popen(arguments, env=environment, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    child = subprocess.Popen(arguments, env=environment, cwd=tree, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     stdout, stderr = child.communicate()
     wall = time.perf_counter() - started
     if child.returncode != 0:

@@ -485,6 +485,7 @@ class CauseSearch:
             analysis.final_recalibration = Recalibration.refitted(path.recalibration_base, path.context.base_replay)
             analysis.remaining = base
             return
+        analysis.causes = []                   # too little of the discrepancy explained: none is named
         analysis.decision = Decision(
             "unexplained",
             f"{excess_text}; {'; '.join(path.reasons)}: together {100.0 * explained:.1f} % of it, and a discrepancy "

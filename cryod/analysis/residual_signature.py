@@ -19,7 +19,9 @@ describes the residual of the extended model (measured less replayed):
   error of a heater path) and negative lags (the residual before the heater:
   feedback, a disturbance the loop answers), with T5, and with the line's
   envelope in T5 (30 s blocks); each with its 99 % band for independent
-  series, ``2.58 sqrt(sum_k r_aa(k) r_bb(k) / N)`` (Bartlett);
+  series, ``2.58 sqrt(sum_k r_aa(k) r_bb(k) / N)`` (Bartlett), and the band
+  the largest over all the lags must pass to count (the normal quantile of
+  1 % over the number of lags in place of 2.58);
 * **where**: the residual's rms (in noise units) in each segment of the record
   and the blocks where it is largest;
 * **MATLAB's** ``resid``: the residual's autocorrelation with the 99 % band
@@ -106,7 +108,12 @@ class Drift:
 
 @dataclass(frozen=True)
 class CrossCorrelation:
-    """Largest correlation at positive and at negative lags (s; positive: the other signal first)."""
+    """Largest correlation at positive and at negative lags (s; positive: the other signal first).
+
+    ``band`` is the 99 % band at one lag (what the resid figure draws); ``band_over_lags`` the 99 % band of the
+    largest of all the lags looked at (the same Bartlett scale, at the normal quantile of 1 % over their number):
+    the largest of some hundred correlations of independent series passes the one-lag band by chance.
+    """
 
     other: str
     positive_lag_s: float
@@ -114,10 +121,12 @@ class CrossCorrelation:
     negative_lag_s: float
     negative: float
     band: float
+    band_over_lags: float
 
     @property
     def significant(self) -> bool:
-        return max(abs(self.positive), abs(self.negative)) > self.band
+        """Whether the largest correlation is beyond what independent series give at any of the lags (99 %)."""
+        return max(abs(self.positive), abs(self.negative)) > self.band_over_lags
 
 
 @dataclass
@@ -155,7 +164,8 @@ class ResidualSignature:
                 side = (f"{item.other} first by {item.positive_lag_s:.0f} s: {item.positive:+.2f}"
                         if abs(item.positive) >= abs(item.negative) else
                         f"the residual first by {-item.negative_lag_s:.0f} s: {item.negative:+.2f}")
-                found.append(f"T2 residual correlates with {item.other} ({side}; 99 % band {item.band:.2f})")
+                found.append(f"T2 residual correlates with {item.other} ({side}; 99 % band over the lags "
+                             f"{item.band_over_lags:.2f})")
         return found
 
 
@@ -263,10 +273,12 @@ def cross_correlation(residual: np.ndarray, other: np.ndarray, name: str, window
     positive, negative = lags >= 0, lags <= 0
     best_positive = int(np.argmax(np.abs(values[positive])))
     best_negative = int(np.argmax(np.abs(values[negative])))
+    band = bartlett_band(residual, other, longest)
+    over_lags = band / BAND_FACTOR * float(stats.norm.isf(0.005 / lags.size))
     return CrossCorrelation(name, float(lags[positive][best_positive] * window_s),
                             float(values[positive][best_positive]),
                             float(lags[negative][best_negative] * window_s),
-                            float(values[negative][best_negative]), bartlett_band(residual, other, longest))
+                            float(values[negative][best_negative]), band, over_lags)
 
 
 def line_envelope(data, line) -> np.ndarray:

@@ -1,6 +1,7 @@
 """Wall and CPU time of ``cryod analyze`` on one-hour records at 12.5 Hz (45,000 rows), all candidates.
 
 Run: PYTHONPATH=. python3 benchmarks/analysis_speed.py [--repeat N] [--no-figures] [--tree OTHER_CHECKOUT]
+     [--only NAME,NAME...]
 
 For each hidden cause (and a clean record, a base model 15 % off and an
 effect outside the catalogue) an identification-style record of one hour is
@@ -89,6 +90,9 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=1)
     parser.add_argument("--no-figures", action="store_true")
     parser.add_argument("--tree", type=Path, default=None, help="another checkout to compare, in the same run")
+    parser.add_argument("--only", default=None, metavar="NAMES",
+                        help="only these records (comma-separated first words of the hidden column: none, dead_time, "
+                             "base, outside, ...)")
     args = parser.parse_args()
     model = load_model(ROOT / "config" / "model.yaml")
     trees = [("this", ROOT)] + ([("other", args.tree.resolve())] if args.tree else [])
@@ -98,7 +102,10 @@ def main() -> None:
           "naming (s) | widened model (s) | figures (s) |" + (" CPU this / other |" if args.tree else ""))
     print("|---|---|---|---|---|---|---|---|---|---|" + ("---|" if args.tree else ""))
     with tempfile.TemporaryDirectory() as directory:
+        wanted = set(args.only.split(",")) if args.only else None
         for name, hidden in cases(model).items():
+            if wanted is not None and name.split(" ")[0] not in wanted:
+                continue
             path = Path(directory) / f"{name.split(' ')[0]}.csv"
             record = make_record(hidden, "identification", duration_s=3600.0, seed=1)
             write_record(path, record.columns, record.metadata)

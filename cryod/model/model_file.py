@@ -182,86 +182,82 @@ def _ptc_source(section: Section) -> PtcSource:
     return source
 
 
+def _sensor_lag(part: Section) -> SensorLag:
+    return SensorLag(
+        flange_thermometer_time_constant_s=part.number(
+            "flange_thermometer_time_constant_s", minimum=0.0, exclusive_minimum=True),
+        ptc_stage_thermometer_time_constant_s=part.number("ptc_stage_thermometer_time_constant_s", 0.0, minimum=0.0))
+
+
+def _link_dynamics(part: Section) -> LinkDynamics:
+    return LinkDynamics(time_constant_s=part.number("time_constant_s", minimum=0.0),
+                        gain_factor=part.number("gain_factor", 1.0, minimum=0.0, exclusive_minimum=True))
+
+
+def _dead_time(part: Section) -> DeadTime:
+    return DeadTime(heater_to_flange_s=part.number("heater_to_flange_s", minimum=0.0, maximum=600.0))
+
+
+def _heat_capacity_temperature(part: Section) -> HeatCapacityTemperature:
+    return HeatCapacityTemperature(
+        exponent=part.number("exponent", minimum=-6.0, maximum=6.0),
+        reference_temperature_K=part.number("reference_temperature_K", minimum=0.0, exclusive_minimum=True))
+
+
+def _heater_nonlinearity(part: Section) -> HeaterNonlinearity:
+    return HeaterNonlinearity(
+        quadratic_coefficient_per_W=part.number("quadratic_coefficient_per_W", minimum=-1.0, maximum=10.0))
+
+
+def _ptc_frequency_drift(part: Section) -> PtcFrequencyDrift:
+    return PtcFrequencyDrift(
+        rate_rad_s_per_hour=part.number("rate_rad_s_per_hour", 0.0),
+        wander_amplitude_rad_s=part.number("wander_amplitude_rad_s", 0.0, minimum=0.0),
+        wander_period_s=part.number("wander_period_s", 3600.0, minimum=0.0, exclusive_minimum=True),
+        wander_phase_rad=part.number("wander_phase_rad", 0.0))
+
+
+def _ptc_amplitude_modulation(part: Section) -> PtcAmplitudeModulation:
+    return PtcAmplitudeModulation(
+        depth=part.number("depth", minimum=0.0, maximum=0.9),
+        period_s=part.number("period_s", minimum=0.0, exclusive_minimum=True),
+        phase_rad=part.number("phase_rad", 0.0))
+
+
+def _ptc_stage_drift(part: Section) -> PtcStageDrift:
+    return PtcStageDrift(
+        rms_K=part.number("rms_K", minimum=0.0, maximum=1.0),
+        correlation_time_s=part.number("correlation_time_s", minimum=0.0, exclusive_minimum=True),
+        flange_coupling=part.number("flange_coupling", minimum=-10.0, maximum=10.0),
+        coupling_time_constant_s=part.number("coupling_time_constant_s", minimum=0.0),
+        seed=part.number("seed", 0, minimum=0.0, integer=True))
+
+
+def _heater_path_correction(part: Section) -> HeaterPathCorrection:
+    taus = part.numbers("time_constants_s")
+    if any(tau <= 0.0 for tau in taus):
+        raise part.error("time_constants_s", f"each time constant must be positive, got {taus}")
+    gains = {}
+    for key in ("flange_gains_K_per_W", "ptc_stage_gains_K_per_W"):
+        gains[key] = part.numbers(key)
+        if len(gains[key]) != len(taus):
+            raise part.error(key, f"needs one gain per time constant ({len(taus)}), got {len(gains[key])}")
+    return HeaterPathCorrection(tuple(taus), tuple(gains["flange_gains_K_per_W"]),
+                                tuple(gains["ptc_stage_gains_K_per_W"]))
+
+
 def _effects(section: Section) -> Effects:
+    readers = {"sensor_lag": _sensor_lag, "link_dynamics": _link_dynamics, "dead_time": _dead_time,
+               "heat_capacity_temperature": _heat_capacity_temperature, "heater_nonlinearity": _heater_nonlinearity,
+               "ptc_frequency_drift": _ptc_frequency_drift, "ptc_amplitude_modulation": _ptc_amplitude_modulation,
+               "ptc_stage_drift": _ptc_stage_drift, "heater_path_correction": _heater_path_correction,
+               "disturbance": _disturbance}
     found = {}
-    lag = section.section("sensor_lag", None)
-    if lag is not None:
-        found["sensor_lag"] = SensorLag(
-            flange_thermometer_time_constant_s=lag.number(
-                "flange_thermometer_time_constant_s", minimum=0.0, exclusive_minimum=True),
-            ptc_stage_thermometer_time_constant_s=lag.number(
-                "ptc_stage_thermometer_time_constant_s", 0.0, minimum=0.0),
-        )
-        lag.finish()
-    link = section.section("link_dynamics", None)
-    if link is not None:
-        found["link_dynamics"] = LinkDynamics(
-            time_constant_s=link.number("time_constant_s", minimum=0.0),
-            gain_factor=link.number("gain_factor", 1.0, minimum=0.0, exclusive_minimum=True),
-        )
-        link.finish()
-    delay = section.section("dead_time", None)
-    if delay is not None:
-        found["dead_time"] = DeadTime(
-            heater_to_flange_s=delay.number("heater_to_flange_s", minimum=0.0, maximum=600.0))
-        delay.finish()
-    capacity = section.section("heat_capacity_temperature", None)
-    if capacity is not None:
-        found["heat_capacity_temperature"] = HeatCapacityTemperature(
-            exponent=capacity.number("exponent", minimum=-6.0, maximum=6.0),
-            reference_temperature_K=capacity.number(
-                "reference_temperature_K", minimum=0.0, exclusive_minimum=True),
-        )
-        capacity.finish()
-    heater = section.section("heater_nonlinearity", None)
-    if heater is not None:
-        found["heater_nonlinearity"] = HeaterNonlinearity(
-            quadratic_coefficient_per_W=heater.number(
-                "quadratic_coefficient_per_W", minimum=-1.0, maximum=10.0))
-        heater.finish()
-    drift = section.section("ptc_frequency_drift", None)
-    if drift is not None:
-        found["ptc_frequency_drift"] = PtcFrequencyDrift(
-            rate_rad_s_per_hour=drift.number("rate_rad_s_per_hour", 0.0),
-            wander_amplitude_rad_s=drift.number("wander_amplitude_rad_s", 0.0, minimum=0.0),
-            wander_period_s=drift.number("wander_period_s", 3600.0, minimum=0.0, exclusive_minimum=True),
-            wander_phase_rad=drift.number("wander_phase_rad", 0.0),
-        )
-        drift.finish()
-    modulation = section.section("ptc_amplitude_modulation", None)
-    if modulation is not None:
-        found["ptc_amplitude_modulation"] = PtcAmplitudeModulation(
-            depth=modulation.number("depth", minimum=0.0, maximum=0.9),
-            period_s=modulation.number("period_s", minimum=0.0, exclusive_minimum=True),
-            phase_rad=modulation.number("phase_rad", 0.0),
-        )
-        modulation.finish()
-    stage = section.section("ptc_stage_drift", None)
-    if stage is not None:
-        found["ptc_stage_drift"] = PtcStageDrift(
-            rms_K=stage.number("rms_K", minimum=0.0, maximum=1.0),
-            correlation_time_s=stage.number("correlation_time_s", minimum=0.0, exclusive_minimum=True),
-            flange_coupling=stage.number("flange_coupling", minimum=-10.0, maximum=10.0),
-            coupling_time_constant_s=stage.number("coupling_time_constant_s", minimum=0.0),
-            seed=stage.number("seed", 0, minimum=0.0, integer=True),
-        )
-        stage.finish()
-    correction = section.section("heater_path_correction", None)
-    if correction is not None:
-        taus = correction.numbers("time_constants_s")
-        if any(tau <= 0.0 for tau in taus):
-            raise correction.error("time_constants_s", f"each time constant must be positive, got {taus}")
-        gains = {}
-        for key in ("flange_gains_K_per_W", "ptc_stage_gains_K_per_W"):
-            gains[key] = correction.numbers(key)
-            if len(gains[key]) != len(taus):
-                raise correction.error(key, f"needs one gain per time constant ({len(taus)}), got {len(gains[key])}")
-        found["heater_path_correction"] = HeaterPathCorrection(tuple(taus), tuple(gains["flange_gains_K_per_W"]),
-                                                               tuple(gains["ptc_stage_gains_K_per_W"]))
-        correction.finish()
-    disturbance = section.section("disturbance", None)
-    if disturbance is not None:
-        found["disturbance"] = _disturbance(disturbance)
+    for name, read in readers.items():
+        part = section.section(name, None)
+        if part is not None:
+            found[name] = read(part)
+            part.finish()
     section.finish()
     return Effects(**found)
 
@@ -288,7 +284,6 @@ def _disturbance(section: Section) -> Disturbance:
             amplitude_K=pickup.number("amplitude_K", minimum=0.0, maximum=1.0),
             phase_rad=pickup.number("phase_rad", 0.0)))
         pickup.finish()
-    section.finish()
     return Disturbance(pickups=tuple(pickups), **processes)
 
 

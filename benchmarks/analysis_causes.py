@@ -264,7 +264,15 @@ def daemon_record(model, folder: Path, seed: int) -> Path:
 
 
 def run_one(job: dict) -> dict:
-    """Make one record and analyse it; returns what was found."""
+    """Make one record and analyse it; returns what was found (a failure to make the record is reported as one)."""
+    try:
+        return _run_one(job)
+    except Exception as error:                                   # reported as a failure, the run goes on
+        return {**job, "truths": {}, "named": [], "cause": f"error: {error}", "reason": repr(error),
+                "parameters": {}, "wall_s": 0.0, "cpu_s": 0.0}
+
+
+def _run_one(job: dict) -> dict:
     from cryod.analysis.pipeline import analyze
     from cryod.analysis.record_data import RecordData, read_record_data
     from cryod.model import load_model
@@ -339,6 +347,8 @@ def _plain(parameters: dict) -> dict:
 def judged(result: dict) -> dict:
     """Right or wrong, and each true parameter's relative error (a base model far off: ``base_model_off``;
     an effect outside the catalogue: no catalogue cause)."""
+    if str(result["cause"]).startswith("error:"):
+        return {"right": False, "errors": {}, "parameters_within": False, "wrong_cause": False}
     truths = dict(result["truths"])
     catalogue = [cause for cause in result["named"]]
     wrong_cause = bool(set(catalogue) - set(truths)) or (result["cause"] == "base_model_off"
@@ -476,6 +486,9 @@ def main() -> None:
     with multiprocessing.get_context("spawn").Pool(processes) as pool:
         for result in pool.imap_unordered(run_one, jobs):
             results.append(result)
+            if args.json:                 # written as the results come: a run cut short keeps what it found
+                Path(args.json).write_text(json.dumps(sorted(results, key=lambda item: item["index"]), indent=1,
+                                                      default=str) + "\n", encoding="utf-8")
             print(f"{len(results)}/{len(jobs)} record {result['index']} ({result['kind']}, {result['protocol']}): "
                   f"{' + '.join(result['causes']) or 'none'} -> {', '.join(result['named']) or result['cause']} "
                   f"({result['wall_s']:.1f} s)", file=sys.stderr, flush=True)

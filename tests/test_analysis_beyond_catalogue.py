@@ -370,6 +370,19 @@ def test_an_effect_outside_the_catalogue_is_described_and_extended():
     assert analysis.residual_signature.sentences() and generic.sentences()
 
 
+def test_a_link_without_a_lag_reads_as_the_lines_gain():
+    """A link of 5 ms at the line (atan(omega tau) = 0.05 rad, within the recalibration's phase) scaling the line by
+    0.8 is the line's gain on T2 off by 20 %; a link of 0.2 s (1.1 rad) is not."""
+    named = SimpleNamespace(cause="link_dynamics", fit=SimpleNamespace(parameters={
+        "time_constant_s": 0.005, "gain_factor": 0.8}))
+    analysis = SimpleNamespace(causes=[named], decision=SimpleNamespace(tied=()),
+                               base_line=SimpleNamespace(angular_frequency_rad_s=10.83))
+    readings = equivalents(analysis, named)
+    assert [reading["cause"] for reading in readings] == ["base_model_off"] and "x0.8" in readings[0]["reading"]
+    named.fit.parameters["time_constant_s"] = 0.2
+    assert equivalents(analysis, named) == []
+
+
 @pytest.mark.slow
 def test_a_drifting_cold_end_is_named_with_its_coupling():
     model, _ = perturbed_base(other_day(base_model(), 1).with_effects(ptc_stage_drift=DRIFT), 9)

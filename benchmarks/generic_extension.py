@@ -35,7 +35,7 @@ import sys
 import time
 from pathlib import Path
 
-from cryod.blas_threads import use_one_blas_thread
+from cryod.cli import use_one_blas_thread
 
 use_one_blas_thread()
 

@@ -45,7 +45,7 @@ import numpy as np
 from scipy import ndimage, signal, stats
 
 from cryod.analysis.segments import find_segments
-from cryod.records.quick_look import folded_frequency
+from cryod.figure_files import folded_frequency
 
 #: Welch window length (samples) at most; peaks at least this many sigma over the floor; this many listed.
 WELCH_SAMPLES = 2 ** 14

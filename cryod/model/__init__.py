@@ -35,17 +35,19 @@ from cryod.model.model_file import (
     model_to_dict, save_model,
 )
 from cryod.model.parameters import (
-    EFFECT_NAMES, CryostatModel, DeadTime, Effects, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics,
-    OperatingPoint, PtcFrequencyDrift, PtcHarmonic, PtcSource, SensorLag, SensorNoise,
+    EFFECT_NAMES, GENERIC_EFFECT_NAMES, CryostatModel, DeadTime, Disturbance, Effects, HeatCapacityTemperature,
+    HeaterNonlinearity, HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, PtcAmplitudeModulation,
+    PtcFrequencyDrift, PtcHarmonic, PtcSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
 )
 from cryod.model.ptc_cycle import PtcCycle
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
 from cryod.yaml_source import FileFormatError
 
 __all__ = [
-    "CryostatModel", "CryostatPlant", "DeadTime", "Effects", "EFFECT_NAMES", "FileFormatError",
-    "HeatCapacityTemperature", "HeaterNonlinearity", "LinkDynamics", "OperatingPoint", "PtcCycle",
-    "PtcFrequencyDrift", "PtcHarmonic", "PtcSource", "SensorLag", "SensorNoise", "SimulatedRecord",
+    "CryostatModel", "CryostatPlant", "DeadTime", "Disturbance", "Effects", "EFFECT_NAMES", "FileFormatError",
+    "GENERIC_EFFECT_NAMES", "HeatCapacityTemperature", "HeaterNonlinearity", "HeaterPathCorrection", "LinkDynamics",
+    "OperatingPoint", "Pickup", "PtcAmplitudeModulation", "PtcCycle", "PtcFrequencyDrift", "PtcHarmonic",
+    "PtcStageDrift", "PtcSource", "SensorLag", "SensorNoise", "SimulatedRecord", "SlowProcess",
     "TransferFunction", "TransferFunctionError", "DEFAULT_MODEL_PATH", "MODEL_FORMAT", "TRANSFER_FUNCTION_UNITS",
     "load_model", "load_model_text", "model_from_section", "model_to_dict", "save_model", "simulate",
 ]

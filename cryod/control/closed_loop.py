@@ -27,7 +27,7 @@ import numpy as np
 from cryod.config import ControlConfig
 from cryod.control.pi import PiGains
 from cryod.control.regulator import HeaterCurrentOutput, HeaterPowerOutput, Regulator, RegulatorMode
-from cryod.model import CryostatModel, CryostatPlant
+from cryod.model import CryostatModel, cryostat_plant
 from cryod.records.columns import REQUIRED
 
 
@@ -115,7 +115,7 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
     """
     segments = sorted(segments, key=lambda s: s.start_s)
     ticks = int(round(duration_s / period_s))
-    plant = CryostatPlant(model, 0.0, initial_heater_power_w)
+    plant = cryostat_plant(model, 0.0, initial_heater_power_w)
     output = HeaterPowerOutput(heater_max_w) if current_output_resistance_ohm is None \
         else HeaterCurrentOutput(current_output_resistance_ohm, heater_max_w)
     control = ControlConfig(setpoint_K=None, ramp_K_per_min=ramp_K_per_min, setpoint_min_K=0.0,

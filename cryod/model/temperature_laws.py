@@ -20,11 +20,11 @@ temperature, with its time constants multiplied by :meth:`TemperatureDependence.
 Examples
 --------
 >>> laws = TemperatureDependence()
->>> round(laws.specific_heat_J_per_mol_K(4.23) * 1e3, 3)         # mJ/(mol K), copper at 4.23 K
+>>> round(float(laws.specific_heat_J_per_mol_K(4.23)) * 1e3, 3)       # mJ/(mol K), copper at 4.23 K
 6.573
->>> round(laws.flange_time_scale(24.0, 4.23), 1)                 # flange time constants, 24 K against 4.23 K
+>>> round(float(laws.flange_time_scale(24.0, 4.23)), 1)               # flange time constants, 24 K against 4.23 K
 18.2
->>> round(laws.temperature_K(laws.conduction_potential_K(12.0, 4.23), 4.23), 12)
+>>> round(float(laws.temperature_K(laws.conduction_potential_K(12.0, 4.23), 4.23)), 12)
 12.0
 """
 

@@ -7,8 +7,9 @@ is simulated by :class:`TemperatureDependentPlant`; the equations are in ``docs/
 * the PTC stage's mean temperature is the model's: ``T5 = T5_0 + G3 P`` (the cooler's load line and the
   stage's time constant as identified);
 * the flange hangs on the stage through links that all follow one conductance law, so heat flows are
-  linear in U: ``U(T2) = U(T5) - U(T5_0) + L P`` with ``L = G2 G1 - U'(T5_0) G3``, L's time constants
-  multiplied by the flange's time scale ``[c(T2)/c(T2_0)] / [K(T2)/K(T2_0)]``;
+  linear in U: ``U(T2) = G2 [U(T5) - U(T5_0)] + L P`` with ``L = G2 (G1 - U'(T5_0) G3)``, the flange's
+  paths (G2, L) with their time constants multiplied by the flange's time scale
+  ``[c(T2)/c(T2_0)] / [K(T2)/K(T2_0)]``;
 * the cooler's line reaches T2 through the model's G2 G_link C s with the same time scale, and its
   amplitude at the stage follows ``(T5_0 / T5)**p``.
 
@@ -22,7 +23,7 @@ Examples
 >>> model = load_model(TEMPERATURE_MODEL_PATH)
 >>> power_w, stage_K = steady_state(model, 24.0)
 >>> round(power_w, 2), round(stage_K, 2)                  # heater power (W) and T5 (K) holding T2 at 24 K
-(5.32, 18.08)
+(5.56, 18.75)
 >>> plant = TemperatureDependentPlant(model, 0.0, power_w)
 >>> plant.advance_to(100.0)
 >>> round(plant.temperatures()[0], 3)                     # T2 (K): the line is 0.1 mK at 24 K
@@ -45,17 +46,18 @@ from cryod.model.transfer_function import TransferFunction
 #: The shipped temperature-dependent cryostat (``config/model-4-25K.yaml``).
 TEMPERATURE_MODEL_PATH = Path(__file__).resolve().parent.parent / "data" / "model-4-25K.yaml"
 #: Longest hold with one time scale (s): the scale follows T2 at least this often.
-MAX_HOLD_S = 1.0
+MAX_HOLD_S = 0.25
 #: Heater powers searched for a steady state (W).
 MAX_STEADY_POWER_W = 1000.0
 
 
 def link_transfer_function(model: CryostatModel) -> TransferFunction:
-    """L = G2 G1 - U'(T5_0) G3: heater power to the flange's conduction potential above the stage's (K/W)."""
+    """L = G2 (G1 - U'(T5_0) G3): heater power to the flange's conduction potential above what the stage's
+    warming gives it (K/W)."""
     laws = model.temperature_dependence
     point = model.operating_point
     weight = float(laws.conductance_ratio(point.ptc_stage_temperature_K, point.flange_temperature_K))
-    return model.heater_to_thermometer - weight * model.heater_to_ptc_stage
+    return model.flange_to_thermometer * (model.heater_to_flange - weight * model.heater_to_ptc_stage)
 
 
 class TemperatureDependentPlant(CryostatPlant):
@@ -83,21 +85,27 @@ class TemperatureDependentPlant(CryostatPlant):
         self.stage_reference_K = point.ptc_stage_temperature_K
         self._stage_potential_K = float(self.laws.conduction_potential_K(self.stage_reference_K,
                                                                          self.flange_reference_K))
+        delivered = self.delivered_power_w(self.commanded_power_w)
         self.flange_heater = HeaterPath(link_transfer_function(model))
-        self.flange_heater.settle(self.delivered_power_w(self.commanded_power_w))
+        self.flange_heater.settle(delivered)
+        #: The stage's warming, in the flange's conduction potential, reaching T2 through G2.
+        self.stage_to_flange = HeaterPath(model.flange_to_thermometer)
+        self.stage_to_flange.settle(self._stage_potential_above_rest(self.stage_heater.output()))
+
+    def _stage_potential_above_rest(self, stage_rise_K) -> float:
+        stage = self.stage_reference_K + stage_rise_K
+        return float(self.laws.conduction_potential_K(stage, self.flange_reference_K)) - self._stage_potential_K
 
     # -- temperatures without the cooler's line ------------------------------------------
-    def _mean_part(self, link_potential_K, stage_rise_K) -> tuple:
-        """(T2, T5) without the line, from the link's output (K of U) and the stage's rise (K)."""
-        stage = self.stage_reference_K + stage_rise_K
-        potential = (self.laws.conduction_potential_K(stage, self.flange_reference_K) - self._stage_potential_K
-                     + link_potential_K)
-        return self.laws.temperature_K(potential, self.flange_reference_K), stage
+    def _mean_part(self, flange_potential_K, stage_rise_K) -> tuple[float, float]:
+        """(T2, T5) without the line, from the flange's conduction potential (K of U) and the stage's rise (K)."""
+        return (float(self.laws.temperature_K(flange_potential_K, self.flange_reference_K)),
+                self.stage_reference_K + stage_rise_K)
 
     def mean_part(self) -> tuple[float, float]:
         """(T2, T5) in K now without the cooler's oscillation."""
-        flange, stage = self._mean_part(self.flange_heater.output(), self.stage_heater.output())
-        return float(flange), float(stage)
+        return self._mean_part(self.flange_heater.output() + self.stage_to_flange.output(),
+                               self.stage_heater.output())
 
     def time_scale(self) -> float:
         """Factor on the flange's time constants now (from T2 without the line)."""
@@ -106,7 +114,10 @@ class TemperatureDependentPlant(CryostatPlant):
     def _hold_until(self, time_s: float) -> None:
         while time_s - self.time_s > 0.0:
             step = min(time_s - self.time_s, MAX_HOLD_S)
-            self.flange_heater.hold(step, self.time_scale())
+            scale = self.time_scale()
+            self.stage_to_flange.input = self._stage_potential_above_rest(self.stage_heater.output())
+            self.flange_heater.hold(step, scale)
+            self.stage_to_flange.hold(step, scale)
             self.stage_heater.hold(step)
             self.time_s = time_s if step == time_s - self.time_s else self.time_s + step
 
@@ -114,8 +125,7 @@ class TemperatureDependentPlant(CryostatPlant):
     def _with_line(self, flange_K: float, stage_K: float, flange_line, stage_line) -> tuple[float, float]:
         scale = float(self.laws.flange_time_scale(flange_K, self.flange_reference_K))
         factor = float(self.laws.stage_line_factor(stage_K, self.stage_reference_K))
-        return (float(flange_K) + factor * scale * flange_line(scale),
-                float(stage_K) + factor * stage_line())
+        return flange_K + factor * scale * flange_line(scale), stage_K + factor * stage_line()
 
     def temperatures(self) -> tuple[float, float]:
         """(T2, T5) in K at the current instant, noise-free."""
@@ -132,7 +142,8 @@ class TemperatureDependentPlant(CryostatPlant):
         """
         elapsed = self.time_s - self.start_time_s
         scale = self.time_scale()
-        flange, stage = self._mean_part(self.flange_heater.mean_output(duration_s, scale),
+        flange, stage = self._mean_part(self.flange_heater.mean_output(duration_s, scale)
+                                        + self.stage_to_flange.mean_output(duration_s, scale),
                                         self.stage_heater.mean_output(duration_s))
         return self._with_line(flange, stage, lambda scale: self.flange_ptc.mean_value(elapsed, duration_s, scale),
                                lambda: self.stage_ptc.mean_value(elapsed, duration_s))
@@ -193,7 +204,7 @@ def linearised_at(model: CryostatModel, flange_temperature_K: float) -> Cryostat
 
     Small changes of the heater about the power holding that temperature, and the cooler's line there:
     ``flange_to_thermometer`` is 1, ``heater_to_flange`` the whole heater path
-    ``U'(T2)^-1 [U'(T5) G3(s) + L(s s_F)]``, ``ptc_to_flange`` the line path ``s_F G2 G_link(s s_F)``,
+    ``U'(T2)^-1 [U'(T5) G3(s) G2(s s_F) + L(s s_F)]``, ``ptc_to_flange`` the line path ``s_F G2 G_link(s s_F)``,
     the stage's oscillation scaled by its law; the operating point is where the tangent meets 0 W.
 
     Parameters
@@ -214,7 +225,7 @@ def linearised_at(model: CryostatModel, flange_temperature_K: float) -> Cryostat
     factor = float(laws.stage_line_factor(stage_K, point.ptc_stage_temperature_K))
     stage_weight = float(laws.conductance_ratio(stage_K, point.flange_temperature_K))
     per_potential = float(laws.temperature_per_potential(flange_temperature_K, point.flange_temperature_K))
-    heater = per_potential * (stage_weight * model.heater_to_ptc_stage
+    heater = per_potential * (stage_weight * model.heater_to_ptc_stage * model.flange_to_thermometer.time_scaled(scale)
                               + link_transfer_function(model).time_scaled(scale))
     _, line = flange_transfer_functions(model)
     flange_off_K = flange_temperature_K - heater.dc_gain * power_w

@@ -29,7 +29,7 @@ bounds within stated tolerances and keep 45 degrees of phase margin and a gain m
 Examples
 --------
 >>> from cryod.model import load_model
->>> from cryod.control.pi import PiGains
+>>> from cryod.control.pi import MAX_GAIN, PiGains
 >>> step = step_performance(load_model(), PiGains(10.0, 0.2), setpoint_K=5.0, heater_max_w=0.5)
 >>> round(step.rise_s), round(step.settle_s), round(step.line_ratio, 2)
 (84, 103, 1.03)
@@ -47,7 +47,7 @@ from scipy import optimize
 
 from cryod.control.closed_loop import Segment, run_program
 from cryod.control.harmonic_plant import line_at_harmonics
-from cryod.control.pi import PiGains
+from cryod.control.pi import MAX_GAIN, PiGains
 from cryod.model import CryostatModel
 from cryod.model.dynamics import flange_transfer_functions
 from cryod.records.metrics import periodic_amplitudes
@@ -289,6 +289,8 @@ def suggest_gains(model: CryostatModel, setpoint_K: float, heater_max_w: float, 
 
     def evaluate(log_kp: float, log_ti: float) -> StepPerformance | None:
         kp, ti = math.exp(log_kp), math.exp(log_ti)
+        if kp > MAX_GAIN or kp / ti > MAX_GAIN:
+            return None                  # beyond what a configuration takes
         gains = PiGains(kp, kp / ti)
         if tolerances.margin_violations(*loop_margins(model, gains, period_s, setting_delay_s)):
             return None                  # too close to oscillating: not worth a run

@@ -22,7 +22,7 @@ Configuration, ``control.zones``: a list, or the name of a file holding ``zones:
 
 Examples
 --------
->>> from cryod.control.pi import PiGains
+>>> from cryod.control.pi import MAX_GAIN, PiGains
 >>> table = ZoneTable((Zone(6.5, PiGains(12.0, 4.0)), Zone(25.0, PiGains(30.0, 2.0), max_heater_power_W=8.0)))
 >>> table.index_for(5.0), table.index_for(6.5), table.index_for(6.51)
 (0, 0, 1)
@@ -37,7 +37,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from cryod.control.pi import PiGains
+from cryod.control.pi import MAX_GAIN, PiGains
 from cryod.model import CryostatModel, load_model
 from cryod.yaml_source import FileFormatError, Section
 
@@ -153,8 +153,8 @@ def zone_table_from(control: Section, setpoint_min_K: float, setpoint_max_K: flo
                                         f"give the zones in increasing order of their upper temperatures, without "
                                         f"overlap")
         pi = item.section("pi")
-        gains = PiGains(pi.number("proportional_W_per_K", minimum=0.0, exclusive_minimum=True, maximum=1000.0),
-                        pi.number("integral_W_per_K_s", minimum=0.0, exclusive_minimum=True, maximum=1000.0))
+        gains = PiGains(pi.number("proportional_W_per_K", minimum=0.0, exclusive_minimum=True, maximum=MAX_GAIN),
+                        pi.number("integral_W_per_K_s", minimum=0.0, exclusive_minimum=True, maximum=MAX_GAIN))
         pi.finish()
         model, model_source = None, ""
         model_path = item.text("feedforward_model", None)

@@ -38,7 +38,7 @@ from cryod.service.instruments import assemble_instruments, check_calibrations, 
 from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit, limit_changes
 from cryod.records.columns import Event, Row
 from cryod.records.metrics import regulation_metrics
-from cryod.model import DEFAULT_MODEL_PATH, load_model
+from cryod.model import DEFAULT_MODEL_PATH, linearised_at, load_model
 from cryod.service.control_socket import finite_or_none
 from cryod.service.logs import ServiceLogging
 from cryod.service.readable import readable, rounded
@@ -404,8 +404,9 @@ def _cpu_seconds() -> float:
 
 
 def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None) -> dict:
-    """The physical limit of the feedforward on the simulated cryostat (its model, not the controller's)
-    at the run's last setpoint, with the heater set as late after T2's reading as the loop set it."""
+    """The physical limit of the feedforward on the simulated cryostat (its model, not the controller's;
+    a temperature-dependent one linearised about the setpoint) at the run's last setpoint, with the heater
+    set as late after T2's reading as the loop set it."""
     term = loop.regulator.term("feedforward") if loop is not None else None
     delay = term.setting_delay_s if term is not None else 0.0
     empty = {"ptc_periodic_limit_K": None, "feedforward_authority": None, "feedforward_limited_by": None,
@@ -413,9 +414,11 @@ def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None)
     if setpoint_K is None:
         return empty
     try:
+        if model.temperature_dependence is not None:     # the cryostat's linear model about the setpoint
+            model = linearised_at(model, setpoint_K)
         limit = feedforward_limit(model, setpoint_K, config.heater.resistance_ohm, config.heater.max_current_A,
                                   config.loop.period_s, heater_delay_s=delay, certify=False)
-    except FeedforwardLimitError:
+    except (FeedforwardLimitError, ValueError):
         return empty
     changes = limit_changes(model, setpoint_K, limit.max_heater_power_W, config.loop.period_s, heater_delay_s=delay)
     return {"ptc_periodic_limit_K": limit.ptc_periodic_limit_K, "feedforward_authority": round(limit.authority, 4),

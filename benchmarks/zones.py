@@ -133,11 +133,15 @@ class SetpointProgram:
         self.index = -1
         self.ramp_end_s = math.inf
         self.times, self.flange, self.stage, self.setpoint, self.heater, self.commanded = [], [], [], [], [], []
+        self.wall, self._last_wall = [], None      # wall time from one row to the next (s): a tick's cost
 
     def __call__(self, item) -> None:
         if type(item) is not Row or item.state is None or str(item.state) in ("holding", "recovering"):
             return
         time_s = float(item.time_s)
+        now = time.perf_counter()
+        self.wall.append(now - self._last_wall if self._last_wall is not None else math.nan)
+        self._last_wall = now
         self.times.append(time_s)
         self.flange.append(float(item.T2_K))
         self.stage.append(float(item.T5_K))
@@ -180,7 +184,12 @@ def run_once(config_path: Path, zones: bool, gains: PiGains | None, ff_model, se
         wall = time.perf_counter() - started
         timing = result.loop.timing.summary()
         delay = result.loop.regulator.term("feedforward").setting_delay_s
-    arrays = {name: np.array(getattr(program, name)) for name in ("times", "flange", "stage", "setpoint", "heater")}
+    arrays = {name: np.array(getattr(program, name))
+              for name in ("times", "flange", "stage", "setpoint", "heater", "wall")}
+    wall_ms = arrays["wall"][np.isfinite(arrays["wall"])] * 1e3
+    table_zones = config.control.zones
+    crossings = np.flatnonzero(np.diff([table_zones.index_for(value) if np.isfinite(value) else -1
+                                        for value in arrays["setpoint"]]) != 0) + 1 if table_zones else np.zeros(0, int)
     limits = limits_across_range(SETPOINTS_K, model_at_temperature(truth), config.heater.resistance_ohm,
                                  config.heater.max_current_A, config.loop.period_s, heater_delay_s=delay,
                                  averaging_time_s=WINDOW_S)
@@ -195,7 +204,11 @@ def run_once(config_path: Path, zones: bool, gains: PiGains | None, ff_model, se
     return {"zones": zones, "setpoints": rows, "exit_code": result.exit_code, "overruns": timing.get("overruns", 0),
             "lateness_ms_max": timing.get("lateness_ms_max"), "faults": kinds.get("fault", 0),
             "zone_events": [event.message for event in events if event.kind == "zone"],
-            "simulated_h": float(arrays["times"][-1] - arrays["times"][0]) / 3600.0, "wall_s": wall}
+            "simulated_h": float(arrays["times"][-1] - arrays["times"][0]) / 3600.0, "wall_s": wall,
+            "tick_wall_ms": {"p50": float(np.percentile(wall_ms, 50)), "p99": float(np.percentile(wall_ms, 99)),
+                             "max": float(wall_ms.max()),
+                             "zone_changes": [float(arrays["wall"][index] * 1e3) for index in crossings
+                                              if index < arrays["wall"].size]}}
 
 
 def judge(arrays: dict, setpoint_K: float, start_s: float, end_s: float, limit, line_rad_s: float) -> dict:
@@ -234,8 +247,11 @@ def table(run: dict) -> str:
                      f"{row['settle_from_ramp_end_s']:.0f} | {row['overshoot_mK']:.2f} | {row['periodic_uK']:.1f} | "
                      f"{row['open_line_uK']:.1f} | {row['limit_uK']:.2f} / {row['reachable_uK']:.2f} "
                      f"({row['limited_by']}) | {row['over_limit']:.2f} | {row['mean_heater_W']:.3f} |")
-    lines.append(f"\nexit {run['exit_code']}, faults {run['faults']}, overruns {run['overruns']}, largest lateness "
-                 f"{run['lateness_ms_max']} ms, {run['simulated_h']:.2f} h simulated in {run['wall_s']:.0f} s")
+    ticks = run["tick_wall_ms"]
+    lines.append(f"\nexit {run['exit_code']}, faults {run['faults']}, overruns {run['overruns']}, "
+                 f"{run['simulated_h']:.2f} h simulated in {run['wall_s']:.0f} s; wall time per tick p50 "
+                 f"{ticks['p50']:.2f} ms, p99 {ticks['p99']:.2f} ms, max {ticks['max']:.1f} ms; at the zone changes "
+                 f"{', '.join(f'{value:.1f}' for value in ticks['zone_changes']) or '-'} ms")
     return "\n".join(lines)
 
 

@@ -461,6 +461,7 @@ def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: floa
         "lowfreq_rms_K": metrics["lowfreq_rms_K"],
         "setpoint_K": float(setpoint[-1]) if setpoint.size and np.isfinite(setpoint[-1]) else None,
         "state": loop.status.state if loop else None,
+        "zone": loop.status.zone if loop else None,
         "last_fault": str(loop.last_fault) if loop and loop.last_fault else None,
         "exit_code": result.exit_code,
         "log_path": str(result.log_paths[0]) if result.log_paths else None,

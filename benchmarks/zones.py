@@ -8,11 +8,11 @@ Both on the simulated cryostat of config/model-4-25K.yaml, with the daemon's own
 simulated instruments in process, the loop, the data log) on virtual time, the configuration
 config/cryod-4-25K.yaml (1000 ohm, 100 mA, ramp 0.1 K/min, feedforward on).
 
-``commission`` does what a lab does: at each setpoint (5, 8, 12, 16, 20, 24 K) the identification
-experiment about the setpoint (regulate, hold, a 50 mK setpoint step) and the fit of its hold and
-step (one model per setpoint, with uncertainties); then each zone's gains on its own model for the move
-into it (from the previous setpoint, at the ramp), overshoot at most 2 mK. The zone table and the models
-are written into config/.
+``commission`` runs the two commands a lab runs: ``cryod identify --acquire --simulate --setpoints
+5,8,12,16,20,24`` (at each setpoint the experiment about it: regulate, hold, a 50 mK setpoint step; the
+fit of its hold and step, one model per setpoint with uncertainties; ``--max-settle 6000``) into
+config/zone-models/, then ``cryod tune --zones ... --max-overshoot 2`` (each zone's gains on its own
+model for the move into it, from the previous setpoint at the ramp) into config/zones-4-25K.yaml.
 
 ``run`` takes the setpoints in turn, each held until 2400 s after its ramp ends, twice: with the
 commissioned zones, and with one set of gains (the 5 K zone's, with its model as the feedforward's,
@@ -30,6 +30,7 @@ import argparse
 import dataclasses
 import json
 import math
+import subprocess
 import sys
 import tempfile
 import time
@@ -37,18 +38,12 @@ from pathlib import Path
 
 import numpy as np
 
-from cryod.analysis.record_data import read_record_data
 from cryod.config import load_config
 from cryod.control.pi import PiGains
-from cryod.control.tuning import Tolerances
-from cryod.control.zone_commissioning import (
-    limits_across_range, model_at_temperature, tune_zones, zone_table, zone_table_text,
-)
+from cryod.control.zone_commissioning import limits_across_range, model_at_temperature
 from cryod.control.zones import ZoneTable
-from cryod.identification.acquire import acquire
-from cryod.identification.experiment import ExperimentPlan
-from cryod.identification.setpoint_series import identify_at_setpoint, model_file_name, plans_at
-from cryod.model import DEFAULT_MODEL_PATH, TEMPERATURE_MODEL_PATH, load_model, save_model
+from cryod.identification.setpoint_series import model_file_name
+from cryod.model import TEMPERATURE_MODEL_PATH, load_model
 from cryod.records.columns import Row
 from cryod.records.metrics import regulation_metrics
 from cryod.service.clock import VirtualClock
@@ -75,51 +70,31 @@ def simulated(config_path: Path, folder: Path, seed: int = 0):
 
 
 # -- commissioning -------------------------------------------------------------------------
-def commission(seed: int = 0) -> dict:
-    truth = load_model(TEMPERATURE_MODEL_PATH)
-    base = load_model(DEFAULT_MODEL_PATH)
-    plan = ExperimentPlan(setpoint_step_K=0.05, max_settle_s=6000.0)
-    identified = []
-    MODELS.mkdir(exist_ok=True)
-    report = {"setpoints_K": list(SETPOINTS_K), "zones": []}
+def cryod(*arguments: str) -> dict:
+    """One ``cryod ... --json`` command in a process of its own; its JSON summary."""
+    command = [sys.executable, "-m", "cryod.cli", *arguments, "--json"]
+    print("$ cryod " + " ".join(arguments), flush=True)
+    result = subprocess.run(command, capture_output=True, text=True, cwd=REPOSITORY)
+    if result.returncode != 0:
+        raise RuntimeError(f"cryod {' '.join(arguments)}: exit {result.returncode}: {result.stderr[-2000:]}")
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def commission() -> dict:
+    """The two commands a lab runs: the models about each setpoint, then the zones' gains and the table."""
+    report = {}
     with tempfile.TemporaryDirectory() as scratch:
-        config = simulated(CONFIG, Path(scratch), seed)
-        config = dataclasses.replace(config, control=dataclasses.replace(config.control, zones=None))
-        for each in plans_at(SETPOINTS_K, plan):
-            started = time.perf_counter()
-            acquisition = acquire(config, each, SimulatedInstrumentsOpener(truth, seed), VirtualClock(),
-                                  expected_settle_s=3000.0, install_signal_handlers=False, progress=False)
-            if acquisition.outcome != "finished":
-                raise RuntimeError(f"{each.setpoint_K:g} K: {acquisition.message}")
-            records = [read_record_data(path) for path in acquisition.record_paths]
-            result = identify_at_setpoint(each.setpoint_K, records, acquisition.record_paths, base, each.line_hold_s)
-            path = MODELS / model_file_name(each.setpoint_K)
-            save_model(result.model, path, header=f"Identified about {each.setpoint_K:g} K on the simulated cryostat "
-                                                  f"of model-4-25K.yaml by benchmarks/zones.py commission")
-            identified.append((each.setpoint_K, result.model, f"zone-models/{path.name}"))
-            print(f"{each.setpoint_K:g} K: identified in {time.perf_counter() - started:.0f} s "
-                  f"({acquisition.runner.phase_log[-1][2] / 3600:.2f} h simulated)", flush=True)
-            report["zones"].append({"setpoint_K": each.setpoint_K, "simulated_h": acquisition.runner.phase_log[-1][2] / 3600,
-                                    "dc_gain_K_per_W": result.model.heater_to_thermometer.dc_gain})
-    heater = config.heater
-
-    def duration(model) -> float:
-        return min(12000.0, 4.0 * HOLD_AFTER_RAMP_S + 3.0 * max(model.heater_to_thermometer.time_constants_s))
-
+        started = time.perf_counter()
+        report["identify"] = cryod("identify", "--acquire", "--simulate", "--config", str(CONFIG), "--setpoints",
+                                   ",".join(f"{value:g}" for value in SETPOINTS_K), "--max-settle", "6000",
+                                   "--out", str(MODELS), "--force", "--data-dir", f"{scratch}/data",
+                                   "--socket", f"{scratch}/control.sock")
+        report["identify_wall_s"] = time.perf_counter() - started
     started = time.perf_counter()
-    tunings = tune_zones(identified, heater.max_power_w, setpoint_max_K=config.control.setpoint_max_K,
-                         ramp_K_per_min=config.control.ramp_K_per_min, tolerances=Tolerances(overshoot_K=2e-3),
-                         duration_s=duration, first_start_K=truth.operating_point.flange_temperature_K,
-                         progress=lambda text: print(text, flush=True), proportional_range_w_per_K=(1.0, 1000.0),
-                         integral_time_range_s=(10.0, 5000.0), grid=(5, 5), refine_evaluations=10)
-    print(f"tuned in {time.perf_counter() - started:.0f} s", flush=True)
-    header = (f"Zone table of the cryostat of model-4-25K.yaml (1000 ohm, 100 mA, ramp "
-              f"{config.control.ramp_K_per_min:g} K/min),\nwritten by benchmarks/zones.py commission: one zone per "
-              f"setpoint identified ({', '.join(f'{s:g}' for s in SETPOINTS_K)} K),\nits gains from cryod tune's search "
-              f"on its own model for the move into it, its model the feedforward's.")
-    TABLE.write_text(zone_table_text(zone_table(tunings), header))
-    for item, entry in zip(tunings, report["zones"]):
-        entry.update(item.tuning.best.summary())
+    zones = [f"{value:g}={MODELS / model_file_name(value)}" for value in SETPOINTS_K]
+    report["tune"] = cryod("tune", "--config", str(CONFIG), "--zones", *zones, "--zones-out", str(TABLE),
+                           "--max-overshoot", "2", "--force")
+    report["tune_wall_s"] = time.perf_counter() - started
     return report
 
 
@@ -263,11 +238,10 @@ def main() -> int:
     if args.what == "commission":
         report = commission()
     else:
-        table_zones = load_config(CONFIG).control.zones
-        if table_zones is None:
+        first: ZoneTable = load_config(CONFIG).control.zones
+        if first is None:
             print("config/cryod-4-25K.yaml has no zones: run commission first", file=sys.stderr)
             return 2
-        first: ZoneTable = table_zones
         report = {}
         for name, zones in (("zones", True), ("one set of gains", False)):
             run = run_once(CONFIG, zones, first.zones[0].gains, first.zones[0].feedforward_model)

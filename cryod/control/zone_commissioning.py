@@ -23,10 +23,16 @@ from typing import Callable, Sequence
 import yaml
 
 from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit
-from cryod.control.pi import PiGains
+from cryod.control.pi import MAX_GAIN, PiGains
 from cryod.control.tuning import Tolerances, Tuning, suggest_gains
 from cryod.control.zones import Zone, ZoneTable
 from cryod.model import CryostatModel, linearised_at
+
+
+#: The search over each zone's gains (:func:`cryod.control.tuning.suggest_gains`): the plant slows and weakens
+#: by two orders of magnitude across 4-25 K, and so do the gains it needs, up to what a configuration takes.
+ZONE_SEARCH = {"proportional_range_w_per_K": (0.5, MAX_GAIN), "integral_time_range_s": (10.0, 5000.0),
+               "grid": (5, 5), "refine_evaluations": 10}
 
 
 def zone_uppers(setpoints_K: Sequence[float], setpoint_max_K: float) -> list[float]:
@@ -86,7 +92,8 @@ def tune_zones(zone_models: Sequence[tuple[float, CryostatModel, str]], heater_m
     progress : callable, optional
         Told each zone's result as a line of text.
     **search
-        Passed to :func:`cryod.control.tuning.suggest_gains` (ranges, grid, refinement).
+        Passed to :func:`cryod.control.tuning.suggest_gains` (ranges, grid, refinement), in place of
+        :data:`ZONE_SEARCH`'s.
 
     Returns
     -------
@@ -97,6 +104,7 @@ def tune_zones(zone_models: Sequence[tuple[float, CryostatModel, str]], heater_m
     cryod.control.tuning.TuningError
         A zone where no gains meet the tolerances (names the zone).
     """
+    search = {**ZONE_SEARCH, **search}
     setpoints = [setpoint for setpoint, _, _ in zone_models]
     uppers = zone_uppers(setpoints, setpoint_max_K)
     results = []

@@ -1,6 +1,7 @@
 """Commissioning across the range: identification about a setpoint, the zone table written and read
 back, the feedforward's limit at each setpoint."""
 
+import json
 import math
 from types import SimpleNamespace
 
@@ -16,7 +17,7 @@ from cryod.control.zone_commissioning import (
 from cryod.control.zones import Zone, ZoneTable
 from cryod.identification.experiment import ExperimentPlan, ExperimentRunner
 from cryod.identification.setpoint_series import part_about_setpoint, plans_at
-from cryod.model import TEMPERATURE_MODEL_PATH, linearised_at, load_model, steady_state
+from cryod.model import TEMPERATURE_MODEL_PATH, linearised_at, load_model, save_model, steady_state
 from tests.conftest import CONFIG
 from tests.test_zones import PI_SECTION, configured
 
@@ -106,3 +107,53 @@ def test_the_example_for_25_K_has_a_heater_and_limits_fit_for_it():
     assert power_w < 0.7 * config.heater.max_power_w                     # headroom for ramps and the feedforward
     assert stage_K < config.safety.ptc_stage_max_K - 3.0
     assert config.control.setpoint_max_K < config.safety.flange_max_K
+
+
+# -- the commands ---------------------------------------------------------------------------
+def test_feedforward_limit_across_a_range_prints_each_setpoint_with_its_model(capsys):
+    from cryod.cli import main
+
+    arguments = ["feedforward-limit", "--config", str(CONFIG / "cryod-4-25K.yaml"), "--model",
+                 str(TEMPERATURE_MODEL_PATH), "--setpoints", "5,24", "--json"]
+    assert main(arguments) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert [row["setpoint_K"] for row in result["setpoints"]] == [5.0, 24.0]
+    assert result["setpoints"][0]["limited_by"] == "authority" and result["setpoints"][1]["limited_by"] == "noise"
+    assert result["setpoints"][1]["mean_heater_power_W"] == pytest.approx(5.5614, abs=1e-3)
+    assert main(arguments[:-3] + ["--zones", str(CONFIG / "cryod.yaml")]) == 2
+    assert "give the range with --setpoints" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--zones", "5:model.yaml"], "SETPOINT_K=MODEL_FILE"),
+    (["--zones", f"5={TEMPERATURE_MODEL_PATH}"], "not a zone's model"),
+    (["--zones", f"5={CONFIG / 'model.yaml'}", "--zones-out", str(CONFIG / "model.yaml")], "never writes over its input"),
+])
+def test_tune_zones_refuses_what_it_cannot_use(arguments, message, capsys):
+    from cryod.cli import main
+
+    try:
+        code = main(["tune", "--config", str(CONFIG / "cryod-4-25K.yaml"), *arguments])
+    except SystemExit as stop:
+        code = stop.code
+    assert code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_tune_zones_writes_a_table_the_configuration_reads(tmp_path, capsys):
+    from cryod.cli import main
+
+    cryostat = load_model(TEMPERATURE_MODEL_PATH)
+    for setpoint in (5.0, 6.0):
+        save_model(linearised_at(cryostat, setpoint), tmp_path / f"model-{setpoint:g}K.yaml")
+    out = tmp_path / "zones.yaml"
+    assert main(["tune", "--config", str(CONFIG / "cryod-4-25K.yaml"), "--zones", f"5={tmp_path / 'model-5K.yaml'}",
+                 f"6={tmp_path / 'model-6K.yaml'}", "--zones-out", str(out), "--duration", "1200", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert [zone["upper_K"] for zone in result["zones"]] == [5.5, 25.0]
+    assert all(zone["overshoot_mK"] <= 1.0 for zone in result["zones"])
+    path, _ = configured(tmp_path, "  zones: zones.yaml\n", ("  setpoint_max_K: 20.0", "  setpoint_max_K: 25.0"),
+                         ("  flange_max_K: 25.0", "  flange_max_K: 28.0"))
+    table = load_config(path).control.zones
+    assert table.zones[0].feedforward_model.heater_to_thermometer.dc_gain == pytest.approx(
+        linearised_at(cryostat, 5.0).heater_to_thermometer.dc_gain)

@@ -157,3 +157,28 @@ def test_tune_zones_writes_a_table_the_configuration_reads(tmp_path, capsys):
     table = load_config(path).control.zones
     assert table.zones[0].feedforward_model.heater_to_thermometer.dc_gain == pytest.approx(
         linearised_at(cryostat, 5.0).heater_to_thermometer.dc_gain)
+
+
+@pytest.mark.slow
+def test_identify_about_a_setpoint_finds_the_cryostat_there(tmp_path, capsys):
+    """On the temperature-dependent simulated cryostat, about 12 K: the model fitted to the hold and the step has
+    the linear model's gain at the line and its line within 10 %, its static gain within 15 %."""
+    from cryod.cli import main
+
+    assert main(["identify", "--acquire", "--simulate", "--config", str(CONFIG / "cryod-4-25K.yaml"), "--setpoints",
+                 "12", "--out", str(tmp_path / "models"), "--data-dir", str(tmp_path / "data"), "--socket",
+                 str(tmp_path / "control.sock"), "--bootstrap", "0", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    fitted = load_model(result["setpoints"][0]["model"])
+    truth = linearised_at(load_model(TEMPERATURE_MODEL_PATH), 12.0)
+    omega = truth.ptc.angular_frequency_rad_s
+
+    def line(model):
+        return abs(model.ptc_heat_to_thermometer.frequency_response(omega)) * model.ptc.heat_capacity_J_per_K \
+            * omega * model.ptc.ptc_stage_amplitude_K
+
+    assert abs(fitted.heater_to_thermometer.frequency_response(omega)) == pytest.approx(
+        abs(truth.heater_to_thermometer.frequency_response(omega)), rel=0.1)
+    assert line(fitted) == pytest.approx(line(truth), rel=0.1)
+    assert fitted.heater_to_thermometer.dc_gain == pytest.approx(truth.heater_to_thermometer.dc_gain, rel=0.15)
+    assert fitted.name == "identified at 12 K"

@@ -10,7 +10,7 @@ config/cryod-4-25K.yaml (1000 ohm, 100 mA, ramp 0.1 K/min, feedforward on).
 
 ``commission`` runs the two commands a lab runs: ``cryod identify --acquire --simulate --setpoints
 5,8,12,16,20,24`` (at each setpoint the experiment about it: regulate, hold, a 50 mK setpoint step; the
-fit of its hold and step, one model per setpoint with uncertainties; ``--max-settle 6000``) into
+fit of its hold and step, one model per setpoint with uncertainties; ``--max-settle 4000``) into
 config/zone-models/, then ``cryod tune --zones ... --max-overshoot 2`` (each zone's gains on its own
 model for the move into it, from the previous setpoint at the ramp) into config/zones-4-25K.yaml.
 
@@ -86,7 +86,7 @@ def commission() -> dict:
     with tempfile.TemporaryDirectory() as scratch:
         started = time.perf_counter()
         report["identify"] = cryod("identify", "--acquire", "--simulate", "--config", str(CONFIG), "--setpoints",
-                                   ",".join(f"{value:g}" for value in SETPOINTS_K), "--max-settle", "6000",
+                                   ",".join(f"{value:g}" for value in SETPOINTS_K), "--max-settle", "4000",
                                    "--out", str(MODELS), "--force", "--data-dir", f"{scratch}/data",
                                    "--socket", f"{scratch}/control.sock")
         report["identify_wall_s"] = time.perf_counter() - started

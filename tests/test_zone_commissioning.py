@@ -76,11 +76,15 @@ def test_about_a_setpoint_the_experiment_regulates_holds_and_steps_the_setpoint(
     heater = lambda t: 1.8 + 0.2 * math.exp(-t / 10.0)                    # noqa: E731  settles, as under PI
     t = 0.0
     while not stops and t < 2000.0:
-        runner(SimpleNamespace(state="closed", time_s=t, T2_K=12.0, heater_W=heater(t if t < 500 else t - 500)))
+        ramp = min(11.0 + t / 60.0, 12.0) if len(commands) == 1 else 12.05     # 1 K/min, from 11 K
+        runner(SimpleNamespace(state="closed", time_s=t, T2_K=ramp, setpoint_K=ramp,
+                               heater_W=heater(t if t < 500 else t - 500)))
         t += 0.5
     assert commands == [("setpoint", 12.0), ("setpoint", 12.05)]
     assert runner.outcome == "finished" and [phase for phase, _, _ in runner.phase_log] == ["regulate", "line", "step"]
-    assert notes[1].startswith("phase regulate settled after") and "the heater moved" in notes[1]
+    assert runner.phase_log[0][1] == 60.0                                 # counted from the ramp's end
+    assert notes[1] == "the setpoint reached 12 K: the regulation settles from here"
+    assert notes[2].startswith("phase regulate settled after") and "the heater moved" in notes[2]
     with pytest.raises(ValueError, match="closed loop"):
         ExperimentPlan(setpoint_K=12.0, base_power_w=0.1).check(10.0)
     with pytest.raises(ValueError, match="increasing order"):

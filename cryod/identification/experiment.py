@@ -17,7 +17,8 @@ then the heater goes to 0 W and the daemon stops.
 
 About a setpoint (``setpoint_K``, one zone's identification) the same phases run in closed loop:
 ``regulate``, the daemon regulating at the setpoint until the heater power has settled (the
-criterion below, on the heater power); ``line``, held there; ``step``, the setpoint stepped by
+criterion below, on the heater power; its time counts from when a configured ramp has reached the
+setpoint); ``line``, held there; ``step``, the setpoint stepped by
 ``setpoint_step_K``, until the heater power has settled again. The fit takes the heater as the input
 and T2 as the output, as in open loop; the approach across the range stays out of it.
 
@@ -296,6 +297,7 @@ class ExperimentRunner:
                  note: Callable[[str], None], expected_settle_s: float = 900.0):
         self.plan = plan
         self.closed_loop = plan.setpoint_K is not None
+        self._at_setpoint = False       # the regulate phase's ramp has reached the setpoint
         self.submit = submit
         self.stop = stop
         self.note = note
@@ -345,6 +347,14 @@ class ExperimentRunner:
             self.started_s = time_s
             self._start_phase(0, time_s)
         flange = float(item.T2_K) if item.T2_K is not None else math.nan
+        if self.phase == "regulate" and not self._at_setpoint:
+            setpoint = getattr(item, "setpoint_K", None)
+            if setpoint is None or setpoint != self.plan.setpoint_K:
+                self._update_progress(time_s, flange, float(item.heater_W or 0.0))
+                return                  # still ramping there: the phase's time counts from the ramp's end
+            self._at_setpoint = True
+            self.phase_start_s = time_s
+            self.note(f"the setpoint reached {self.plan.setpoint_K:g} K: the regulation settles from here")
         if self.judge is not None:       # about a setpoint, the heater settles (T2 is held)
             self.judge.add(time_s, float(item.heater_W if item.heater_W is not None else math.nan)
                            if self.closed_loop else flange)

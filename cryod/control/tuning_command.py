@@ -54,7 +54,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     parser.add_argument("--max-current", type=positive, default=None, metavar="A",
                         help="heater current limit in A (default: the configuration's)")
     parser.add_argument("--duration", type=positive, default=None, metavar="S",
-                        help="length of each step in s (default 900; with --zones the ramp's time plus three of "
+                        help="length of each step in s (default 900; with --zones the ramp's time plus two of "
                              "the zone model's longest time constants, at least 900; the last 200 s judge the "
                              "settled state)")
     parser.add_argument("--zones", nargs="+", type=_zone_model, default=None, metavar="K=MODEL",
@@ -173,7 +173,7 @@ def run_zones(args: argparse.Namespace) -> int:
         index = next(i for i, (_, zone_model, _) in enumerate(zone_models) if zone_model is model)
         start = setpoints[index - 1] if index else model.operating_point.flange_temperature_K
         ramp_s = abs(setpoints[index] - start) / ramp * 60.0 if ramp > 0.0 else 0.0
-        return max(900.0, ramp_s + 3.0 * max(model.heater_to_thermometer.time_constants_s, default=0.0))
+        return max(900.0, ramp_s + 2.0 * max(model.heater_to_thermometer.time_constants_s, default=0.0))
 
     if not args.json:
         print(f"tuning {len(zone_models)} zones ({resistance:g} ohm, {current * 1e3:g} mA, ramp {ramp:g} K/min) ...",

@@ -217,9 +217,12 @@ def table(run: dict) -> str:
     lines = ["| setpoint | ramp (s) | within 1 mK after command (s) | after ramp end (s) | overshoot (mK) | "
              "periodic (uK) | open line (uK) | limit / reachable (uK) | periodic / reachable | heater (W) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
+    def seconds(value) -> str:
+        return f"{value:.0f}" if value is not None and math.isfinite(value) else f"not by the end ({HOLD_AFTER_RAMP_S:.0f} s after the ramp)"
+
     for row in run["setpoints"]:
-        lines.append(f"| {row['setpoint_K']:g} K | {row['ramp_s']:.0f} | {row['settle_from_command_s']:.0f} | "
-                     f"{row['settle_from_ramp_end_s']:.0f} | {row['overshoot_mK']:.2f} | {row['periodic_uK']:.1f} | "
+        lines.append(f"| {row['setpoint_K']:g} K | {row['ramp_s']:.0f} | {seconds(row['settle_from_command_s'])} | "
+                     f"{seconds(row['settle_from_ramp_end_s'])} | {row['overshoot_mK']:.2f} | {row['periodic_uK']:.1f} | "
                      f"{row['open_line_uK']:.1f} | {row['limit_uK']:.2f} / {row['reachable_uK']:.2f} "
                      f"({row['limited_by']}) | {row['over_limit']:.2f} | {row['mean_heater_W']:.3f} |")
     ticks = run["tick_wall_ms"]
@@ -248,7 +251,7 @@ def main() -> int:
             report[name] = run
             print(f"## {name}\n\n{table(run)}\n", flush=True)
     if args.json is not None:
-        args.json.write_text(json.dumps(report, indent=1, default=float))
+        args.json.write_text(json.dumps(report, indent=1, default=float).replace("Infinity", "null"))
     return 0
 
 

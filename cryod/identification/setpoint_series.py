@@ -24,6 +24,7 @@ import numpy as np
 
 from cryod.analysis.record_data import RecordData
 from cryod.identification.experiment import ExperimentPlan
+from cryod.identification.fit import IdentificationError
 from cryod.identification.model_fit import ModelIdentification, identify_model
 from cryod.model import CryostatModel
 
@@ -73,6 +74,15 @@ def identify_at_setpoint(setpoint_K: float, records: Sequence[RecordData], recor
     """Fit the model about ``setpoint_K`` to the hold and the step of its records (``fit_options`` go to
     :func:`cryod.identification.model_fit.identify_model`)."""
     result = identify_model([part_about_setpoint(data, line_hold_s) for data in records], base, **fit_options)
+    off = result.model.operating_point.flange_temperature_K
+    if not off > 0.0:
+        slowest = max(result.model.heater_to_thermometer.time_constants_s, default=0.0)
+        fitted = part_about_setpoint(records[-1], line_hold_s).duration_s
+        raise IdentificationError(
+            f"about {setpoint_K:g} K the fit's static gain ({result.model.heater_to_thermometer.dc_gain:.4g} K/W) puts "
+            f"the cryostat at {off:.4g} K with the heater off: the records do not fix it (the slowest time constant "
+            f"fitted, {slowest:.0f} s, against {fitted:.0f} s of hold and step); let the step settle longer "
+            f"(--max-settle)")
     names = ", ".join(map(str, record_paths))
     result.model = dataclasses.replace(
         result.model, name=f"identified at {setpoint_K:g} K",

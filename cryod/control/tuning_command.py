@@ -66,6 +66,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     parser.add_argument("--force", action="store_true", help="overwrite --zones-out if it exists")
     parser.add_argument("--max-overshoot", type=not_negative, default=1.0, metavar="MK",
                         help="largest acceptable overshoot of the cooler-period average, mK (default 1)")
+    parser.add_argument("--max-line-ratio", type=positive, default=Tolerances.line_ratio, metavar="X",
+                        help=f"largest acceptable cooler line under PI against the open line (default "
+                             f"{Tolerances.line_ratio:g}; with the feedforward on, PI does not see the line)")
     parser.add_argument("--min-phase-margin", type=not_negative, default=45.0, metavar="DEG",
                         help="smallest acceptable phase margin of the loop, degrees (default 45)")
     parser.add_argument("--config", default=str(EXAMPLE_CONFIG_PATH), metavar="PATH",
@@ -100,7 +103,8 @@ def run(args: argparse.Namespace) -> int:
     config, model, setpoint = inputs.config, inputs.model, inputs.setpoint_K
     resistance, current = inputs.heater_ohm, inputs.max_current_A
     heater_max_w = resistance * current ** 2
-    tolerances = Tolerances(overshoot_K=args.max_overshoot * 1e-3, phase_margin_deg=args.min_phase_margin)
+    tolerances = Tolerances(overshoot_K=args.max_overshoot * 1e-3, phase_margin_deg=args.min_phase_margin,
+                            line_ratio=args.max_line_ratio)
     options = {"start_heater_w": args.from_power, "duration_s": args.duration, "period_s": config.loop.period_s}
     if args.from_power > heater_max_w:
         print(f"{PROGRAM}: --from-power {args.from_power:g} W is above R I_max^2 = {heater_max_w:g} W", file=sys.stderr)
@@ -164,7 +168,8 @@ def run_zones(args: argparse.Namespace) -> int:
     current = args.max_current if args.max_current is not None else config.heater.max_current_A
     heater_max_w = resistance * current ** 2
     ramp = config.control.ramp_K_per_min
-    tolerances = Tolerances(overshoot_K=args.max_overshoot * 1e-3, phase_margin_deg=args.min_phase_margin)
+    tolerances = Tolerances(overshoot_K=args.max_overshoot * 1e-3, phase_margin_deg=args.min_phase_margin,
+                            line_ratio=args.max_line_ratio)
     setpoints = [setpoint for setpoint, _, _ in zone_models]
 
     def duration(model) -> float:

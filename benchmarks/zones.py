@@ -46,7 +46,7 @@ from cryod.identification.setpoint_series import model_file_name
 from cryod.model import TEMPERATURE_MODEL_PATH, load_model
 from cryod.records.columns import Row
 from cryod.records.metrics import regulation_metrics
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.service.commands import Command
 from cryod.service.daemon import Daemon
 from cryod.service.simulation import SimulatedInstrumentsOpener, simulation_config

@@ -11,7 +11,7 @@ from cryod.model import (
     save_model, simulate, steady_state,
 )
 from cryod.model.temperature_plant import flange_temperature_at
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.yaml_source import FileFormatError
 from simulated_hw.cryostat import SimulatedCryostat
 from tests.test_reference_model import open_loop_line, step_responses

@@ -38,6 +38,7 @@ Examples
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -45,7 +46,33 @@ from cryod.control.ramp import SetpointRamp
 from cryod.control.terms import ControlTerm, TickInputs, build_terms, term_columns
 
 if TYPE_CHECKING:
-    from cryod.config import ControlConfig
+    from cryod.control.zones import ZoneTable
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    """The regulator's settings, the configuration's ``control`` section: setpoint, ramp, their limits,
+    and each control term's own section (read by :mod:`cryod.config`).
+
+    Attributes
+    ----------
+    terms : tuple of (str, settings)
+        Each control term's name and validated settings, from its section
+        (``control.pi``, ...), in the order of :data:`cryod.control.terms.TERM_TYPES`.
+    """
+
+    setpoint_K: float | None
+    ramp_K_per_min: float
+    setpoint_min_K: float
+    setpoint_max_K: float
+    max_ramp_K_per_min: float
+    terms: tuple = ()
+    #: The zones (``control.zones``), or None: the terms' own settings at every temperature.
+    zones: ZoneTable | None = None
+
+    def term(self, name: str):
+        """The settings of the control term ``name``."""
+        return dict(self.terms)[name]
 
 
 class RegulatorMode(StrEnum):
@@ -171,7 +198,7 @@ class Regulator:
         What the terms' outputs are and their range.
     """
 
-    def __init__(self, control: "ControlConfig", output: HeaterPowerOutput | HeaterCurrentOutput):
+    def __init__(self, control: ControlConfig, output: HeaterPowerOutput | HeaterCurrentOutput):
         self.output = output
         self.control = control
         self.terms: list[ControlTerm] = build_terms(control.terms, output.maximum)
@@ -319,7 +346,7 @@ class Regulator:
         self.regulating = False
 
     # -- configuration -------------------------------------------------------------------
-    def refusal(self, control: "ControlConfig") -> tuple[str, str] | None:
+    def refusal(self, control: ControlConfig) -> tuple[str, str] | None:
         """Why ``control`` cannot be applied now: (the key it breaks, the reason), or None.
 
         In every mode the ramp rate that would be in use must be within the new
@@ -355,7 +382,7 @@ class Regulator:
                         f"{control.setpoint_min_K:g} K is above {what}: {advice}")
         return None
 
-    def reconfigure(self, control: "ControlConfig") -> None:
+    def reconfigure(self, control: ControlConfig) -> None:
         """Apply a reloaded ``control`` section bumplessly (check :meth:`refusal` first).
 
         A setpoint or ramp rate that the reload changed replaces the one in use;
@@ -404,7 +431,7 @@ class Regulator:
         """The zone in use (:class:`cryod.control.zones.Zone`), None without zones."""
         return None if self.zone_index is None else self.control.zones.zones[self.zone_index]
 
-    def _rate_and_target(self, control: "ControlConfig") -> tuple[float, float]:
+    def _rate_and_target(self, control: ControlConfig) -> tuple[float, float]:
         previous = self.control
         rate = control.ramp_K_per_min if control.ramp_K_per_min != previous.ramp_K_per_min \
             else self.ramp.rate_K_per_min

@@ -22,8 +22,8 @@ import math
 import sys
 from pathlib import Path
 
-from cryod.control.lab_inputs import InputsNotUsable, lab_inputs
-from cryod.argument_types import not_negative, number, positive
+from cryod.cli.lab_inputs import InputsNotUsable, lab_inputs
+from cryod.argument_types import not_negative, number, positive, setpoint_list
 
 from cryod.config import EXAMPLE_CONFIG_PATH
 from cryod.control.feedforward_limit import (
@@ -65,7 +65,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     parser.add_argument("--measure", choices=MEASURES, default="sampled",
                         help="harmonics of the readings at the loop's instants, as the daemon measures (default), "
                              "or of the thermometer's continuous temperature")
-    parser.add_argument("--setpoints", type=_setpoints, default=None, metavar="K,K,...",
+    parser.add_argument("--setpoints", type=setpoint_list, default=None, metavar="K,K,...",
                         help="the limit at each of these setpoints, with the model that holds there (a "
                              "temperature-dependent --model's, or --zones' models)")
     parser.add_argument("--zones", type=Path, default=None, metavar="TABLE",
@@ -75,16 +75,6 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
                         help="configuration giving the defaults (default: the example config/cryod.yaml)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     return parser
-
-
-def _setpoints(text: str) -> tuple[float, ...]:
-    try:
-        values = tuple(number(part) for part in text.split(","))
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"give setpoints in K separated by commas, e.g. 5,8,12; got {text!r}") from None
-    if not all(value > 0.0 for value in values):
-        raise argparse.ArgumentTypeError(f"give setpoints above 0 K, got {text!r}")
-    return values
 
 
 def run(args: argparse.Namespace) -> int:

@@ -237,6 +237,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("what", choices=("commission", "run"))
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
+    parser.add_argument("--only", choices=("zones", "one set of gains"), default=None,
+                        help="run: only this configuration (two processes for the two)")
     args = parser.parse_args()
     if args.what == "commission":
         report = commission()
@@ -247,6 +249,8 @@ def main() -> int:
             return 2
         report = {}
         for name, zones in (("zones", True), ("one set of gains", False)):
+            if args.only not in (None, name):
+                continue
             run = run_once(CONFIG, zones, first.zones[0].gains, first.zones[0].feedforward_model)
             report[name] = run
             print(f"## {name}\n\n{table(run)}\n", flush=True)

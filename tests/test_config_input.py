@@ -12,7 +12,7 @@ import pytest
 from cryod.config import MAX_RAMP_K_PER_MIN, load_config
 from cryod.yaml_source import ALIAS_NODE_BUDGET, MAX_REASON_CHARS, FileFormatError
 from tests.conftest import CALIBRATION_DATA, CONFIG
-from tests.test_config import EXAMPLE, line_of, written
+from tests.example_config import line_of, written
 
 #: No error message quotes more than this of what the file holds (reason plus location).
 MESSAGE_CHARS = MAX_REASON_CHARS + 500

@@ -12,7 +12,7 @@ from cryod.config import load_config
 from cryod.model import load_model
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG
-from tests.test_config import line_of, written
+from tests.example_config import line_of, written
 
 
 @pytest.mark.parametrize("written_as, reason", [

@@ -29,7 +29,8 @@ from cryod.records.columns import Event, Row
 from cryod.service.live_view import LiveView
 from cryod.service.metrics_export import MetricsEndpoint, parse_address
 from cryod.service.status_line import format_status
-from tests.test_daemon_faults import FaultDrill, simulated_config
+from tests.example_config import simulated_config
+from tests.fault_drills import FaultDrill
 
 
 def free_port() -> int:

@@ -12,7 +12,7 @@ import pytest
 
 import cryod
 from tests.conftest import CONFIG, REPOSITORY
-from tests.test_config import line_of
+from tests.example_config import line_of
 
 
 def test_import_cryod_exposes_the_documented_api_and_stays_light():

@@ -16,9 +16,9 @@ from cryod.cli import main
 from cryod.config import SOCKET_PATH_MAX_BYTES
 from cryod.service.faults import ExitCode
 from tests.conftest import CONFIG, REPOSITORY
-from tests.test_config import EXAMPLE
-from tests.test_daemon_config_refusals import config_file, reloads_over_the_socket
-from tests.test_systemd_unit import TEMPLATE, UNIT, unit_sections
+from tests.example_config import EXAMPLE, config_file
+from tests.reload_drills import reloads_over_the_socket
+from tests.systemd_units import TEMPLATE, UNIT, unit_sections
 
 #: The example's instruments behind a LAN-to-GPIB gateway, triggered one after the other.
 LAN = {"GPIB0::16::INSTR": "TCPIP0::10.0.0.2::1234::SOCKET", "GPIB0::17::INSTR": "TCPIP0::10.0.0.3::1234::SOCKET",

@@ -1,4 +1,4 @@
-"""Configurations the running daemon refuses, and why it says so in the record (issue 15, items 7 and 9).
+"""Configurations the running daemon refuses, and why it says so in the record.
 
 The daemon runs in process on virtual time against the simulated bench (as in
 tests/test_daemon_faults.py): a reload of a file that cannot be read is refused,

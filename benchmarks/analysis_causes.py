@@ -1,4 +1,4 @@
-"""How often ``cryod analyze`` names the right causes on records like real ones: the issue-12 benchmark.
+"""How often ``cryod analyze`` names the right causes on records like real ones.
 
 Run: PYTHONPATH=. python3 benchmarks/analysis_causes.py [--records N] [--processes 2] [--seed S] [--json PATH]
 

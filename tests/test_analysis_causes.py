@@ -6,9 +6,10 @@ as real ones are (:func:`simulated_hw.hidden_effects.perturbed_base`): the
 analysis recalibrates them and names the cause on top.
 
 Default run: one realistic magnitude of each cause, each in one protocol, plus
-clean records and disturbances outside the list. ``pytest -m slow``: every
-cause x both protocols x three magnitudes, clean records and every
-disturbance in both protocols, on longer records.
+clean records, one disturbance outside the list and one pair of effects (the
+other protocol's cases of those tests are slow). ``pytest -m slow``: every
+cause x both protocols x three magnitudes, clean records, every disturbance
+and every pair from different groups in both protocols, on longer records.
 """
 
 import tempfile
@@ -63,7 +64,7 @@ def test_clean_record_gives_none_with_the_recalibration(protocol):
     assert analysis.extended_model is not analysis.base_model and not analysis.extended_model.effect_names()
 
 
-@pytest.mark.parametrize("protocol", ["identification", "pi_only"])
+@pytest.mark.parametrize("protocol", ["identification", pytest.param("pi_only", marks=pytest.mark.slow)])
 def test_record_of_the_model_itself_keeps_the_model(protocol):
     """The shipped parameters exactly (another day): none, nothing recalibrated, the base model kept."""
     analysis = analysed_case("none", 1, protocol, DURATIONS_S[protocol], perturbation=None)
@@ -72,7 +73,7 @@ def test_record_of_the_model_itself_keeps_the_model(protocol):
     assert analysis.extended_model is analysis.base_model
 
 
-@pytest.mark.parametrize("disturbance, protocol", [("heat leak step", "pi_only"),
+@pytest.mark.parametrize("disturbance, protocol", [pytest.param("heat leak step", "pi_only", marks=pytest.mark.slow),
                                                    ("thermometer drift", "identification")])
 def test_disturbance_outside_the_list_is_unexplained(disturbance, protocol):
     duration = DURATIONS_S[protocol]
@@ -201,8 +202,8 @@ def test_rows_without_a_reading_are_left_out():
 
 # -- two effects at once ---------------------------------------------------------------------
 TWO_EFFECT_CASES = [
-    (("dead_time", "ptc_harmonics"), "identification"),          # heater path + cooler
-    (("heater_nonlinearity", "link_dynamics"), "pi_only"),       # heater path + link
+    pytest.param(("dead_time", "ptc_harmonics"), "identification", marks=pytest.mark.slow),   # heater path + cooler
+    (("heater_nonlinearity", "link_dynamics"), "pi_only"),                                    # heater path + link
 ]
 
 

@@ -131,10 +131,10 @@ def test_the_lan_configuration_itself_passes(tmp_path, capsys):
     assert "valid" in capsys.readouterr().out
 
 
-def test_check_and_run_exit_2_as_processes_and_run_no_longer_waits_on_a_garbage_visa_library(tmp_path):
+def test_check_and_run_as_processes_refuse_with_exit_2_before_starting_anything(tmp_path):
     """As processes: --check refuses with exit 2 and one line; ``cryod run`` itself refuses the same
-    configurations before it starts anything (it waited for ever on a VISA library it could not load,
-    and died with exit 1, which systemd restarts, on a socket path too long)."""
+    configurations before it starts anything: a VISA library it cannot load must not keep it waiting for
+    ever, and a socket path too long is exit 2, which systemd does not restart (exit 1 it would)."""
     cases = {case[0]: case for case in REFUSALS}
     for what in ("garbage VISA library", "socket path too long", "octal-looking setpoint"):
         _, replacements, key, _ = cases[what]
@@ -162,7 +162,7 @@ def test_systemd_does_not_restart_a_configuration_error(unit):
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("kind", ["fifo", "device", "directory"])
 def test_a_configuration_that_is_not_a_regular_file_is_refused_at_once(tmp_path, kind):
-    """A named pipe made --check wait for a writer for ever; a device never ends."""
+    """A named pipe would keep --check waiting for a writer for ever; a device never ends."""
     if kind == "fifo":
         path = tmp_path / "cryod.yaml"
         os.mkfifo(path)

@@ -136,9 +136,9 @@ def test_check_and_run_as_processes_refuse_with_exit_2_before_starting_anything(
     configurations before it starts anything: a VISA library it cannot load must not keep it waiting for
     ever, and a socket path too long is exit 2, which systemd does not restart (exit 1 it would)."""
     cases = {case[0]: case for case in REFUSALS}
-    for what in ("garbage VISA library", "socket path too long", "octal-looking setpoint"):
+    for number, what in enumerate(("garbage VISA library", "socket path too long", "octal-looking setpoint")):
         _, replacements, key, _ = cases[what]
-        folder = tmp_path / what.replace(" ", "-")
+        folder = tmp_path / str(number)            # short: the other cases' socket paths stay below the limit
         folder.mkdir()
         path, _, line = refused_case(folder, replacements)
         located = f"{path}:{line}: {key}: "

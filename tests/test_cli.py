@@ -64,9 +64,8 @@ def test_ctl_without_daemon(tmp_path):
     assert result.returncode == 3 and "top.sock" in result.stderr
 
 
-def test_ctl_finds_a_dry_run_without_options_and_says_where_it_looked(tmp_path, monkeypatch, capsys):
-    runtime = tmp_path / "runtime"
-    runtime.mkdir(mode=0o700)
+def test_ctl_finds_a_dry_run_without_options_and_says_where_it_looked(tmp_path, monkeypatch, capsys, runtime_dir):
+    runtime = runtime_dir
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
     monkeypatch.setattr("cryod.service.discovery.SERVICE_CONFIG", tmp_path / "absent.yaml")
     assert main(["ctl", "status"]) == 3

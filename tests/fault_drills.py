@@ -31,7 +31,7 @@ from cryod.instrument_waits import InstrumentWaits
 from cryod.model import load_model
 from cryod.records.columns import Event, Row
 from cryod.records.record import read_record
-from cryod.service.clock import MonotonicClock, VirtualClock
+from drivers.clock import MonotonicClock, VirtualClock
 from cryod.service.commands import Command, wait_for
 from cryod.service.daemon import Daemon
 from cryod.service.notify import SystemdNotifier

@@ -12,7 +12,7 @@ from cryod.config import load_config
 from cryod.model import load_model
 from cryod.records.columns import Row
 from cryod.records.record import read_record
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.service.commands import Command
 from cryod.service.control_socket import send_command
 from cryod.service.daemon import Daemon

@@ -8,7 +8,7 @@ import pytest
 
 import cryod
 from cryod.cli import main
-from cryod.records.quick_look import cooler_frequency, line_amplitudes
+from cryod.cli.plot import cooler_frequency, line_amplitudes
 from cryod.records.record import write_record
 
 
@@ -57,7 +57,7 @@ def test_records_that_cannot_be_plotted_say_why(tmp_path, capsys, text, message)
 
 def test_spectral_lines_are_named_where_sampling_puts_them():
     from cryod.analysis.figures import heater_modulation_hz
-    from cryod.records.quick_look import folded_frequency
+    from cryod.figure_files import folded_frequency
 
     assert folded_frequency(1.7237, 12.5) == pytest.approx(1.7237)
     assert folded_frequency(6 * 1.7237, 12.5) == pytest.approx(12.5 - 6 * 1.7237)   # 10.34 Hz shows at 2.16 Hz

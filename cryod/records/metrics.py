@@ -4,7 +4,7 @@
   fit at one frequency, refined on T5, where the line is 70 times larger);
 * ``ptc_periodic_amplitude_K``: T2's whole part synchronous with the cooler,
   harmonics 1 to 6 against the cooler's phase tracked from T5 sample by sample
-  (:mod:`cryod.control.cooler_phase`), as sqrt(2) times its rms (the square
+  (:mod:`cryod.cooler.periodic`), as sqrt(2) times its rms (the square
   root of the sum of the harmonics' squared amplitudes); unlike the line at one
   frequency it stays true when the cooler's frequency wanders;
   ``ptc_harmonic_amplitudes_K``: the harmonics' amplitudes;
@@ -28,54 +28,16 @@ Examples
 from __future__ import annotations
 
 import numpy as np
-from scipy import optimize, signal
+from scipy import signal
 
-from cryod.analysis.line_fit import fit_line
-from cryod.control.cooler_phase import track_cooler_phase
+from cryod.cooler.line_fit import fit_line
+from cryod.cooler.periodic import PERIODIC_HARMONICS, line_frequency, periodic_amplitudes
 
 LOW_FREQUENCY_HZ = 0.1
 #: The low-pass's start and end transients are left out of ``lowfreq_rms_K`` this long (s) ...
 LOW_FREQUENCY_EDGE_S = 30.0
 #: ... in windows at least this long (s).
 LOW_FREQUENCY_MIN_WINDOW_S = 120.0
-#: Harmonics of the cooler in the periodic amplitude.
-PERIODIC_HARMONICS = 6
-#: Degree of the polynomial that takes the slow part out of T2 before the periodic fit.
-SLOW_DEGREE = 3
-
-
-def periodic_amplitudes(flange_time_s, flange_K, stage_time_s, ptc_stage_K, nominal_rad_s: float,
-                        harmonics: int = PERIODIC_HARMONICS, window_start_s: float = -np.inf) -> np.ndarray:
-    """Amplitudes (K) of T2's harmonics 1..``harmonics`` of the cooler, phase tracked from T5.
-
-    The tracker runs over every reading given (those before ``window_start_s``
-    only let it lock); the least-squares fit of T2 (harmonics, and a cubic
-    for the slow part) uses the readings from ``window_start_s`` on.
-    """
-    flange_time_s = np.asarray(flange_time_s, dtype=float)
-    track = track_cooler_phase(stage_time_s, ptc_stage_K, nominal_rad_s)
-    phase = track["phase_rad"] + track["frequency_rad_s"] * (flange_time_s - np.asarray(stage_time_s, float))
-    use = (flange_time_s >= window_start_s) & track["locked"]
-    if use.sum() < 4 * harmonics + 10:
-        return np.full(harmonics, np.nan)
-    t = flange_time_s[use]
-    scaled = (t - t.mean()) / max(float(np.ptp(t)), 1e-9)
-    angles = np.outer(phase[use], np.arange(1, harmonics + 1))
-    columns = np.hstack([np.vander(scaled, SLOW_DEGREE + 1), np.cos(angles), np.sin(angles)])
-    solution, *_ = np.linalg.lstsq(columns, np.asarray(flange_K, float)[use], rcond=None)
-    cosines = solution[SLOW_DEGREE + 1:SLOW_DEGREE + 1 + harmonics]
-    sines = solution[SLOW_DEGREE + 1 + harmonics:]
-    return np.hypot(cosines, sines)
-
-
-def line_frequency(time_s: np.ndarray, ptc_stage_K: np.ndarray, nominal_rad_s: float,
-                   search_rad_s: float = 0.2) -> float:
-    """The PTC angular frequency (rad/s) that maximises the line on T5 near ``nominal_rad_s``."""
-    result = optimize.minimize_scalar(
-        lambda omega: -fit_line(time_s, ptc_stage_K, omega, trend_order=0).amplitude[0],
-        bounds=(nominal_rad_s - search_rad_s, nominal_rad_s + search_rad_s), method="bounded",
-        options={"xatol": 1e-6})
-    return float(result.x)
 
 
 def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_rad_s: float,

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cryod.figure_files import mark_cooler_harmonics
 from cryod.output_files import output_file_refusal
 from cryod.records.record import RecordFormatError, read_record
 
@@ -29,7 +30,6 @@ from cryod.records.record import RecordFormatError, read_record
 LINE_BLOCK_S = 30.0
 #: Pixel columns of the time axes; each gets T2's minimum and maximum.
 COLUMNS = 1500
-HARMONICS = 6
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -64,7 +64,7 @@ def run(args) -> int:
 
 def cooler_frequency(time_s: np.ndarray, ptc_stage_K: np.ndarray, nominal_rad_s: float) -> float:
     """The cooler's angular frequency (rad/s) on T5 near ``nominal_rad_s`` (the first hour at most)."""
-    from cryod.records.metrics import line_frequency
+    from cryod.cooler.periodic import line_frequency
 
     usable = np.isfinite(time_s) & np.isfinite(ptc_stage_K)
     usable &= time_s <= time_s[usable][0] + 3600.0 if usable.any() else usable
@@ -198,25 +198,6 @@ def _draw_error(axis, time_s, error_K, regulated, scale: float) -> None:
     axis.set_title("where the loop regulated, scaled to the error after the first fifth of that time "
                    "(a start-up transient leaves the axis)", fontsize=8)
     axis.legend(loc="best", fontsize=8)
-
-
-def folded_frequency(frequency_hz: float, sample_hz: float) -> float:
-    """Where a line at ``frequency_hz`` appears in the spectrum of data sampled at ``sample_hz`` (Hz)."""
-    nyquist = sample_hz / 2.0
-    return abs(((frequency_hz + nyquist) % sample_hz) - nyquist)
-
-
-def mark_cooler_harmonics(axis, cooler_hz: float, sample_hz: float, harmonics: int = HARMONICS) -> None:
-    """Dashed, labelled lines at the cooler's harmonics on a spectrum axis; those above the Nyquist
-    frequency where sampling folds them, labelled with the frequency they come from."""
-    for order in range(1, harmonics + 1):
-        true_hz = order * cooler_hz
-        aliased = true_hz > sample_hz / 2.0
-        folded = folded_frequency(true_hz, sample_hz)
-        axis.axvline(folded, color="tab:purple" if aliased else "tab:red", lw=0.6, ls="--", alpha=0.6)
-        axis.annotate(f"{order}f" + (f" (aliased from {true_hz:.2f} Hz)" if aliased else ""),
-                      (folded, 0.97), xycoords=("data", "axes fraction"), rotation=90, fontsize=7,
-                      va="top", ha="right")
 
 
 def _mark_events(record, axes, scale: float) -> None:

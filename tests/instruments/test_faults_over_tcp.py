@@ -14,9 +14,7 @@ from drivers.transports import VisaTransport
 from simulated_hw.bench import SimulatedBench
 from simulated_hw.scpi_server import ScpiServer
 
-#: Long enough for a busy machine to schedule the simulated instrument's server thread; the no-reply test waits
-#: it out once.
-TIMEOUT_S = 2.0
+TIMEOUT_S = 0.25
 
 
 @pytest.fixture

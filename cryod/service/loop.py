@@ -122,6 +122,9 @@ class Status:
     last_target_K: float | None = None
     loop_timing: object = None      # LoopTiming, summarised when asked, not every tick
     control: dict | None = None     # the control terms' columns of the last tick
+    #: The zone in use (counted from 1) and its upper temperature (K); None without ``control.zones``.
+    zone: int | None = None
+    zone_upper_K: float | None = None
 
     @property
     def timing(self) -> dict:
@@ -133,6 +136,7 @@ class Status:
             "heater_W": self.heater_w, "setpoint_K": self.setpoint_K, "target_K": self.target_K,
             "ramp_K_per_min": self.ramp_K_per_min, "last_target_K": self.last_target_K,
             "last_fault": self.last_fault, **(self.control or {}),
+            **({"zone": self.zone, "zone_upper_K": self.zone_upper_K} if self.zone is not None else {}),
             **self.timing,
         }
 
@@ -140,7 +144,8 @@ class Status:
         """Short text for systemd STATUS=."""
         setpoint = f"{self.setpoint_K:.4f} K" if self.setpoint_K is not None else "none"
         heater = f"{self.heater_w * 1e3:.2f} mW" if math.isfinite(self.heater_w) else "UNKNOWN"
-        text = (f"{self.state}: T2 {self.flange_K:.5f} K, setpoint {setpoint}, heater {heater}, "
+        zone = f" (zone {self.zone})" if self.zone is not None else ""
+        text = (f"{self.state}: T2 {self.flange_K:.5f} K, setpoint {setpoint}{zone}, heater {heater}, "
                 f"overruns {self.timing.get('overruns', 0)}")
         if self.last_fault:
             text += f"; last fault: {self.last_fault}"
@@ -164,6 +169,8 @@ class _Snapshot(NamedTuple):
     last_fault: Fault | None
     control: dict | None
     last_target_K: float | None
+    #: (the zone in use counted from 1, its upper temperature in K); None without ``control.zones``.
+    zone: tuple[int, float] | None
 
 
 # ---------------------------------------------------------------------------
@@ -213,7 +220,7 @@ class ControlLoop:
         self._status: Status | None = None
         self._publish(_Snapshot(math.nan, LoopState.HOLDING, math.nan, math.nan, self.heater_w, None,
                                 config.control.setpoint_K, config.control.ramp_K_per_min, None, None,
-                                _given(self.regulator.ramp.target_K)))
+                                _given(self.regulator.ramp.target_K), self._zone()))
         # appended by any thread, taken by the loop's (deque's append and popleft are atomic)
         self.commands: collections.deque[Command] = collections.deque()
         self._answers: list[tuple[Command, bool, str]] = []
@@ -418,14 +425,18 @@ class ControlLoop:
         self._last_row_s = row.time_s
         self.emit(row)
 
-    def _close_row(self, row: Row) -> None:
-        """The tick's row out, with the time the tick took."""
+    def _close_row(self, row: Row, zone_events: bool = False) -> None:
+        """The tick's row out, with the time the tick took (and before it, with ``zone_events``, what the
+        regulator's zones have to say)."""
         row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
+        if zone_events:
+            for message in self.regulator.zone_events():     # before the first row the zone's settings made
+                self._event("zone", message)
         self._emit_row(row)
 
     def _finish_row(self, row: Row) -> None:
         """The tick's row out, and the status from it: this tick's readings, heater, setpoint and control."""
-        self._close_row(row)
+        self._close_row(row, zone_events=True)
         closed = self.state is LoopState.CLOSED
         ramp = self.regulator.ramp
         # the target once a setpoint is asked for (also while holding for valid readings), the setpoint in use
@@ -433,21 +444,27 @@ class ControlLoop:
         aiming = closed or self.regulator.mode is RegulatorMode.CLOSED
         self._publish(_Snapshot(row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
                                 ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
-                                ramp.rate_K_per_min, self.last_fault, row.control, _given(ramp.target_K)))
+                                ramp.rate_K_per_min, self.last_fault, row.control, _given(ramp.target_K),
+                                self._zone()))
 
     def _publish_fault_state(self, state: LoopState) -> None:
-        """The status after a fault or a stop: the state, the heater and the fault now; the readings, the
-        setpoint and the control of the last tick that published them."""
+        """The status after a fault or a stop: the state, the heater, the fault and the zone now; the readings,
+        the setpoint and the control of the last tick that published them."""
         last = self._snapshot
         self._publish(last._replace(
             state=state, heater_w=self.heater_w, last_fault=self.last_fault,
             last_target_K=last.last_target_K if last.last_target_K is not None
-            else _given(self.regulator.ramp.target_K)))
+            else _given(self.regulator.ramp.target_K), zone=self._zone()))
 
     def _publish(self, snapshot: _Snapshot) -> None:
         """The one place the status changes."""
         self._snapshot = snapshot
         self._status = None
+
+    def _zone(self) -> tuple[int, float] | None:
+        """(the zone in use counted from 1, its upper temperature in K), None without zones."""
+        zone = self.regulator.zone
+        return None if zone is None else (self.regulator.zone_index + 1, zone.upper_K)
 
     @property
     def status(self) -> Status:
@@ -455,13 +472,15 @@ class ControlLoop:
         status = self._status
         if status is None:
             snapshot = self._snapshot
+            zone = snapshot.zone
             status = Status(time_s=snapshot.time_s, state=snapshot.state, flange_K=snapshot.flange_K,
                             ptc_stage_K=snapshot.ptc_stage_K, heater_w=snapshot.heater_w,
                             setpoint_K=snapshot.setpoint_K, target_K=snapshot.target_K,
                             ramp_K_per_min=snapshot.ramp_K_per_min,
                             last_fault=str(snapshot.last_fault) if snapshot.last_fault else None,
                             loop_timing=self.timing, control=snapshot.control,
-                            last_target_K=snapshot.last_target_K)
+                            last_target_K=snapshot.last_target_K, zone=zone[0] if zone else None,
+                            zone_upper_K=zone[1] if zone else None)
             self._status = status
         return status
 

@@ -75,10 +75,11 @@ class PtcStageWarmAlarm:
 @dataclass(frozen=True)
 class HeaterNearTopAlarm:
     """The heater power, averaged over 10 s, at or above ``fraction`` of R I_max^2 for ``delay_s`` while
-    regulating; cleared below ``fraction - deadband``."""
+    regulating; cleared below ``fraction - deadband``. The delay outlasts the minutes a step up to a new
+    setpoint holds the heater at its top: the alarm says the heater stays there."""
 
     fraction: float = 0.95
-    delay_s: float = 30.0
+    delay_s: float = 300.0
     deadband: float = 0.0
     latching: bool = False
 
@@ -168,7 +169,7 @@ def _ptc_stage_warm(section: Section, ptc_stage_max_K: float) -> PtcStageWarmAla
 
 def _heater_near_top(section: Section) -> HeaterNearTopAlarm:
     fraction = section.number("fraction", 0.95, minimum=0.0, exclusive_minimum=True, maximum=1.0)
-    return HeaterNearTopAlarm(fraction=fraction, delay_s=_delay(section, 30.0),
+    return HeaterNearTopAlarm(fraction=fraction, delay_s=_delay(section, 300.0),
                               deadband=_deadband(section, "deadband", fraction),
                               latching=section.flag("latching", False))
 

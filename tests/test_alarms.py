@@ -24,6 +24,7 @@ from cryod.service.alarm_hook import AlarmHookRunner, HookSchedule, run_hook
 from cryod.service.clock import VirtualClock
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG
+from tests.test_web_page import browser  # noqa: F401  (the headless browser fixture)
 
 PERIOD_S = 0.08
 COOLER_RAD_S = 10.83
@@ -448,3 +449,32 @@ def test_an_alarm_in_the_daemon_is_said_everywhere_and_acknowledged_through_ever
     warnings = [r.getMessage() for r in caplog.records if r.name == "cryod.alarms" and r.levelno == logging.WARNING]
     assert [message.split(":")[0] for message in warnings] == \
         ["alarm ptc_stage_warm raised", "alarm ptc_stage_warm latched", "alarm ptc_stage_warm cleared"]
+
+
+def test_the_web_page_shows_the_alarms_the_status_carries(tmp_path, browser):
+    from cryod.config import WebConfig
+    from tests.gated_daemon import GatedDaemon
+    from tests.test_web_page import port_of, wait_until
+
+    alarms = AlarmsConfig(ptc_stage_warm=PtcStageWarmAlarm(threshold_K=3.0, delay_s=0.0),
+                          stability=StabilityAlarm(threshold_K=1e-3))
+    with GatedDaemon(tmp_path, sections={"web": WebConfig("127.0.0.1:0"), "alarms": alarms}) as daemon:
+        daemon.gate.run_ticks(20)
+        browser.get(f"http://127.0.0.1:{port_of(daemon)}/")
+        wait_until(lambda: browser.find_element("id", "connection").text == "live", "connect")
+        daemon.gate.run_ticks(10)
+        raised = daemon.daemon.alarms.raised()
+        assert [alarm["name"] for alarm in raised] == ["ptc_stage_warm"]
+
+        def shown_alarms():           # read in one go: the page renders the list again at each push
+            return browser.execute_script(
+                'return [...document.querySelectorAll("#alarms li")].map((item) => [item.dataset.alarm, '
+                'item.textContent]);')
+
+        wait_until(lambda: shown_alarms() and shown_alarms()[0][0] == "ptc_stage_warm", "show the alarm")
+        name, text = shown_alarms()[0]
+        assert text.startswith("ptc_stage_warm raised: T5 3.") and "(threshold 3 K)" in text
+        assert browser.find_element("id", "alarms").get_attribute("hidden") is None
+        events = browser.execute_script('return [...document.querySelectorAll("#events li")].map((item) => '
+                                        'item.textContent);')
+        assert any("alarm: ptc_stage_warm raised: T5 3." in event for event in events), events

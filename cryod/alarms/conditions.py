@@ -117,8 +117,8 @@ def ptc_stage_condition(settings: PtcStageWarmAlarm, ptc_stage_K: float) -> Cond
     """T5 against the threshold; no reading changes nothing."""
     if not math.isfinite(ptc_stage_K):
         return Condition(None, math.nan, "no T5 reading")
-    return Condition(_against(ptc_stage_K, settings.threshold_K, settings.deadband_K), float(ptc_stage_K),
-                     f"T5 {ptc_stage_K:.4f} K (threshold {settings.threshold_K:g} K)")
+    return Condition(_against(ptc_stage_K, settings.threshold_K, settings.deadband_K), ptc_stage_K,
+                     lambda: f"T5 {ptc_stage_K:.4f} K (threshold {settings.threshold_K:g} K)")
 
 
 def heater_condition(settings: HeaterNearTopAlarm, mean_w: float, max_power_w: float) -> Condition:
@@ -136,8 +136,11 @@ def cooler_line_condition(settings: CoolerLineLostAlarm, phase: CoolerPhase | No
         return Condition(None, math.nan, "no T5 reading yet")
     amplitude = phase.amplitude_K
     if phase.locked:
-        return Condition(False, amplitude, f"cooler line on T5 {amplitude * 1e3:.1f} mK, locked at "
-                                           f"{phase.frequency_rad_s / (2 * math.pi):.4f} Hz")
-    why = (f"amplitude {amplitude * 1e3:.1f} mK, below {settings.min_amplitude_K * 1e3:g} mK"
-           if amplitude < settings.min_amplitude_K else f"amplitude {amplitude * 1e3:.1f} mK but no steady phase")
-    return Condition(True, amplitude, f"cooler line on T5 lost: {why} (the cooler stopped, or T5 no longer sees it)")
+        return Condition(False, amplitude, lambda: f"cooler line on T5 {amplitude * 1e3:.1f} mK, locked at "
+                                                   f"{phase.frequency_rad_s / (2 * math.pi):.4f} Hz")
+
+    def lost() -> str:
+        why = (f"amplitude {amplitude * 1e3:.1f} mK, below {settings.min_amplitude_K * 1e3:g} mK"
+               if amplitude < settings.min_amplitude_K else f"amplitude {amplitude * 1e3:.1f} mK but no steady phase")
+        return f"cooler line on T5 lost: {why} (the cooler stopped, or T5 no longer sees it)"
+    return Condition(True, amplitude, lost)

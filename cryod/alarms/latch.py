@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 #: An alarm's states, as the status and ``cryod ctl alarms`` show them.
 CLEAR, PENDING, RAISED, LATCHED = "clear", "pending", "raised", "latched"
@@ -37,13 +37,19 @@ class Condition(NamedTuple):
         loop is not regulating); None: between the threshold and the deadband (no change).
     value : float
         The figure checked, in the alarm's unit (NaN when there is none).
-    text : str
-        The figure in words, with its unit and threshold.
+    words : str or callable
+        The figure in words, with its unit and threshold, or what makes them when asked (a check at
+        every row formats its words only when they are shown).
     """
 
     holds: bool | None
     value: float
-    text: str
+    words: str | Callable[[], str]
+
+    @property
+    def text(self) -> str:
+        """The figure in words."""
+        return self.words() if callable(self.words) else self.words
 
 
 @dataclass(frozen=True)
@@ -97,8 +103,13 @@ class AlarmLatch:
         self.acknowledged = False
         self.since_s = math.nan          # pending: when the condition began; raised or latched: when raised
         self.value = math.nan
-        self.text = ""                   # the latest figure in words
+        self._condition: Condition | None = None    # the latest check
         self.raised_text = ""            # the figure in words when it was raised
+
+    @property
+    def text(self) -> str:
+        """The latest figure in words."""
+        return self._condition.text if self._condition is not None else ""
 
     @property
     def raised(self) -> bool:
@@ -111,7 +122,7 @@ class AlarmLatch:
 
     def update(self, time_s: float, condition: Condition) -> Transition | None:
         """Take one check of the condition at ``time_s``; the change it makes, if any."""
-        self.value, self.text = condition.value, condition.text
+        self.value, self._condition = condition.value, condition
         if condition.holds:
             if self.state == CLEAR:
                 self.state, self.since_s = PENDING, time_s

@@ -38,9 +38,9 @@ MAX_DELAY_S = 86400.0
 
 
 @dataclass(frozen=True)
-class DeviationAlarm:
-    """T2 averaged over ``window_s`` further than ``threshold_K`` from the setpoint for ``delay_s``, while
-    regulating at a steady setpoint; cleared within ``threshold_K - deadband_K``."""
+class FlangeWindowAlarm:
+    """A figure of T2 over the last ``window_s`` above ``threshold_K`` for ``delay_s``, while regulating at a
+    steady setpoint; cleared at or below ``threshold_K - deadband_K``."""
 
     threshold_K: float
     window_s: float = 10.0
@@ -50,15 +50,16 @@ class DeviationAlarm:
 
 
 @dataclass(frozen=True)
-class StabilityAlarm:
-    """T2's standard deviation over ``window_s`` above ``threshold_K`` for ``delay_s``, while regulating at a
-    steady setpoint; cleared at or below ``threshold_K - deadband_K``."""
+class DeviationAlarm(FlangeWindowAlarm):
+    """T2 averaged over ``window_s`` further than ``threshold_K`` from the setpoint."""
 
-    threshold_K: float
+
+@dataclass(frozen=True)
+class StabilityAlarm(FlangeWindowAlarm):
+    """T2's standard deviation over ``window_s`` above ``threshold_K``."""
+
     window_s: float = 60.0
     delay_s: float = 0.0
-    deadband_K: float = 0.0
-    latching: bool = False
 
 
 @dataclass(frozen=True)
@@ -142,18 +143,15 @@ def _deadband(section: Section, key: str, threshold: float) -> float:
     return deadband
 
 
-def _deviation(section: Section) -> DeviationAlarm:
-    threshold = section.number("threshold_K", minimum=0.0, exclusive_minimum=True, maximum=10.0)
-    return DeviationAlarm(threshold_K=threshold, window_s=_window(section, 10.0), delay_s=_delay(section, 60.0),
-                          deadband_K=_deadband(section, "deadband_K", threshold),
-                          latching=section.flag("latching", False))
-
-
-def _stability(section: Section) -> StabilityAlarm:
-    threshold = section.number("threshold_K", minimum=0.0, exclusive_minimum=True, maximum=10.0)
-    return StabilityAlarm(threshold_K=threshold, window_s=_window(section, 60.0), delay_s=_delay(section, 0.0),
-                          deadband_K=_deadband(section, "deadband_K", threshold),
-                          latching=section.flag("latching", False))
+def _flange_window(kind: type[FlangeWindowAlarm]):
+    """The reader of a windowed alarm's section (``deviation`` or ``stability``), with that kind's defaults."""
+    def read(section: Section) -> FlangeWindowAlarm:
+        threshold = section.number("threshold_K", minimum=0.0, exclusive_minimum=True, maximum=10.0)
+        defaults = kind(threshold_K=threshold)
+        return kind(threshold_K=threshold, window_s=_window(section, defaults.window_s),
+                    delay_s=_delay(section, defaults.delay_s), deadband_K=_deadband(section, "deadband_K", threshold),
+                    latching=section.flag("latching", False))
+    return read
 
 
 def _ptc_stage_warm(section: Section, ptc_stage_max_K: float) -> PtcStageWarmAlarm:
@@ -235,7 +233,7 @@ def alarms_from_section(section: Section | None, ptc_stage_max_K: float) -> Alar
     """
     if section is None:
         return AlarmsConfig()
-    readers = {"deviation": _deviation, "stability": _stability,
+    readers = {"deviation": _flange_window(DeviationAlarm), "stability": _flange_window(StabilityAlarm),
                "ptc_stage_warm": lambda part: _ptc_stage_warm(part, ptc_stage_max_K),
                "heater_near_top": _heater_near_top, "cooler_line_lost": _cooler_line_lost, "hook": _hook}
     values = {}

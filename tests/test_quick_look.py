@@ -68,3 +68,20 @@ def test_spectral_lines_are_named_where_sampling_puts_them():
     assert heater_modulation_hz(modulated, 12.5, 1.7237) == pytest.approx(0.4, abs=0.01)
     assert heater_modulation_hz(steps, 12.5, 1.7237) is None
     assert heater_modulation_hz(feedforward, 12.5, 1.7237) is None
+
+
+def test_a_heater_modulation_is_looked_for_only_where_the_loop_was_open():
+    from cryod.analysis.figures import record_heater_modulation_hz
+    from cryod.analysis.record_data import RecordData
+
+    t = np.arange(0.0, 1200.0, 0.08)
+    square = 0.01 * np.sign(np.sin(2 * np.pi * 0.4 * t))
+    # regulating throughout: a peak in the heater's spectrum is the controller's, not a modulation
+    regulated = RecordData(time_s=t, flange_K=np.full(t.size, 5.0), ptc_stage_K=np.full(t.size, 3.4),
+                           heater_w=0.11 + square, setpoint_K=np.full(t.size, 5.0))
+    assert record_heater_modulation_hz(regulated, 1.7237) is None
+    # open loop from 400 s to 800 s, modulated there
+    setpoint = np.where((t > 400) & (t < 800), np.nan, 5.0)
+    opened = RecordData(time_s=t, flange_K=np.full(t.size, 5.0), ptc_stage_K=np.full(t.size, 3.4),
+                        heater_w=np.where(np.isnan(setpoint), 0.05 + square, 0.11), setpoint_K=setpoint)
+    assert record_heater_modulation_hz(opened, 1.7237) == pytest.approx(0.4, abs=0.01)

@@ -45,14 +45,18 @@ WINDOW_S = 300.0
 CONVERGENCE_WINDOW_S = 20.0
 
 
-def simulate(folder: Path, setpoint_K: float, feedforward: bool, sim_model: Path | None, seed: int = 3) -> dict:
-    arguments = [sys.executable, "-m", "cryod.cli", "--simulate", "--speed", "max", "--json", "--duration",
+def simulate(folder: Path, setpoint_K: float, feedforward: bool, sim_model: Path | None, seed: int = 3,
+             config: Path | None = None, prefix: tuple[str, ...] = ()) -> dict:
+    """One `cryod --simulate --json` run (``prefix``: e.g. ``("nice", "-n", "10")``); its summary."""
+    arguments = [*prefix, sys.executable, "-m", "cryod.cli", "--simulate", "--speed", "max", "--json", "--duration",
                  str(DURATION_S), "--window", str(WINDOW_S), "--setpoint", str(setpoint_K), "--seed", str(seed),
                  "--data-dir", str(folder / "data"), "--socket", str(folder / "control.sock")]
     if not feedforward:
         arguments.append("--no-feedforward")
     if sim_model is not None:
         arguments += ["--sim-model", str(sim_model)]
+    if config is not None:
+        arguments += ["--config", str(config)]
     result = subprocess.run(arguments, capture_output=True, text=True, cwd=REPOSITORY, check=True)
     return json.loads(result.stdout)
 

@@ -72,7 +72,7 @@ def largest_fundamental(mean: float, low: float, high: float) -> float:
 
 
 def best_bounded_waveform(line: np.ndarray, gain: np.ndarray, mean: float, low: float, high: float,
-                          phase_points: int = 512) -> np.ndarray:
+                          phase_points: int = 512, orders=None) -> np.ndarray:
     """Harmonic amplitudes a_n (n = 1..N) minimising ``sum |L_n + H_n a_n|**2`` within the bounds.
 
     Parameters
@@ -84,13 +84,24 @@ def best_bounded_waveform(line: np.ndarray, gain: np.ndarray, mean: float, low: 
     mean, low, high : float
         The waveform's fixed mean and its bounds (input units).
     phase_points : int
-        Equally spaced phases at which the bounds are imposed (M > 2N).
+        Equally spaced phases at which the bounds are imposed (M > 2 max(orders)).
+    orders : array of int, optional
+        The harmonic each entry of ``line`` and ``gain`` is at (default 1..N); the waveform has no
+        other harmonics.
 
     Returns
     -------
     numpy.ndarray
-        Complex a_n. The waveform meets the bounds at the M phases and, after shrinking towards
-        its mean if needed, on a grid ``FEASIBILITY_REFINEMENT`` times finer.
+        Complex a_n, one per entry of ``line``. The waveform meets the bounds at the M phases and,
+        after shrinking towards its mean if needed, on a grid ``FEASIBILITY_REFINEMENT`` times finer.
+
+    Examples
+    --------
+    Harmonic 2 alone, when the bounds leave room for it:
+
+    >>> second = best_bounded_waveform(np.array([0.5j]), np.array([1.0 + 0.0j]), 2.0, 0.0, 4.0, orders=[2])
+    >>> round(float(abs(second[0])), 6), round(float(np.angle(second[0])), 4)
+    (0.5, -1.5708)
 
     Notes
     -----
@@ -106,8 +117,9 @@ def best_bounded_waveform(line: np.ndarray, gain: np.ndarray, mean: float, low: 
         return np.zeros(harmonics, dtype=complex)       # the mean sits on a bound: no room to move
     output_scale = float(np.linalg.norm(line)) or 1.0
     input_scale = high - low
+    orders = np.arange(1, harmonics + 1) if orders is None else np.asarray(orders, dtype=int)
     theta = 2.0 * math.pi * np.arange(phase_points) / phase_points
-    rotor = np.exp(1j * np.outer(theta, np.arange(1, harmonics + 1)))
+    rotor = np.exp(1j * np.outer(theta, orders))
     per_residual = rotor / gain * (output_scale / input_scale)                # dP / dr, scaled
     offset = (mean - (rotor @ (line / gain)).real - low) / input_scale        # P at r = 0, scaled
     slopes = np.hstack([per_residual.real, -per_residual.imag])
@@ -124,7 +136,9 @@ def best_bounded_waveform(line: np.ndarray, gain: np.ndarray, mean: float, low: 
     scaled = -misfit[:-1] / misfit[-1]
     residual = (scaled[:harmonics] + 1j * scaled[harmonics:]) * output_scale
     amplitudes = (residual - line) / gain
-    values = waveform_values(amplitudes, mean, FEASIBILITY_REFINEMENT * phase_points)
+    spectrum = np.zeros(int(orders.max()), dtype=complex)
+    spectrum[orders - 1] = amplitudes
+    values = waveform_values(spectrum, mean, FEASIBILITY_REFINEMENT * phase_points)
     shrink = 1.0
     if values.min() < low:
         shrink = min(shrink, (mean - low) / (mean - values.min()))

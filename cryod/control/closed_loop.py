@@ -58,6 +58,7 @@ class ClosedLoopRun:
     heater_w: np.ndarray
     setpoint_K: np.ndarray          # NaN where the loop is open
     control: dict                   # the control terms' columns by name (NaN where the loop is open)
+    events: tuple = ()              # (time (s), term, logging level, text): what the terms said
 
     def columns(self) -> dict:
         """Columns for :func:`cryod.records.record.write_record`."""
@@ -129,6 +130,7 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
     control_columns = {column.name: np.full(ticks, np.nan) for column in regulator.columns}
     starts = [s.start_s for s in segments]
     lateness = generator.uniform(0.0, timing_jitter_s, ticks) if timing_jitter_s > 0.0 else np.zeros(ticks)
+    events = []
     for tick in range(ticks):
         now = tick * period_s + float(lateness[tick])
         plant.advance_to(now)
@@ -152,6 +154,11 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
         plant.set_heater_power(power + (unrecorded_heat_w(now) if unrecorded_heat_w else 0.0), now)
         recorded[:, tick] = now, flange, stage, power, step.setpoint_K
         for name, value in step.columns.items():
-            control_columns[name][tick] = value
+            try:
+                control_columns[name][tick] = value
+            except (TypeError, ValueError):         # a text column (or one empty for now): kept as objects
+                control_columns[name] = control_columns[name].astype(object)
+                control_columns[name][tick] = value
+        events += [(now, *event) for event in step.events]
     regulator.close()
-    return ClosedLoopRun(*recorded, control_columns)
+    return ClosedLoopRun(*recorded, control_columns, tuple(events))

@@ -25,18 +25,43 @@ How it works, every tick:
    evaluated at the phase of the middle of the coming hold. Its effect on T2's
    samples is the plant *as the loop samples it*
    (:func:`plant_at_harmonics`): above half the sampling rate the hold's
-   folded images make it differ much from ``G(j n omega)``.
-4. **Learning** (iterative learning in the cooler's phase): every
+   folded images make it differ much from ``G(j n omega)``. The tick where the
+   waveform changes gives back the energy the change's place in the period
+   would have added or taken (T2's mean takes no kick); the reading after it
+   is attributed to the waveform played before it, and where the change moves
+   T2 by more than the readings' noise the next ``CHANGE_SETTLE_S`` of readings
+   are left out (a lagging thermometer or a late heater answers both, mixed).
+4. **Plant** (:mod:`cryod.control.plant_learner`): the correction ``k_n``
+   and its covariance give the plant as estimated, over the full +-180
+   degrees, in which the waveform is measured; until a harmonic's plant is
+   known better than the model's assumed error (and confirmed by the step
+   after) the waveform does not aim at the line there. Where the waveform's
+   own changes do not tell the plant to ``plant_precision``, a small probe
+   does (:mod:`cryod.control.plant_probe`), within a share of the heater's room.
+5. **Learning** (iterative learning in the cooler's phase): every
    ``update_interval_s`` the coefficients step toward cancelling the estimated
-   line, ``u <- u + gain (-L / G_n - u)``, and are projected onto what the
-   heater can do, ``margin <= PI's power + waveform <= R I_max^2 - margin`` at
-   every phase, in the metric of the plant response: the fixed point is the
-   constrained optimum, the physical limit of :mod:`cryod.control.feedforward_limit`.
-   The first waveform comes from the model (its line scaled to T5's amplitude).
-5. **Fade**: without lock (cooler stopped, T5 fault) or when switched off,
+   line, ``u <- u + gain (-L / H_n - u)``, at the harmonics whose plant is
+   learned, and are projected onto what the heater can do,
+   ``margin <= PI's power + waveform + probe <= R I_max^2 - margin`` at every
+   phase, in the metric of the learned plant
+   (:mod:`cryod.control.learned_projection`): the fixed point is the
+   constrained optimum of the cryostat the daemon is on, its physical limit
+   (:mod:`cryod.control.feedforward_limit`).
+6. **Guard** (:mod:`cryod.control.divergence_guard`): a learning that makes
+   T2's synchronous part grow, or stay above PI alone's, fades the waveform
+   out, resets the learned plant to the model, says why, and starts again
+   after ``retry_after_s`` (doubling at each divergence in a row, up to an hour).
+7. **Fade**: without lock (cooler stopped, T5 fault) or when switched off,
    the waveform fades out over ``fade_time_s``; PI carries on. Switching on,
    or closing the loop, fades it in. Readings after a gap (a fault, start-up)
-   or a tick where the total was held at a limit are left out of the estimate.
+   are left out of the estimate.
+
+The limit (``ff_limit_K``, ``ff_authority``, the status) comes from the model
+until the plant is learned and T2 has settled at the setpoint, then from what
+was learned (:mod:`cryod.control.limit_follower`); ``ff_limit_from`` says
+which. What the learning finds (the plant learned, a plant that differs from
+the model, a divergence) goes to the journal and the data log as events
+(:mod:`cryod.control.learning_report`).
 
 The term rides on the feedback (``rides_on_feedback``): the regulator adds it
 after PI's sum has been held within the heater's range, so a clipped waveform
@@ -53,6 +78,9 @@ Configuration, section ``control.feedforward`` (optional; reloadable, bumpless):
       fade_time_s: 5.0
       margin_W: 0.001            # kept from 0 W and from R I_max^2
       minimum_cooler_amplitude_K: 0.01
+      probe_amplitude_K: 1.0e-4  # T2's answer to the probe at each harmonic probed (0: no probe)
+      plant_precision: 0.03      # the probe stops at a harmonic once its plant is known this well (relative)
+      retry_after_s: 120.0       # after a divergence, learning starts again this much later
       model: null                # the controller's model (null: the shipped model)
 """
 
@@ -60,30 +88,39 @@ from __future__ import annotations
 
 import cmath
 import math
-from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from cryod.control.bounded_waveform import best_bounded_waveform, waveform_values
+from cryod.control.bounded_waveform import waveform_values
 from cryod.control.cooler_phase import CoolerPhaseTracker
+from cryod.control.divergence_guard import DivergenceGuard
 from cryod.control.feedforward_learning import LearningWorker
+from cryod.control.harmonic_plant import plant_at_harmonics
+from cryod.control.learned_limit import LearnedLimitInputs
+from cryod.control.learned_projection import learning_step
+from cryod.control.learning_report import LearningReport
+from cryod.control.limit_follower import LimitFollower
+from cryod.control.plant_learner import PRIOR_SPREAD, LearnedPlant
+from cryod.control.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
 from cryod.control.terms import TickInputs
 from cryod.control.unplayed_power import UnplayedPower
-from cryod.control.feedforward_limit import FeedforwardLimitError, limit_changes, limit_for_heater_power
-from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
 from cryod.records.columns import Column
-from cryod.service.realtime import at_normal_priority
 from cryod.yaml_source import FileFormatError, Section
 
 #: Loop period the plant response assumes when the settings do not say (s).
 DEFAULT_PERIOD_S = 0.08
-#: A plant correction is used once its standard deviation is below this (else the model's response).
-TRUSTED_CORRECTION_SPREAD = 0.3
 #: After a gap in the loop (a fault, start-up), T2's readings are left out this long (s).
 SETTLE_S = 1.0
+#: After a change of what the heater plays (a learning step, the probe turning), T2's readings are left out this
+#: long (s): a thermometer that lags or a heater that acts late answers the old waveform and the new one mixed for
+#: a while, and taking those readings as the new one's answer would bias the plant learned by the change.
+CHANGE_SETTLE_S = 0.5
+#: ... when the change moves T2 by more than this (K, through the model's plant): a change of a few microkelvin (a
+#: converged waveform following the line's noise) mixes nothing that matters against the readings' noise.
+CHANGE_SETTLE_ABOVE_K = 20e-6
 #: Smoothing of the feedback terms' power, the level the waveform rides on (s).
 BASE_TIME_S = 2.0
 #: Second differences the estimator takes into one update of its filter.
@@ -91,14 +128,21 @@ BATCH = 4
 #: Phases of a cooler period at which the waveform is held within the heater's bounds (and, shrunk if
 #: needed, on a grid eight times finer); 48 costs the 5 K optimum 0.2 % against 128, at a third of the time.
 BOUND_POINTS = 48
-#: The physical limit is computed once the setpoint has been steady this long (s).
-LIMIT_AFTER_S = 5.0
-#: ... on a thread of its own (with what would change it: some 60 ms of computing), and taken this long
-#: after it was asked for (s): in service it is long done; on virtual time the loop waits, so runs stay
-#: deterministic.
-LIMIT_TAKEN_AFTER_S = 2.0
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
 SETTING_DELAY_TOLERANCE_S = 0.002
+#: Learning steps in a row that make a divergence (:class:`~cryod.control.divergence_guard.DivergenceGuard`).
+DIVERGENCE_STEPS = 5
+#: The wait before learning again after a divergence doubles with each one in a row, up to this (s).
+LONGEST_RETRY_S = 3600.0
+#: Smoothing of PI's power for the mean power the setpoint needs (s), and of T2's distance from the setpoint.
+MEAN_POWER_TIME_S = 60.0
+SETTLING_TIME_S = 20.0
+#: T2 is taken as settled at the setpoint (its mean power the one the setpoint needs) within this (K) ...
+SETTLED_K = 2e-4
+#: ... and as still on its way to it (the probe may be larger) beyond this (K).
+APPROACHING_K = 2e-3
+#: The learned limit needs the plant at the line known to this (relative standard deviation).
+LIMIT_PLANT_SPREAD = 0.1
 
 
 @dataclass(frozen=True)
@@ -123,8 +167,14 @@ class FeedforwardSettings:
         Distance kept from 0 W and from R I_max^2 (W).
     minimum_cooler_amplitude_K : float
         T5 oscillation below this counts as no cooler signal (K).
+    probe_amplitude_K : float
+        T2's answer to the probe at each harmonic probed (K; 0: no probe).
+    plant_precision : float
+        The probe stops at a harmonic once its plant is known this well (relative standard deviation).
+    retry_after_s : float
+        After a divergence, learning starts again this much later (s; doubling for each in a row).
     model : CryostatModel
-        The controller's model (plant response at each harmonic, first waveform).
+        The controller's model (plant response at each harmonic).
     model_source : str
         Where the model came from.
     period_s : float
@@ -139,6 +189,9 @@ class FeedforwardSettings:
     fade_time_s: float = 5.0
     margin_W: float = 0.001
     minimum_cooler_amplitude_K: float = 0.01
+    probe_amplitude_K: float = 100e-6
+    plant_precision: float = 0.03
+    retry_after_s: float = 120.0
     model: CryostatModel | None = None
     model_source: str = "shipped model"
     period_s: float = DEFAULT_PERIOD_S
@@ -146,6 +199,12 @@ class FeedforwardSettings:
     @property
     def controller_model(self) -> CryostatModel:
         return self.model if self.model is not None else load_model(DEFAULT_MODEL_PATH)
+
+    @property
+    def probe(self) -> ProbeSettings:
+        return ProbeSettings(amplitude_K=self.probe_amplitude_K, precision=self.plant_precision,
+                             noise_K=self.controller_model.sensor_noise.flange_thermometer_rms_K,
+                             readings_per_s=1.0 / self.period_s)
 
 
 class SynchronousEstimator:
@@ -164,16 +223,14 @@ class SynchronousEstimator:
     left, its curvature, is a thousandth of the line and not synchronous). A
     Kalman filter estimates ``L`` and ``k``, each a slow random walk: the line
     by about ``line_drift_K`` per ``memory_s`` (a cooler frequency wandering by
-    a percent changes T2's line by a percent), the plant's correction by a
-    tenth per hour. ``k`` is learned only from readings where the
-    waveform changes (when it comes in, when it learns) and is kept between
-    them; it starts at 1 with a spread of ``correction_spread``.
-
-    Where the waveform hardly changes, the readings hardly tell ``k_n``, and a
-    change the estimate's own noise decided even biases it (the noise that moved
-    the waveform is still in the estimate of the line): ``k_n`` is used only
-    once its spread is below ``TRUSTED_CORRECTION_SPREAD``, else the model's
-    response is. Where that happens the waveform is small, and so is the harm.
+    a percent changes T2's line by a percent), the plant's correction by
+    :data:`CORRECTION_DRIFT_PER_HOUR` of itself per hour. ``k`` is learned only
+    from readings where what the heater plays changes (the waveform coming in
+    and learning, the probe) and is kept between them; it starts at 1 with a
+    spread of ``correction_spread`` on each part, so any phase is possible.
+    What is learned, with its covariance, is read as a
+    :class:`~cryod.control.plant_learner.LearnedPlant`, which decides where it
+    is known well enough to be used.
 
     Parameters
     ----------
@@ -185,25 +242,29 @@ class SynchronousEstimator:
     period_s : float
         Typical interval between readings (s).
     correction_spread : float
-        Prior spread of ``k`` around 1.
+        Prior spread of each part of ``k`` around 1.
     line_drift_K : float
         How much the line may change over ``memory_s`` (K).
     """
 
-    #: The correction of the plant may drift by about this fraction per hour.
-    CORRECTION_DRIFT_PER_HOUR = 0.1
+    #: The correction of the plant may drift by about this fraction of itself per hour.
+    CORRECTION_DRIFT_PER_HOUR = 0.02
 
     def __init__(self, harmonics: int, noise_K: float = 20e-6, memory_s: float = 60.0,
-                 period_s: float = DEFAULT_PERIOD_S, correction_spread: float = 0.7, line_drift_K: float = 20e-6):
+                 period_s: float = DEFAULT_PERIOD_S, correction_spread: float = PRIOR_SPREAD,
+                 line_drift_K: float = 20e-6):
         self.harmonics = harmonics
         self.memory_s = memory_s
+        self.period_s = period_s
         self.orders = np.arange(1, harmonics + 1)
         self.size = 4 * harmonics
         n = 2 * harmonics
         line_scale = 3e-3           # K: a line of mK at most
         steps = memory_s / period_s
-        self._process = np.concatenate([np.full(n, line_drift_K ** 2 / steps),
-                                        np.full(n, self.CORRECTION_DRIFT_PER_HOUR ** 2 * period_s / 3600.0)])
+        self._correction_drift = self.CORRECTION_DRIFT_PER_HOUR ** 2 * period_s / 3600.0
+        self._process = np.concatenate([np.full(n, line_drift_K ** 2 / steps), np.full(n, self._correction_drift)])
+        self._line_variance = line_scale ** 2
+        self._correction_variance = correction_spread ** 2
         self.covariance = np.diag(np.concatenate([np.full(n, line_scale ** 2), np.full(n, correction_spread ** 2)]))
         self.state = np.concatenate([np.zeros(n), np.ones(harmonics), np.zeros(harmonics)])
         self.measurement_variance = 6.0 * noise_K ** 2     # second difference of white noise
@@ -223,16 +284,74 @@ class SynchronousEstimator:
         n = self.harmonics
         return self.state[2 * n:3 * n] + 1j * self.state[3 * n:]
 
+    def _blocks(self, first: int) -> np.ndarray:
+        """(harmonics, 2, 2): the covariance of the real and imaginary parts of the state from ``first`` on."""
+        n = self.harmonics
+        real, imaginary = np.arange(first, first + n), np.arange(first + n, first + 2 * n)
+        c = self.covariance
+        return np.stack([np.stack([c[real, real], c[real, imaginary]], axis=-1),
+                         np.stack([c[imaginary, real], c[imaginary, imaginary]], axis=-1)], axis=-2)
+
+    @property
+    def correction_covariance(self) -> np.ndarray:
+        """(harmonics, 2, 2): the covariance of (Re k_n, Im k_n), as the filter states it."""
+        return self._blocks(2 * self.harmonics)
+
+    def _as_the_readings_give(self, covariance: np.ndarray, prior_variance: float,
+                              frequency_rad_s: float | None) -> np.ndarray:
+        """A block covariance as the readings give it (see :meth:`learned_plant`): the information the readings
+        brought corrected by the second differences' misstatement at each harmonic; the prior's kept."""
+        if frequency_rad_s is None:
+            return covariance
+        gain = (2.0 - 2.0 * np.cos(self.orders * frequency_rad_s * self.period_s)) ** 2 / 6.0
+        prior = np.eye(2) / prior_variance
+        information = np.linalg.inv(covariance) - prior
+        information = 0.5 * (information + np.swapaxes(information, 1, 2))
+        values, vectors = np.linalg.eigh(information)
+        information = np.einsum("nij,nj,nkj->nik", vectors, np.maximum(values, 0.0), vectors)
+        return np.linalg.inv(prior + information / np.maximum(gain, 1e-3)[:, None, None])
+
+    def learned_plant(self, model_plant: np.ndarray, frequency_rad_s: float | None = None) -> LearnedPlant:
+        """What is learned of the plant, against the model's ``model_plant`` (K/W per harmonic).
+
+        The filter takes the second differences as independent, each with six times the readings'
+        noise variance; they are not (consecutive ones share readings), and what that misstates depends
+        on the harmonic: a second difference passes harmonic n by ``2 - 2 cos(n omega T)`` and its noise
+        by the same at that frequency, so the estimate is as good as a fit to the readings themselves,
+        while the filter's covariance says it is ``(2 - 2 cos(n omega T))**2 / 6`` times as good (12
+        times worse at the fundamental, 2.3 times better at the third harmonic, at 80 ms). The
+        information the readings brought is corrected by that factor (``frequency_rad_s``, the cooler's;
+        none: as the filter has it); the prior's is kept.
+        """
+        covariance = self._as_the_readings_give(self.correction_covariance, self._correction_variance,
+                                                frequency_rad_s)
+        return LearnedPlant(np.asarray(model_plant, dtype=complex), self.raw_correction.copy(), covariance)
+
     @property
     def correction(self) -> np.ndarray:
-        """The plant correction at each harmonic where the readings tell it (its spread below a quarter
-        of its size), else 1: the model's."""
+        """The plant correction at each harmonic where the readings tell it better than the model's
+        assumed error (:data:`~cryod.control.plant_learner.MODEL_ERROR`), else 1: the model's."""
+        return np.where(self.learned_plant(np.ones(self.harmonics)).learned, self.raw_correction, 1.0)
+
+    def reset_correction(self) -> None:
+        """Forget what was learned of the plant: the model's again, with the prior's spread."""
         n = self.harmonics
-        raw = self.state[2 * n:3 * n] + 1j * self.state[3 * n:]
-        variance = np.diag(self.covariance)
-        spread = np.sqrt(np.maximum(variance[2 * n:3 * n] + variance[3 * n:], 0.0))
-        raw = np.where(spread < TRUSTED_CORRECTION_SPREAD, raw, 1.0)
-        return np.clip(np.abs(raw), 0.2, 5.0) * np.exp(1j * np.clip(np.angle(raw), -1.4, 1.4))
+        self.state[2 * n:3 * n], self.state[3 * n:] = 1.0, 0.0
+        self.covariance[2 * n:, :] = 0.0
+        self.covariance[:, 2 * n:] = 0.0
+        self._covariance_diagonal[2 * n:] = self._correction_variance
+
+    def rescale_correction(self, factor: np.ndarray) -> None:
+        """The model's plant changed by ``1 / factor`` at each harmonic: keep the learned plant (``k *= factor``)."""
+        n = self.harmonics
+        factor = np.asarray(factor, dtype=complex)
+        transform = np.eye(self.size)
+        index = np.arange(n)
+        real, imaginary = 2 * n + index, 3 * n + index
+        transform[real, real], transform[real, imaginary] = factor.real, -factor.imag
+        transform[imaginary, real], transform[imaginary, imaginary] = factor.imag, factor.real
+        self.state = transform @ self.state
+        self.covariance[:] = transform @ self.covariance @ transform.T
 
     def regressors(self, phase: float, effect: np.ndarray) -> np.ndarray:
         """[cos, -sin of each harmonic, Re and -Im of each effect turned by the phase] at one reading."""
@@ -266,6 +385,9 @@ class SynchronousEstimator:
         differences = np.array([d for _, d in self._pending])
         self._pending.clear()
         covariance = self.covariance
+        n = self.harmonics
+        size = np.maximum(np.abs(self.raw_correction), 0.05) ** 2      # the correction drifts relative to itself
+        self._process[2 * n:3 * n] = self._process[3 * n:] = self._correction_drift * size
         self._covariance_diagonal += len(differences) * self._process      # a strided view of the diagonal
         px = covariance @ observed.T                            # size x BATCH
         innovation_covariance = observed @ px
@@ -304,42 +426,56 @@ class FeedforwardTerm:
                                  "learning step (sqrt of the sum of the harmonics' squared amplitudes)", "{:.4e}"),
         Column("ff_scale", "", "fade of the waveform, 0 (off) to 1 (on)", "{:.3f}"),
         Column("ff_limit_K", "K", "the physical limit at this setpoint: the least synchronous T2 any heater "
-                                  "waveform can leave (feedforward-limit; empty until computed)", "{:.4e}"),
+                                  "waveform can leave (feedforward-limit; empty until computed)", "{:.3e}"),
         Column("ff_authority", "", "largest fundamental the heater can give over the one the line needs "
-                                   "(below 1: authority-limited)", "{:.4f}"),
+                                   "(below 1: authority-limited)", "{:.3f}"),
+        Column("ff_limit_from", "", "what ff_limit_K and ff_authority were computed from: model (the controller's "
+                                    "model) or learned (the plant and line learned, the mean power PI found)"),
+        Column("ff_probe_K", "K", "T2's answer to the probe (harmonics together), empty when it is off; the "
+                                  "learned plant itself is in the record's feedforward events", "{:.2e}"),
     )
 
     def __init__(self, settings: FeedforwardSettings, output_max: float):
         self.output_max = output_max
         self.switched_on = settings.enabled
         self.scale = 0.0
-        self.coefficients = np.zeros(settings.harmonics, dtype=complex)
+        self._coefficients = np.zeros(settings.harmonics, dtype=complex)
+        self._probe = np.zeros(settings.harmonics, dtype=complex)
+        self._set_played()
         self.tracker: CoolerPhaseTracker | None = None
         self.worker: LearningWorker | None = None         # the estimator and the learning steps
-        self._estimate = StepResult.empty(settings.harmonics)  # what the last learning step returned
+        self._estimate: StepResult | None = None           # what the last learning step returned
         self._step_id = 0
         self._pending_step: int | None = None
         self.setting_delay_s = 0.0
         self.other_terms_w: float | None = None      # the feedback terms' power, smoothed
+        self.mean_power_w: float | None = None       # ... smoothed over MEAN_POWER_TIME_S
+        self._setpoint_distance_K = math.inf          # T2's distance from the setpoint, smoothed
         self.output_w = 0.0
         self.phase = None
         self._flange_phase_rad = math.nan
         self._applied_scale = 0.0           # the scale of the waveform the heater played last tick
         self._held_since_s = -math.inf      # when the loop last had a gap (the heater held off)
+        self._changed_at_s = -math.inf      # when the heater began to play a new waveform or probe
         self._played = False                # update() ran last tick: the heater played the waveform
         self._output_time_s = 0.0           # when this tick's power takes effect
         self.unplayed: UnplayedPower | None = None      # the power held back at the heater's bounds
         self._next_update_s: float | None = None
         self._in_gap = False                # the worker was told of a gap since the last reading
         self._synchronous_cache = None
-        #: The physical limit at the setpoint in use (:mod:`cryod.control.feedforward_limit`); None until the
-        #: setpoint has been steady for LIMIT_AFTER_S (a few ms to compute, once per setpoint).
-        self.physical_limit = None
-        #: The limit if the setpoint moved by 0.5 K either way, or R I_max^2 doubled (LimitChange, with it).
-        self.limit_changes: tuple = ()
-        self._limit_wanted: tuple[float, float] | None = None       # (setpoint, since when)
-        self._limit_executor: ThreadPoolExecutor | None = None
-        self._limit_asked: tuple[Future, float, float] | None = None     # (result, setpoint, when to take it)
+        self.probe_state: ProbeState = ProbeState.start(settings.harmonics)
+        self.guard = DivergenceGuard(DIVERGENCE_STEPS)
+        self.report = LearningReport()
+        self._pi_alone: tuple[float, float] | None = None   # (line with no waveform played (K), T5's amplitude then)
+        self._diverged: str | None = None       # why the waveform is fading out after a divergence
+        self._divergences = 0                   # in a row (reset once learning holds)
+        self.divergences = 0                    # since start
+        self._learn_again_s = -math.inf         # no learning before this after a divergence
+        self._time_s = 0.0
+        self._probe_column = math.nan           # T2's answer to the probe being played (NaN: off)
+        self._plant_known_for_limit = False     # the plant at the line known well enough for the learned limit
+        #: The physical limit at the setpoint in use, from the model or from what was learned.
+        self.limits: LimitFollower | None = None
         self._configure(settings)
 
     # -- configuration ---------------------------------------------------------------
@@ -367,14 +503,17 @@ class FeedforwardTerm:
             minimum_cooler_amplitude_K=section.number("minimum_cooler_amplitude_K",
                                                       defaults.minimum_cooler_amplitude_K, minimum=0.0,
                                                       exclusive_minimum=True),
+            probe_amplitude_K=section.number("probe_amplitude_K", defaults.probe_amplitude_K, minimum=0.0,
+                                             maximum=1e-3),
+            plant_precision=section.number("plant_precision", defaults.plant_precision, minimum=0.001,
+                                           maximum=0.2),
+            retry_after_s=section.number("retry_after_s", defaults.retry_after_s, minimum=10.0,
+                                         maximum=LONGEST_RETRY_S),
             model=model, model_source=model_path or "shipped model")
         section.finish()
         return settings
 
     def _configure(self, settings: FeedforwardSettings) -> None:
-        previous = getattr(self, "settings", None)
-        if previous is not None and previous.controller_model != settings.controller_model:
-            self.physical_limit, self.limit_changes = None, ()      # computed again for the new model
         self.settings = settings
         model = settings.controller_model
         harmonics = settings.harmonics
@@ -382,17 +521,18 @@ class FeedforwardTerm:
                 or self.tracker.minimum_amplitude_K != settings.minimum_cooler_amplitude_K:
             self.tracker = CoolerPhaseTracker(model.ptc.angular_frequency_rad_s,
                                               minimum_amplitude_K=settings.minimum_cooler_amplitude_K)
+        if self.limits is None:
+            self.limits = LimitFollower(model)
+        self.limits.use_model(model)
         self._orders = np.arange(1, harmonics + 1)
         self.unplayed = UnplayedPower(model)
+        previous_plant = getattr(self, "plant", None)
         self.plant = plant_at_harmonics(model, self._orders, settings.period_s, self.setting_delay_s)
         self._effect_cache = None
-        self.model_line = line_at_harmonics(model, harmonics)
-        self._model_stage_amplitude_K = abs(model.ptc.ptc_stage_amplitude_K) or 1.0
-        if self.coefficients.size != harmonics:                    # keep what was learned, as far as it goes
-            kept = np.zeros(harmonics, dtype=complex)
-            count = min(harmonics, self.coefficients.size)
-            kept[:count] = self.coefficients[:count]
-            self.coefficients = kept
+        if self._coefficients.size != harmonics:                    # keep what was learned, as far as it goes
+            self._coefficients, self._probe = _resized(self._coefficients, harmonics), _resized(self._probe, harmonics)
+            self._set_played()
+            self.probe_state = ProbeState.start(harmonics)
         worker = self.worker
         if worker is None or worker.estimator.harmonics != harmonics or worker.estimator.memory_s != settings.memory_s:
             if worker is not None:
@@ -400,24 +540,25 @@ class FeedforwardTerm:
                 worker.close()
             self.worker = LearningWorker(SynchronousEstimator(harmonics, model.sensor_noise.flange_thermometer_rms_K,
                                                               settings.memory_s, settings.period_s))
-            self._estimate = StepResult.empty(harmonics)
-        self._started = bool(np.any(self.coefficients))
+            self._estimate = StepResult.empty(self.plant)
+        elif previous_plant is not None and previous_plant.size == harmonics and \
+                not np.allclose(previous_plant, self.plant, rtol=1e-12, atol=0.0):
+            # another controller's model: the cryostat did not change, so neither does the plant learned
+            factor = previous_plant / self.plant
+            self.worker.apply(lambda estimator: estimator.rescale_correction(factor))
 
     def reconfigure(self, settings: FeedforwardSettings, output_max: float) -> None:
-        """A reload: new settings, keeping the lock and the learned waveform (bumpless)."""
+        """A reload: new settings, keeping the lock, the learned plant and the learned waveform (bumpless)."""
         self.output_max = output_max
         if settings.enabled != self.settings.enabled:
             self.switched_on = settings.enabled
         self._configure(settings)
 
     def close(self) -> None:
-        """End the learning thread (the regulator closes its terms when the loop stops)."""
+        """End the learning thread and the limit's (the regulator closes its terms when the loop stops)."""
         if self.worker is not None:
             self.worker.close()
-        if self._limit_executor is not None:
-            self._limit_executor.shutdown(wait=False, cancel_futures=True)
-            self._limit_executor = None
-            self._limit_asked = None
+        self.limits.close()
 
     def switch(self, on: bool) -> None:
         """``cryod ctl feedforward on|off``: fade in or out."""
@@ -451,8 +592,9 @@ class FeedforwardTerm:
         if tick.dt_s > 1.5 * self.settings.period_s:
             self._held_since_s = phase.time_s       # a gap: the loop held the heater off (a fault, start-up)
             self.unplayed.reset()
-        if phase.time_s - self._held_since_s < SETTLE_S:
-            # after a gap the heater did not play the waveform the estimator assumes: wait until T2 has settled
+        if phase.time_s - self._held_since_s < SETTLE_S or tick.flange_time_s - self._changed_at_s < CHANGE_SETTLE_S:
+            # after a gap the heater did not play the waveform the estimator assumes, and after a change it played
+            # the old and the new: wait until T2 has settled
             self._gap()
         else:
             self._in_gap = False
@@ -478,7 +620,7 @@ class FeedforwardTerm:
         effect = self._effect()
         cache = self._synchronous_cache
         if cache is None or cache[0] is not self._estimate or cache[1] is not effect:
-            phasors = self._estimate.line + self._estimate.raw_correction * effect
+            phasors = self._estimate.line + self._estimate.learned.correction * effect
             cache = self._synchronous_cache = (self._estimate, effect, [complex(value) for value in phasors])
         return cache[2]
 
@@ -497,18 +639,24 @@ class FeedforwardTerm:
     def update(self, tick: TickInputs) -> float:
         self._played = True
         self._output_time_s = tick.output_time_s
+        self._time_s = tick.time_s
         locked = self.phase is not None and self.phase.locked
-        wanted = 1.0 if (self.switched_on and locked) else 0.0
+        learning = self._diverged is None and tick.time_s >= self._learn_again_s
+        wanted = 1.0 if (self.switched_on and locked and learning) else 0.0
         fade = self.settings.fade_time_s
         step = tick.dt_s / fade if fade > 0.0 else 1.0
         self.scale = min(self.scale + step, wanted) if wanted > self.scale else max(self.scale - step, wanted)
+        if self._diverged is not None and self.scale <= 0.0:
+            self._reset_learning(tick.time_s)
         if locked and (self.switched_on or self.scale > 0.0):
             if self._next_update_s is None:
                 self._next_update_s = tick.time_s + self.settings.update_interval_s
             elif tick.time_s >= self._next_update_s:
                 self._next_update_s += self.settings.update_interval_s
-                self._ask_for_step()
-        self._follow_limit(tick)
+                self._follow_mean(abs(tick.setpoint_K - tick.flange_feedback_K))
+                self._ask_for_step(learning and self.switched_on)
+        self.limits.follow(tick.time_s, tick.setpoint_K, self.output_max, self.settings.period_s,
+                           self.setting_delay_s, self._learned_limit_inputs)
         if self.scale <= 0.0 or self.phase is None:
             self.output_w = self._applied_scale = 0.0
             return 0.0
@@ -519,56 +667,65 @@ class FeedforwardTerm:
             power *= rotor
             value += (coefficient * power).real
         self._applied_scale = self.scale
+        if self._heard_coefficients is not self._played_coefficients:
+            value += self._energy_kept(rotor)
+            change_K = float(np.sum(np.abs(self.plant * (self._played_coefficients - self._heard_coefficients))))
+            if change_K > CHANGE_SETTLE_ABOVE_K:
+                self._changed_at_s = tick.output_time_s
+            self._heard_coefficients = self._played_coefficients    # what the next readings answer
         self.output_w = self.scale * value
         return self.output_w
 
+    def _energy_kept(self, rotor: complex) -> float:
+        """The power to add for one tick where the waveform changes, so that the energy it delivers goes on as
+        if it had always been the new one (W).
+
+        A held waveform ``Re sum_n u_n exp(j n phase_k)`` delivers, summed over the ticks, a bounded
+        oscillation plus a constant; changing ``u`` at tick K moves that constant by
+        ``T Re sum_n (u_n - u'_n) exp(j n phase_K) / (exp(j n omega T) - 1)``, which depends on where in the
+        period the change falls: a kick of energy the flange integrates into T2's mean (a few microkelvin for
+        a change of a milliwatt, every learning step, below 0.1 Hz). This gives it back."""
+        advance = self.phase.frequency_rad_s * self.settings.period_s
+        turn = cmath.exp(1j * advance)
+        power, step, kept = 1.0 + 0j, 1.0 + 0j, 0.0
+        for new, old in zip(self._played_coefficients, self._heard_coefficients):
+            power *= rotor
+            step *= turn
+            kept += ((new - old) * power / (step - 1.0)).real
+        return kept
+
     @property
     def coefficients(self) -> np.ndarray:
-        """The waveform's complex amplitudes ``u_n`` (W), n = 1..harmonics."""
+        """The waveform's complex amplitudes ``u_n`` (W), n = 1..harmonics (the probe not included)."""
         return self._coefficients
 
     @coefficients.setter
     def coefficients(self, values) -> None:
         self._coefficients = np.asarray(values, dtype=complex)
-        self._coefficient_list = [complex(value) for value in self._coefficients]
-        self._effect_cache = None
+        self._set_played()
+
+    @property
+    def probe(self) -> np.ndarray:
+        """The probe's complex amplitudes (W) per harmonic, played with the waveform."""
+        return self._probe
+
+    def _set_played(self) -> None:
+        """What the heater plays from the next output on: the waveform and the probe."""
+        self._played_coefficients = self._coefficients + self._probe
+        self._coefficient_list = [complex(value) for value in self._played_coefficients]
+        if not hasattr(self, "_heard_coefficients"):
+            self._heard_coefficients = self._played_coefficients
 
     def _effect(self) -> np.ndarray:
-        """The waveform's effect on T2 through the model, as the heater played it last tick (K per harmonic)."""
+        """What the heater played last tick through the model, its effect on T2 (K per harmonic): a new waveform
+        taken at this tick's start is played from this tick's output on, and the reading now still answers the
+        one before (attributing it the new one would bias the plant learned by the change)."""
         scale = self._applied_scale
-        if self._effect_cache is None or self._effect_cache[0] != scale:
-            self._effect_cache = (scale, self.plant * self._coefficients * scale)
-        return self._effect_cache[1]
-
-    def _follow_limit(self, tick: TickInputs) -> None:
-        """Compute the physical limit for a setpoint once it has been steady for LIMIT_AFTER_S (on a thread
-        of its own, taken LIMIT_TAKEN_AFTER_S later)."""
-        if self._limit_asked is not None:
-            result, setpoint, take_at_s = self._limit_asked
-            if tick.time_s < take_at_s:
-                return
-            self._limit_asked = None
-            self.physical_limit, self.limit_changes = result.result()
-            if self.physical_limit is None:
-                self._limit_wanted = (setpoint, math.inf)       # out of reach: not again for this setpoint
-            return
-        setpoint = round(tick.setpoint_K, 4)
-        if self._limit_wanted is None or self._limit_wanted[0] != setpoint:
-            self._limit_wanted = (setpoint, tick.time_s)
-            return
-        known = self.physical_limit
-        if known is not None and known.setpoint_K == setpoint \
-                and abs(known.heater_delay_s - self.setting_delay_s) < SETTING_DELAY_TOLERANCE_S \
-                and known.max_heater_power_W == self.output_max:
-            return
-        if tick.time_s - self._limit_wanted[1] < LIMIT_AFTER_S:
-            return
-        if self._limit_executor is None:
-            self._limit_executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cryod-feedforward-limit",
-                                                      initializer=at_normal_priority)
-        result = self._limit_executor.submit(_limit_report, self.settings.controller_model, setpoint, self.output_max,
-                                             self.settings.period_s, self.setting_delay_s)
-        self._limit_asked = (result, setpoint, tick.time_s + LIMIT_TAKEN_AFTER_S)
+        heard = self._heard_coefficients
+        cache = self._effect_cache
+        if cache is None or cache[0] != scale or cache[1] is not heard:
+            cache = self._effect_cache = (scale, heard, self.plant * heard * scale)
+        return cache[2]
 
     def limit(self, requested: float, applied: float) -> None:
         others = requested - self.output_w
@@ -578,14 +735,46 @@ class FeedforwardTerm:
             self.other_terms_w += (others - self.other_terms_w) * min(self.settings.period_s / BASE_TIME_S, 1.0)
         self.unplayed.set(self._output_time_s, applied - requested)
 
+    def _follow_mean(self, distance_K: float) -> None:
+        """At every learning step: PI's mean power and T2's distance from the setpoint, smoothed (for the learned
+        limit: T2 settled at the setpoint, and the mean power that holds it)."""
+        interval = self.settings.update_interval_s
+        if self.other_terms_w is not None:
+            self.mean_power_w = self.other_terms_w if self.mean_power_w is None else \
+                self.mean_power_w + (self.other_terms_w - self.mean_power_w) * min(interval / MEAN_POWER_TIME_S, 1.0)
+        if not math.isfinite(self._setpoint_distance_K):
+            self._setpoint_distance_K = distance_K
+        elif math.isfinite(distance_K):
+            self._setpoint_distance_K += (distance_K - self._setpoint_distance_K) * min(interval / SETTLING_TIME_S, 1.0)
+
+    def take_events(self) -> tuple[tuple[int, str], ...]:
+        """What the learning found since the last tick: (logging level, text) pairs for the journal and the data log."""
+        return self.report.take()
+
     def column_values(self) -> tuple[float, ...]:
         phase = self.phase
-        known = self.physical_limit
-        limit, authority = (known.ptc_periodic_limit_K, known.authority) if known is not None else (math.nan,) * 2
+        limit, authority, source = self.limits.columns
         if phase is None:
-            return (self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale, limit, authority)
+            return (self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale, limit, authority, source,
+                    self._probe_column)
         return (self.output_w, self._flange_phase_rad, phase.frequency_rad_s, 1.0 if phase.locked else 0.0,
-                self._estimate.line_amplitude_K, self.scale, limit, authority)
+                self._estimate.line_amplitude_K, self.scale, limit, authority, source, self._probe_column)
+
+    @property
+    def physical_limit(self):
+        """The physical limit at the setpoint in use (:mod:`cryod.control.feedforward_limit`): from what was
+        learned once it is, else from the model; None until the setpoint has been steady a few seconds."""
+        return self.limits.limit
+
+    @property
+    def limit_changes(self) -> tuple:
+        """The limit if the setpoint moved by 0.5 K either way, or R I_max^2 doubled (LimitChange)."""
+        return self.limits.changes
+
+    @property
+    def learned_plant(self) -> LearnedPlant:
+        """The plant as the last learning step knew it."""
+        return self._estimate.learned
 
     def describe(self) -> str:
         """The feedforward's state in a few lines (``cryod ctl feedforward status``)."""
@@ -604,46 +793,91 @@ class FeedforwardTerm:
                          f"{self.settings.harmonics}: {harmonics} uK); without the waveform it would be "
                          f"{1e6 * float(np.sqrt(np.sum(np.abs(self._estimate.line) ** 2))):.1f} uK")
         amplitude = np.abs(self.coefficients)
-        values = waveform_values(self.coefficients, self.other_terms_w or 0.0, BOUND_POINTS)
+        values = waveform_values(self._played_coefficients, self.other_terms_w or 0.0, BOUND_POINTS)
         lines.append(f"waveform: {', '.join(f'{1e3 * a:.1f}' for a in amplitude)} mW per harmonic, "
-                     f"{1e3 * values.min():.1f} to {1e3 * values.max():.1f} mW with the "
+                     f"{1e3 * values.min():.1f} to {1e3 * values.max():.1f} mW with the probe and the "
                      f"{1e3 * (self.other_terms_w or 0.0):.1f} mW from PI, within {1e3 * self.settings.margin_W:g} mW "
                      f"of 0 and {1e3 * self.output_max:.0f} mW")
-        correction = self._estimate.correction[0]
-        lines.append(f"plant at the fundamental: {abs(correction):.2f} x the model's, "
-                     f"{math.degrees(cmath.phase(correction)):+.0f} deg (model: {self.settings.model_source})")
+        plant = self.learned_plant
+        lines.append(f"plant, heater to T2's readings (model: {self.settings.model_source}; "
+                     f"{'learned' if plant.learned.any() else 'nothing learned yet'}):")
+        lines.append(plant.describe())
+        if plant.differences_said():
+            lines.append(plant.differences_said())
+        lines.append(self._describe_probe())
+        if self._diverged is not None:
+            lines.append(f"learning diverged ({self._diverged}): fading out")
+        elif self._time_s < self._learn_again_s:
+            lines.append(f"learning diverged {self.divergences} time(s); starts again in "
+                         f"{self._learn_again_s - self._time_s:.0f} s")
+        elif self.divergences:
+            lines.append(f"learning diverged {self.divergences} time(s) since start, reset each time")
         limit = self.physical_limit
         if limit is None:
             lines.append("physical limit: not computed yet (the daemon computes it for the setpoint in use)")
         else:
-            lines.append(f"physical limit at {limit.setpoint_K:g} K: {1e6 * limit.ptc_periodic_limit_K:.1f} uK of the "
-                         f"{1e6 * limit.open_line_K:.1f} uK line; {limit.limited_by}-limited (authority "
+            source = ("from the learned plant and line, and the mean power PI found" if self.limits.source == "learned"
+                      else "from the controller's model")
+            lines.append(f"physical limit at {limit.setpoint_K:g} K ({source}): {1e6 * limit.ptc_periodic_limit_K:.1f} "
+                         f"uK of the {1e6 * limit.open_line_K:.1f} uK line; {limit.limited_by}-limited (authority "
                          f"{limit.authority:.2f}: the heater can put {1e3 * limit.largest_line_power_W:.0f} mW at the "
-                         f"line of the {1e3 * limit.line_power_needed_W:.0f} mW needed); predicted best "
+                         f"line of the {1e3 * limit.line_power_needed_W:.0f} mW needed around "
+                         f"{1e3 * limit.mean_heater_power_W:.0f} mW); predicted best "
                          f"{1e6 * limit.predicted_best_residual_K:.1f} uK")
             if self.limit_changes:
                 lines.append("what would change it: " + "; ".join(change.describe() for change in self.limit_changes)
                              + " (R I_max^2 x 2: R x 2 or I_max x 1.41; more: cryod feedforward-limit)")
         return "\n".join(lines)
 
+    def _describe_probe(self) -> str:
+        probing = [index + 1 for index, on in enumerate(self.probe_state.probing) if on]
+        cost = self._estimate.probe_cost_K
+        short = self.probe_state.given_up()
+        playing = [index + 1 for index, value in enumerate(self._probe) if value]
+        if playing and cost > 0.0:
+            text = (f"probe: {1e3 * abs(self._probe[playing[0] - 1]):.1f} mW at harmonic {playing[0]}, moving T2 by "
+                    f"{1e6 * cost:.1f} uK (to learn the plant to {100 * self.settings.plant_precision:g} %; "
+                    f"harmonics {', '.join(map(str, probing))} to go)")
+        elif probing:
+            text = (f"probe: waiting (harmonics {', '.join(map(str, probing))} to go: no room now, or a plant too "
+                    f"weak for the room there is)")
+        else:
+            text = f"probe: off (plant known to {100 * self.settings.plant_precision:g} %" + \
+                (")" if not short else f" where it could be; harmonics {', '.join(map(str, short))} left at what "
+                                       f"the probe could tell within its share of the heater's room)")
+        return text
+
     def line_amplitude_K(self) -> float:
         """T2's synchronous part as estimated at the last learning step (K; NaN before there is one)."""
         return self._estimate.line_amplitude_K
 
+    def learning_summary(self) -> dict:
+        """What was learned, for ``--json``: the plant per harmonic, the limit reported and where it came from."""
+        limit = self.physical_limit
+        return {"feedforward_plant": self.learned_plant.summary(),
+                "feedforward_plant_differences": self.learned_plant.differences(),
+                "feedforward_reported_limit_K": None if limit is None else limit.ptc_periodic_limit_K,
+                "feedforward_reported_authority": None if limit is None else limit.authority,
+                "feedforward_limit_from": self.limits.source,
+                "feedforward_probe_K": self._estimate.probe_cost_K,
+                "feedforward_divergences": self.divergences,
+                "feedforward_setting_delay_s": self.setting_delay_s}
+
     # -- learning (the worker computes, the loop takes the result at the next tick) ---------
-    def _ask_for_step(self) -> None:
+    def _ask_for_step(self, learning: bool) -> None:
         """Hand the worker what a learning step needs, as values, to compute after the readings so far."""
         if self.other_terms_w is None:
             return
         self._step_id += 1
-        first = None
-        if not self._started:
-            # the first waveform from the model: its line on T2, scaled to the cooler's amplitude in T5
-            first = -self.model_line * (self.tracker.amplitude_K / self._model_stage_amplitude_K)
+        scale = self._applied_scale
         self.worker.step(self._step_id, _LearningStep(
             plant=self.plant.copy(), coefficients=self._coefficients.copy(), effect=self._effect().copy(),
-            first_line=first, gain=self.settings.learning_gain, base_w=self.other_terms_w,
-            low_w=self.settings.margin_W, high_w=self.output_max - self.settings.margin_W))
+            waveform_effect=self.plant * self._coefficients * scale, learning=learning,
+            gain=self.settings.learning_gain, base_w=self.other_terms_w, low_w=self.settings.margin_W,
+            high_w=self.output_max - self.settings.margin_W, probe_state=self.probe_state,
+            probe=self.settings.probe, interval_s=self.settings.update_interval_s,
+            frequency_rad_s=self.phase.frequency_rad_s, before=self._estimate.learned,
+            approaching=self._setpoint_distance_K > APPROACHING_K))
         self._pending_step = self._step_id
 
     def _take_step_result(self) -> None:
@@ -653,37 +887,101 @@ class FeedforwardTerm:
         result = self.worker.result(self._pending_step)
         self._pending_step = None
         self._estimate = result
-        if result.coefficients is not None:
-            self._started = True
-            self.coefficients = result.coefficients
+        if result.coefficients is not None and self._diverged is None:
+            self._coefficients, self._probe = result.coefficients, result.probe
+            self.probe_state = result.probe_state
+            self._set_played()
+        plant = result.learned
+        playing = result.coefficients is not None and self._diverged is None and result.probe_cost_K > 0.0
+        self._probe_column = result.probe_cost_K if playing else math.nan     # empty when off
+        self._plant_known_for_limit = bool(plant.learned[0] and plant.relative_spread[0] < LIMIT_PLANT_SPREAD)
+        if result.ready:
+            self._judge(result)
+
+    def _judge(self, result: "StepResult") -> None:
+        """After a step: PI alone's line, the guard, what to report."""
+        self.report.step(self._time_s, result.learned, self.probe_state.given_up())
+        amplitude = self.phase.amplitude_K if self.phase is not None else math.nan
+        if not np.any(self._coefficients):
+            self._pi_alone = (float(np.sqrt(np.sum(np.abs(result.line) ** 2))), amplitude)
+        if self._diverged is not None or self.scale < 1.0 or not np.any(self._coefficients):
+            self.guard.clear()
+            return
+        if self._pi_alone is not None and math.isfinite(amplitude) and self._pi_alone[1] > 0.0:
+            pi_alone = self._pi_alone[0] * amplitude / self._pi_alone[1]
+        else:
+            pi_alone = float(np.sqrt(np.sum(np.abs(result.line) ** 2)))
+        reason = self.guard.observe(result.residual_K, pi_alone)
+        if reason is not None:
+            self._diverged = reason
+            self._divergences += 1
+            self.divergences += 1
+            self.report.diverged(reason, self._retry_s())
+
+    def _retry_s(self) -> float:
+        return min(self.settings.retry_after_s * 2.0 ** (self._divergences - 1), LONGEST_RETRY_S)
+
+    def _reset_learning(self, time_s: float) -> None:
+        """The waveform has faded out after a divergence: the model's plant again, learning later."""
+        self._learn_again_s = time_s + self._retry_s()
+        self._diverged = None
+        self.worker.apply(SynchronousEstimator.reset_correction)
+        self._coefficients = np.zeros_like(self._coefficients)
+        self._probe = np.zeros_like(self._probe)
+        self._set_played()
+        self.probe_state = ProbeState.start(self.settings.harmonics)
+        self.guard.clear()
+        self.limits.forget_learned()
+        self._estimate = replace(self._estimate, learned=LearnedPlant.from_model(self.plant).prepared())
+        self._plant_known_for_limit = False
+        self._probe_column = math.nan
+
+    def _learned_limit_inputs(self, setpoint_K: float) -> LearnedLimitInputs | None:
+        """What the learned limit is computed from, once the plant at the line is learned and T2 has settled at the
+        setpoint; else None."""
+        if not (self._plant_known_for_limit and self._setpoint_distance_K < SETTLED_K and self.mean_power_w is not None
+                and self._estimate.ready and self._time_s >= self._learn_again_s):
+            return None
+        return LearnedLimitInputs(self.learned_plant, self._estimate.line.copy(), self.mean_power_w, self.output_max, setpoint_K,
+                                  self.settings.period_s, self.setting_delay_s)
 
 
-def _limit_report(model: CryostatModel, setpoint_K: float, max_power_w: float, period_s: float,
-                  delay_s: float) -> tuple:
-    """(the physical limit, what would change it) at a setpoint, or (None, ()) when it is out of reach."""
-    try:
-        limit = limit_for_heater_power(model, setpoint_K, max_power_w, period_s, heater_delay_s=delay_s,
-                                       certify=False)
-    except FeedforwardLimitError:
-        return None, ()
-    return limit, limit_changes(model, setpoint_K, max_power_w, period_s, heater_delay_s=delay_s)
+def _resized(values: np.ndarray, harmonics: int) -> np.ndarray:
+    kept = np.zeros(harmonics, dtype=complex)
+    count = min(harmonics, values.size)
+    kept[:count] = values[:count]
+    return kept
 
 
 @dataclass(frozen=True, eq=False)
 class StepResult:
-    """What a learning step found: the estimate, and the new coefficients (None: no step taken)."""
+    """What a learning step found: the estimate, the plant learned, and the new waveform and probe (None: no step
+    taken)."""
 
     ready: bool
     line: np.ndarray
-    raw_correction: np.ndarray
-    correction: np.ndarray
+    learned: LearnedPlant
     line_amplitude_K: float
+    residual_K: float
     coefficients: np.ndarray | None
+    probe: np.ndarray | None
+    probe_state: ProbeState | None
+    probe_cost_K: float
+
+    @property
+    def raw_correction(self) -> np.ndarray:
+        return self.learned.correction
+
+    @property
+    def correction(self) -> np.ndarray:
+        """The correction where learned, 1 elsewhere."""
+        return np.where(self.learned.learned, self.learned.correction, 1.0)
 
     @classmethod
-    def empty(cls, harmonics: int) -> "StepResult":
-        zeros, ones = np.zeros(harmonics, dtype=complex), np.ones(harmonics, dtype=complex)
-        return cls(False, zeros, ones, ones, math.nan, None)
+    def empty(cls, model_plant: np.ndarray) -> "StepResult":
+        zeros = np.zeros(len(model_plant), dtype=complex)
+        return cls(False, zeros, LearnedPlant.from_model(model_plant).prepared(), math.nan, math.nan, None, None, None,
+                   0.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -693,32 +991,43 @@ class _LearningStep:
     plant: np.ndarray
     coefficients: np.ndarray
     effect: np.ndarray
-    first_line: np.ndarray | None
+    waveform_effect: np.ndarray
+    learning: bool
     gain: float
     base_w: float
     low_w: float
     high_w: float
+    probe_state: ProbeState
+    probe: ProbeSettings
+    interval_s: float
+    frequency_rad_s: float
+    before: LearnedPlant | None
+    approaching: bool
 
     def __call__(self, estimator: SynchronousEstimator) -> StepResult:
         ready = estimator.ready
-        synchronous = estimator.synchronous(self.effect)
-        line_K = float(np.sqrt(np.sum(synchronous.real ** 2 + synchronous.imag ** 2))) if ready else math.nan
-        correction = estimator.correction
-        raw = estimator.raw_correction
-        coefficients = None
+        learned = estimator.learned_plant(self.plant, self.frequency_rad_s).confirmed_against(self.before).prepared()
+        line_K = residual_K = math.nan
         if ready:
-            plant = self.plant * correction
-            if self.first_line is not None:
-                stepped = self.first_line / plant
-            else:
-                stepped = self.coefficients + self.gain * (-estimator.line / plant - self.coefficients)
-            # the feasible waveform closest to the step in the plant's metric: min sum |H_n (u_n - stepped_n)|^2
-            coefficients = best_bounded_waveform(-plant * stepped, plant, self.base_w, self.low_w, self.high_w,
-                                                 phase_points=BOUND_POINTS)
+            line_K = _amplitude(estimator.synchronous(self.effect))
+            residual_K = _amplitude(estimator.synchronous(self.waveform_effect))     # without the probe
+        coefficients = probe = state = None
+        cost = 0.0
+        if ready and self.learning:
+            room = min(self.base_w - self.low_w, self.high_w - self.base_w)
+            state, probe = next_probe(self.probe_state, learned, room, self.interval_s, self.probe, self.approaching)
+            reserved = float(np.sum(np.abs(probe)))
+            coefficients = learning_step(self.coefficients, estimator.line, learned, self.gain, self.base_w,
+                                         self.low_w + reserved, self.high_w - reserved, BOUND_POINTS)
+            cost = probe_cost_K(probe, learned.plant)
             # no second difference may span the step: the readings before it decided it, and their noise
             # would look like the plant's answer to it
             estimator.forget_last()
-        return StepResult(ready, estimator.line.copy(), raw.copy(), correction, line_K, coefficients)
+        return StepResult(ready, estimator.line.copy(), learned, line_K, residual_K, coefficients, probe, state, cost)
+
+
+def _amplitude(phasors: np.ndarray) -> float:
+    return float(np.sqrt(np.sum(phasors.real ** 2 + phasors.imag ** 2)))
 
 
 def _resolve(path: str, config_source: str) -> Path:

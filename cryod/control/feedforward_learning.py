@@ -1,6 +1,8 @@
 """The feedforward's estimator and learning steps, on a thread of their own.
 
-The loop's thread only hands each T2 reading over (a queue put) and, every
+The loop's thread only hands the T2 readings over (a list append, and a queue
+put every :data:`HANDOFF` readings: each put wakes the worker, and a wake-up
+costs the loop's thread more than the append) and, every
 ``update_interval_s``, asks for a learning step; a worker thread feeds the
 readings to the :class:`~cryod.control.feedforward.SynchronousEstimator` (a
 Kalman filter, tens of µs a reading) and computes the step (a small quadratic
@@ -37,6 +39,8 @@ from cryod.service.realtime import at_normal_priority
 
 _GAP = object()
 _STOP = object()
+#: Readings handed to the worker at once (a step, a gap or a change hands over what is waiting first).
+HANDOFF = 8
 
 
 def _work(inbox: queue.SimpleQueue, estimator, results: dict, ready: threading.Condition) -> None:
@@ -48,8 +52,11 @@ def _work(inbox: queue.SimpleQueue, estimator, results: dict, ready: threading.C
             return
         if item is _GAP:
             estimator.forget_last()
-        elif len(item) == 3:
-            estimator.add(*item)
+        elif type(item) is list:
+            for reading in item:
+                estimator.add(*reading)
+        elif len(item) == 1:
+            item[0](estimator)
         else:
             step_id, compute = item
             try:
@@ -78,18 +85,34 @@ class LearningWorker:
         self._thread = threading.Thread(target=_work, args=(self._inbox, estimator, self._results, self._ready),
                                         name="cryod-feedforward", daemon=True)
         self._thread.start()
+        self._waiting: list[tuple] = []                     # readings not handed over yet
         weakref.finalize(self, self._inbox.put, _STOP)      # a term dropped without close(): the thread ends
 
     def reading(self, phase: float, flange_K: float, effect) -> None:
         """A T2 reading at its cooler phase, with the waveform's modelled effect (non-blocking)."""
-        self._inbox.put((phase, flange_K, effect))
+        waiting = self._waiting
+        waiting.append((phase, flange_K, effect))
+        if len(waiting) >= HANDOFF:
+            self._hand_over()
+
+    def _hand_over(self) -> None:
+        if self._waiting:
+            self._inbox.put(self._waiting)
+            self._waiting = []
 
     def gap(self) -> None:
         """The next reading is not to be differenced against the last ones."""
+        self._hand_over()
         self._inbox.put(_GAP)
+
+    def apply(self, change: Callable[[Any], None]) -> None:
+        """Do ``change(estimator)`` after every reading handed over so far (non-blocking; a reset, a rescaling)."""
+        self._hand_over()
+        self._inbox.put((change,))
 
     def step(self, step_id: int, compute: Callable[[Any], Any]) -> None:
         """Compute ``compute(estimator)`` after every reading handed over so far (non-blocking)."""
+        self._hand_over()
         self._inbox.put((step_id, compute))
 
     def result(self, step_id: int, timeout_s: float | None = 60.0):
@@ -104,4 +127,5 @@ class LearningWorker:
 
     def close(self) -> None:
         """End the thread once what was handed over is done."""
+        self._hand_over()
         self._inbox.put(_STOP)

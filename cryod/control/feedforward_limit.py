@@ -345,7 +345,7 @@ class _Problem:
     mean: float                 # delivered W
     low: float
     high: float
-    heater_path: TransferFunction    # G at the setpoint, K/W
+    heater_path: TransferFunction | None    # G at the setpoint, K/W (None: known only at the harmonics)
 
 
 def _heat_capacity_scale(model: CryostatModel, setpoint_K: float) -> float:
@@ -449,12 +449,78 @@ def feedforward_limit(model: CryostatModel, setpoint_K: float, heater_resistance
     if 2 * harmonics + 2 > phase_points:
         raise FeedforwardLimitError(f"phase_points ({phase_points}) must exceed twice the harmonics ({harmonics})")
     problem = _problem(model, setpoint_K, max_power, period_s, delay, measure, harmonics)
+    floor_gain = _smallest_held_gain(problem.heater_path, period_s, delay, measure) if certify else None
+    thermometer_at_line = complex(problem.heater_path.frequency_response(model.ptc.angular_frequency_rad_s))
+    return _solved(problem, thermometer_at_line, floor_gain, lambda delivered: _commanded(model, delivered),
+                   model.sensor_noise.flange_thermometer_rms_K, setpoint_K=float(setpoint_K),
+                   heater_resistance_ohm=float(heater_resistance_ohm), max_current_A=float(max_current_A),
+                   period_s=float(period_s), heater_delay_s=float(delay), measure=measure, phase_points=phase_points,
+                   cooler_angular_frequency_rad_s=model.ptc.angular_frequency_rad_s,
+                   averaging_time_s=float(averaging_time_s))
+
+
+def limit_for_plant(line: np.ndarray, plant: np.ndarray, mean_heater_power_w: float, max_heater_power_w: float,
+                    setpoint_K: float, period_s: float, *, heater_delay_s: float, cooler_angular_frequency_rad_s: float,
+                    sensor_noise_rms_K: float, averaging_time_s: float = DEFAULT_AVERAGING_TIME_S,
+                    phase_points: int = DEFAULT_PHASE_POINTS) -> FeedforwardLimit:
+    """The limit for a cryostat known by its line and plant at the harmonics (learned, not modelled).
+
+    The same optimisation as :func:`feedforward_limit`, over the harmonics given,
+    with the mean power that holds the setpoint as measured. Not certified (no
+    transfer function, so no bound on the plant beyond those harmonics); the
+    thermometer's continuous response at the line is not known (NaN).
+
+    Parameters
+    ----------
+    line : numpy.ndarray
+        T2's line ``L_n`` (K, complex; n = 1..N, against the cooler phase the feedforward tracks).
+    plant : numpy.ndarray
+        ``H_n``: a waveform coefficient to T2's readings (K/W, complex), as the loop samples it.
+    mean_heater_power_w, max_heater_power_w : float
+        The mean power that holds the setpoint, and R * I_max**2 (W).
+    setpoint_K, period_s, heater_delay_s : float
+        For the record (the plant already includes the delay).
+    cooler_angular_frequency_rad_s, sensor_noise_rms_K, averaging_time_s : float
+        For the noise floor.
+    phase_points : int
+
+    Raises
+    ------
+    FeedforwardLimitError
+        When the mean power is not strictly within 0 .. R * I_max**2.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> limit = limit_for_plant(np.array([1.73e-3 + 0j]), np.array([7.36e-3 * np.exp(-2.0j)]), 0.113, 0.5, 5.0,
+    ...                         0.08, heater_delay_s=0.0, cooler_angular_frequency_rad_s=10.83,
+    ...                         sensor_noise_rms_K=20e-6)
+    >>> limit.limited_by, round(limit.authority, 2)
+    ('authority', 0.88)
+    """
+    if not 0.0 < mean_heater_power_w < max_heater_power_w:
+        raise FeedforwardLimitError(f"a mean heater power of {1e3 * mean_heater_power_w:.0f} mW leaves no room "
+                                    f"within 0..{1e3 * max_heater_power_w:.0f} mW")
+    line = np.asarray(line, dtype=complex)
+    problem = _Problem(line=line, gain=np.asarray(plant, dtype=complex), mean=float(mean_heater_power_w), low=0.0,
+                       high=float(max_heater_power_w), heater_path=None)
+    return _solved(problem, complex(math.nan, math.nan), None, lambda delivered: delivered, sensor_noise_rms_K,
+                   setpoint_K=float(setpoint_K), heater_resistance_ohm=float(max_heater_power_w), max_current_A=1.0,
+                   period_s=float(period_s), heater_delay_s=float(heater_delay_s), measure="sampled",
+                   phase_points=phase_points, cooler_angular_frequency_rad_s=cooler_angular_frequency_rad_s,
+                   averaging_time_s=float(averaging_time_s))
+
+
+def _solved(problem: "_Problem", thermometer_at_line: complex, floor_gain: float | None, commanded,
+            sensor_noise_rms_K: float, **reported) -> FeedforwardLimit:
+    """The best waveform for the problem, and the limit as reported (``floor_gain`` None: not certified;
+    ``reported``: the inputs the limit is given for, by the names :class:`FeedforwardLimit` gives them)."""
     bounds = (problem.mean, problem.low, problem.high)
+    phase_points = reported["phase_points"]
     amplitudes = best_bounded_waveform(problem.line, problem.gain, *bounds, phase_points=phase_points)
     residual = problem.line + problem.gain * amplitudes
     lower_bound = None
-    if certify:
-        floor_gain = _smallest_held_gain(problem.heater_path, period_s, delay, measure)
+    if floor_gain is not None:
         lower_bound = math.sqrt(residual_lower_bound(problem.line, problem.gain, amplitudes, *bounds, floor_gain))
 
     # Harmonics 1-6 (the waveform has none above N, and N covers every harmonic of the line).
@@ -467,20 +533,16 @@ def feedforward_limit(model: CryostatModel, setpoint_K: float, heater_resistance
     fundamental_left = max(0.0, float(abs(problem.line[0]) - abs(problem.gain[0]) * sinusoid))
     best_sinusoid = _amplitude(np.concatenate([[fundamental_left], line_shown[1:]]))
     limit = _amplitude(residual_shown)
-    noise = noise_floor_K(model.sensor_noise.flange_thermometer_rms_K, averaging_time_s, period_s)
+    noise = noise_floor_K(sensor_noise_rms_K, reported["averaging_time_s"], reported["period_s"])
 
     waveform_harmonics = amplitudes        # against the cooler's phase phi (T5 reads A cos phi)
     waveform_delivered = waveform_values(waveform_harmonics, problem.mean, phase_points)
     waveform_delivered = np.clip(waveform_delivered, problem.low, problem.high)
     waveform_phase = 2.0 * math.pi * np.arange(phase_points) / phase_points
     gain_at_line = complex(problem.gain[0])
-    thermometer_at_line = complex(problem.heater_path.frequency_response(model.ptc.angular_frequency_rad_s))
     return FeedforwardLimit(
-        setpoint_K=float(setpoint_K), heater_resistance_ohm=float(heater_resistance_ohm),
-        max_current_A=float(max_current_A), period_s=float(period_s), heater_delay_s=float(delay),
-        measure=measure, harmonics=harmonics, phase_points=phase_points,
-        cooler_angular_frequency_rad_s=model.ptc.angular_frequency_rad_s,
-        mean_heater_power_W=float(problem.mean), max_heater_power_W=float(max_power),
+        **reported, harmonics=problem.line.size, mean_heater_power_W=float(problem.mean),
+        max_heater_power_W=reported["heater_resistance_ohm"] * reported["max_current_A"] ** 2,
         thermometer_gain_at_line_K_per_W=abs(thermometer_at_line),
         thermometer_phase_at_line_deg=math.degrees(cmath.phase(thermometer_at_line)),
         heater_gain_at_line_K_per_W=abs(gain_at_line),
@@ -490,11 +552,10 @@ def feedforward_limit(model: CryostatModel, setpoint_K: float, heater_resistance
         ptc_periodic_limit_K=limit, whole_periodic_limit_K=_amplitude(residual), lower_bound_K=lower_bound,
         open_line_harmonics_K=tuple(float(v) for v in np.abs(line_shown)),
         limit_harmonics_K=tuple(float(v) for v in np.abs(residual_shown)),
-        noise_floor_K=noise, averaging_time_s=float(averaging_time_s),
-        predicted_best_residual_K=math.hypot(limit, noise),
+        noise_floor_K=noise, predicted_best_residual_K=math.hypot(limit, noise),
         authority_limited=limit > AUTHORITY_FRACTION * open_line,
         waveform_phase_rad=_read_only(waveform_phase),
-        waveform_power_W=_read_only(_commanded(model, waveform_delivered)),
+        waveform_power_W=_read_only(commanded(waveform_delivered)),
         waveform_harmonics_W=_read_only(waveform_harmonics),
     )
 
@@ -694,5 +755,5 @@ def limit_changes(model: CryostatModel, setpoint_K: float, max_power_w: float, p
 __all__ = [
     "AUTHORITY_FRACTION", "DEFAULT_AVERAGING_TIME_S", "DEFAULT_HARMONICS", "DEFAULT_PHASE_POINTS", "MEASURES",
     "REPORTED_HARMONICS", "FeedforwardLimit", "FeedforwardLimitError", "LimitChange", "SweepPoint",
-    "feedforward_limit", "limit_changes", "limit_sweep", "mean_heater_power_w", "noise_floor_K",
+    "feedforward_limit", "limit_changes", "limit_for_plant", "limit_sweep", "mean_heater_power_w", "noise_floor_K",
 ]

@@ -149,12 +149,15 @@ class RegulatorStep(NamedTuple):
         The terms asked for more than the heater's range allowed (or less than 0).
     columns : dict of str to float
         The control terms' record columns (empty when the loop is open).
+    events : tuple of (str, int, str)
+        What the terms had to say this tick: (term name, logging level, text).
     """
 
     power_w: float
     setpoint_K: float
     limited: bool
     columns: dict
+    events: tuple = ()
 
 
 class Regulator:
@@ -174,6 +177,7 @@ class Regulator:
         self.terms: list[ControlTerm] = build_terms(control.terms, output.maximum)
         self._conditioners = [term for term in self.terms if hasattr(term, "condition")]
         self._riding = [term for term in self.terms if getattr(term, "rides_on_feedback", False)]
+        self._speaking = [term for term in self.terms if hasattr(term, "take_events")]
         self._column_names = [(term, tuple(column.name for column in term.columns)) for term in self.terms]
         self._feedback = [term for term in self.terms if term not in self._riding]
         self.columns = term_columns(control.terms)
@@ -238,7 +242,12 @@ class Regulator:
         columns = {}
         for term, names in self._column_names:
             columns.update(zip(names, term.column_values()))
-        return RegulatorStep(self.output.power_w(applied), setpoint, limited, columns)
+        events = ()
+        for term in self._speaking:
+            said = term.take_events()
+            if said:
+                events += tuple((term.name, level, text) for level, text in said)
+        return RegulatorStep(self.output.power_w(applied), setpoint, limited, columns, events)
 
     # -- modes -------------------------------------------------------------------------
     def close_loop(self, time_s: float, flange_K: float, ptc_stage_K: float, present_power_w: float) -> None:

@@ -10,9 +10,12 @@ A control term is a class with
 * ``__init__(settings, output_max)`` and ``reconfigure(settings, output_max)``
   (a reload: bumpless);
 * ``start``, ``update``, ``limit``, ``column_values``: the cycle, below;
-* optionally ``condition(tick)`` (see :meth:`ControlTerm.start`) and
+* optionally ``condition(tick)`` (see :meth:`ControlTerm.start`),
   ``rides_on_feedback = True``: the term is added after the feedback terms'
-  sum has been held within the heater's range (the feedforward).
+  sum has been held within the heater's range (the feedforward), and
+  ``take_events()``: what the term has to say since the last tick, as
+  (logging level, text) pairs, which the loop logs and writes into the
+  record as events named after the term.
 
 A new term is one module with such a class and one line in :data:`TERM_TYPES`.
 The regulator (:mod:`cryod.control.regulator`) adds the terms' outputs, holds

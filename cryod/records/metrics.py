@@ -10,7 +10,10 @@
   ``ptc_harmonic_amplitudes_K``: the harmonics' amplitudes;
 * ``mean_error_K``, ``rms_K``: mean and rms of T2 minus the setpoint;
 * ``lowfreq_rms_K``: rms of T2 minus the setpoint below 0.1 Hz (zero-phase
-  4th-order Butterworth low-pass), what drifts slower than 10 s.
+  4th-order Butterworth low-pass), what drifts slower than 10 s; over the
+  window less its first and last :data:`LOW_FREQUENCY_EDGE_S` (where the
+  filter starts and ends, the line of a millikelvin leaves transients of tens
+  of microkelvin that are not T2's), in windows long enough for that.
 
 Examples
 --------
@@ -31,6 +34,10 @@ from cryod.analysis.line_fit import fit_line
 from cryod.control.cooler_phase import track_cooler_phase
 
 LOW_FREQUENCY_HZ = 0.1
+#: The low-pass's start and end transients are left out of ``lowfreq_rms_K`` this long (s) ...
+LOW_FREQUENCY_EDGE_S = 30.0
+#: ... in windows at least this long (s).
+LOW_FREQUENCY_MIN_WINDOW_S = 120.0
 #: Harmonics of the cooler in the periodic amplitude.
 PERIODIC_HARMONICS = 6
 #: Degree of the polynomial that takes the slow part out of T2 before the periodic fit.
@@ -131,5 +138,10 @@ def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_r
         sample_rate = 1.0 / float(np.median(np.diff(time_s[regulated])))
         sos = signal.butter(4, LOW_FREQUENCY_HZ, btype="low", fs=sample_rate, output="sos")
         if error.size > 3 * 2 * sos.shape[0] + 1:
-            result["lowfreq_rms_K"] = float(np.sqrt(np.mean(signal.sosfiltfilt(sos, error) ** 2)))
+            slow = signal.sosfiltfilt(sos, error)
+            instants = time_s[regulated]
+            if instants[-1] - instants[0] >= LOW_FREQUENCY_MIN_WINDOW_S:
+                slow = slow[(instants >= instants[0] + LOW_FREQUENCY_EDGE_S)
+                            & (instants <= instants[-1] - LOW_FREQUENCY_EDGE_S)]
+            result["lowfreq_rms_K"] = float(np.sqrt(np.mean(slow ** 2)))
     return result

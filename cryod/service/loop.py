@@ -379,6 +379,9 @@ class ControlLoop:
         row.setpoint_K = step.setpoint_K
         row.control = step.columns
         row.state = "closed-limited" if step.limited else self.state
+        for name, level, text in step.events:       # what a control term found (the feedforward's learning)
+            log.log(level, "%s: %s", name, text)
+            self._event(name, text)
         self._finish_row(row)
         if self._episode_start_s is not None and reading.trigger_time_s - self._resumed_at_s \
                 >= self.config.safety.recovery_timeout_s:

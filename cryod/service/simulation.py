@@ -279,6 +279,7 @@ def execute_simulation(args, stream=None) -> SimulationRun:
         logging_service.stop()
     summary = summarize(result, collector, model.ptc.angular_frequency_rad_s, _cpu_seconds() - cpu_start)
     summary.update(simulated_limit(model, config, result.loop, summary["setpoint_K"]))
+    summary.update(feedforward_learning(result.loop))
     summary["trigger"] = opener.trigger_note
     return SimulationRun(result.exit_code, summary, list(result.log_paths))
 
@@ -347,6 +348,10 @@ def simulate(duration_s: float, setpoint_K: float | None = None, *, config: str 
 
 def readable_summary(key: str, value) -> str:
     """One summary value as text with its unit (lists item by item, the limit's changes one per line)."""
+    if key == "feedforward_plant":
+        return "".join(f"\n  harmonic {entry['harmonic']}: {entry['gain_ratio']:.3f} x the model's, "
+                       f"{entry['phase_deg']:+.1f} deg ({'learned' if entry['learned'] else 'model'})"
+                       for entry in value) or "-"
     if key == "feedforward_limit_changes":
         return "".join(f"\n  {change['change']}: {readable('ptc_periodic_limit_K', change['ptc_periodic_limit_K'])}"
                        f" ({change['limited_by'] or change['problem']})" for change in value) or "-"
@@ -416,6 +421,12 @@ def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None)
     return {"ptc_periodic_limit_K": limit.ptc_periodic_limit_K, "feedforward_authority": round(limit.authority, 4),
             "feedforward_limited_by": limit.limited_by,
             "feedforward_limit_changes": [change.to_dict() for change in changes]}
+
+
+def feedforward_learning(loop) -> dict:
+    """What the feedforward learned of the simulated cryostat by the end (nothing without a feedforward term)."""
+    term = loop.regulator.term("feedforward") if loop is not None else None
+    return term.learning_summary() if term is not None else {}
 
 
 def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: float) -> dict:

@@ -1,0 +1,113 @@
+"""What the feedforward's learning tells the journal and the data log, as it happens.
+
+Events, each a (logging level, text) pair the regulator hands on with the
+term's name (the loop writes them into the record as ``# event: feedforward:
+...`` lines and logs them):
+
+* the plant at the line learned, or back to the model's;
+* the learned plant differing from the model beyond its uncertainty, in
+  words, with what to do (:meth:`cryod.control.plant_learner.LearnedPlant.differences_said`),
+  and when it agrees again (a warning each time the harmonics that differ
+  change, and when the words change, at most every :data:`SAY_AGAIN_S`);
+* the learned plant itself, every :data:`RECORD_EVERY_S` and when the
+  harmonics learned have changed (at most every :data:`SAY_AGAIN_S`; the data
+  log keeps it with the readings);
+* a probe burst that ended before the plant was known to the precision asked;
+* a divergence, and the reset.
+
+Examples
+--------
+>>> import numpy as np
+>>> from cryod.control.plant_learner import LearnedPlant
+>>> report = LearningReport()
+>>> plant = LearnedPlant(np.array([7.36e-3 * np.exp(-2.0j)]), np.array([0.62 * np.exp(-1.22j)]),
+...                      np.array([np.eye(2) * 1e-4]))
+>>> report.step(10.0, plant, given_up=[])
+>>> for level, text in report.take():
+...     print(level, text)
+20 plant learned at the line: 0.620 x the model's, -69.9 deg
+30 the heater reaches T2 1.6x weaker and 70 degrees later than the model at the line: re-commission with cryod identify --acquire
+20 learned plant: harmonic 1: 0.6200 +-0.0100 x, -69.90 +-0.92 deg
+>>> report.take()
+()
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from cryod.control.plant_learner import LearnedPlant
+
+#: The learned plant is written into the data log this often (s), and when the harmonics learned have changed.
+RECORD_EVERY_S = 600.0
+#: A difference from the model is said again when its words changed, at most this often (s).
+SAY_AGAIN_S = 60.0
+
+
+class LearningReport:
+    """Turns the learning's steps into events (module notes)."""
+
+    def __init__(self):
+        self._events: list[tuple[int, str]] = []
+        self._fundamental_learned = False
+        self._differences: tuple[int, ...] = ()
+        self._words = ""
+        self._said_at_s = -math.inf
+        self._learned: tuple[bool, ...] = ()
+        self._recorded_at_s = -math.inf
+        self._given_up: tuple[int, ...] = ()
+
+    def step(self, time_s: float, plant: LearnedPlant, given_up: list[int]) -> None:
+        """What a learning step found: the plant, and the harmonics whose probe burst ended short."""
+        learned = bool(plant.learned[0])
+        if learned != self._fundamental_learned:
+            self._fundamental_learned = learned
+            self._say(logging.INFO, f"plant learned at the line: {plant.gain_ratio[0]:.3f} x the model's, "
+                                    f"{plant.phase_deg[0]:+.1f} deg" if learned else
+                      "plant at the line no longer known well enough: the model's is used")
+        differing = tuple(index for index in range(plant.harmonics) if any(plant.differs(index)))
+        words = plant.differences_said() or ""
+        if differing != self._differences or (words != self._words and time_s - self._said_at_s >= SAY_AGAIN_S):
+            self._differences, self._words, self._said_at_s = differing, words, time_s
+            if differing:
+                self._say(logging.WARNING, words)
+            else:
+                self._say(logging.INFO, "the learned plant agrees with the model within its uncertainty")
+        harmonics_learned = tuple(bool(value) for value in plant.learned)
+        since = time_s - self._recorded_at_s
+        if (harmonics_learned != self._learned and since >= SAY_AGAIN_S) or since >= RECORD_EVERY_S:
+            self._learned = harmonics_learned
+            self._recorded_at_s = time_s
+            if any(harmonics_learned):
+                self._say(logging.INFO, f"learned plant: {plant.record_text()}")
+        short = tuple(given_up)
+        new = [order for order in short if order not in self._given_up]
+        self._given_up = short
+        for order in new:
+            spread = plant.relative_spread[order - 1]
+            self._say(logging.INFO, f"probe at harmonic {order} ended with the plant known to {100 * spread:.0f} % "
+                                    f"(the heater's room or the plant's weakness limits it); "
+                                    + ("the learned value is used" if plant.learned[order - 1]
+                                       else "the model's is used and the waveform leaves that harmonic alone"))
+
+    def diverged(self, reason: str, retry_s: float) -> None:
+        """The divergence guard tripped."""
+        self._say(logging.WARNING, f"learning diverged: {reason}; the waveform fades out, the learned plant is "
+                                   f"reset to the model and learning starts again in {retry_s:.0f} s")
+        self._fundamental_learned = False
+        self._differences = ()
+        self._learned = ()
+
+    def _say(self, level: int, text: str) -> None:
+        self._events.append((level, text))
+
+    def take(self) -> tuple[tuple[int, str], ...]:
+        """The events since the last call (cheap when there are none)."""
+        if not self._events:
+            return ()
+        events, self._events = tuple(self._events), []
+        return events
+
+
+__all__ = ["LearningReport", "RECORD_EVERY_S", "SAY_AGAIN_S"]

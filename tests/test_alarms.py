@@ -50,7 +50,8 @@ class Cryostat:
             t = self.time_s
             flange = (self.setpoint_K or 5.0) + self.offset_K + 0.4e-3 * math.sin(COOLER_RAD_S * t) \
                 + self.noise_K * self.random.standard_normal()
-            stage = self.T5_mean_K + self.T5_amplitude_K * math.sin(COOLER_RAD_S * t) + 3e-4 * self.random.standard_normal()
+            stage = (self.T5_mean_K + self.T5_amplitude_K * math.sin(COOLER_RAD_S * t)
+                     + 3e-4 * self.random.standard_normal())
             made += self.board.take(t, self.state, flange, stage, self.heater_w, self.setpoint_K)
         self.changes += made
         return made
@@ -211,7 +212,8 @@ def test_heater_near_top_while_regulating_only():
 def test_cooler_line_lost_latches_until_acknowledged():
     cryostat = Cryostat(AlarmsConfig(cooler_line_lost=CoolerLineLostAlarm(min_amplitude_K=0.03, delay_s=10)))
     assert cryostat.run(60) == []                   # locked within the delay
-    assert re.fullmatch(r"cooler line on T5 1(19|20)\.\d mK, locked at 1\.72\d\d Hz", cryostat.board.alarms()[0]["message"])
+    assert re.fullmatch(r"cooler line on T5 1(19|20)\.\d mK, locked at 1\.72\d\d Hz",
+                        cryostat.board.alarms()[0]["message"])
     cryostat.T5_amplitude_K = 0.0                   # the cooler stops
     raised = cryostat.run(20)
     assert cryostat.kinds(raised) == [("cooler_line_lost", "raised")]

@@ -145,7 +145,8 @@ class AlarmBoard:
                     if condition.holds is False:
                         self._armed.add(name)
                     else:
-                        condition = Condition(False, condition.value, f"settling at {setpoint_K:.4f} K: {condition.text}")
+                        condition = Condition(False, condition.value,
+                                              f"settling at {setpoint_K:.4f} K: {condition.text}")
             self._update(changes, name, time_s, condition)
         if config.heater_near_top is not None:
             condition = NOT_REGULATING

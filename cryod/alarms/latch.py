@@ -129,8 +129,8 @@ class AlarmLatch:
             if self.state == PENDING and time_s - self.since_s >= self.delay_s:
                 held_s = time_s - self.since_s
                 self.state, self.since_s, self.acknowledged, self.raised_text = RAISED, time_s, False, condition.text
-                return Transition(self.name, RAISED, time_s, condition.text + (f" for {held_s:.0f} s" if held_s else ""),
-                                  condition.value)
+                held = f" for {held_s:.0f} s" if held_s else ""
+                return Transition(self.name, RAISED, time_s, condition.text + held, condition.value)
             if self.state == LATCHED:           # back while waiting for its acknowledgement: it stands as before
                 self.state = RAISED
             return None

@@ -41,6 +41,9 @@ from cryod.control.feedforward_limit import FeedforwardLimit, LimitChange
 
 #: A waveform within this fraction of R I_max^2 of a bound rests on it.
 AT_BOUND = 1e-3
+#: A bound the waveform touches binds when removing it (a heater twice as large, for the top) would lower the
+#: limit by more than this fraction.
+MATTERS = 0.01
 #: The words of each bound.
 FLOOR, TOP, BOTH, NONE = "floor", "top", "floor and top", "none"
 
@@ -110,7 +113,8 @@ def limit_binding(limit: FeedforwardLimit, changes=()) -> LimitBinding:
     limit : FeedforwardLimit
     changes : iterable of LimitChange
         What would change it (:func:`~cryod.control.feedforward_limit.limit_changes`, or the learned
-        plant's): the figures of a bigger heater and another setpoint are quoted from them.
+        plant's): the figures of a bigger heater and another setpoint are quoted from them. A top the
+        waveform touches while it also rests at 0 W binds only when the bigger heater's limit is lower.
 
     Returns
     -------
@@ -125,6 +129,10 @@ def limit_binding(limit: FeedforwardLimit, changes=()) -> LimitBinding:
                              for kind in ("bigger heater", "higher setpoint", "lower setpoint"))
     at_floor = limit.authority_limited and floor_fraction > 0.0
     at_top = limit.authority_limited and top_fraction > 0.0
+    doubled = kinds["bigger heater"].point.limit if "bigger heater" in kinds else None
+    if at_top and at_floor and doubled is not None and \
+            doubled.ptc_periodic_limit_K >= (1.0 - MATTERS) * limit.ptc_periodic_limit_K:
+        at_top = False                      # touched, but a bigger heater changes nothing: the floor binds
     mean = _milliwatt(limit.mean_heater_power_W)
     if at_floor and at_top:
         bound = BOTH

@@ -1,7 +1,9 @@
 """Regulation figures of merit over a window of rows (``cryod --simulate --json``).
 
 * ``ptc_line_amplitude_K``: amplitude of T2 at the PTC frequency (least-squares
-  fit at one frequency, refined on T5, where the line is 70 times larger);
+  fit at one frequency: ``ptc_line_rad_s``, the cooler's frequency as the daemon
+  tracks it on T5, where the line is 70 times larger,
+  :func:`cryod.control.cooler_phase.cooler_frequency_rad_s`);
 * ``ptc_periodic_amplitude_K``: T2's whole part synchronous with the cooler,
   harmonics 1 to 6 against the cooler's phase tracked from T5 sample by sample
   (:mod:`cryod.control.cooler_phase`), as sqrt(2) times its rms (the square
@@ -28,10 +30,10 @@ Examples
 from __future__ import annotations
 
 import numpy as np
-from scipy import optimize, signal
+from scipy import signal
 
 from cryod.analysis.line_fit import fit_line
-from cryod.control.cooler_phase import track_cooler_phase
+from cryod.control.cooler_phase import cooler_frequency_rad_s, track_cooler_phase
 
 LOW_FREQUENCY_HZ = 0.1
 #: The low-pass's start and end transients are left out of ``lowfreq_rms_K`` this long (s) ...
@@ -66,16 +68,6 @@ def periodic_amplitudes(flange_time_s, flange_K, stage_time_s, ptc_stage_K, nomi
     cosines = solution[SLOW_DEGREE + 1:SLOW_DEGREE + 1 + harmonics]
     sines = solution[SLOW_DEGREE + 1 + harmonics:]
     return np.hypot(cosines, sines)
-
-
-def line_frequency(time_s: np.ndarray, ptc_stage_K: np.ndarray, nominal_rad_s: float,
-                   search_rad_s: float = 0.2) -> float:
-    """The PTC angular frequency (rad/s) that maximises the line on T5 near ``nominal_rad_s``."""
-    result = optimize.minimize_scalar(
-        lambda omega: -fit_line(time_s, ptc_stage_K, omega, trend_order=0).amplitude[0],
-        bounds=(nominal_rad_s - search_rad_s, nominal_rad_s + search_rad_s), method="bounded",
-        options={"xatol": 1e-6})
-    return float(result.x)
 
 
 def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_rad_s: float,
@@ -127,7 +119,8 @@ def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_r
     result["window_s"] = float(time_s[-1] - time_s[0]) if time_s.size else 0.0
     if time_s.size < 50:
         return result
-    omega = line_frequency(stage_time_s, ptc_stage_K, nominal_line_rad_s)
+    omega = cooler_frequency_rad_s(stage_time_s, ptc_stage_K, nominal_line_rad_s)    # as the daemon tracks it
+    omega = omega if np.isfinite(omega) else nominal_line_rad_s
     result["ptc_line_rad_s"] = omega
     result["ptc_line_amplitude_K"] = fit_line(time_s, flange_K, omega).amplitude[0]
     regulated = np.isfinite(setpoint_K)

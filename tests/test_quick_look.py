@@ -38,6 +38,8 @@ def test_cryod_plot_draws_a_daemon_record_beside_it_and_keeps_an_existing_figure
     daemon_rad_s = float(np.median(record.columns["ff_frequency_rad_s"][locked][-2500:]))
     assert cooler_frequency(record.time_s, record.ptc_stage_K, 10.83) == pytest.approx(daemon_rad_s, abs=2e-3)
     assert run.summary["ptc_line_rad_s"] == pytest.approx(daemon_rad_s, abs=2e-3)
+    assert run.summary["feedforward_limit_bound"] == "floor"            # 113 mW of 500 mW at 5 K
+    assert "a bigger heater does not help" in run.summary["feedforward_limit_explained"].lower()
     assert main(["plot", str(record_path)]) == 0
     figure = record_path.with_suffix(".png")
     assert capsys.readouterr().out.strip() == str(figure)

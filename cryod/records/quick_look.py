@@ -37,6 +37,8 @@ from cryod.records.stretches import settled, settled_stretches, startup_end_s
 LINE_BLOCK_S = 30.0
 #: Longest segment of the spectrum (s).
 SPECTRUM_SEGMENT_S = 600.0
+#: What the record's ``ff_limit_from`` says the limit came from, in words.
+LIMIT_SOURCES = {"model": "controller's model", "learned": "learned plant"}
 #: Events that cut the stretches the spectrum is taken over: the readings are unevenly spaced, or stop, there.
 SPECTRUM_BREAKS = ("overrun", "fault", "stop", "resumed")
 #: Pixel columns of the time axes; each gets T2's minimum and maximum.
@@ -244,10 +246,11 @@ def _draw_line_against_limit(axis, record, rad_s: float, scale: float, settled_r
     if limit is not None and np.isfinite(limit).any() and centres.size:
         known = np.isfinite(limit)
         source = record.columns.get("ff_limit_from")
-        sources = sorted(set(str(value) for value in source[known] if str(value))) if source is not None else []
+        sources = list(dict.fromkeys(LIMIT_SOURCES.get(str(value), str(value)) for value in source[known]
+                                     if str(value))) if source is not None else []
         axis.plot(time_s / scale, limit * 1e3, color="gray", ls=":", lw=1.0,
                   label=f"feedforward's physical limit, harmonics 1-{HARMONICS} too"
-                        + (f" (from the {' and the '.join(sources)})" if sources else ""))
+                        + (f" (from the {', then the '.join(sources)})" if sources else ""))
         limit_at = np.interp(centres, time_s[known], limit[known], left=np.nan, right=np.nan)
         unsettled = time_s[~settled_rows & np.isfinite(record.flange_K)]
         nearest = np.searchsorted(unsettled, centres)
@@ -262,7 +265,7 @@ def _draw_line_against_limit(axis, record, rad_s: float, scale: float, settled_r
             axis.plot(centres[within] / scale, amplitudes[within] * 1e3, "o", mfc="none", color="tab:orange", ms=5,
                       label="below the limit within twice the block's noise")
         if beyond.any():
-            owner = " and ".join(f"{name}'s" for name in sources) or "controller's"
+            owner = " or ".join(f"{name}'s" for name in sources) or "controller's model's"
             axis.plot(centres[beyond] / scale, amplitudes[beyond] * 1e3, "o", mfc="none", color="tab:red", ms=5,
                       label=f"below the limit beyond the noise: the limit rests on the {owner} line, plant and "
                             f"mean power, and this cryostat differs")

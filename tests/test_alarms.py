@@ -480,3 +480,27 @@ def test_the_web_page_shows_the_alarms_the_status_carries(tmp_path, browser):
         events = browser.execute_script('return [...document.querySelectorAll("#events li")].map((item) => '
                                         'item.textContent);')
         assert any("alarm: ptc_stage_warm raised: T5 3." in event for event in events), events
+
+
+def test_an_error_in_the_alarms_never_reaches_the_loop(caplog):
+    from cryod.records.columns import Event, Row
+    from cryod.service.alarms import AlarmMonitor
+    from cryod.service.commands import Command
+
+    monitor = AlarmMonitor(AlarmsConfig(ptc_stage_warm=PtcStageWarmAlarm(threshold_K=4.0)), HEATER_TOP_W,
+                           COOLER_RAD_S, PERIOD_S)
+    emitted = []
+    monitor.attach(emitted.append)
+
+    def broken(*arguments):
+        raise ZeroDivisionError("a bug")
+
+    monitor.board.take = broken
+    row = Row(time_s=1.0, lateness_ms=0.1, state="closed", T2_K=5.0, T5_K=4.5, heater_W=0.1, setpoint_K=5.0)
+    monitor(row)                                    # no exception: the loop goes on
+    monitor(row)
+    assert emitted == [Event("alarm", "the alarms stopped on an error (see the journal); regulation goes on "
+                                      "without them")]
+    assert "the alarms stopped on an error" in caplog.text and "ZeroDivisionError" in caplog.text
+    command = monitor.submit(Command("alarms", ("ack", "all")))
+    assert command.done.is_set() and not command.ok and "stopped on an error" in command.message

@@ -210,7 +210,10 @@ class AlarmHookRunner:
 
     def _run_one(self, hook: AlarmHook, notice: HookNotice) -> None:
         self.runs += 1
-        problem = self.runner(hook, hook_details(notice, self.cryostat))
+        try:
+            problem = self.runner(hook, hook_details(notice, self.cryostat))
+        except Exception as error:      # whatever the hook does, the daemon goes on
+            problem = f"{type(error).__name__}: {error}"
         if problem is not None:
             self.failures += 1
             log.warning("alarm hook %s for %s %s: %s", hook.command[0], notice.transition.name,

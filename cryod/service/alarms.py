@@ -76,6 +76,7 @@ class AlarmMonitor:
         self._next_publish_s = -math.inf
         self._published: tuple[dict, ...] = tuple(self.board.alarms())
         self._running = False
+        self._broken = False            # an error in the alarms: they are off, the loop goes on
 
     def attach(self, emit) -> None:
         """Where the alarms' events go: the loop's fan-out of rows and events (the data log among them)."""
@@ -114,14 +115,26 @@ class AlarmMonitor:
             command.answer(True, text)
         elif not self._running:
             command.answer(False, "not running yet: alarms are acknowledged once the loop runs")
+        elif self._broken:
+            command.answer(False, "the alarms stopped on an error (see the journal): nothing to acknowledge")
         else:
             self._requests.append(command)
         return command
 
     # -- the loop thread -------------------------------------------------------------------------
     def __call__(self, item: Row | Event) -> None:
-        if type(item) is not Row:
+        if type(item) is not Row or self._broken:
             return
+        try:
+            self._take(item)
+        except Exception:               # alarms never stop the loop: they stop themselves, and say so
+            self._broken = True
+            log.exception("the alarms stopped on an error; regulation goes on without them (restart the daemon "
+                          "to have them again)")
+            self.emit(Event("alarm", "the alarms stopped on an error (see the journal); regulation goes on "
+                                     "without them"))
+
+    def _take(self, item: Row) -> None:
         time_s = self._time_s = item.time_s
         changes: list[Transition] = []
         if self._new_config is not None:

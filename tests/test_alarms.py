@@ -267,7 +267,7 @@ def test_a_reload_keeps_what_stands_applies_new_thresholds_and_clears_alarms_swi
 
 # -- the hook ------------------------------------------------------------------------------------------
 def change(kind="raised", name="deviation", time_s=0.0):
-    return Transition(name, kind, time_s, f"T2 {kind}", 1e-4)
+    return Transition(name, kind, time_s, f"T2 {kind}", np.float64(1e-4))      # as numpy's mean gives it
 
 
 def test_the_hook_runs_at_most_once_per_interval_for_each_alarm_with_the_latest_change():

@@ -122,7 +122,7 @@ class AlarmLatch:
 
     def update(self, time_s: float, condition: Condition) -> Transition | None:
         """Take one check of the condition at ``time_s``; the change it makes, if any."""
-        self.value, self._condition = condition.value, condition
+        self.value, self._condition = float(condition.value), condition
         if condition.holds:
             if self.state == CLEAR:
                 self.state, self.since_s = PENDING, time_s
@@ -130,7 +130,7 @@ class AlarmLatch:
                 held_s = time_s - self.since_s
                 self.state, self.since_s, self.acknowledged, self.raised_text = RAISED, time_s, False, condition.text
                 held = f" for {held_s:.0f} s" if held_s else ""
-                return Transition(self.name, RAISED, time_s, condition.text + held, condition.value)
+                return Transition(self.name, RAISED, time_s, condition.text + held, self.value)
             if self.state == LATCHED:           # back while waiting for its acknowledgement: it stands as before
                 self.state = RAISED
             return None
@@ -142,8 +142,8 @@ class AlarmLatch:
             if self.latching and not self.acknowledged:
                 self.state = LATCHED
                 return Transition(self.name, LATCHED, time_s, f"{condition.text}; latched until acknowledged "
-                                                              f"(cryod ctl alarms ack {self.name})", condition.value)
-            return self._clear(time_s, condition.text, condition.value)
+                                                              f"(cryod ctl alarms ack {self.name})", self.value)
+            return self._clear(time_s, condition.text, self.value)
         return None
 
     def acknowledge(self, time_s: float, sender: str = "") -> Transition:

@@ -102,7 +102,7 @@ def hook_details(notice: HookNotice, cryostat: str) -> dict[str, str]:
     """The notice's details as the hook's environment variables (strings)."""
     change = notice.transition
     return {"CRYOD_ALARM": change.name, "CRYOD_ALARM_EVENT": change.kind, "CRYOD_ALARM_MESSAGE": change.message,
-            "CRYOD_ALARM_VALUE": "" if not math.isfinite(change.value) else repr(change.value),
+            "CRYOD_ALARM_VALUE": "" if not math.isfinite(change.value) else repr(float(change.value)),
             "CRYOD_ALARM_TIME_S": f"{change.time_s:.3f}",
             "CRYOD_ALARM_UTC": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "CRYOD_ALARM_SKIPPED": str(notice.skipped), "CRYOD_CRYOSTAT": cryostat, "CRYOD_HOST": socket.gethostname()}

@@ -504,3 +504,13 @@ def test_an_error_in_the_alarms_never_reaches_the_loop(caplog):
     assert "the alarms stopped on an error" in caplog.text and "ZeroDivisionError" in caplog.text
     command = monitor.submit(Command("alarms", ("ack", "all")))
     assert command.done.is_set() and not command.ok and "stopped on an error" in command.message
+
+
+def test_the_status_line_names_the_alarms_raised():
+    from cryod.service.live_view import LiveView
+    from cryod.service.status_line import format_status
+
+    view = LiveView(PERIOD_S, COOLER_RAD_S)
+    assert view.snapshot()["alarms"] == []
+    view.attach_alarms(lambda: ["deviation", "cooler_line_lost"])
+    assert format_status(view.snapshot()).endswith("ALARM deviation, cooler_line_lost (cryod ctl alarms)")

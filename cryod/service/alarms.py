@@ -101,6 +101,10 @@ class AlarmMonitor:
         """The alarms raised or latched, as of the last row (the status' ``alarms``)."""
         return [dict(alarm) for alarm in self._published if alarm["state"] in (RAISED, LATCHED)]
 
+    def raised_names(self) -> list[str]:
+        """The names of the alarms raised or latched (the status line)."""
+        return [alarm["name"] for alarm in self._published if alarm["state"] in (RAISED, LATCHED)]
+
     def states(self) -> dict[str, float]:
         """1.0 for each alarm raised or latched, 0.0 for each other alarm that is on (the metrics)."""
         return {alarm["name"]: 1.0 if alarm["state"] in (RAISED, LATCHED) else 0.0 for alarm in self._published}

@@ -157,6 +157,7 @@ class Daemon:
         self.alarm_hook = AlarmHookRunner(clock, config.metrics.cryostat, config.alarms.hook)
         self.alarms = AlarmMonitor(config.alarms, config.heater.max_power_w, cooler_rad_s(config),
                                    config.loop.period_s, self.alarm_hook)
+        self.live_view.attach_alarms(self.alarms.raised_names)
         self._instrument_status: tuple[object, dict] = (None, {})
         self._lakeshore_setup: tuple[object, Lakeshore336Setup | None] = (None, None)
         #: The web page and Lake Shore 336 interfaces serving now (their ports, for tests and tools).

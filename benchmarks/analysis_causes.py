@@ -36,11 +36,11 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-from cryod.blas_threads import use_one_blas_thread
+import numpy as np
 
-use_one_blas_thread()          # one core per process: the machine has two
+from cryod.cli import use_one_blas_thread
 
-import numpy as np  # noqa: E402
+use_one_blas_thread()          # one core per process: the machine has two (spawned workers run this too)
 
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL_DURATIONS_S = {"identification": 3600.0, "pi_only": 1800.0, "feedforward": 1800.0}

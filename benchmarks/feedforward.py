@@ -32,7 +32,7 @@ import numpy as np
 
 from cryod.control.feedforward_limit import feedforward_limit
 from cryod.model import load_model
-from cryod.records.metrics import periodic_amplitudes
+from cryod.cooler.periodic import periodic_amplitudes
 from cryod.records.record import read_record
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

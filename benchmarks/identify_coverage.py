@@ -31,11 +31,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from cryod.blas_threads import use_one_blas_thread
+import numpy as np
 
-use_one_blas_thread()          # one core per process: the machine has two, shared
+from cryod.cli import use_one_blas_thread
 
-import numpy as np  # noqa: E402
+use_one_blas_thread()          # one core per process: the machine has two, shared (spawned workers run this too)
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -68,12 +68,12 @@ def one_record(job: tuple[int, int]) -> dict:
     seed, bootstrap = job
     from cryod.analysis.record_data import RecordData
     from cryod.config import EXAMPLE_CONFIG_PATH, load_config
-    from cryod.identification.acquire import acquire
+    from cryod.cli.acquire import acquire
     from cryod.identification.experiment import ExperimentPlan
     from cryod.identification.model_fit import identify_model
     from cryod.model import load_model
     from cryod.records.record import read_record
-    from cryod.service.clock import VirtualClock
+    from drivers.clock import VirtualClock
     from cryod.service.simulation import SimulatedInstrumentsOpener
 
     simulated = load_model(ROOT / "config" / "model.yaml")

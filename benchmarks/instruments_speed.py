@@ -32,7 +32,7 @@ from pathlib import Path
 REPOSITORY = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPOSITORY))
 
-from cryod.service.clock import MonotonicClock, VirtualClock  # noqa: E402
+from drivers.clock import MonotonicClock, VirtualClock  # noqa: E402
 from drivers.keithley2002 import FourWireSettings, Keithley2002  # noqa: E402
 from drivers.keithley6221 import Keithley6221  # noqa: E402
 from drivers.pair_triggers import HardwareTrigger, PrologixGroupTrigger, SequentialTrigger  # noqa: E402

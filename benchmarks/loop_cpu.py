@@ -28,7 +28,7 @@ from pathlib import Path
 REPOSITORY = Path(__file__).resolve().parent.parent
 
 PROBE = r"""
-import io, contextlib, json, sys, time
+import contextlib, json, os, sys, time
 sys.path.insert(0, TREE)
 if MODE == "pi":
     from cryod.control import terms
@@ -50,7 +50,8 @@ loop_module.ControlLoop.run = timed
 from cryod.cli import main
 arguments = ["--simulate", "--speed", "max", "--json", "--duration", DURATION, "--data-dir", FOLDER + "/data",
              "--socket", FOLDER + "/c.sock"] + (["--no-feedforward"] if MODE == "ff-off" else []) + CONFIG
-with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+# into a real file: the daemon hands stderr's file descriptor to the fault handler
+with open(os.devnull, "w") as quiet, contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
     main(arguments)
 print(json.dumps(measured))
 """

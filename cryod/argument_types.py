@@ -107,3 +107,13 @@ def whole_number(text: str) -> int:
     if not _WHOLE_NUMBER.fullmatch(stripped):
         raise argparse.ArgumentTypeError(f"expected a whole number >= 0 (at most 30 digits), got {shown(text)}")
     return int(stripped)
+
+
+def speed(text: str) -> float | str:
+    """Simulated seconds per real second (a number > 0), or ``"max"``: virtual time, as fast as the CPU allows."""
+    if text == "max":
+        return "max"
+    try:
+        return positive(text)
+    except argparse.ArgumentTypeError as error:
+        raise argparse.ArgumentTypeError(f"speed must be a number > 0 or 'max': {error}") from None

@@ -5,6 +5,11 @@ as it is). Every error names the file, the line and the key. Relative paths
 (calibration files, data directory, model) are taken relative to the
 configuration file's folder.
 
+The checks are written out section by section rather than declared to a schema library:
+each says what a lab user must change, some span sections (the instruments' waits against
+systemd's watchdog, two keys that name one instrument), and each control term reads its own
+section (``settings_from``), so the section's rules live with the code that uses it.
+
 Examples
 --------
 >>> config = load_config(EXAMPLE_CONFIG_PATH)
@@ -23,9 +28,12 @@ from pathlib import Path
 
 from cryod.alarms.settings import AlarmsConfig, alarms_from_section
 from cryod.control.ramp import MIN_RATE_K_PER_MIN, rate_refusal
+from cryod.control.regulator import ControlConfig
 from cryod.control.terms import term_settings_from
 from cryod.instrument_waits import InstrumentWaits
+from cryod.listen_address import parse_address
 from cryod.thermometry import CalibrationCurve, load_calibration
+from cryod.web_token import read_token
 from cryod.yaml_source import FileFormatError, Section, read_text_file, shown
 from drivers.heater_limits import largest_power_w
 from drivers.keithley2002_timing import ReadingTiming
@@ -134,29 +142,6 @@ class HeaterConfig:
     def max_power_w(self) -> float:
         """R * I_max**2 (W), rounded as the supply driver tests a power (:func:`drivers.heater_limits.largest_power_w`)."""
         return largest_power_w(self.resistance_ohm, self.max_current_A)
-
-
-@dataclass(frozen=True)
-class ControlConfig:
-    """The ``control`` section: setpoint, ramp, their limits, and each control term's own section.
-
-    Attributes
-    ----------
-    terms : tuple of (str, settings)
-        Each control term's name and validated settings, from its section
-        (``control.pi``, ...), in the order of :data:`cryod.control.terms.TERM_TYPES`.
-    """
-
-    setpoint_K: float | None
-    ramp_K_per_min: float
-    setpoint_min_K: float
-    setpoint_max_K: float
-    max_ramp_K_per_min: float
-    terms: tuple = ()
-
-    def term(self, name: str):
-        """The settings of the control term ``name``."""
-        return dict(self.terms)[name]
 
 
 @dataclass(frozen=True)
@@ -623,12 +608,10 @@ def _check_waits_against_watchdog(waits: InstrumentWaits, instruments_section: S
 def _metrics(section: Section | None) -> MetricsConfig:
     if section is None:
         return MetricsConfig()
-    from cryod.service.metrics_export import parse_address
-
     address = section.text("address", None)
     if address is not None:
         try:
-            parse_address(address)
+            parse_address(address, host_names=True)
         except ValueError as error:
             raise section.error("address", str(error)) from None
     metrics = MetricsConfig(address=address, cryostat=section.text("cryostat", ""))
@@ -638,8 +621,6 @@ def _metrics(section: Section | None) -> MetricsConfig:
 
 def _listen_address(section: Section) -> str:
     """The section's ``address`` (host:port), checked; port 0 (any free port) is taken for tests."""
-    from cryod.service.listen_address import parse_address
-
     address = section.text("address")
     try:
         parse_address(address, allow_any_port=True)
@@ -658,8 +639,6 @@ def _web(section: Section | None, base: Path) -> WebConfig | None:
                                         "a write must carry (at least 16 characters), readable by the service's "
                                         "group only (docs/operations.md)")
     if web.token_file is not None:
-        from cryod.service.web_token import read_token
-
         try:
             read_token(web.token_file)
         except ValueError as error:

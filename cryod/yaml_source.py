@@ -5,6 +5,12 @@ each value is taken with its expected kind, unknown keys are refused, and an
 error reads ``config/model.yaml:14: transfer_functions.ptc_to_flange.denominator:
 ...``.
 
+Written here rather than taken from a schema library (pydantic, jsonschema): those check data
+PyYAML has already built, by which time the keys' lines are gone and a duplicate key has
+silently replaced the first. Here the checks run while the YAML nodes are at hand, so each
+error points at its line, and the loader bounds what a hostile file can make it do (size,
+nesting, aliases that expand).
+
 Examples
 --------
 >>> section = Section.from_text("gain_K_per_W: 2.5\\nname: link\\n", "example.yaml")

@@ -1,9 +1,10 @@
-"""What the drivers need of time: the present instant and a wait until a deadline.
+"""Injected time: the present instant and a wait until a deadline, real, scaled or virtual.
 
-Drivers take a clock instead of calling :mod:`time` so that the same code runs
-in service (the real monotonic clock below) and on a virtual clock in
-simulation, where waiting costs nothing. Any object with these two methods
-will do.
+Drivers and the daemon take a clock instead of calling :mod:`time` so that the
+same code runs in service (the real monotonic clock) and on a virtual clock in
+simulation, where waiting costs nothing: an hour of cryostat runs in seconds
+and tests never sleep. Any object with the two methods of :class:`Clock` will
+do; the clocks are here, below everything that uses them.
 
 Examples
 --------
@@ -12,10 +13,15 @@ Examples
 >>> clock.sleep_until(start)          # a deadline already reached returns at once
 >>> clock.now() >= start
 True
+>>> clock = VirtualClock()
+>>> clock.sleep_until(0.08)
+>>> clock.now()
+0.08
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Protocol
 
@@ -42,3 +48,68 @@ class MonotonicClock:
         remaining = deadline_s - time.monotonic()
         if remaining > 0.0:
             time.sleep(remaining)
+
+
+class ScaledClock:
+    """Real time running ``speed`` times faster (``cryod --simulate --speed X``).
+
+    Parameters
+    ----------
+    speed : float
+        Simulated seconds per real second (> 0).
+    """
+
+    is_virtual = False
+
+    def __init__(self, speed: float):
+        if not speed > 0.0:
+            raise ValueError(f"speed must be positive, got {speed}")
+        self.speed = float(speed)
+        self._real_start = time.monotonic()
+
+    def now(self) -> float:
+        return (time.monotonic() - self._real_start) * self.speed
+
+    def sleep_until(self, deadline_s: float) -> None:
+        remaining = (deadline_s - self.now()) / self.speed
+        if remaining > 0.0:
+            time.sleep(remaining)
+
+
+class VirtualClock:
+    """Simulated time that advances only when asked to (thread-safe).
+
+    Parameters
+    ----------
+    start_s : float
+        Initial time in s.
+    """
+
+    is_virtual = True
+
+    def __init__(self, start_s: float = 0.0):
+        self._now = float(start_s)
+        self._lock = threading.Lock()
+
+    def now(self) -> float:
+        return self._now
+
+    def sleep_until(self, deadline_s: float) -> None:
+        with self._lock:
+            if deadline_s > self._now:
+                self._now = float(deadline_s)
+
+    def advance(self, duration_s: float) -> None:
+        """Move time forward by ``duration_s`` (s, not negative)."""
+        if duration_s < 0.0:
+            raise ValueError(f"cannot advance by a negative duration {duration_s}")
+        with self._lock:
+            self._now += float(duration_s)
+
+
+def clock_for_speed(speed: float | str) -> Clock:
+    """The clock of a simulated run at ``speed`` (``cryod --simulate --speed``): virtual for ``"max"``,
+    the real one at 1, else real time scaled."""
+    if speed == "max":
+        return VirtualClock()
+    return MonotonicClock() if speed == 1.0 else ScaledClock(speed)

@@ -22,7 +22,7 @@ read after configuration and attached to any fault.
 Examples
 --------
 >>> import math
->>> from cryod.service.clock import VirtualClock
+>>> from drivers.clock import VirtualClock
 >>> from cryod.model import load_model
 >>> from drivers.transports import InProcessTransport
 >>> from simulated_hw.cryostat import SimulatedCryostat

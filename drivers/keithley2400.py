@@ -11,7 +11,7 @@ line is reported by the 2400 as ``+802,"OUTPUT blocked by output enable"``.
 
 Examples
 --------
->>> from cryod.service.clock import VirtualClock
+>>> from drivers.clock import VirtualClock
 >>> from simulated_hw.bench import SimulatedBench
 >>> clock = VirtualClock()
 >>> bench = SimulatedBench(clock, supply="2400", heater_resistance_ohm=50.0)

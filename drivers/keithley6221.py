@@ -12,7 +12,7 @@ measurement condition register (``:STATus:MEASurement:CONDition?``, Figure
 
 Examples
 --------
->>> from cryod.service.clock import VirtualClock
+>>> from drivers.clock import VirtualClock
 >>> from cryod.model import load_model
 >>> from drivers.transports import InProcessTransport
 >>> from simulated_hw.cryostat import SimulatedCryostat

@@ -14,7 +14,7 @@ and nothing is sent.
 
 Examples
 --------
->>> from cryod.service.clock import VirtualClock
+>>> from drivers.clock import VirtualClock
 >>> class Recorder:
 ...     name = "recorder"
 ...     def __init__(self): self.sent = []

@@ -15,7 +15,7 @@ caller's (cryod.thermometry's) job.
 
 Examples
 --------
->>> from cryod.service.clock import VirtualClock
+>>> from drivers.clock import VirtualClock
 >>> from drivers.keithley2002 import FourWireSettings, Keithley2002
 >>> from drivers.pair_triggers import HardwareTrigger
 >>> from drivers.trigger_lines import SerialControlLine

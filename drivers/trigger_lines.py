@@ -22,7 +22,7 @@ the tests.
 
 Examples
 --------
->>> from cryod.service.clock import VirtualClock
+>>> from drivers.clock import VirtualClock
 >>> class Port:
 ...     def __init__(self): self.levels = []
 ...     rts = property(lambda self: self.levels[-1], lambda self, level: self.levels.append(level))

@@ -12,7 +12,7 @@ over TCP on 127.0.0.1 through pyvisa-py (:meth:`SimulatedBench.serve_tcp`,
 
 In-process transports run on any clock, a VirtualClock included. Over TCP
 the instruments answer from server threads, so the clock must be one that
-runs by itself (:class:`cryod.service.clock.MonotonicClock` or ``ScaledClock``): on a
+runs by itself (:class:`drivers.clock.MonotonicClock` or ``ScaledClock``): on a
 VirtualClock a trigger could be processed after the driver has already moved
 the clock on.
 """
@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import cryod
-from cryod.service.clock import Clock
+from drivers.clock import Clock
 from cryod.model import CryostatModel, load_model
 from drivers.transports.in_process import InProcessTransport
 from simulated_hw.cryostat import SimulatedCryostat

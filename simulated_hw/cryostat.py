@@ -7,7 +7,7 @@ is taken or the heater is written.
 
 Examples
 --------
->>> from cryod.service.clock import VirtualClock
+>>> from drivers.clock import VirtualClock
 >>> from cryod.model import load_model
 >>> clock = VirtualClock()
 >>> cryostat = SimulatedCryostat(load_model(), clock, seed=1)
@@ -35,7 +35,7 @@ class SimulatedCryostat:
     model : CryostatModel
         The physics (``config/model.yaml`` or an extended model).
     clock : Clock
-        Source of "now"; a :class:`cryod.service.clock.VirtualClock` in tests.
+        Source of "now"; a :class:`drivers.clock.VirtualClock` in tests.
     seed : int, optional
         Seed of the sensor-noise generator (reproducible runs).
     noise : bool

@@ -15,6 +15,11 @@ the condition registers by overriding :attr:`EmulatedInstrument.operation_condit
 :attr:`~EmulatedInstrument.questionable_condition` and
 :attr:`~EmulatedInstrument.measurement_condition`.
 
+The instruments are emulated here rather than declared to pyvisa-sim: its devices answer
+from fixed tables, while these keep a status model and an error queue, take their readings
+from the simulated cryostat at the instant of a trigger, and fail on demand, which is what
+the real drivers are tested against.
+
 Thread safety: the TCP server calls :meth:`EmulatedInstrument.handle` from
 its connection threads; every entry point takes the instrument's lock.
 
@@ -30,7 +35,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
-from cryod.service.clock import Clock
+from drivers.clock import Clock
 from simulated_hw.scpi import (CommandTable, ErrorQueue, PARAMETER_NOT_ALLOWED, TRIGGER_IGNORED,
                                parse_boolean, parse_number, scpi_error, single_argument)
 from simulated_hw.status import REGISTER_MASK, StatusModel

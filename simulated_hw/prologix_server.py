@@ -29,7 +29,7 @@ import socket
 from dataclasses import dataclass, field
 from typing import Mapping, Protocol
 
-from cryod.service.clock import Clock
+from drivers.clock import Clock
 from simulated_hw.scpi_server import ThreadedTcpServer
 
 ESC, CR, LF = 0x1B, 0x0D, 0x0A

@@ -12,7 +12,7 @@ accepted again, so a transport's ``reopen()`` recovers.
 
 Examples
 --------
->>> from cryod.service.clock import VirtualClock
+>>> from drivers.clock import VirtualClock
 >>> from simulated_hw.instrument import EmulatedInstrument
 >>> device = EmulatedInstrument(VirtualClock(), "ACME,MODEL 1,0,0")
 >>> with ScpiServer(device) as server:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Protocol, Sequence
 
-from cryod.service.clock import Clock
+from drivers.clock import Clock
 
 
 class TriggerableDmm(Protocol):

@@ -4,11 +4,10 @@ from pathlib import Path
 
 import pytest
 
-from cryod.blas_threads import use_one_blas_thread
+from cryod.cli import use_one_blas_thread
+from cryod.model import load_model
 
-use_one_blas_thread()          # as the command line does, before numpy is imported
-
-from cryod.model import load_model  # noqa: E402
+use_one_blas_thread()          # as the command line does for the daemon and the model tools
 
 REPOSITORY = Path(__file__).resolve().parent.parent
 CONFIG = REPOSITORY / "config"

@@ -27,7 +27,7 @@ from typing import Callable
 
 from cryod.records import record_file
 from cryod.records.record import RecordFormatError, read_record
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.service.daemon import Daemon
 from cryod.service.notify import SystemdNotifier
 from tests.test_daemon_faults import FaultDrill

@@ -24,7 +24,7 @@ from cryod.config import load_config
 from cryod.instrument_waits import InstrumentWaits
 from cryod.model import load_model
 from cryod.records.columns import Event, Row
-from cryod.service.clock import MonotonicClock
+from drivers.clock import MonotonicClock
 from cryod.service.commands import Command, wait_for
 from cryod.service.daemon import Daemon
 from cryod.service.notify import SystemdNotifier

@@ -21,7 +21,7 @@ from pathlib import Path
 import yaml
 
 from cryod.records.record import read_record
-from cryod.service.clock import MonotonicClock
+from drivers.clock import MonotonicClock
 from cryod.service.control_socket import send_command
 from simulated_hw.bench import SimulatedBench
 from tests.conftest import CONFIG, REPOSITORY

@@ -21,7 +21,7 @@ from cryod.alarms.settings import (AlarmHook, AlarmsConfig, CoolerLineLostAlarm,
                                    PtcStageWarmAlarm, StabilityAlarm)
 from cryod.config import load_config
 from cryod.service.alarm_hook import AlarmHookRunner, HookSchedule, run_hook
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG
 from tests.test_web_page import browser  # noqa: F401  (the headless browser fixture)
@@ -477,9 +477,12 @@ def test_the_web_page_shows_the_alarms_the_status_carries(tmp_path, browser):
         name, text = shown_alarms()[0]
         assert text.startswith("ptc_stage_warm raised: T5 3.") and "(threshold 3 K)" in text
         assert browser.find_element("id", "alarms").get_attribute("hidden") is None
-        events = browser.execute_script('return [...document.querySelectorAll("#events li")].map((item) => '
-                                        'item.textContent);')
-        assert any("alarm: ptc_stage_warm raised: T5 3." in event for event in events), events
+        def events():
+            return browser.execute_script('return [...document.querySelectorAll("#events li")].map((item) => '
+                                          'item.textContent);')
+
+        wait_until(lambda: any("alarm: ptc_stage_warm raised: T5 3." in event for event in events()),
+                   "list the alarm's event")
 
 
 def test_an_error_in_the_alarms_never_reaches_the_loop(caplog):

@@ -10,8 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from cryod.analysis.ptc_line import estimate_ptc_line, fit_drift_to_phase, measured_cycle
-from cryod.control.cooler_phase import CoolerPhaseTracker
+from cryod.cooler.line import estimate_ptc_line, fit_drift_to_phase, measured_cycle
+from cryod.cooler.phase import CoolerPhaseTracker
 from cryod.model import PtcFrequencyDrift, load_model, save_model
 from cryod.model.ptc_cycle import MeasuredPtcCycle
 

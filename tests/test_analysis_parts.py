@@ -5,13 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from cryod.analysis.candidates import first_order_link
 from cryod.analysis.decision import BaseDiscrepancy, CandidateScore, Gain, decide
 from cryod.analysis.noise import white_noise_rms
-from cryod.analysis.ptc_line import estimate_ptc_line, fit_phase_track, phase_track
+from cryod.cooler.line import estimate_ptc_line, fit_phase_track, phase_track
 from cryod.analysis.record_data import RecordData, fit_block_mask, heater_limit_from_metadata
 from cryod.analysis.replay import Replayer
 from cryod.analysis.segments import find_segments, find_steps
+from cryod.model.transfer_function import first_order_link
 from cryod.model import PtcFrequencyDrift, simulate
 from cryod.records.record import Record, RecordFormatError
 from simulated_hw.measurement_programs import make_record

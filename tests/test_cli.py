@@ -200,13 +200,30 @@ def test_simulation_that_fails_exits_1_with_the_reason(tmp_path, capsys, monkeyp
     assert "RuntimeError: instrument opener broke" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("chosen, expected", [(None, "1"), ("3", "3")])
-def test_the_command_line_asks_for_one_blas_thread_unless_the_user_chose(chosen, expected):
-    """Two OpenBLAS threads made cryod identify 1.7x slower on an hour (3.2x the CPU) and spin on the loop's cores."""
+BLAS_THREADS_SEEN = """
+import json, threadpoolctl
+from cryod.cli import use_one_blas_thread
+use_one_blas_thread()
+import numpy, scipy.linalg
+print(json.dumps([info["num_threads"] for info in threadpoolctl.threadpool_info() if info["user_api"] == "blas"]))
+"""
+
+
+@pytest.mark.parametrize("chosen, expected", [(None, 1), ("2", min(2, os.cpu_count() or 1))])  # OpenBLAS: at most a thread per core
+def test_the_daemon_and_the_model_tools_use_one_blas_thread_unless_the_user_chose(chosen, expected):
+    """Two OpenBLAS threads made cryod identify 1.7x slower on an hour (3.2x the CPU) and spin on the loop's cores:
+    numpy's and scipy's BLAS libraries (each has its own) both run one thread, unless the environment says."""
     environment = {key: value for key, value in os.environ.items() if not key.endswith("_NUM_THREADS")}
     if chosen is not None:
         environment["OPENBLAS_NUM_THREADS"] = chosen
-    script = "import sys, os, cryod.cli; print('numpy' in sys.modules, os.environ['OPENBLAS_NUM_THREADS'])"
-    output = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=environment,
-                            check=True).stdout.split()
-    assert output == ["False", expected]
+    output = subprocess.run([sys.executable, "-c", BLAS_THREADS_SEEN], capture_output=True, text=True,
+                            env=environment, check=True).stdout
+    threads = json.loads(output.strip().splitlines()[-1])
+    assert len(threads) == 2 and set(threads) == {expected}, output
+
+
+def test_the_control_client_loads_no_blas():
+    """``cryod ctl`` answers fast: importing the command line loads neither numpy nor scipy."""
+    script = "import sys, cryod.cli; print('numpy' in sys.modules, 'scipy' in sys.modules)"
+    output = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout.split()
+    assert output == ["False", "False"]

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from cryod import cli
-from cryod.identification.acquire import INTERRUPTED_EXIT, ProgressDisplay, acquire
+from cryod.cli.acquire import INTERRUPTED_EXIT, ProgressDisplay, acquire
 from cryod.identification.experiment import ExperimentPlan, ExperimentRunner, Progress, SettleJudge
 from cryod.model import load_model
 from cryod.records.columns import Row
 from cryod.records.record import read_record
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.service.simulation import SimulatedInstrumentsOpener
 from tests.test_daemon_faults import simulated_config
 

@@ -22,7 +22,7 @@ from cryod.argument_types import number, plain_decimal
 from cryod.cli import READER_GONE, main
 from cryod.config import load_config
 from cryod.records.columns import Row
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.service.commands import COMMANDS, Command, parse_command
 from cryod.service.control_socket import MAX_LINE, ControlSocketServer, send_command
 from cryod.service.loop import COMMANDS_PER_TICK, ControlLoop

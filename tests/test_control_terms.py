@@ -18,7 +18,7 @@ from cryod.control.terms import TERM_TYPES, TickInputs, term_type
 from cryod.records.columns import Column, Row
 from cryod.records.record import read_record_text
 from cryod.service.commands import Command
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.service.instruments import load_curves
 from cryod.service.loop import ControlLoop
 from cryod.yaml_source import FileFormatError, Section

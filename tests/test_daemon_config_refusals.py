@@ -20,7 +20,7 @@ from cryod.cli import main
 from cryod.config import load_config
 from cryod.records.columns import Row
 from cryod.records.record import read_record
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.service.control_socket import send_command
 from cryod.service.daemon import Daemon
 from cryod.service.notify import SystemdNotifier

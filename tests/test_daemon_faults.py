@@ -13,7 +13,7 @@ import shutil
 import numpy as np
 import pytest
 
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.config import load_config
 from cryod.instrument_waits import InstrumentWaits
 from cryod.service.daemon import Daemon

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from cryod.control.cooler_phase import CoolerPhaseTracker
+from cryod.cooler.phase import CoolerPhaseTracker
 from cryod.control.bounded_waveform import best_bounded_waveform, waveform_values
 from cryod.control.feedforward import FeedforwardSettings, FeedforwardTerm, SynchronousEstimator
 from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
@@ -22,7 +22,7 @@ from cryod.control.terms import TickInputs
 from cryod.model import CryostatPlant
 from cryod.model.dynamics import flange_transfer_functions
 from cryod.model.parameters import SensorLag
-from cryod.records.metrics import periodic_amplitudes
+from cryod.cooler.periodic import periodic_amplitudes
 from cryod.control.closed_loop import Segment, run_program
 
 OMEGA = 10.83

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cryod.config import HeaterConfig
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from drivers.errors import HeaterLimitRefused
 from drivers.heater_limits import current_for_power_a, largest_power_w
 from drivers.keithley2400 import Keithley2400

@@ -16,7 +16,7 @@ from cryod.config import load_config
 from cryod.service.daemon import Daemon
 from cryod.service.instance_lock import InstrumentInUse, InstrumentLocks, lock_file_name
 from cryod.service.instruments import instrument_addresses
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.service.notify import SystemdNotifier
 from drivers.transports.addresses import canonical_prologix, canonical_resource
 from tests.conftest import CONFIG

@@ -64,7 +64,7 @@ def test_the_watchdog_is_pinged_at_the_spacing_the_check_assumes():
 
 
 def test_a_shorter_watchdog_than_the_units_is_a_warning_at_start(tmp_path, caplog):
-    from cryod.service.clock import VirtualClock
+    from drivers.clock import VirtualClock
     from cryod.service.daemon import Daemon
     from tests.test_daemon_faults import FlakyOpener, simulated_config
 

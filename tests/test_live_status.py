@@ -27,7 +27,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from cryod.config import MetricsConfig
 from cryod.records.columns import Event, Row
 from cryod.service.live_view import LiveView
-from cryod.service.metrics_export import MetricsEndpoint, parse_address
+from cryod.service.metrics_export import MetricsEndpoint, metrics_address
 from cryod.service.status_line import format_status
 from tests.test_daemon_faults import FaultDrill, simulated_config
 
@@ -169,10 +169,10 @@ def test_a_bad_metrics_address_in_the_config_names_the_key(tmp_path):
 
 
 def test_metrics_addresses_are_checked_and_a_busy_port_is_named():
-    assert parse_address("[::1]:9477") == ("::1", 9477)
+    assert metrics_address("[::1]:9477") == ("::1", 9477)
     for bad in ("9477", "localhost:http", "127.0.0.1:70000", ":9477"):
         with pytest.raises(ValueError):
-            parse_address(bad)
+            metrics_address(bad)
     first = MetricsEndpoint(LiveView(0.08, 10.83), "127.0.0.1:0")
     first.start()
     try:

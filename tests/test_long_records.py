@@ -169,7 +169,7 @@ def test_a_long_record_is_analysed_on_the_stretch_where_the_heater_moves_most():
 
 def test_analyze_says_which_stretch_it_analysed(tmp_path, capsys, monkeypatch):
     from cryod import cli
-    from cryod.analysis import command
+    from cryod.cli import analyze as command
 
     path = write_daemon_like(tmp_path / "long.csv", 20_000, step_at_s=1000.0)       # 1600 s
     seen = {}

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.config import load_config
 from cryod.control.pi import PiGains
 from cryod.records.columns import Row

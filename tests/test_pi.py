@@ -1,10 +1,9 @@
 import numpy as np
 import pytest
 
-from cryod.config import ControlConfig
 from cryod.control.pi import PiController, PiGains
 from cryod.control.ramp import SetpointRamp
-from cryod.control.regulator import HeaterPowerOutput, Regulator
+from cryod.control.regulator import ControlConfig, HeaterPowerOutput, Regulator
 from cryod.control.closed_loop import Segment, run_program
 
 

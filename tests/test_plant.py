@@ -7,8 +7,8 @@ import pytest
 from scipy import signal
 from scipy.integrate import simpson
 
-from cryod.service.clock import VirtualClock
-from cryod.analysis.line_fit import fit_line, wrap_phase
+from drivers.clock import VirtualClock
+from cryod.cooler.line_fit import fit_line, wrap_phase
 from cryod.model import (
     CryostatPlant, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, PtcFrequencyDrift, PtcHarmonic,
     SensorLag, simulate,

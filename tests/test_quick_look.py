@@ -8,7 +8,7 @@ import pytest
 
 import cryod
 from cryod.cli import main
-from cryod.records.quick_look import cooler_frequency, periodic_line_amplitudes
+from cryod.cli.plot import cooler_frequency, periodic_line_amplitudes
 from cryod.records.record import write_record
 
 
@@ -65,7 +65,7 @@ def test_records_that_cannot_be_plotted_say_why(tmp_path, capsys, text, message)
 
 def test_spectral_lines_are_named_where_sampling_puts_them():
     from cryod.analysis.figures import heater_modulation_hz
-    from cryod.records.quick_look import folded_frequency
+    from cryod.figure_files import folded_frequency
 
     assert folded_frequency(1.7237, 12.5) == pytest.approx(1.7237)
     assert folded_frequency(6 * 1.7237, 12.5) == pytest.approx(12.5 - 6 * 1.7237)   # 10.34 Hz shows at 2.16 Hz
@@ -98,7 +98,7 @@ def test_a_heater_modulation_is_looked_for_only_where_the_loop_was_open():
 def test_the_start_up_and_overruns_are_marked_and_left_out_of_the_spectrum(tmp_path):
     from scipy import signal
 
-    from cryod.records.quick_look import event_instants, plot_record, stretch_spectrum
+    from cryod.cli.plot import event_instants, plot_record, stretch_spectrum
     from cryod.records.record import Record
     from cryod.records.stretches import settled_stretches, startup_end_s
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from cryod.analysis import paper_table1 as table1
-from cryod.analysis.line_fit import fit_line, wrap_phase
+from cryod.cooler.line_fit import fit_line, wrap_phase
 from cryod.model import simulate
 
 PERIOD = 0.08

@@ -15,7 +15,7 @@ from cryod.control.ramp import MIN_RATE_K_PER_MIN, SetpointRamp
 from cryod.model import load_model
 from cryod.records.columns import Row
 from cryod.records.record import read_record
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.service.commands import Command
 from cryod.service.daemon import Daemon
 from cryod.service.notify import SystemdNotifier

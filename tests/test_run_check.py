@@ -203,7 +203,7 @@ def test_an_instrument_out_of_reach_at_start_is_named_by_its_key(tmp_path):
     import socket
 
     from cryod.config import load_config
-    from cryod.service.clock import MonotonicClock
+    from drivers.clock import MonotonicClock
     from cryod.service.instruments import open_instruments
     from drivers.errors import ConnectionLost
 

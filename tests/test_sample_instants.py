@@ -23,7 +23,7 @@ from cryod.identification.fit import identify
 from cryod.model import load_model
 from cryod.records.columns import Row
 from cryod.records.record import read_record
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.service.commands import Command
 from cryod.service.daemon import Daemon
 from cryod.service.notify import SystemdNotifier

@@ -208,7 +208,7 @@ import dataclasses, json, os, sys, threading
 from cryod.config import load_config
 from cryod.model import load_model
 from cryod.records.columns import Row
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.service.daemon import Daemon
 from cryod.service.notify import SystemdNotifier
 from cryod.service.simulation import SimulatedInstrumentsOpener

@@ -7,7 +7,7 @@ import os
 import pytest
 
 from cryod import cli
-from cryod.analysis.command import analysis_files
+from cryod.cli.analyze import analysis_files
 from cryod.analysis.paper_table1 import regenerated_record
 from cryod.output_files import MANIFEST_NAME
 from cryod.records.record import write_record

@@ -31,7 +31,7 @@ from cryod.alarms.conditions import (HEATER_AVERAGE_S, RecentValues, cooler_line
                                      deviation_condition, heater_condition, ptc_stage_condition, stability_condition)
 from cryod.alarms.latch import AlarmLatch, Condition, Transition
 from cryod.alarms.settings import ALARM_NAMES, MAX_WINDOW_S, AlarmsConfig
-from cryod.control.cooler_phase import CoolerPhaseTracker
+from cryod.cooler.phase import CoolerPhaseTracker
 
 #: Loop states in which the loop regulates (the row's ``state``).
 REGULATING = ("closed", "closed-limited")

@@ -4,7 +4,7 @@ The windowed figures (T2's mean and standard deviation, the heater's mean) come 
 :class:`RecentValues`, a ring of the latest readings taken while the loop regulates at
 one steady setpoint: a new setpoint, a ramp or anything but regulation starts it afresh,
 so no window mixes two setpoints. The cooler's line on T5 is followed by the same
-phase tracker the feedforward locks to (:class:`cryod.control.cooler_phase.CoolerPhaseTracker`).
+phase tracker the feedforward locks to (:class:`cryod.cooler.phase.CoolerPhaseTracker`).
 
 Examples
 --------
@@ -27,7 +27,7 @@ import numpy as np
 from cryod.alarms.latch import Condition
 from cryod.alarms.settings import (CoolerLineLostAlarm, DeviationAlarm, HeaterNearTopAlarm, PtcStageWarmAlarm,
                                    StabilityAlarm)
-from cryod.control.cooler_phase import CoolerPhase
+from cryod.cooler.phase import CoolerPhase
 
 #: The heater power is averaged over this long for its alarm (s): about 17 cooler periods, so the
 #: feedforward's waveform averages out.

@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize
 
-from cryod.analysis.ptc_line import PtcLine, measurable_orders
+from cryod.cooler.line import PtcLine, measurable_orders
 from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD, LINK_PARAMETERS, RecalibratedBase
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replay, Replayer
@@ -59,7 +59,7 @@ from cryod.model import (
 )
 from cryod.model.dynamics import flange_transfer_functions
 from cryod.model.ptc_path import PtcDrive, PtcPath
-from cryod.model.transfer_function import TransferFunction, TransferFunctionError
+from cryod.model.transfer_function import TransferFunction, TransferFunctionError, first_order_link
 
 #: A PTC-stage thermometer lag shifting the line by less than this (rad) is taken as none: 1e-4 rad of a
 #: 1.7 mK line (0.17 uK) is below any record's resolution.
@@ -338,23 +338,6 @@ def _ptc_fundamental_on_flange(model: CryostatModel, elapsed_s: np.ndarray, cycl
     return phasor * np.exp(1j * (phase + component.phase_rad))
 
 
-def first_order_link(value: complex, angular_frequency_rad_s: float) -> TransferFunction:
-    """A link g / (tau s + 1) with the given complex gain at one frequency, or the nearest proper form.
-
-    A phase in (-pi/2, 0] is a first-order lag. A lead (positive phase) needs a
-    zero: (n1 s + n0) / (tau s + 1) with tau = 0.1 / omega, the numerator fixed
-    by the value.
-    """
-    phase = cmath.phase(value)
-    if -math.pi / 2 < phase <= 0.0:
-        tau = math.tan(-phase) / angular_frequency_rad_s
-        return TransferFunction((abs(value) * math.hypot(1.0, angular_frequency_rad_s * tau),),
-                                (tau, 1.0) if tau > 0 else (1.0,))
-    tau = 0.1 / angular_frequency_rad_s
-    numerator = value * complex(1.0, angular_frequency_rad_s * tau)
-    return TransferFunction((numerator.imag / angular_frequency_rad_s, numerator.real), (tau, 1.0))
-
-
 def line_factor(context: FitContext, model: CryostatModel | None = None) -> tuple[complex, Replay]:
     """Complex factor F on a model's PTC path to T2 that fits the record's line best, and that replay.
 
@@ -440,9 +423,9 @@ def fit_ptc_harmonics(context: FitContext) -> CandidateFit:
 def fit_ptc_frequency_drift(context: FitContext) -> CandidateFit:
     """The cooler's frequency changing over the record: the record replayed at the phase measured in T5.
 
-    The phase is followed sample by sample (:func:`cryod.analysis.ptc_line.measured_cycle`);
+    The phase is followed sample by sample (:func:`cryod.cooler.line.measured_cycle`);
     the drift's parameters are the model's form fitted to it
-    (:func:`cryod.analysis.ptc_line.fit_drift_to_phase`).
+    (:func:`cryod.cooler.line.fit_drift_to_phase`).
     """
     base = context.base_model
     line = context.replayer.stage_line(context.line_model or base, orders=context.base_line.orders,

@@ -24,7 +24,7 @@ import math
 import numpy as np
 from scipy import signal
 
-from cryod.analysis.ptc_line import aliased_angular_frequency
+from cryod.cooler.line import aliased_angular_frequency
 
 #: Below this frequency (Hz) the residual holds slow misfit, not noise.
 LOWEST_NOISE_FREQUENCY_HZ = 0.05

@@ -41,7 +41,7 @@ from cryod.analysis.decision import (
     score_candidate,
 )
 from cryod.analysis.noise import white_noise_rms
-from cryod.analysis.ptc_line import PtcLine
+from cryod.cooler.line import PtcLine
 from cryod.analysis.recalibration import (
     LINK_PARAMETERS, RecalibratedBase, Recalibration, linear_basis, recalibrate,
 )

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.analysis.candidates import CandidateFit, EffectForm
-from cryod.analysis.ptc_line import PtcLine
+from cryod.cooler.line import PtcLine
 from cryod.analysis.recalibration import RecalibratedBase, linear_basis
 from cryod.analysis.replay import LinearBasis, Replay, Replayer, flange_mode_columns, stage_release_response
 from cryod.model import CryostatModel

@@ -4,7 +4,7 @@ The simulated cryostat (:func:`cryod.model.dynamics.simulate`) is driven by the
 record's ``heater_W`` column, whatever the record holds (holds, steps,
 modulation, PI segments: in a PI record the heater is a feedback signal, but it
 is still the input that was applied). The cooler's line is the one measured in
-T5 (:mod:`cryod.analysis.ptc_line`). What the record does not say is estimated
+T5 (:mod:`cryod.cooler.line`). What the record does not say is estimated
 from it, by linear least squares on the fit samples, for every model replayed
 alike:
 
@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import optimize
 
-from cryod.analysis.ptc_line import PtcLine, estimate_ptc_line, measured_cycle
+from cryod.cooler.line import PtcLine, estimate_ptc_line, measured_cycle
 from cryod.analysis.record_data import RecordData
 from cryod.model import CryostatModel, OperatingPoint
 from cryod.model.dynamics import flange_transfer_functions, simulate, stage_transfer_functions
@@ -291,7 +291,7 @@ class Replayer:
         """Measure the PTC line in T5 less the model's heater-driven part, on the fit samples.
 
         ``measured_phase``: at the cooler's phase followed sample by sample in
-        T5 (:func:`cryod.analysis.ptc_line.measured_cycle`, measured once per
+        T5 (:func:`cryod.cooler.line.measured_cycle`, measured once per
         record) instead of a frequency of the model's form; ``drift`` is then
         the form fitted to that phase.
         """

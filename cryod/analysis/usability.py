@@ -38,8 +38,8 @@ import math
 import numpy as np
 from scipy import optimize
 
-from cryod.analysis.line_fit import fit_line
-from cryod.analysis.ptc_line import coarse_line_frequency
+from cryod.cooler.line_fit import fit_line
+from cryod.cooler.line import coarse_line_frequency
 from cryod.analysis.record_data import RecordData
 from cryod.records.record import RecordFormatError
 

@@ -24,9 +24,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from cryod.config import ControlConfig
 from cryod.control.pi import PiGains
-from cryod.control.regulator import HeaterCurrentOutput, HeaterPowerOutput, Regulator, RegulatorMode
+from cryod.control.regulator import ControlConfig, HeaterCurrentOutput, HeaterPowerOutput, Regulator, RegulatorMode
 from cryod.model import CryostatModel, CryostatPlant
 from cryod.records.columns import REQUIRED
 

@@ -9,7 +9,7 @@ to that phase whose effect on T2 cancels the line.
 
 How it works, every tick:
 
-1. **Phase** (:mod:`cryod.control.cooler_phase`): T5, at the instant its
+1. **Phase** (:mod:`cryod.cooler.phase`): T5, at the instant its
    reading stands for, updates a phase-locked loop; lock, phase and
    frequency come out.
 2. **Estimate** (:class:`SynchronousEstimator`): T2, at its own instant, updates
@@ -94,7 +94,6 @@ from pathlib import Path
 import numpy as np
 
 from cryod.control.bounded_waveform import waveform_values
-from cryod.control.cooler_phase import CoolerPhaseTracker
 from cryod.control.divergence_guard import DivergenceGuard
 from cryod.control.feedforward_learning import LearningWorker
 from cryod.control.feedforward_limit import REPORTED_HARMONICS
@@ -108,6 +107,7 @@ from cryod.control.plant_learner import PRIOR_SPREAD, LearnedPlant
 from cryod.control.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
 from cryod.control.terms import TickInputs
 from cryod.control.unplayed_power import UnplayedPower
+from cryod.cooler.phase import CoolerPhaseTracker
 from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
 from cryod.records.columns import Column
 from cryod.yaml_source import FileFormatError, Section
@@ -565,6 +565,11 @@ class FeedforwardTerm:
     def switch(self, on: bool) -> None:
         """``cryod ctl feedforward on|off``: fade in or out."""
         self.switched_on = bool(on)
+
+    @property
+    def phase_locked(self) -> bool:
+        """Whether the cooler's phase is tracked and locked now (the waveform plays only then)."""
+        return self.phase is not None and self.phase.locked
 
     # -- the cycle ---------------------------------------------------------------------
     def condition(self, tick: TickInputs) -> TickInputs:

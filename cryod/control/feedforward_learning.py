@@ -35,7 +35,7 @@ import threading
 import weakref
 from typing import Any, Callable
 
-from cryod.service.realtime import at_normal_priority
+from cryod.thread_priority import at_normal_priority
 
 _GAP = object()
 _STOP = object()

@@ -29,7 +29,7 @@ from typing import Callable
 from cryod.control.feedforward_limit import FeedforwardLimitError, limit_changes, limit_for_heater_power
 from cryod.control.learned_limit import LearnedLimitInputs, learned_limit, learned_limit_changes
 from cryod.model import CryostatModel
-from cryod.service.realtime import at_normal_priority
+from cryod.thread_priority import at_normal_priority
 
 #: The model's limit is computed once the setpoint has been steady this long (s) ...
 MODEL_AFTER_S = 5.0

@@ -38,14 +38,36 @@ Examples
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from enum import StrEnum
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 from cryod.control.ramp import SetpointRamp
 from cryod.control.terms import ControlTerm, TickInputs, build_terms, term_columns
 
-if TYPE_CHECKING:
-    from cryod.config import ControlConfig
+
+@dataclass(frozen=True)
+class ControlConfig:
+    """The regulator's settings, the configuration's ``control`` section: setpoint, ramp, their limits,
+    and each control term's own section (read by :mod:`cryod.config`).
+
+    Attributes
+    ----------
+    terms : tuple of (str, settings)
+        Each control term's name and validated settings, from its section
+        (``control.pi``, ...), in the order of :data:`cryod.control.terms.TERM_TYPES`.
+    """
+
+    setpoint_K: float | None
+    ramp_K_per_min: float
+    setpoint_min_K: float
+    setpoint_max_K: float
+    max_ramp_K_per_min: float
+    terms: tuple = ()
+
+    def term(self, name: str):
+        """The settings of the control term ``name``."""
+        return dict(self.terms)[name]
 
 
 class RegulatorMode(StrEnum):
@@ -171,7 +193,7 @@ class Regulator:
         What the terms' outputs are and their range.
     """
 
-    def __init__(self, control: "ControlConfig", output: HeaterPowerOutput | HeaterCurrentOutput):
+    def __init__(self, control: ControlConfig, output: HeaterPowerOutput | HeaterCurrentOutput):
         self.output = output
         self.control = control
         self.terms: list[ControlTerm] = build_terms(control.terms, output.maximum)
@@ -306,7 +328,7 @@ class Regulator:
         self.regulating = False
 
     # -- configuration -------------------------------------------------------------------
-    def refusal(self, control: "ControlConfig") -> tuple[str, str] | None:
+    def refusal(self, control: ControlConfig) -> tuple[str, str] | None:
         """Why ``control`` cannot be applied now: (the key it breaks, the reason), or None.
 
         In every mode the ramp rate that would be in use must be within the new
@@ -342,7 +364,7 @@ class Regulator:
                         f"{control.setpoint_min_K:g} K is above {what}: {advice}")
         return None
 
-    def reconfigure(self, control: "ControlConfig") -> None:
+    def reconfigure(self, control: ControlConfig) -> None:
         """Apply a reloaded ``control`` section bumplessly (check :meth:`refusal` first).
 
         A setpoint or ramp rate that the reload changed replaces the one in use;
@@ -354,7 +376,7 @@ class Regulator:
             term.reconfigure(settings[term.name], self.output.maximum)
         self.control = control
 
-    def _rate_and_target(self, control: "ControlConfig") -> tuple[float, float]:
+    def _rate_and_target(self, control: ControlConfig) -> tuple[float, float]:
         previous = self.control
         rate = control.ramp_K_per_min if control.ramp_K_per_min != previous.ramp_K_per_min \
             else self.ramp.rate_K_per_min

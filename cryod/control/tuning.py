@@ -50,7 +50,7 @@ from cryod.control.harmonic_plant import line_at_harmonics
 from cryod.control.pi import PiGains
 from cryod.model import CryostatModel
 from cryod.model.dynamics import flange_transfer_functions
-from cryod.records.metrics import periodic_amplitudes
+from cryod.cooler.periodic import periodic_amplitudes
 
 #: T2 is judged averaged over this many cooler periods (the line itself is not a settling error).
 AVERAGED_PERIODS = 4

@@ -10,12 +10,12 @@ What is fitted, all records at once (they are taken to be from one cryostat):
 * heater to T5, ``G3 = k3 / (tau_3 s + 1)``, the same way;
 * the PTC line's complex gain from T5 to T2 at the line, a linear
   coefficient: it gives ``G2 G_link`` at the line, hence the link
-  (:func:`cryod.analysis.candidates.first_order_link`, with the model's heat
+  (:func:`cryod.model.transfer_function.first_order_link`, with the model's heat
   capacity C, which only scales the link and is kept from the base model);
 * the operating point (T2_0, T5_0), shared by the records;
 * per record, the state at the first sample: each mode's amplitude, free;
 * the cooler's line (frequency, amplitude, phase at the first record's start,
-  significant harmonics) from the first record's T5 (:mod:`cryod.analysis.ptc_line`);
+  significant harmonics) from the first record's T5 (:mod:`cryod.cooler.line`);
 * the sensor noise, from the final residuals (:mod:`cryod.analysis.noise`).
 
 Which time constant belongs to G2 (flange to thermometer) cannot be told from
@@ -31,14 +31,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize
 
-from cryod.analysis.candidates import first_order_link
 from cryod.analysis.noise import white_noise_rms
-from cryod.analysis.ptc_line import PtcLine, measurable_orders
+from cryod.cooler.line import PtcLine, measurable_orders
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replayer
 from cryod.model import CryostatModel, OperatingPoint, SensorNoise
 from cryod.model.heater_path import HeaterPath
-from cryod.model.transfer_function import TransferFunction
+from cryod.model.transfer_function import TransferFunction, first_order_link
 
 #: Time constants are searched within these bounds (s).
 TIME_CONSTANT_BOUNDS_S = (0.5, 20000.0)

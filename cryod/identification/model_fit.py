@@ -9,7 +9,7 @@ What :func:`identify_model` fits (all records at once, taken to be from one cryo
 * T5 (its measured line removed): ``G3 = sum_j k_j / (tau_j s + 1)`` likewise,
   with T5_0;
 * the cooler's line (frequency, amplitude, phase, significant harmonics) in the
-  first record's T5 (:mod:`cryod.analysis.ptc_line`), with its standard errors;
+  first record's T5 (:mod:`cryod.cooler.line`), with its standard errors;
 * the sensor noise, the white floor of the final residuals.
 
 G2 is the shortest term's lag and G1 the rest (only G2 G1 is observable; the
@@ -69,7 +69,7 @@ class ModelIdentification:
     records : list of RecordData
     flange, stage : ChannelResult
         The T2 and T5 fits.
-    line : cryod.analysis.ptc_line.PtcLine
+    line : cryod.cooler.line.PtcLine
         The first record's cooler line.
     noise_rms_K : tuple of float
         (T2, T5) white noise in the residuals.

@@ -2,7 +2,7 @@
 
 The one place they are computed: the simulated cryostat drives its PTC paths
 with them (:mod:`cryod.model.ptc_path`), and the analysis fits the line it
-measures in T5 at them (:mod:`cryod.analysis.ptc_line`). With ``t`` the time
+measures in T5 at them (:mod:`cryod.cooler.line`). With ``t`` the time
 since the phase reference (the start of the simulation or of the record)::
 
     omega(t) = omega_0 + drift offset(t)

@@ -18,6 +18,7 @@ Examples
 
 from __future__ import annotations
 
+import cmath
 import functools
 import math
 from dataclasses import dataclass
@@ -277,3 +278,20 @@ def _separate_repeated(poles: np.ndarray) -> np.ndarray:
             if abs(poles[i] - poles[j]) <= REPEATED_POLE_TOLERANCE * max(abs(poles[i]), 1e-300):
                 poles[i] = poles[i] * (1.0 + REPEATED_POLE_SEPARATION * (1 + i))
     return poles
+
+
+def first_order_link(value: complex, angular_frequency_rad_s: float) -> TransferFunction:
+    """A link g / (tau s + 1) with the given complex gain at one frequency, or the nearest proper form.
+
+    A phase in (-pi/2, 0] is a first-order lag. A lead (positive phase) needs a
+    zero: (n1 s + n0) / (tau s + 1) with tau = 0.1 / omega, the numerator fixed
+    by the value.
+    """
+    phase = cmath.phase(value)
+    if -math.pi / 2 < phase <= 0.0:
+        tau = math.tan(-phase) / angular_frequency_rad_s
+        return TransferFunction((abs(value) * math.hypot(1.0, angular_frequency_rad_s * tau),),
+                                (tau, 1.0) if tau > 0 else (1.0,))
+    tau = 0.1 / angular_frequency_rad_s
+    numerator = value * complex(1.0, angular_frequency_rad_s * tau)
+    return TransferFunction((numerator.imag / angular_frequency_rad_s, numerator.real), (tau, 1.0))

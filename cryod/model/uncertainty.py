@@ -48,7 +48,7 @@ from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
-from cryod.model.transfer_function import TransferFunction
+from cryod.model.transfer_function import TransferFunction, first_order_link
 
 if TYPE_CHECKING:
     from cryod.model.parameters import CryostatModel
@@ -246,8 +246,6 @@ def link_from_line_gain(model: "CryostatModel", flange_to_thermometer: TransferF
     so T2's line is ``G2 G_link (j w C)`` times it: ``G_link(j w) = line_gain / (j w C G2(j w))``.
     The link is the first-order form with that value at the line.
     """
-    from cryod.analysis.candidates import first_order_link      # the one definition of the link's form
-
     omega = model.ptc.angular_frequency_rad_s
     capacity = model.ptc.heat_capacity_J_per_K
     value = line_gain / (1j * omega * capacity * complex(flange_to_thermometer.frequency_response(omega)))

@@ -3,10 +3,10 @@
 * ``ptc_line_amplitude_K``: amplitude of T2 at the PTC frequency (least-squares
   fit at one frequency: ``ptc_line_rad_s``, the cooler's frequency as the daemon
   tracks it on T5, where the line is 70 times larger,
-  :func:`cryod.control.cooler_phase.cooler_frequency_rad_s`);
+  :func:`cryod.cooler.phase.cooler_frequency_rad_s`);
 * ``ptc_periodic_amplitude_K``: T2's whole part synchronous with the cooler,
   harmonics 1 to 6 against the cooler's phase tracked from T5 sample by sample
-  (:mod:`cryod.control.cooler_phase`), as sqrt(2) times its rms (the square
+  (:mod:`cryod.cooler.periodic`), as sqrt(2) times its rms (the square
   root of the sum of the harmonics' squared amplitudes); unlike the line at one
   frequency it stays true when the cooler's frequency wanders;
   ``ptc_harmonic_amplitudes_K``: the harmonics' amplitudes;
@@ -32,42 +32,15 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from cryod.analysis.line_fit import fit_line
-from cryod.control.cooler_phase import cooler_frequency_rad_s, track_cooler_phase
+from cryod.cooler.line_fit import fit_line
+from cryod.cooler.periodic import PERIODIC_HARMONICS, periodic_amplitudes
+from cryod.cooler.phase import cooler_frequency_rad_s
 
 LOW_FREQUENCY_HZ = 0.1
 #: The low-pass's start and end transients are left out of ``lowfreq_rms_K`` this long (s) ...
 LOW_FREQUENCY_EDGE_S = 30.0
 #: ... in windows at least this long (s).
 LOW_FREQUENCY_MIN_WINDOW_S = 120.0
-#: Harmonics of the cooler in the periodic amplitude.
-PERIODIC_HARMONICS = 6
-#: Degree of the polynomial that takes the slow part out of T2 before the periodic fit.
-SLOW_DEGREE = 3
-
-
-def periodic_amplitudes(flange_time_s, flange_K, stage_time_s, ptc_stage_K, nominal_rad_s: float,
-                        harmonics: int = PERIODIC_HARMONICS, window_start_s: float = -np.inf) -> np.ndarray:
-    """Amplitudes (K) of T2's harmonics 1..``harmonics`` of the cooler, phase tracked from T5.
-
-    The tracker runs over every reading given (those before ``window_start_s``
-    only let it lock); the least-squares fit of T2 (harmonics, and a cubic
-    for the slow part) uses the readings from ``window_start_s`` on.
-    """
-    flange_time_s = np.asarray(flange_time_s, dtype=float)
-    track = track_cooler_phase(stage_time_s, ptc_stage_K, nominal_rad_s)
-    phase = track["phase_rad"] + track["frequency_rad_s"] * (flange_time_s - np.asarray(stage_time_s, float))
-    use = (flange_time_s >= window_start_s) & track["locked"]
-    if use.sum() < 4 * harmonics + 10:
-        return np.full(harmonics, np.nan)
-    t = flange_time_s[use]
-    scaled = (t - t.mean()) / max(float(np.ptp(t)), 1e-9)
-    angles = np.outer(phase[use], np.arange(1, harmonics + 1))
-    columns = np.hstack([np.vander(scaled, SLOW_DEGREE + 1), np.cos(angles), np.sin(angles)])
-    solution, *_ = np.linalg.lstsq(columns, np.asarray(flange_K, float)[use], rcond=None)
-    cosines = solution[SLOW_DEGREE + 1:SLOW_DEGREE + 1 + harmonics]
-    sines = solution[SLOW_DEGREE + 1 + harmonics:]
-    return np.hypot(cosines, sines)
 
 
 def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_rad_s: float,

@@ -135,7 +135,7 @@ def _feedforward(loop: "ControlLoop", value: str) -> str:
         raise CommandRefused("this daemon has no feedforward term")
     if value in ("on", "off"):
         term.switch(value == "on")
-        locked = term.phase is not None and term.phase.locked
+        locked = term.phase_locked
         return (f"feedforward {value}: fading {'in' if value == 'on' else 'out'} over "
                 f"{term.settings.fade_time_s:g} s" + ("" if value == "off" or locked
                                                         else " once the cooler's phase is locked (a few seconds)"))

@@ -32,7 +32,7 @@ import threading
 
 import numpy as np
 
-from cryod.analysis.line_fit import fit_line
+from cryod.cooler.line_fit import fit_line
 from cryod.records.columns import Event, Row
 
 #: T2 readings kept for the line's amplitude when the feedforward does not estimate it (s).

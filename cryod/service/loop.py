@@ -36,6 +36,7 @@ from cryod.control.regulator import HeaterPowerOutput, Regulator, RegulatorMode
 from cryod.control.terms import term_columns
 from cryod.records.columns import TIME_DECIMALS, Event, Row, RowSchema, loop_schema
 from cryod.service.commands import Command, CommandRefused, apply_command
+from cryod.service.fault_episodes import FaultEpisodes
 from cryod.service.faults import ExitCode, Fault, FaultCause, ReadingChecks, fault_from_instrument_error
 from cryod.service.realtime import LoopGarbageCollector
 from cryod.service.states import LoopState
@@ -196,16 +197,8 @@ class ControlLoop:
         self._stop_reason: str | None = None
         self._stop_as: tuple[int, FaultCause] = (ExitCode.OK, FaultCause.STOP_REQUESTED)
         self._outside_fault: Fault | None = None
-        self._valid_in_a_row = 0
-        self._hold_reported = False         # a reading above a limit kept the heater off (said once per hold)
-        # a fault episode: from a first recoverable fault until the loop has run clean for
-        # safety.recovery_timeout_s; the recovery timeout counts from its start, and every resume
-        # within it doubles the valid readings the next resume needs (a fault that keeps coming back
-        # is not retried at full rate, and is not given a new timeout each time)
-        self._episode_start_s: float | None = None
-        self._resumes_in_episode = 0
-        self._resumed_at_s = -math.inf
-        self._last_reconnect_s = -math.inf
+        #: the fault episode under way and the valid readings the heater waits for
+        self.episodes = FaultEpisodes(config.safety, self.period_s)
         self._last_trigger_s: float | None = None
         self._setting_time_s = 0.002       # from the regulator's step to the heater being set (learned)
         self._tick_start_s = 0.0
@@ -383,10 +376,7 @@ class ControlLoop:
             log.log(level, "%s: %s", name, text)
             self._event(name, text)
         self._finish_row(row)
-        if self._episode_start_s is not None and reading.trigger_time_s - self._resumed_at_s \
-                >= self.config.safety.recovery_timeout_s:
-            self._episode_start_s = None         # ran clean long enough: the next fault is a new episode
-            self._resumes_in_episode = 0
+        self.episodes.ran_clean(reading.trigger_time_s)
 
     def _emit_row(self, row: Row) -> None:
         self._last_row_s = row.time_s
@@ -431,11 +421,11 @@ class ControlLoop:
     # -- start-up and recovery ----------------------------------------------------
     def _count_valid(self, in_range: bool, reading: PairReading, row: Row) -> None:
         """Holding or recovering: heater stays off until enough valid, in-range readings."""
-        self._valid_in_a_row = self._valid_in_a_row + 1 if in_range else 0
+        valid_in_a_row = self.episodes.count_reading(in_range)
         row.heater_W = 0.0
         row.state = self.state
-        waiting_for = self.readings_to_resume()
-        if self._valid_in_a_row >= waiting_for:
+        waiting_for = self.episodes.readings_to_resume()
+        if valid_in_a_row >= waiting_for:
             previous = self.state
             self._last_trigger_s = reading.trigger_time_s
             self.state = LoopState(self.regulator.mode)
@@ -443,34 +433,19 @@ class ControlLoop:
                 # start-up, or a setpoint given while the heater was off or manual: close from 0 W, the ramp
                 # from T2; after a fault while regulating the terms go on where they were
                 self.regulator.close_loop(reading.trigger_time_s, row.T2_K, row.T5_K, present_power_w=0.0)
-            self._hold_reported = False
-            note = ""
-            if self._episode_start_s is not None:
-                self._resumes_in_episode += 1
-                self._resumed_at_s = reading.trigger_time_s
-                note = (f" (resume {self._resumes_in_episode} since the first fault "
-                        f"{reading.trigger_time_s - self._episode_start_s:.1f} s ago; "
-                        f"after another fault {self.readings_to_resume()} valid readings)")
+            note = self.episodes.resumed(reading.trigger_time_s)
             self._event("resumed", f"{waiting_for} valid readings after {previous}; state {self.state}{note}")
         self._finish_row(row)
 
     def _report_hold(self, over: Fault, flange_K: float) -> None:
         """Say once per hold why the heater stays off: a temperature above its limit (journal and record)."""
-        if self._hold_reported:
+        if not self.episodes.hold_to_report():
             return
-        self._hold_reported = True
         key = "safety.flange_max_K" if flange_K > self.checks.flange_max_K else "safety.ptc_stage_max_K"
         message = (f"heater held off while {self.state}: {over.message} ({key}); it stays off until the "
                    f"temperature is below the limit")
         log.warning("%s", message)
         self._event("holding", message)
-
-    def readings_to_resume(self) -> int:
-        """Valid readings in a row the loop needs before it resumes: ``safety.valid_readings_to_resume``,
-        doubled for every resume since the fault episode began (at most a recovery timeout's worth)."""
-        safety = self.config.safety
-        most = max(safety.valid_readings_to_resume, int(safety.recovery_timeout_s / self.period_s))
-        return min(safety.valid_readings_to_resume * 2 ** self._resumes_in_episode, most)
 
     def close_loop_now(self) -> None:
         """Regulate from the last readings on, continuing from the heater power now (a command)."""
@@ -496,15 +471,13 @@ class ControlLoop:
         bool
             True when this tick stopped the loop or tried a reconnect (no reading this tick).
         """
-        if now - self._episode_start_s > self.config.safety.recovery_timeout_s:
-            resumes = f" (resumed {self._resumes_in_episode} times in between)" if self._resumes_in_episode else ""
+        if self.episodes.timed_out(now):
+            resumes = f" (resumed {self.episodes.resumes} times in between)" if self.episodes.resumes else ""
             self._stop(ExitCode.INSTRUMENTS_LOST, Fault(self.last_fault.cause,
                        f"not recovered within {self.config.safety.recovery_timeout_s:g} s{resumes}: "
                        f"{self.last_fault.message}"))
             return True
-        if self.last_fault.cause.reconnect and self._valid_in_a_row == 0 and now - self._last_reconnect_s >= 1.0:
-            # (not once readings are valid again: they are counted toward the resume)
-            self._last_reconnect_s = now
+        if self.last_fault.cause.reconnect and self.episodes.reconnect_due(now):
             try:
                 self.instruments.reconnect()
                 self.checks.reset()
@@ -529,7 +502,7 @@ class ControlLoop:
         fault = cause
         if off_failure is not None:             # the supply keeps what it had: nothing else matters now
             fault = Fault(FaultCause.HEATER_FAULT, f"{off_failure.message}; it happened on {fault}")
-        self._valid_in_a_row = 0
+        self.episodes.reading_lost()
         state = f"fault:{fault.cause}"
         if row is not None:
             row.heater_W = applied_w
@@ -546,13 +519,9 @@ class ControlLoop:
             self._stop(fault.exit_code, fault, heater_done=True)
             return
         self.last_fault = fault
-        now = self.clock.now()
-        if self._episode_start_s is None:
-            self._episode_start_s = now
-        log.warning("heater off: %s; recovering (%.0f s left of safety.recovery_timeout_s)", fault,
-                    self.config.safety.recovery_timeout_s - (now - self._episode_start_s))
+        left_s = self.episodes.recovering_from_fault(self.clock.now())
+        log.warning("heater off: %s; recovering (%.0f s left of safety.recovery_timeout_s)", fault, left_s)
         self.state = LoopState.RECOVERING
-        self._last_reconnect_s = -math.inf
         self._publish_fault_state(LoopState.RECOVERING)
 
     def _switch_heater_off(self) -> Fault | None:
@@ -702,6 +671,7 @@ class ControlLoop:
             raise CommandRefused(f"kept the running configuration: {refusal}")
         self.regulator.reconfigure(new.control)
         self.config = new
+        self.episodes.configure(new.safety)
         self.checks = ReadingChecks(new.safety.flange_max_K, new.safety.ptc_stage_max_K,
                                     new.safety.max_repeated_readings)
         return f"configuration reloaded from {new.source}"

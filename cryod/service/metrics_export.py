@@ -29,7 +29,7 @@ once the one that has waited longest without sending it is closed to make room
 
 Examples
 --------
->>> parse_address("127.0.0.1:9477")
+>>> metrics_address("127.0.0.1:9477")
 ('127.0.0.1', 9477)
 """
 
@@ -45,6 +45,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.exposition import choose_encoder
 
 from cryod import __version__
+from cryod.listen_address import parse_address
 from cryod.service.async_clients import ClientsThread, ConnectionBook
 from cryod.service.faults import FaultCause
 from cryod.service.live_view import LiveView
@@ -66,14 +67,9 @@ METRICS_PATHS = ("/metrics", "/")
 STATES = ("starting", *(str(state) for state in LoopState), "closed-limited", "fault")
 
 
-def parse_address(text: str) -> tuple[str, int]:
-    """``host:port`` (``[v6]:port`` for IPv6) as (host, port); ValueError says what is wrong."""
-    host, separator, port = str(text).rpartition(":")
-    if not separator or not host:
-        raise ValueError(f"{text!r} is not host:port (for example 127.0.0.1:9477)")
-    if not port.isascii() or not port.isdigit() or not 1 <= int(port) <= 65535:
-        raise ValueError(f"{text!r}: the port must be a number from 1 to 65535")
-    return host.strip("[]"), int(port)
+def metrics_address(text: str) -> tuple[str, int]:
+    """``metrics.address`` (``host:port``, ``[v6]:port``; any host name) as (host, port); ValueError says what is wrong."""
+    return parse_address(text, host_names=True)
 
 
 class CryodCollector:
@@ -156,7 +152,7 @@ class MetricsEndpoint:
 
     def __init__(self, view: LiveView, address: str, cryostat: str = "", max_connections: int = MAX_CONNECTIONS,
                  request_timeout_s: float = REQUEST_TIMEOUT_S, alarms=None):
-        self.host, self.port = parse_address(address) if not str(address).endswith(":0") \
+        self.host, self.port = metrics_address(address) if not str(address).endswith(":0") \
             else (str(address).rpartition(":")[0], 0)
         self.registry = CollectorRegistry(auto_describe=False)
         self.registry.register(CryodCollector(view, cryostat, alarms))

@@ -3,10 +3,8 @@
 Each is used when the system permits it; when it does not, the reason is
 returned for the log and the daemon carries on.
 
-Linux threads inherit the scheduling of the thread that starts them, so a
-worker the loop thread starts (the feedforward's limit, its learning after a
-reload) would run at the loop's real-time priority and compete with it: such
-workers call :func:`at_normal_priority` first. A run
+A thread's scheduling itself (the loop's real-time priority, the normal one
+its workers go back to) is in :mod:`cryod.thread_priority`. A run
 leaves the process as it found it (:class:`RealtimeSession`), which matters
 when the daemon runs inside another program (the tests, ``cryod.simulate``).
 """
@@ -19,33 +17,11 @@ import gc
 import os
 import time
 
+from cryod.thread_priority import set_realtime_priority
+
 MCL_CURRENT = 1
 MCL_FUTURE = 2
 MCL_ONFAULT = 4         # Linux 4.4: lock pages as they are touched, not every page that is mapped
-
-
-def set_realtime_priority(priority: int) -> str | None:
-    """SCHED_FIFO at ``priority`` for the calling thread; None if done, else why not."""
-    if priority <= 0:
-        return "real-time priority not requested (loop.realtime_priority: 0)"
-    if not hasattr(os, "sched_setscheduler"):
-        return "real-time scheduling is not available on this platform"
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (PermissionError, OSError) as error:
-        return f"real-time priority {priority} not permitted ({error.strerror or error}); running at normal priority"
-    return None
-
-
-def at_normal_priority() -> None:
-    """Put the calling thread back on normal scheduling if it inherited a real-time one."""
-    if not hasattr(os, "sched_getscheduler"):
-        return
-    try:
-        if os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR):
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except OSError:              # lowering one's own priority is always permitted; nothing else to do
-        pass
 
 
 def unlock_memory() -> None:

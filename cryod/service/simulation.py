@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cryod.service.clock import MonotonicClock, ScaledClock, VirtualClock
+from drivers.clock import clock_for_speed
 from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config, located_error
 from cryod.service.daemon import Daemon
 from cryod.service.discovery import simulation_socket
@@ -192,12 +192,6 @@ class SimulatedInstrumentsOpener:
         return instruments, flange_curve, stage_curve
 
 
-def _clock(speed):
-    if speed == "max":
-        return VirtualClock()
-    return MonotonicClock() if speed == 1.0 else ScaledClock(speed)
-
-
 class SimulationNotStarted(ValueError):
     """The dry run could not start (configuration, calibration, model or command line); says why."""
 
@@ -255,7 +249,7 @@ def execute_simulation(args, stream=None) -> SimulationRun:
     stream = stream if stream is not None else sys.stderr
     config, model, model_path = prepare_simulation(args)
     config_path = args.config or EXAMPLE_CONFIG_PATH
-    clock = _clock(args.speed)
+    clock = clock_for_speed(args.speed)
     opener = SimulatedInstrumentsOpener(model, config.simulation.seed)
     collector = WindowCollector(args.window, config.loop.period_s)
     metadata = {"simulated": "yes (cryod --simulate)", "simulated_model": str(model_path),

@@ -6,7 +6,7 @@ shares lives here:
 
 * the address: ``host:port`` from its configuration section, loopback unless the address says
   otherwise; the journal says at start where it listens, with a warning when that is not loopback
-  (:mod:`cryod.service.listen_address`);
+  (:mod:`cryod.listen_address`);
 * a limit on connections open at once (one more is told it is busy and closed);
 * TCP keepalive, so a client that vanished without closing frees its place;
 * a client's trouble (an exception in its handler) ends that client only;
@@ -25,7 +25,7 @@ import logging
 import socket
 
 from cryod.service.async_clients import ClientsThread
-from cryod.service.listen_address import describe, is_loopback, parse_address
+from cryod.listen_address import describe, is_loopback, parse_address
 
 log = logging.getLogger("cryod.network")
 

@@ -35,7 +35,7 @@ from cryod.service.control_socket import finite_or_none
 from cryod.service.history import History, RecentRows
 from cryod.service.async_clients import loop_answer
 from cryod.service.tcp_service import TcpService, send
-from cryod.service.web_token import read_token, token_matches
+from cryod.web_token import read_token, token_matches
 
 log = logging.getLogger("cryod.web")
 

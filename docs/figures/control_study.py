@@ -16,7 +16,7 @@ import numpy as np
 from scipy import optimize
 
 from cryod.control.pi import PiGains
-from cryod.analysis.line_fit import fit_line
+from cryod.cooler.line_fit import fit_line
 from cryod.model import load_model
 from cryod.control.closed_loop import Segment, run_program
 

@@ -14,7 +14,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from cryod.analysis import paper_table1 as table1
-from cryod.analysis.line_fit import fit_line, wrap_phase
+from cryod.cooler.line_fit import fit_line, wrap_phase
 from cryod.model import load_model, simulate
 
 HERE = Path(__file__).resolve().parent

@@ -4,7 +4,7 @@ Run: PYTHONPATH=. python3 docs/figures/paper_fig10.py
 Writes docs/figures/paper_fig10.png and prints the tables of docs/feedforward.md ("The paper, reproduced").
 
 Phase convention. The sinusoid is ``amplitude * cos(psi + phase)`` with psi the cooler's phase tracked
-from T5 (:class:`cryod.control.cooler_phase.CoolerPhaseTracker`: T5's fundamental is ``B cos(psi)``).
+from T5 (:class:`cryod.cooler.phase.CoolerPhaseTracker`: T5's fundamental is ``B cos(psi)``).
 Written with sines, as a Simulink sine block would be: T5's oscillation ``B sin(w t)`` and the heater's
 sinusoid ``amplitude * sin(w t + phase)``. ``phase`` is how far the heater's sinusoid leads T5's
 oscillation; this is the paper's phase angle, assumed (docs/feedforward.md says why).
@@ -26,7 +26,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from cryod.control.cooler_phase import CoolerPhaseTracker
+from cryod.cooler.phase import CoolerPhaseTracker
 from cryod.control.feedforward import FeedforwardTerm
 from cryod.control.feedforward_limit import feedforward_limit, mean_heater_power_w
 from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
@@ -34,7 +34,7 @@ from cryod.control.pi import PiGains
 from cryod.control.terms import TERM_TYPES, TickInputs, term_type
 from cryod.model import CryostatModel, load_model
 from cryod.records.columns import Column
-from cryod.records.metrics import periodic_amplitudes
+from cryod.cooler.periodic import periodic_amplitudes
 from cryod.control.closed_loop import ClosedLoopRun, Segment, run_program
 
 HERE = Path(__file__).resolve().parent

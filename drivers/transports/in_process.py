@@ -6,7 +6,7 @@ unchanged, replies come back through an output queue, as on a GPIB bus.
 
 Timing follows the injected clock: a reply that never comes costs
 ``timeout_s`` of that clock before :class:`~drivers.errors.InstrumentTimeout`
-is raised (on a :class:`cryod.service.clock.VirtualClock` that is no real time).
+is raised (on a :class:`drivers.clock.VirtualClock` that is no real time).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from cryod.service.clock import VirtualClock
+from drivers.clock import VirtualClock
 from cryod.thermometry import load_calibration
 from simulated_hw.bench import SimulatedBench
 

@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from cryod.service.clock import MonotonicClock
+from drivers.clock import MonotonicClock
 from drivers.errors import BadReply, ConnectionLost, InstrumentTimeout, OverflowReading
 from drivers.keithley2002 import FourWireSettings, Keithley2002, TriggerSource
 from drivers.transports import VisaTransport

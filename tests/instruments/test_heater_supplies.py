@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from cryod.service.clock import MonotonicClock, VirtualClock
+from drivers.clock import MonotonicClock, VirtualClock
 from drivers.errors import (BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterRefused,
                             IdentityMismatch, InstrumentTimeout)
 from drivers.keithley2400 import Keithley2400

@@ -16,7 +16,7 @@ from pymeasure.instruments.keithley import Keithley2000, Keithley2400, Keithley6
 from pymeasure.instruments.keithley import keithley2400 as pymeasure_keithley2400
 from pyvisa.errors import VisaIOError
 
-from cryod.service.clock import MonotonicClock
+from drivers.clock import MonotonicClock
 from simulated_hw.bench import SimulatedBench
 from simulated_hw.scpi_server import ScpiServer
 

@@ -2,7 +2,7 @@
 
 import pytest
 
-from cryod.service.clock import MonotonicClock
+from drivers.clock import MonotonicClock, VirtualClock
 from drivers.errors import ConnectionLost, InstrumentTimeout, OverflowReading
 from drivers.keithley2002 import FourWireSettings, Keithley2002, TriggerSource
 from drivers.pair_triggers import (GpibGroupTrigger, HardwareTrigger, PrologixGroupTrigger, SequentialTrigger,
@@ -187,7 +187,6 @@ def test_pair_through_prologix_group_trigger(real_time_bench):
 def test_driver_learns_the_line_sync_and_autozero_delays():
     """With line sync the integration waits for a mains zero crossing the driver cannot know:
     it learns the delay instead of polling every 2 ms through it, reading after reading."""
-    from cryod.service.clock import VirtualClock
     from drivers.keithley2002 import FourWireSettings, Keithley2002
     from drivers.pair_triggers import GpibGroupTrigger
     from drivers.thermometer_pair import ThermometerPair

@@ -4,7 +4,7 @@ import time
 
 import pytest
 
-from cryod.service.clock import MonotonicClock
+from drivers.clock import MonotonicClock
 from drivers.errors import ConnectionLost, InstrumentTimeout
 from drivers.keithley2002 import FourWireSettings, Keithley2002, TriggerSource
 from drivers.keithley6221 import Keithley6221

@@ -8,7 +8,7 @@ limit drawn beside it; blocks below the limit are marked and said why); a
 fifth panel has T2's amplitude spectrum with the cooler's harmonics marked,
 aliased ones at the frequency where the 12.5 Hz sampling puts them. The
 cooler's frequency is the one the daemon tracks on T5
-(:func:`cryod.control.cooler_phase.cooler_frequency_rad_s`).
+(:func:`cryod.cooler.phase.cooler_frequency_rad_s`).
 
 The start-up (until the loop regulates a settled flange: :mod:`cryod.records.stretches`)
 is shaded, faults are red lines and overruns ticks along the bottom of the time axes; the
@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cryod.figure_files import HARMONICS, mark_cooler_harmonics
 from cryod.output_files import output_file_refusal
 from cryod.records.record import RecordFormatError, read_record
 from cryod.records.stretches import settled, settled_stretches, startup_end_s
@@ -43,7 +44,6 @@ LIMIT_SOURCES = {"model": "controller's model", "learned": "learned plant"}
 SPECTRUM_BREAKS = ("overrun", "fault", "stop", "resumed")
 #: Pixel columns of the time axes; each gets T2's minimum and maximum.
 COLUMNS = 1500
-HARMONICS = 6
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -79,7 +79,7 @@ def run(args) -> int:
 def cooler_frequency(time_s: np.ndarray, ptc_stage_K: np.ndarray, nominal_rad_s: float) -> float:
     """The cooler's angular frequency (rad/s) as the daemon tracks it on T5, over the first hour at most
     (``nominal_rad_s`` when there is no line to lock to)."""
-    from cryod.control.cooler_phase import cooler_frequency_rad_s
+    from cryod.cooler.phase import cooler_frequency_rad_s
 
     usable = np.isfinite(time_s) & np.isfinite(ptc_stage_K)
     usable &= time_s <= time_s[usable][0] + 3600.0 if usable.any() else usable
@@ -298,25 +298,6 @@ def _draw_error(axis, time_s, error_K, regulated, scale: float, settled_rows) ->
     axis.set_title("where the loop regulated, scaled to the error once settled (the start-up's transient leaves "
                    "the axis)", fontsize=8)
     axis.legend(loc="best", fontsize=8)
-
-
-def folded_frequency(frequency_hz: float, sample_hz: float) -> float:
-    """Where a line at ``frequency_hz`` appears in the spectrum of data sampled at ``sample_hz`` (Hz)."""
-    nyquist = sample_hz / 2.0
-    return abs(((frequency_hz + nyquist) % sample_hz) - nyquist)
-
-
-def mark_cooler_harmonics(axis, cooler_hz: float, sample_hz: float, harmonics: int = HARMONICS) -> None:
-    """Dashed, labelled lines at the cooler's harmonics on a spectrum axis; those above the Nyquist
-    frequency where sampling folds them, labelled with the frequency they come from."""
-    for order in range(1, harmonics + 1):
-        true_hz = order * cooler_hz
-        aliased = true_hz > sample_hz / 2.0
-        folded = folded_frequency(true_hz, sample_hz)
-        axis.axvline(folded, color="tab:purple" if aliased else "tab:red", lw=0.6, ls="--", alpha=0.6)
-        axis.annotate(f"{order}f" + (f" (aliased from {true_hz:.2f} Hz)" if aliased else ""),
-                      (folded, 0.97), xycoords=("data", "axes fraction"), rotation=90, fontsize=7,
-                      va="top", ha="right")
 
 
 def event_instants(record) -> dict[str, list[float]]:

@@ -11,7 +11,7 @@ there itself are replaced (:mod:`cryod.output_files`; checked before anything
 is measured).
 
 ``--acquire`` first runs the identification experiment on the cryostat
-through the daemon (:mod:`cryod.identification.acquire`; ``--simulate``: on
+through the daemon (:mod:`cryod.cli.acquire`; ``--simulate``: on
 the simulated cryostat), then fits the record it wrote. ``--report DIR``
 (the default with ``--acquire``: ``<model>-report``) writes the figures and a
 markdown report: the model, its uncertainties, the feedforward's limit at the
@@ -35,7 +35,7 @@ from pathlib import Path
 
 from cryod.analysis.record_data import analysed_stretch, read_record_data
 from cryod.analysis.summary import plain
-from cryod.argument_types import not_negative, number, positive
+from cryod.argument_types import not_negative, number, positive, speed
 from cryod.identification.experiment import ExperimentPlan
 from cryod.identification.fit import IdentificationError
 from cryod.identification.model_fit import ModelIdentification, identify_model
@@ -48,12 +48,6 @@ from cryod.yaml_source import FileFormatError
 
 PROGRAM = "cryod identify"
 ACQUIRE_DIRECTORY = Path("cryod-identify")
-
-
-def _speed(text: str):
-    from cryod.cli import _speed as speed
-
-    return speed(text)
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -90,7 +84,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     acquire.add_argument("--acquire", action="store_true",
                          help="run the identification experiment through the daemon first, then fit its record")
     acquire.add_argument("--simulate", action="store_true", help="on the simulated cryostat (cryod --simulate's bench)")
-    acquire.add_argument("--speed", type=_speed, default="max",
+    acquire.add_argument("--speed", type=speed, default="max",
                          help="with --simulate: simulated seconds per real second, or 'max' (default: virtual time)")
     acquire.add_argument("--sim-model", type=Path, default=None, help="with --simulate: the simulated cryostat's model")
     acquire.add_argument("--seed", type=int, default=None, help="with --simulate: sensor-noise seed")
@@ -167,8 +161,8 @@ def _plan(args) -> ExperimentPlan:
 
 
 def _config_path(args) -> Path:
-    from cryod.cli import DEFAULT_CONFIG
     from cryod.config import EXAMPLE_CONFIG_PATH
+    from cryod.service.discovery import SERVICE_CONFIG as DEFAULT_CONFIG
 
     if args.config is not None:
         return args.config
@@ -177,9 +171,9 @@ def _config_path(args) -> Path:
 
 def _acquire(args, config, base) -> tuple[int, object]:
     """Run the experiment; (exit status, Acquisition or None)."""
-    from cryod.identification.acquire import acquire
-    from cryod.service.clock import MonotonicClock
+    from cryod.cli.acquire import acquire
     from cryod.service.logs import ServiceLogging
+    from drivers.clock import MonotonicClock, clock_for_speed
 
     plan = _plan(args)
     try:
@@ -191,7 +185,7 @@ def _acquire(args, config, base) -> tuple[int, object]:
     expected = 5.0 * max(taus) if taus else 900.0
     metadata = {"identify_base_model": str(args.base)}
     if args.simulate:
-        from cryod.service.simulation import SimulatedInstrumentsOpener, _clock, simulation_config
+        from cryod.service.simulation import SimulatedInstrumentsOpener, simulation_config
 
         overrides = argparse.Namespace(setpoint=None, no_feedforward=False, transport=None, speed=args.speed,
                                        seed=args.seed, data_dir=args.data_dir or ACQUIRE_DIRECTORY / "data",
@@ -203,7 +197,7 @@ def _acquire(args, config, base) -> tuple[int, object]:
             print(f"{PROGRAM}: {error}", file=sys.stderr)
             return 2, None
         opener, claims = SimulatedInstrumentsOpener(simulated, config.simulation.seed), None
-        clock = _clock(args.speed)
+        clock = clock_for_speed(args.speed)
         metadata.update({"simulated": "yes (cryod identify --acquire --simulate)",
                          "simulated_model": str(args.sim_model or config.simulation.model or DEFAULT_MODEL_PATH),
                          "simulation_seed": config.simulation.seed})
@@ -240,7 +234,7 @@ def _acquire(args, config, base) -> tuple[int, object]:
 
 def _tuning_text(model, setpoint_K: float, config) -> str:
     from cryod.control.tuning import TuningError, step_performance, suggest_gains
-    from cryod.control.tuning_command import PAPER_GAINS, report
+    from cryod.cli.tune import PAPER_GAINS, report
 
     heater_max_w = config.heater.max_power_w
     options = {"period_s": config.loop.period_s}

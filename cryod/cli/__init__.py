@@ -26,33 +26,21 @@ import signal
 import sys
 from pathlib import Path
 
-from cryod.blas_threads import use_one_blas_thread
-
-use_one_blas_thread()          # before numpy is imported: see cryod/blas_threads.py
-
-from cryod import __version__  # noqa: E402
-from cryod.argument_types import positive, whole_number  # noqa: E402
-from cryod.service.commands import COMMANDS, socket_usage  # noqa: E402
-from cryod.service.discovery import SERVICE_CONFIG as DEFAULT_CONFIG  # noqa: E402
+from cryod import __version__
+from cryod.argument_types import positive, speed, whole_number
+from cryod.service.commands import COMMANDS, socket_usage
+from cryod.service.discovery import SERVICE_CONFIG as DEFAULT_CONFIG
 
 #: Model tools with a module of their own (``configure_parser(parser)``, ``run(args) -> int``).
 MODEL_TOOLS = (
-    ("analyze", "cryod.analysis.command", "what the simulation gets wrong on a record, the cause, the extended model"),
-    ("identify", "cryod.identification.command", "fit the model's transfer functions to measured records"),
-    ("feedforward-limit", "cryod.control.feedforward_limit_command",
+    ("analyze", "cryod.cli.analyze", "what the simulation gets wrong on a record, the cause, the extended model"),
+    ("identify", "cryod.cli.identify", "fit the model's transfer functions to measured records"),
+    ("feedforward-limit", "cryod.cli.feedforward_limit",
      "the least cooler-synchronous oscillation any heater waveform can leave, and what would change it"),
-    ("tune", "cryod.control.tuning_command", "PI gains for the lab's model and heater, beside the configured ones"),
-    ("plot", "cryod.records.quick_look", "a quick look at a record: temperatures, heater, cooler line, spectrum"),
+    ("tune", "cryod.cli.tune", "PI gains for the lab's model and heater, beside the configured ones"),
+    ("plot", "cryod.cli.plot", "a quick look at a record: temperatures, heater, cooler line, spectrum"),
 )
 
-
-def _speed(text: str) -> float | str:
-    if text == "max":
-        return "max"
-    try:
-        return positive(text)
-    except argparse.ArgumentTypeError as error:
-        raise argparse.ArgumentTypeError(f"speed must be a number > 0 or 'max': {error}") from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -69,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
                           help="daemon configuration (default: the documented example config/cryod.yaml)")
     simulate.add_argument("--duration", type=positive, default=None, metavar="S",
                           help="simulated seconds to run (default: until stopped)")
-    simulate.add_argument("--speed", type=_speed, default=1.0,
+    simulate.add_argument("--speed", type=speed, default=1.0,
                           help="simulated seconds per real second, or 'max' for virtual time (default 1)")
     simulate.add_argument("--json", action="store_true", help="print one summary object on stdout at the end")
     simulate.add_argument("--window", type=positive, default=300.0, metavar="S",
@@ -136,11 +124,36 @@ def _misplaced_simulate_options(parser: argparse.ArgumentParser, args) -> list[s
     return ["--" + name.replace("_", "-") for name in given]
 
 
+#: The variables by which a user chooses the BLAS libraries' thread count; a number chosen there is kept.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def use_one_blas_thread() -> None:
+    """One thread for the BLAS libraries numpy and scipy load, unless the environment chose a number.
+
+    cryod's matrices are tall and narrow (a few columns by up to a few hundred thousand rows in the
+    model tools) or tiny (the loop's estimators): a second BLAS thread costs more than it brings
+    (``cryod identify`` took 1.7 times as long with two, docs/benchmarks.md), and idle BLAS threads
+    spin on the cores the daemon's loop needs. threadpoolctl sets the limit in the libraries already
+    loaded, whenever it is called; numpy and scipy each bring their own OpenBLAS, so both are loaded
+    first. ``cryod ctl`` loads neither and is not slowed by them.
+    """
+    if any(name in os.environ for name in BLAS_THREAD_VARIABLES):
+        return
+    import numpy  # noqa: F401  (its BLAS library)
+    import scipy.linalg  # noqa: F401  (scipy's own BLAS library)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")
+
+
 def _run_model_tool(name: str, argv: list[str]) -> int:
     """``cryod analyze ...``, ``cryod identify ...``, ...: the tool's module parses its own arguments."""
     module = importlib.import_module(dict((n, m) for n, m, _ in MODEL_TOOLS)[name])
     parser = module.configure_parser(argparse.ArgumentParser(prog=f"cryod {name}"))
-    return module.run(parser.parse_args(argv))
+    args = parser.parse_args(argv)
+    use_one_blas_thread()
+    return module.run(args)
 
 
 #: Exit code when the reader of the output went away (``cryod ctl status | head -2``): as a Unix tool killed
@@ -181,8 +194,10 @@ def _main(argv: list[str] | None) -> int:
     if args.simulate:
         from cryod.service.simulation import run_simulation
 
+        use_one_blas_thread()
         return run_simulation(args)
     if args.command == "run":
+        use_one_blas_thread()
         return _run_service(args)
     if args.command == "ctl":
         return _ctl(args)
@@ -193,7 +208,7 @@ def _main(argv: list[str] | None) -> int:
 def _run_service(args) -> int:
     from cryod.service.daemon import Daemon, config_or_exit
     from cryod.service.instruments import instrument_addresses, open_instruments
-    from cryod.service.clock import MonotonicClock
+    from drivers.clock import MonotonicClock
     from cryod.service.logs import ServiceLogging
     from cryod.service.startup_checks import check_before_run
     from cryod.service.status_line import StatusLine
@@ -233,7 +248,7 @@ def _run_service(args) -> int:
 
 def _supply_off(config) -> int:
     """``cryod run --supply-off``: 0 done, 2 another cryod drives the supply, 4 the supply out of reach."""
-    from cryod.service.clock import MonotonicClock
+    from drivers.clock import MonotonicClock
     from cryod.service.instance_lock import InstrumentInUse
     from cryod.service.instruments import switch_supply_off
     from drivers.errors import InstrumentError
@@ -307,6 +322,3 @@ def _ctl(args) -> int:
         print(reply.get("message", ""), file=sys.stdout if reply.get("ok") else sys.stderr)
     return 0 if reply.get("ok") else 1
 
-
-if __name__ == "__main__":
-    sys.exit(main())

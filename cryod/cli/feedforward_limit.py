@@ -17,7 +17,7 @@ import math
 import sys
 import textwrap
 
-from cryod.control.lab_inputs import InputsNotUsable, lab_inputs
+from cryod.cli.lab_inputs import InputsNotUsable, lab_inputs
 from cryod.argument_types import not_negative, number, positive
 
 from cryod.config import EXAMPLE_CONFIG_PATH

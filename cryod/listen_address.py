@@ -22,7 +22,7 @@ from __future__ import annotations
 import ipaddress
 
 
-def parse_address(text: str, allow_any_port: bool = False) -> tuple[str, int]:
+def parse_address(text: str, allow_any_port: bool = False, host_names: bool = False) -> tuple[str, int]:
     """``host:port`` (``[v6]:port`` for IPv6) as (host, port); ValueError says what is wrong.
 
     Parameters
@@ -30,12 +30,15 @@ def parse_address(text: str, allow_any_port: bool = False) -> tuple[str, int]:
     text : str
     allow_any_port : bool
         Accept port 0 (the system picks a free port; tests).
+    host_names : bool
+        Accept any host name (the metrics endpoint's ``metrics.address``), not only an IP address
+        or ``localhost``.
 
     Raises
     ------
     ValueError
-        Not ``host:port``, an empty host, a host that is neither an IP address nor ``localhost``,
-        or a port outside 1..65535.
+        Not ``host:port``, an empty host, a host that is neither an IP address nor ``localhost``
+        (unless ``host_names``), or a port outside 1..65535.
     """
     host, separator, port = str(text).rpartition(":")
     if not separator or not host:
@@ -43,7 +46,7 @@ def parse_address(text: str, allow_any_port: bool = False) -> tuple[str, int]:
     if not port.isascii() or not port.isdigit() or not (0 if allow_any_port else 1) <= int(port) <= 65535:
         raise ValueError(f"{text!r}: the port must be a number from 1 to 65535")
     host = host.strip("[]")
-    if host != "localhost":
+    if host != "localhost" and not host_names:
         try:
             ipaddress.ip_address(host)
         except ValueError:

@@ -42,8 +42,8 @@ from scipy import ndimage, optimize
 
 from scipy import interpolate
 
-from cryod.analysis.line_fit import wrap_phase
-from cryod.control.cooler_phase import CoolerPhaseTracker
+from cryod.cooler.line_fit import wrap_phase
+from cryod.cooler.phase import CoolerPhaseTracker
 from cryod.model import CryostatModel, PtcFrequencyDrift, PtcHarmonic
 from cryod.model.ptc_cycle import MeasuredPtcCycle, PtcCycle
 
@@ -494,7 +494,7 @@ PHASE_CORRECTION_ORDERS = (1, 2, 3)
 def measured_cycle(elapsed_s, stage_signal_K, nominal_rad_s: float) -> MeasuredPtcCycle:
     """The cooler's phase followed sample by sample in T5: the feedforward's tracker, made zero-lag.
 
-    1. :class:`cryod.control.cooler_phase.CoolerPhaseTracker` (the same
+    1. :class:`cryod.cooler.phase.CoolerPhaseTracker` (the same
        phase-locked loop the feedforward locks to) runs over the record.
     2. Its phase, less a straight line, is smoothed by a least-squares cubic
        spline with knots every :data:`TRACKED_PHASE_KNOTS_S` (the loop's

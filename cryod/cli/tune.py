@@ -15,7 +15,7 @@ import argparse
 import json
 import sys
 
-from cryod.control.lab_inputs import InputsNotUsable, lab_inputs
+from cryod.cli.lab_inputs import InputsNotUsable, lab_inputs
 from cryod.argument_types import not_negative, number, positive
 from cryod.config import EXAMPLE_CONFIG_PATH
 from cryod.control.pi import PiGains

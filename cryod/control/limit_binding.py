@@ -90,6 +90,12 @@ def _said(change: LimitChange | None) -> str:
         limit.ptc_periodic_limit_K))
 
 
+def _advice(first: str, first_figure: str, second: str, second_figure: str) -> str:
+    """``First (its figure); second (its figure).``, each figure where there is one."""
+    return (first + (f" ({first_figure})" if first_figure else "") + "; " + second
+            + (f" ({second_figure})." if second_figure else "."))
+
+
 def _changes_by_kind(limit: FeedforwardLimit, changes) -> dict[str, LimitChange]:
     """The changes of :func:`~cryod.control.feedforward_limit.limit_changes` by what they change: ``bigger heater``,
     ``higher setpoint``, ``lower setpoint``."""
@@ -143,16 +149,14 @@ def limit_binding(limit: FeedforwardLimit, changes=()) -> LimitBinding:
         bound = FLOOR
         text = (f"the heater's 0 W floor binds: the setpoint needs {mean} on average, and the best waveform rests "
                 f"at 0 W for {100 * floor_fraction:.0f} % of each cooler cycle (cancelling the line's fundamental "
-                f"would take {_milliwatt(limit.line_power_needed_W)} each way). A bigger heater does not help"
-                + (f" ({bigger})" if bigger else "") + "; a higher setpoint does"
-                + (f" ({higher})." if higher else "."))
+                f"would take {_milliwatt(limit.line_power_needed_W)} each way). "
+                + _advice("A bigger heater does not help", bigger, "a higher setpoint does", higher))
     elif at_top:
         bound = TOP
         text = (f"the heater's top R I_max^2 = {_milliwatt(top)} binds: the setpoint needs {mean} on average, "
                 f"{_milliwatt(top - limit.mean_heater_power_W)} below the top, and the best waveform rests at the "
-                f"top for {100 * top_fraction:.0f} % of each cooler cycle. A bigger heater helps"
-                + (f" ({bigger})" if bigger else "") + "; so does a lower setpoint"
-                + (f" ({lower})." if lower else "."))
+                f"top for {100 * top_fraction:.0f} % of each cooler cycle. "
+                + _advice("A bigger heater helps", bigger, "so does a lower setpoint", lower))
     else:
         bound = NONE
         text = (f"no bound binds: the heater can cancel the line (it can put "

@@ -34,7 +34,8 @@ class CommandRefused(RuntimeError):
 
 
 class NotStable(TimeoutError):
-    """:meth:`DaemonClient.wait_until_stable` ran out of time; the message says how far it got."""
+    """:meth:`DaemonClient.wait_until_stable` gave up: out of time, the loop stopped regulating, or the
+    daemon went away; the message says why and how far it got."""
 
 
 class DaemonClient:
@@ -76,6 +77,26 @@ class DaemonClient:
         Values the daemon does not have are None (e.g. ``setpoint_K`` while the loop is open).
         """
         return self.command("status")["status"]
+
+    def record_path(self) -> str | None:
+        """The path of the record the daemon is writing now (None before its first row).
+
+        A restart on the same day writes a new file (``cryod-DATE.2.csv``, ...): ask, rather than
+        build the name from the date.
+        """
+        return self.status().get("record_path")
+
+    def note(self, text: str) -> dict:
+        """Write ``text`` into the record being written (``# event: note: TEXT (by ...)``) and the journal.
+
+        Raises
+        ------
+        CommandRefused
+            Empty text, text with control characters, or a line longer than the socket takes.
+        ValueError
+            ``text`` holds a line break.
+        """
+        return self.command(f"note {text}")["status"]
 
     def setpoint(self, kelvin: float) -> dict:
         """Regulate to ``kelvin`` (ramped at the configured rate); the status after the command took effect."""
@@ -126,8 +147,29 @@ class DaemonClient:
         """
         return self.command(f"alarms ack {name}")["alarms"]
 
+    def wait(self, seconds: float, poll_s: float = 0.5, sleep=time.sleep) -> dict:
+        """Wait ``seconds`` of the daemon's clock; the status that ended the wait.
+
+        On the real cryostat that is real time; a dry run at ``--speed 20`` waits a twentieth of it.
+
+        Raises
+        ------
+        ConnectionError
+            The daemon went away meanwhile.
+        """
+        start = None
+        while True:
+            status = self.status()
+            now = status.get("time_s")
+            if now is not None:
+                start = now if start is None else start
+                if now - start >= seconds:
+                    return status
+            sleep(poll_s)
+
     def wait_until_stable(self, tolerance_K: float = 1e-4, hold_s: float = 60.0, timeout_s: float = 3600.0,
-                          poll_s: float = 0.5, sleep=time.sleep) -> dict:
+                          poll_s: float = 0.5, wall_timeout_s: float | None = None, sleep=time.sleep,
+                          wall=time.monotonic) -> dict:
         """Wait until the flange has settled at its setpoint.
 
         Settled means: the loop is closed, the ramp has reached the target, and for
@@ -135,7 +177,8 @@ class DaemonClient:
         time) had T2 averaged over its last 10 s (``T2_average_K``: 17 cooler periods,
         so the cooler's 0.5 to 1.8 mK line averages out) within ``tolerance_K`` of the
         setpoint. Time is the daemon's own clock, so a sped-up dry run settles as fast
-        as it runs.
+        as it runs; ``wall_timeout_s`` of real time (default: as many seconds as ``timeout_s``)
+        bounds the wait too, whatever the daemon's clock does.
 
         Returns
         -------
@@ -145,14 +188,21 @@ class DaemonClient:
         Raises
         ------
         NotStable
-            ``timeout_s`` of the daemon's clock passed first, or the loop left the closed state
-            (heater off, fault): the message says where T2 was.
+            ``timeout_s`` of the daemon's clock or ``wall_timeout_s`` of real time passed first, the
+            loop left the closed state (heater off, fault), or the daemon stopped or its socket went
+            away: the message says why and where T2 was.
         """
         settled_since = None
         start = None
         error = None
+        wall_limit_s = timeout_s if wall_timeout_s is None else wall_timeout_s
+        wall_start = wall()
         while True:
-            status = self.status()
+            try:
+                status = self.status()
+            except ConnectionError as lost:
+                raise NotStable(f"the daemon went away while waiting ({lost}); last seen: "
+                                f"{_how_far(error, 'not settled')}") from None
             now = status.get("time_s")
             state = str(status.get("state"))
             if now is None:
@@ -170,16 +220,23 @@ class DaemonClient:
                 settled_since = now if settled_since is None else settled_since
                 if now - settled_since >= hold_s:
                     return status
+            where = _how_far(error, f"state {state}, setpoint {setpoint}, target {target}")
             if now - start > timeout_s:
-                where = f"T2 averaged over 10 s {error * 1e6:+.1f} µK from the setpoint" if error is not None else \
-                    f"state {state}, setpoint {setpoint}, target {target}"
                 raise NotStable(f"not stable within {tolerance_K * 1e6:g} µK after {timeout_s:g} s: {where}")
+            if wall() - wall_start > wall_limit_s:
+                raise NotStable(f"not stable within {tolerance_K * 1e6:g} µK after {wall_limit_s:g} s of real time "
+                                f"({now - start:.0f} s of the daemon's clock): {where}")
             sleep(poll_s)
 
 
 def connect(socket: str | Path | None = None, timeout_s: float = 10.0) -> DaemonClient:
     """A :class:`DaemonClient` of the daemon at ``socket`` (default: found as ``cryod ctl`` finds it)."""
     return DaemonClient(socket, timeout_s)
+
+
+def _how_far(error_K: float | None, otherwise: str) -> str:
+    """Where the wait got to: T2's averaged error from the setpoint, or ``otherwise`` when there is none."""
+    return f"T2 averaged over 10 s {error_K * 1e6:+.1f} µK from the setpoint" if error_K is not None else otherwise
 
 
 def _plain(value: float, name: str) -> str:

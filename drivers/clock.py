@@ -109,7 +109,12 @@ class VirtualClock:
 
 def clock_for_speed(speed: float | str) -> Clock:
     """The clock of a simulated run at ``speed`` (``cryod --simulate --speed``): virtual for ``"max"``,
-    the real one at 1, else real time scaled."""
+    the real one at 1, paced above 1 (:class:`drivers.paced_clock.PacedClock`: simulated time that
+    slows when the machine cannot keep the pace), real time scaled below 1."""
     if speed == "max":
         return VirtualClock()
+    if speed > 1.0:
+        from drivers.paced_clock import PacedClock      # it builds on VirtualClock, defined above
+
+        return PacedClock(speed)
     return MonotonicClock() if speed == 1.0 else ScaledClock(speed)

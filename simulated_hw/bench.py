@@ -11,10 +11,11 @@ over TCP on 127.0.0.1 through pyvisa-py (:meth:`SimulatedBench.serve_tcp`,
 :meth:`SimulatedBench.serve_prologix`).
 
 In-process transports run on any clock, a VirtualClock included. Over TCP
-the instruments answer from server threads, so the clock must be one that
-runs by itself (:class:`drivers.clock.MonotonicClock` or ``ScaledClock``): on a
-VirtualClock a trigger could be processed after the driver has already moved
-the clock on.
+the instruments answer from server threads, so the clock's waits must take
+real time (:class:`drivers.clock.MonotonicClock`, ``ScaledClock``, or the
+:class:`drivers.paced_clock.PacedClock` of a dry run faster than real
+time): on a VirtualClock a trigger could be processed after the driver has
+already moved the clock on.
 """
 
 from __future__ import annotations

@@ -42,7 +42,8 @@ class DaemonProcess:
             self.notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
             self.notify.bind(str(tmp_path / "notify"))
             self.notify.settimeout(0.2)
-            env.update(NOTIFY_SOCKET=str(tmp_path / "notify"), WATCHDOG_USEC="2000000")
+            # as systemd starts a service whose standard error is the journal
+            env.update(NOTIFY_SOCKET=str(tmp_path / "notify"), WATCHDOG_USEC="2000000", JOURNAL_STREAM="8:12345")
             self._reading = True
             self._reader = threading.Thread(target=self._read_notifications, daemon=True)
             self._reader.start()

@@ -449,6 +449,7 @@ def test_feedforward_commands_fade_it_out_and_in_and_report(reference_model, cur
     status = answers[2600].message
     assert answers[2600].ok and "cooler phase locked" in status and "physical limit at 5 K" in status
     assert "what would change it: setpoint 4.5 K:" in status and "setpoint 5.5 K:" in status
+    assert "µK" in status and " uK" not in status                  # one spelling of micro
     assert any(event.text.startswith("command: feedforward accepted") for event in events)
 
 

@@ -81,6 +81,11 @@ REFUSALS = [
      "INTFC is an interface, not an instrument"),
     ("two instruments on one address", [("    resource: TCPIP0::10.0.0.3::1234::SOCKET", FLANGE)],
      "instruments.ptc_stage_dmm.resource", "TCPIP0::10.0.0.2::1234::SOCKET is instruments.flange_dmm's already"),
+    ("two on one GPIB bus address, spelled two ways", [("    resource: TCPIP0::10.0.0.3::1234::SOCKET",
+                                                        "    resource: GPIB0::16::INSTR"),
+                                                       (FLANGE, "    resource: GPIB::16::INSTR")],
+     "instruments.ptc_stage_dmm.resource", "GPIB0::16::INSTR is instruments.flange_dmm's already: two instruments "
+                                           "cannot share an address"),
     ("two behind one Prologix address", [(FLANGE, "    prologix: {{host: 10.0.0.9, address: 12}}"),
                                          ("    resource: TCPIP0::10.0.0.4::1234::SOCKET",
                                           "    prologix: {{host: 10.0.0.9, address: 12}}")],

@@ -157,7 +157,18 @@ def test_journald_priority_prefixes():
     assert formatter.format(record) == "<2>cryod.service.loop: heater off: over_temperature"
     record = logging.LogRecord("cryod", logging.WARNING, __file__, 1, "two\nlines", (), None)
     assert formatter.format(record) == "<4>cryod: two\n<4>lines"
-    assert JournalFormatter(prefix=False).format(record) == "cryod: two\nlines"
+    assert JournalFormatter(prefix=False).format(record) == "cryod: warning: two\nlines"
+    record = logging.LogRecord("cryod.loop", logging.INFO, __file__, 1, "setpoint 5 K", (), None)
+    assert JournalFormatter(prefix=False).format(record) == "cryod.loop: setpoint 5 K"
+
+
+def test_priority_prefixes_only_for_the_journal_whatever_stderr_is(monkeypatch):
+    from cryod.service.logs import wants_prefix
+
+    monkeypatch.delenv("JOURNAL_STREAM", raising=False)
+    assert not wants_prefix()                           # a pipe, a file, a terminal: levels in words
+    monkeypatch.setenv("JOURNAL_STREAM", "8:12345")      # systemd's service with StandardError=journal
+    assert wants_prefix()
 
 
 def test_notify_never_blocks_on_a_receiver_that_does_not_read(tmp_path):

@@ -127,7 +127,7 @@ def test_sigabrt_from_the_watchdog_puts_the_supply_at_0_W_within_a_period_and_sa
         assert delay is not None and delay < 0.08 + 1.0                 # a period and one instrument call at most
         assert not bench.supply.output_on
         journal = run.journal
-        assert "<2>cryod.daemon: SIGABRT received (systemd's watchdog sends it when the loop stops feeding it): " \
+        assert "cryod.daemon: critical: SIGABRT received (systemd's watchdog sends it when the loop stops feeding it): " \
                "stopping with the heater at 0 W (exit 134)" in journal
         assert "cryod/service/loop.py" in journal                      # where the loop was, for a hang
         record = run.record()
@@ -156,7 +156,7 @@ def test_a_loop_hung_in_an_instrument_call_is_stepped_over_the_heater_goes_off_a
         assert delay is not None and grace_s <= delay < grace_s + 1.0
         stepped_in = f"SIGUSR1 received; the loop did not stop within {grace_s:.3g} s: heater switched off from " \
                      f"outside the loop"
-        assert f"<2>cryod.daemon: {stepped_in}" in run.journal
+        assert f"cryod.daemon: critical: {stepped_in}" in run.journal
         events = [text for _, text in run.record().events]
         assert events[-2:] == [
             f"event: stopping: {stepped_in}",

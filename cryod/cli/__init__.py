@@ -54,11 +54,14 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--simulate", action="store_true",
                           help="run the daemon against simulated instruments and a simulated cryostat")
     simulate.add_argument("--config", type=Path, default=None, metavar="PATH",
-                          help="daemon configuration (default: the documented example config/cryod.yaml)")
+                          help="daemon configuration (default: the example shipped with cryod, cryod/data/cryod.yaml "
+                               "in the installed package: config/cryod.yaml of the source tree)")
     simulate.add_argument("--duration", type=positive, default=None, metavar="S",
                           help="simulated seconds to run (default: until stopped)")
     simulate.add_argument("--speed", type=speed, default=1.0,
-                          help="simulated seconds per real second, or 'max' for virtual time (default 1)")
+                          help="simulated seconds per real second, or 'max' for virtual time (default 1); above 1 "
+                               "the simulated clock slows when the machine cannot keep that pace (the speed "
+                               "achieved is on the status line and in --json's achieved_speed)")
     simulate.add_argument("--json", action="store_true", help="print one summary object on stdout at the end")
     simulate.add_argument("--window", type=positive, default=300.0, metavar="S",
                           help="length of the metrics window at the end, s (default 300)")

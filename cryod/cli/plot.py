@@ -48,7 +48,11 @@ COLUMNS = 1500
 
 def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.description = "A quick look at a cryod-log record: temperatures, heater, cooler line, spectrum (PNG)."
-    parser.add_argument("record", type=Path, help="a cryod-log v1 file (.csv or .csv.gz)")
+    parser.add_argument("record", type=Path, nargs="?", default=None,
+                        help="a cryod-log v1 file (.csv or .csv.gz); default: the record the running daemon "
+                             "is writing (found as cryod ctl finds it, or at --socket)")
+    parser.add_argument("--socket", type=Path, default=None, metavar="PATH",
+                        help="without RECORD: the control socket of the daemon whose record to plot")
     parser.add_argument("--out", type=Path, default=None, metavar="PNG",
                         help="where the figure goes (default: beside the record, RECORD.png)")
     parser.add_argument("--force", action="store_true", help="replace an existing figure")
@@ -58,6 +62,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
 
 
 def run(args) -> int:
+    if args.record is None:
+        from cryod.cli.running_record import running_record_path
+
+        try:
+            args.record = running_record_path(args.socket)
+        except ConnectionError as error:
+            print(f"cryod plot: {error}", file=sys.stderr)
+            return 2
     out = args.out or args.record.with_name(args.record.name.removesuffix(".gz").removesuffix(".csv") + ".png")
     refusal = output_file_refusal("cryod plot", out, force=args.force, inputs=[args.record])
     if refusal is not None:

@@ -796,9 +796,9 @@ class FeedforwardTerm:
         line = self.line_amplitude_K()
         if math.isfinite(line):
             harmonics = ", ".join(f"{1e6 * abs(value):.1f}" for value in self._synchronous_list())
-            lines.append(f"T2's part synchronous with the cooler: {1e6 * line:.1f} uK (harmonics 1-"
-                         f"{self.settings.harmonics}: {harmonics} uK); without the waveform it would be "
-                         f"{1e6 * float(np.sqrt(np.sum(np.abs(self._estimate.line) ** 2))):.1f} uK")
+            lines.append(f"T2's part synchronous with the cooler: {1e6 * line:.1f} µK (harmonics 1-"
+                         f"{self.settings.harmonics}: {harmonics} µK); without the waveform it would be "
+                         f"{1e6 * float(np.sqrt(np.sum(np.abs(self._estimate.line) ** 2))):.1f} µK")
         amplitude = np.abs(self.coefficients)
         values = waveform_values(self._played_coefficients, self.other_terms_w or 0.0, BOUND_POINTS)
         lines.append(f"waveform: {', '.join(f'{1e3 * a:.1f}' for a in amplitude)} mW per harmonic, "
@@ -826,11 +826,11 @@ class FeedforwardTerm:
             source = ("from the learned plant and line, and the mean power PI found" if self.limits.source == "learned"
                       else "from the controller's model")
             lines.append(f"physical limit at {limit.setpoint_K:g} K ({source}): {1e6 * limit.ptc_periodic_limit_K:.1f} "
-                         f"uK of the {1e6 * limit.open_line_K:.1f} uK line; {limit.limited_by}-limited (authority "
+                         f"µK of the {1e6 * limit.open_line_K:.1f} µK line; {limit.limited_by}-limited (authority "
                          f"{limit.authority:.2f}: the heater can put {1e3 * limit.largest_line_power_W:.0f} mW at the "
                          f"line of the {1e3 * limit.line_power_needed_W:.0f} mW needed around "
                          f"{1e3 * limit.mean_heater_power_W:.0f} mW); predicted best "
-                         f"{1e6 * limit.predicted_best_residual_K:.1f} uK")
+                         f"{1e6 * limit.predicted_best_residual_K:.1f} µK")
             lines.append("what binds it: " + limit_binding(limit, self.limit_changes).explanation)
             if self.limit_changes:
                 lines.append("what would change it: " + "; ".join(change.describe() for change in self.limit_changes)
@@ -850,7 +850,7 @@ class FeedforwardTerm:
         playing = [index + 1 for index, value in enumerate(self._probe) if value]
         if playing and cost > 0.0:
             text = (f"probe: {1e3 * abs(self._probe[playing[0] - 1]):.1f} mW at harmonic {playing[0]}, moving T2 by "
-                    f"{1e6 * cost:.1f} uK (to learn the plant to {100 * self.settings.plant_precision:g} %; "
+                    f"{1e6 * cost:.1f} µK (to learn the plant to {100 * self.settings.plant_precision:g} %; "
                     f"harmonics {', '.join(map(str, probing))} to go)")
         elif probing:
             text = (f"probe: waiting (harmonics {', '.join(map(str, probing))} to go: no room now, or a plant too "

@@ -697,7 +697,7 @@ class LimitChange:
         limit = self.point.limit
         if limit is None:
             return f"{self.change}: out of reach"
-        return f"{self.change}: {1e6 * limit.ptc_periodic_limit_K:.1f} uK ({limit.limited_by}-limited)"
+        return f"{self.change}: {1e6 * limit.ptc_periodic_limit_K:.1f} µK ({limit.limited_by}-limited)"
 
     def to_dict(self) -> dict:
         """For ``--json``."""
@@ -737,9 +737,9 @@ def limit_changes(model: CryostatModel, setpoint_K: float, max_power_w: float, p
     >>> from cryod.model import load_model
     >>> for change in limit_changes(load_model(), 5.0, 0.5, heater_delay_s=0.0):
     ...     print(change.describe())
-    setpoint 4.5 K: 1220.3 uK (authority-limited)
-    setpoint 5.5 K: 116.5 uK (authority-limited)
-    R I_max^2 x 2 (1000 mW): 526.0 uK (authority-limited)
+    setpoint 4.5 K: 1220.3 µK (authority-limited)
+    setpoint 5.5 K: 116.5 µK (authority-limited)
+    R I_max^2 x 2 (1000 mW): 526.0 µK (authority-limited)
     """
     options.setdefault("certify", False)
     held = {"setpoint_K": setpoint_K, "heater_resistance_ohm": max_power_w, "max_current_A": 1.0,

@@ -27,9 +27,9 @@ Examples
 >>> for change in learned_limit_changes(learned, flange_base_K=4.23, cooler_angular_frequency_rad_s=10.83,
 ...                                     sensor_noise_rms_K=20e-6):
 ...     print(change.describe())
-setpoint 5.5 K: 894.0 uK (authority-limited)
+setpoint 5.5 K: 894.0 µK (authority-limited)
 setpoint 6.5 K: out of reach
-R I_max^2 x 2 (1000 mW): 0.0 uK (noise-limited)
+R I_max^2 x 2 (1000 mW): 0.0 µK (noise-limited)
 """
 
 from __future__ import annotations

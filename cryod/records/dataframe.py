@@ -1,7 +1,7 @@
 """A record as a pandas DataFrame, for labs that analyse in pandas.
 
-pandas is not a dependency of the daemon; this needs it installed
-(``pip install pandas``). The frame has one column per record column, the
+pandas is not a dependency of the daemon; this needs it installed, with
+cryod's ``analysis`` extra (``pip install 'cryod[analysis]'``) or by itself. The frame has one column per record column, the
 record's metadata in ``frame.attrs["metadata"]`` and its events (faults,
 commands, reloads) in ``frame.attrs["events"]`` as (row index, text) pairs.
 """
@@ -22,8 +22,8 @@ def record_frame(record: Record):
     try:
         import pandas
     except ImportError:
-        raise ImportError("record_frame needs pandas: pip install pandas "
-                          "(or use the record's numpy columns, record.columns)") from None
+        raise ImportError("record_frame needs pandas: pip install 'cryod[analysis]' (or pandas by itself; "
+                          "or use the record's numpy columns, record.columns)") from None
     frame = pandas.DataFrame(dict(record.columns))
     frame.attrs["metadata"] = dict(record.metadata)
     frame.attrs["events"] = list(record.events)

@@ -388,7 +388,7 @@ class DataLog:
         self._last_fsync = time.monotonic()
         self._last_written = []
         self.paths.append(self._file.path)
-        log.info("data log: writing %s", self._file.path)
+        log.info("data log: writing %s", self._file.path.absolute())
         self.check_free_space()
 
     def _look_at_file(self, at_path: bool) -> None:

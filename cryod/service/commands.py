@@ -33,6 +33,7 @@ if TYPE_CHECKING:
 
 #: The words of a command line: separated by ASCII space or tabs only (not by other scripts' spaces).
 _WORD = re.compile(r"[^ \t\n\r\v\f]+")
+_WORD_SEPARATORS = re.compile(r"[ \t\n\r\v\f]+")
 
 
 class CommandRefused(ValueError):
@@ -81,13 +82,15 @@ def _setpoint(loop: "ControlLoop", value: float) -> str:
                              f"{control.setpoint_max_K:g} K (control.setpoint_min_K/max_K)")
     regulator = loop.regulator
     regulator.ramp.target_K = value
+    warning = loop.warn_about_setpoint(value)
+    said = f"; warning: {warning}" if warning else ""
     if loop.state.waits_for_readings:
         regulator.mode = RegulatorMode.CLOSED
-        return f"setpoint {value:g} K, applied once readings are valid"
+        return f"setpoint {value:g} K, applied once readings are valid{said}"
     if regulator.mode is not RegulatorMode.CLOSED:
         loop.close_loop_now()
     ramp = regulator.ramp.rate_K_per_min
-    return f"setpoint {value:g} K" + (f", ramping at {ramp:g} K/min" if ramp else "")
+    return f"setpoint {value:g} K" + (f", ramping at {ramp:g} K/min" if ramp else "") + said
 
 
 def _ramp(loop: "ControlLoop", value: float) -> str:
@@ -142,6 +145,21 @@ def _feedforward(loop: "ControlLoop", value: str) -> str:
     return term.describe()
 
 
+def _note(loop: "ControlLoop", value) -> str:
+    raise CommandRefused("a note is written into the record by the daemon (cryod ctl note TEXT), not by the loop")
+
+
+def note_text(text: str) -> str:
+    """A note's text as the record takes it: printable, on one line, not empty (ValueError otherwise)."""
+    text = text.strip(" \t")
+    if not text:
+        raise ValueError("empty")
+    bad = next((character for character in text if not character.isprintable()), None)
+    if bad is not None:
+        raise ValueError(f"not printable text (holds {bad!r})")
+    return text
+
+
 def _choice(*choices: str) -> Callable[[str], str]:
     def parse(text: str) -> str:
         if text not in choices:
@@ -192,6 +210,8 @@ class CommandSpec:
         How many words the argument may have (given, it takes the words joined by a space;
         0 among them: the argument may be left out, and the value is None). Default: one
         word when there is an argument, none otherwise.
+    rest_of_line : bool
+        The argument is the rest of the line, spaces included (a note's text).
     """
 
     name: str
@@ -201,6 +221,7 @@ class CommandSpec:
     from_socket: bool = True
     parse: Callable[[str], object] = plain_decimal
     word_counts: tuple[int, ...] | None = None
+    rest_of_line: bool = False
 
     @property
     def counts(self) -> tuple[int, ...]:
@@ -227,6 +248,8 @@ COMMANDS: dict[str, CommandSpec] = {spec.name: spec for spec in (
                 parse=_alarm_request, word_counts=(0, 2)),
     CommandSpec("reload", None, "read the configuration file again and apply it if it is valid and needs no "
                 "restart (as systemctl reload)", _reload),
+    CommandSpec("note", "TEXT", "write TEXT into the record being written (# event: note: TEXT, with who sent it) "
+                "and the journal", _note, parse=note_text, rest_of_line=True),
     CommandSpec("modulate", "(MEAN_W, AMPLITUDE_W, RAD_S)", "open loop, heater modulated about a mean "
                 "(cryod identify --acquire)", _modulate, from_socket=False),
 )}
@@ -262,6 +285,8 @@ def parse_command(line: str) -> Command:
         what = "empty command" if not words else f"unknown command {shown(words[0])}"
         raise ValueError(f"{what}; commands: {socket_usage()}")
     arguments = words[1:]
+    if spec.rest_of_line and arguments:
+        arguments = [_WORD_SEPARATORS.split(line.strip(" \t\n\r\v\f"), maxsplit=1)[1]]
     if len(arguments) not in spec.counts:
         counts = " or ".join(str(count) for count in spec.counts)
         raise ValueError(f"'{spec.name}' takes {counts} argument(s): {spec.usage}")

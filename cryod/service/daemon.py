@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import collections
 import faulthandler
-import functools
 import logging
 import math
 import os
@@ -35,6 +34,7 @@ import numpy as np
 
 from cryod import __version__
 from cryod.config import DaemonConfig, load_config, located_error
+from cryod.control.setpoint_reach import controller_model
 from cryod.instrument_waits import InstrumentWaits
 from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
@@ -52,6 +52,7 @@ from cryod.service.web import WebServer
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
 from cryod.service.realtime import RealtimeSession
 from cryod.service.control_socket import ControlSocketServer
+from cryod.service.notes import write_note
 from cryod.service.notify import SystemdNotifier
 from cryod.service.stop_signals import (REQUESTED_STOP_SIGNALS, SignalWatch, exit_code_for,
                                         install_thread_exception_hook, signal_received)
@@ -149,6 +150,8 @@ class Daemon:
         self.instrument_addresses = instrument_addresses
         self.loop: ControlLoop | None = None
         self.datalog: DataLog | None = None
+        #: Why the run did not start because another daemon runs this cryostat (None otherwise).
+        self.not_started: str | None = None
         #: The latest row and faults, for the status line and the metrics endpoint.
         self.live_view = LiveView(config.loop.period_s, cooler_rad_s(config))
         #: The latest rows and events for the web page's history (a row tap only when the page is on).
@@ -322,6 +325,12 @@ class Daemon:
 
     # -- the control socket before the loop runs ---------------------------------
     def _submit(self, command: Command) -> Command:
+        if command.name == "note":
+            if self.datalog is None:
+                command.answer(False, "note refused: no record is open yet")
+            else:
+                command.answer(True, write_note(self.datalog.put, str(command.value), command.sender))
+            return command
         if command.name == "reload" and command.value is None:
             # read and checked on the service thread, as for SIGHUP; answered when the loop has taken it
             self._socket_reloads.append(command)
@@ -334,10 +343,17 @@ class Daemon:
             return command
         return self.loop.submit(command)
 
+    def record_path(self) -> str | None:
+        """The record being written now (the data log's latest file, as an absolute path), None before the first."""
+        paths = self.datalog.paths if self.datalog is not None else []
+        return str(paths[-1].absolute()) if paths else None
+
     def _status(self) -> dict:
         if self.loop is None:
-            return {"state": "waiting", "message": self._waiting, "heater_W": None}
+            return {"state": "waiting", "message": self._waiting, "heater_W": None, "record_path": self.record_path()}
         status = self.loop.status.as_dict()
+        status["record_path"] = self.record_path()
+        status["setpoint_warning"] = self.loop.setpoint_warning
         # figures over the recent past, computed on this (the socket's) thread
         status["T2_average_K"] = self.live_view.flange_average_K()
         status["line_amplitude_K"] = self.live_view.line_amplitude_K()
@@ -545,6 +561,7 @@ class Daemon:
         try:
             lock.acquire()
         except AlreadyRunning as error:
+            self.not_started = str(error)
             log.critical("not started: %s", error)
             return None
         except OSError as error:                # a folder cryod run's checks found usable a moment ago
@@ -624,19 +641,7 @@ def stop_grace_s(config: DaemonConfig) -> float:
 
 def cooler_rad_s(config: DaemonConfig) -> float:
     """The cooler's angular frequency (rad/s) in the controller's model (the feedforward's, else the shipped)."""
-    from cryod.model import DEFAULT_MODEL_PATH
-
-    for name, settings in config.control.terms:
-        if name == "feedforward" and getattr(settings, "model", None) is not None:
-            return settings.model.ptc.angular_frequency_rad_s
-    return _model_cooler_rad_s(DEFAULT_MODEL_PATH)
-
-
-@functools.lru_cache(maxsize=4)
-def _model_cooler_rad_s(path) -> float:
-    from cryod.model import load_model
-
-    return load_model(path).ptc.angular_frequency_rad_s
+    return controller_model(config.control)[0].ptc.angular_frequency_rad_s
 
 
 def _fan_out(receivers: list[Callable]) -> Callable:

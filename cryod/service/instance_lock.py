@@ -49,7 +49,9 @@ import re
 from pathlib import Path
 
 class AlreadyRunning(RuntimeError):
-    """Another daemon holds the lock of this cryostat."""
+    """Another daemon holds the lock of this cryostat; ``holder`` names its process (``process 4242``)."""
+
+    holder = "process unknown"
 
 
 class InstrumentInUse(AlreadyRunning):
@@ -108,8 +110,10 @@ class InstanceLock:
         if not held:
             holder = _holder(fd).removeprefix("process ")
             os.close(fd)
-            raise AlreadyRunning(f"another cryod daemon (process {holder}) holds {self.path}: it runs this "
-                                 f"cryostat; no instrument was touched")
+            error = AlreadyRunning(f"another cryod daemon (process {holder}) holds {self.path}: it runs this "
+                                   f"cryostat; no instrument was touched")
+            error.holder = f"process {holder}"
+            raise error
         _say_holder(fd, f"{os.getpid()}")
         self._fd = fd
 

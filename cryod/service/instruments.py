@@ -146,7 +146,18 @@ class DriverInstruments:
         self.on_close = on_close
         for dmm in pair.dmms:                  # asked only after the heater is off (examine)
             dmm.examines_faults_at_once = False
-        self._wait_for_replies(waits.loop_reply_s)
+        self.loop_reply_s = waits.loop_reply_s
+        self._wait_for_replies(self.loop_reply_s)
+
+    def wait_on_loop_path(self, reply_s: float) -> None:
+        """Wait ``reply_s`` (real time) for a reply on the loop's path from now on.
+
+        A paced dry run's simulated instruments answer in no simulated time: a reply that comes
+        late in real time is the machine's load, not the instrument's, and is waited for up to
+        ``instruments.timeout_s`` instead of five periods.
+        """
+        self.loop_reply_s = reply_s
+        self._wait_for_replies(reply_s)
 
     def _wait_for_replies(self, timeout_s: float) -> None:
         for transport in self.transports:
@@ -179,7 +190,7 @@ class DriverInstruments:
             self.pair.prepare()
             self.heater.configure()
         finally:
-            self._wait_for_replies(self.waits.loop_reply_s)
+            self._wait_for_replies(self.loop_reply_s)
 
     def close(self) -> None:
         """Heater output off first, then everything else (each step best effort)."""

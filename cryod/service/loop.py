@@ -33,11 +33,13 @@ from typing import Callable, Protocol
 
 from cryod.config import DaemonConfig, located_error
 from cryod.control.regulator import HeaterPowerOutput, Regulator, RegulatorMode
+from cryod.control.setpoint_reach import setpoint_warning
 from cryod.control.terms import term_columns
 from cryod.records.columns import TIME_DECIMALS, Event, Row, RowSchema, loop_schema
 from cryod.service.commands import Command, CommandRefused, apply_command
 from cryod.service.fault_episodes import FaultEpisodes
 from cryod.service.faults import ExitCode, Fault, FaultCause, ReadingChecks, fault_from_instrument_error
+from cryod.service.logs import reply_for_log
 from cryod.service.realtime import LoopGarbageCollector
 from cryod.service.states import LoopState
 from cryod.service.timing import LoopTiming
@@ -203,6 +205,17 @@ class ControlLoop:
         self._setting_time_s = 0.002       # from the regulator's step to the heater being set (learned)
         self._tick_start_s = 0.0
         self._gc = LoopGarbageCollector()
+        #: Why the heater cannot hold the setpoint asked for (None: it can, or none was asked for).
+        self.setpoint_warning: str | None = None
+        self.warn_about_setpoint(config.control.setpoint_K)
+
+    def warn_about_setpoint(self, setpoint_K: float | None) -> str | None:
+        """Say in the journal when the heater cannot hold ``setpoint_K`` (the controller's model against
+        R I_max^2), and keep it for the status; the warning, or None."""
+        self.setpoint_warning = setpoint_warning(self.config.control, setpoint_K, self.config.heater.max_power_w)
+        if self.setpoint_warning:
+            log.warning("%s", self.setpoint_warning)
+        return self.setpoint_warning
 
     # -- from other threads ---------------------------------------------------
     def submit(self, command: Command) -> Command:
@@ -620,7 +633,7 @@ class ControlLoop:
         self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}{sender}")
         if command.name != "reload":              # the daemon's reload says it in the journal itself
             log.log(logging.INFO if ok else logging.WARNING, "command %s %s: %s%s", command.name,
-                    "accepted" if ok else "refused", message, sender)
+                    "accepted" if ok else "refused", reply_for_log(message), sender)
         self._answers.append((command, ok, message))
 
     def _answer_commands(self) -> None:

@@ -13,6 +13,8 @@ Examples
 ('5.000012 K', '550.0 µK', '500.000 mW')
 >>> readable("lateness_ms_p99", 0.0412), readable("ramp_K_per_min", 0.5), readable("state", "closed")
 ('0.04 ms', '0.5 K/min', 'closed')
+>>> readable("ff_phase_rad", 5082.042), readable("ff_locked", 1)
+("5.228 rad (the cooler's phase within its cycle, 0 to 2 pi)", 'yes')
 >>> rounded({"heater_W": 0.5000000000000001, "rms_K": 1.3511053281048303e-05, "ticks": 3750})
 {'heater_W': 0.5, 'rms_K': 1.351105e-05, 'ticks': 3750}
 """
@@ -32,12 +34,28 @@ def _unit(key: str) -> str:
     return ""
 
 
+def _in_words(key: str, value: float) -> str | None:
+    """The feedforward's status values in the lab's words (None: the key is read by its unit)."""
+    if key == "ff_phase_rad":             # the tracker counts whole cycles too: the phase within one is what means
+        return f"{value % (2.0 * math.pi):.3f} rad (the cooler's phase within its cycle, 0 to 2 pi)"
+    if key == "ff_locked":
+        return "yes" if value else "no (the waveform waits for the lock)"
+    if key == "ff_scale":
+        return f"{100.0 * value:.0f} % (the waveform faded in)"
+    if key == "ff_W":
+        return f"{value * 1e3:.3f} mW (the waveform's part, added to PI's: negative is normal)"
+    return None
+
+
 def readable(key: str, value) -> str:
-    """``value`` of status key ``key`` as text with its unit."""
+    """``value`` of status key ``key`` as text with its unit (the feedforward's few in words)."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "-"
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return str(value)
+    words = _in_words(key, value)
+    if words is not None:
+        return words
     unit = _unit(key)
     if unit == "K":
         if abs(value) < SMALL_K:

@@ -4,9 +4,13 @@ The configuration is validated as for ``cryod run``; the drivers are the real
 ones; only the far end differs: the simulated bench (simulated cryostat,
 Keithley 2002s and heater supply speaking their SCPI). By default the drivers
 reach it through pyvisa-py over TCP on 127.0.0.1, in real time. ``--speed X``
-runs the clock X times faster; ``--speed max`` runs on virtual time as fast as
-the CPU allows, with the in-process transport (a virtual clock cannot be
-shared with server threads).
+above 1 runs on simulated time paced to X times real time
+(:class:`~drivers.paced_clock.PacedClock`): a machine that cannot keep
+that pace slows the simulated clock instead of missing deadlines, and the
+speed it achieved is in the status line and the summary (``achieved_speed``);
+below 1 the clock runs X times real time. ``--speed max`` runs on virtual time
+as fast as the CPU allows, with the in-process transport (a clock that never
+waits cannot be shared with server threads).
 
 Trigger modes: ``external`` and ``sequential`` are simulated as configured;
 ``gpib-group`` uses the simulated GPIB board in process, and over TCP (which
@@ -31,9 +35,11 @@ from pathlib import Path
 import numpy as np
 
 from drivers.clock import clock_for_speed
+from drivers.paced_clock import PacedClock
 from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config, located_error
 from cryod.service.daemon import Daemon
 from cryod.service.discovery import simulation_socket
+from cryod.service.instance_lock import AlreadyRunning, InstanceLock
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
 from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit, limit_changes
 from cryod.control.limit_binding import limit_binding
@@ -188,6 +194,8 @@ class SimulatedInstrumentsOpener:
         except BaseException:
             self._stack.close()
             raise
+        if isinstance(clock, PacedClock) and config.simulation.transport != "in-process":
+            instruments.wait_on_loop_path(config.instruments.timeout_s)
         log.info("simulated instruments over %s; trigger: %s", config.simulation.transport, self.trigger_note)
         return instruments, flange_curve, stage_curve
 
@@ -224,7 +232,7 @@ def prepare_simulation(args) -> tuple[DaemonConfig, object, Path]:
         raise SimulationNotStarted(f"configuration not usable, nothing was started: {error}") from None
     except ValueError as error:
         raise SimulationNotStarted(str(error)) from None
-    problem = check_calibrations(config)
+    problem = socket_taken(config.control_socket.path) or check_calibrations(config)
     if problem:
         raise SimulationNotStarted(problem)
     model_path = args.sim_model or config.simulation.model or DEFAULT_MODEL_PATH
@@ -258,7 +266,8 @@ def execute_simulation(args, stream=None) -> SimulationRun:
     daemon = Daemon(config, opener, clock, metadata=metadata, row_taps=[collector],
                     reload_config=lambda: simulation_config(args, load_config(config_path)),
                     install_signal_handlers=threading.current_thread() is threading.main_thread())
-    status_line = StatusLine(daemon.live_view, stream, duration_s=args.duration)
+    status_line = StatusLine(daemon.live_view, stream, duration_s=args.duration,
+                             speed=clock.recent_speed if isinstance(clock, PacedClock) else None)
     logging_service = ServiceLogging(stream=status_line.log_stream)
     logging_service.start()
     status_line.start()
@@ -272,11 +281,31 @@ def execute_simulation(args, stream=None) -> SimulationRun:
     finally:
         status_line.stop()
         logging_service.stop()
+    if daemon.not_started is not None:         # another dry run took the socket meanwhile
+        raise SimulationNotStarted(f"{daemon.not_started}; {ANOTHER_SOCKET}")
     summary = summarize(result, collector, model.ptc.angular_frequency_rad_s, _cpu_seconds() - cpu_start)
+    summary["achieved_speed"] = achieved_speed(clock, summary["duration_s"], result.wall_s)
     summary.update(simulated_limit(model, config, result.loop, summary["setpoint_K"]))
     summary.update(feedforward_learning(result.loop))
     summary["trigger"] = opener.trigger_note
     return SimulationRun(result.exit_code, summary, list(result.log_paths))
+
+
+#: What to do when this user's dry run socket is taken.
+ANOTHER_SOCKET = "stop that dry run, or give this one a socket of its own with --socket PATH"
+
+
+def socket_taken(socket_path: Path) -> str | None:
+    """Why a dry run cannot use ``socket_path`` (another daemon holds its lock), or None."""
+    lock = InstanceLock(socket_path)
+    try:
+        lock.acquire()
+    except AlreadyRunning as error:
+        return f"another cryod ({error.holder}) is using the control socket {socket_path}: {ANOTHER_SOCKET}"
+    except OSError:
+        return None             # the daemon says at its start why the lock cannot be taken
+    lock.release()
+    return None
 
 
 def run_simulation(args) -> int:
@@ -420,6 +449,13 @@ def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None)
             "feedforward_limit_changes": [change.to_dict() for change in changes]}
 
 
+def achieved_speed(clock, simulated_s: float, wall_s: float) -> float | None:
+    """Simulated seconds per real second the run achieved (the paced clock's own figure when it has one)."""
+    if isinstance(clock, PacedClock):
+        return round(clock.achieved_speed(), 3)
+    return round(simulated_s / wall_s, 3) if wall_s > 0 else None
+
+
 def feedforward_learning(loop) -> dict:
     """What the feedforward learned of the simulated cryostat by the end (nothing without a feedforward term)."""
     term = loop.regulator.term("feedforward") if loop is not None else None
@@ -433,11 +469,13 @@ def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: floa
     _, flange, stage, setpoint, flange_instants, stage_instants = collector.arrays()
     metrics = regulation_metrics(flange_instants, flange, stage, setpoint, line_rad_s, ptc_stage_time_s=stage_instants,
                                  lead_in_s=TRACKER_LEAD_IN_S)
+    # the loop's time in ticks; deadlines an overrun skipped add missed_deadlines periods to the record's span
     duration = timing.get("ticks", 0) * (loop.period_s if loop else 0.0)
     return {
         "duration_s": round(duration, 3),
         "ticks": timing.get("ticks", 0),
         "overruns": timing.get("overruns", 0),
+        "missed_deadlines": timing.get("missed_deadlines", 0),
         "lateness_ms_p50": timing.get("lateness_ms_p50"),
         "lateness_ms_p99": timing.get("lateness_ms_p99"),
         "lateness_ms_max": timing.get("lateness_ms_max"),
@@ -456,7 +494,9 @@ def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: floa
         "setpoint_K": float(setpoint[-1]) if setpoint.size and np.isfinite(setpoint[-1]) else None,
         "state": loop.status.state if loop else None,
         "last_fault": str(loop.last_fault) if loop and loop.last_fault else None,
+        "setpoint_warning": loop.setpoint_warning if loop else None,
         "exit_code": result.exit_code,
         "log_path": str(result.log_paths[0]) if result.log_paths else None,
+        "record_path": str(result.log_paths[-1]) if result.log_paths else None,
         "log_paths": [str(path) for path in result.log_paths],
     }

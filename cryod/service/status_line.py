@@ -63,6 +63,12 @@ def format_status(snapshot: dict) -> str:
     lateness = snapshot.get("lateness_ms", math.nan)
     if math.isfinite(lateness):
         parts.append(f"lateness {lateness:.1f} ms")
+    overruns = snapshot.get("overruns", 0)
+    if overruns:
+        parts.append(f"overruns {overruns}")
+    speed = snapshot.get("achieved_speed")
+    if speed is not None and math.isfinite(speed):
+        parts.append(f"speed {speed:.1f}x")
     faults = sum(snapshot.get("faults", {}).values())
     if faults:
         parts.append(f"faults {faults} (last: {snapshot.get('last_fault')})")
@@ -100,10 +106,14 @@ class StatusLine:
         Length of the run in clock seconds, for the progress bar and the time left.
     refresh_s : float
         Wall time between redraws (s).
+    speed : callable, optional
+        Returns the simulated seconds per real second achieved lately (a paced dry run's clock).
     """
 
-    def __init__(self, view: LiveView, stream, duration_s: float | None = None, refresh_s: float = REFRESH_S):
+    def __init__(self, view: LiveView, stream, duration_s: float | None = None, refresh_s: float = REFRESH_S,
+                 speed=None):
         self.view = view
+        self.speed = speed
         self.stream = stream
         self.duration_s = duration_s
         self.refresh_s = refresh_s
@@ -142,6 +152,8 @@ class StatusLine:
             while True:
                 stopping = self._stop.wait(self.refresh_s)
                 snapshot = self.view.snapshot()
+                if self.speed is not None:
+                    snapshot["achieved_speed"] = self.speed()
                 elapsed = snapshot["elapsed_s"]
                 bar.n = min(elapsed, total) if total else elapsed
                 bar.set_description_str(format_status(snapshot), refresh=False)

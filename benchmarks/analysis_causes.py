@@ -1,6 +1,7 @@
-"""How often ``cryod analyze`` names the right causes on records like real ones: the issue-12 benchmark.
+"""How often ``cryod analyze`` names the right causes on records like real ones.
 
 Run: PYTHONPATH=. python3 benchmarks/analysis_causes.py [--records N] [--processes 2] [--seed S] [--json PATH]
+     [--only INDEXES]
 
 Every record comes from a cryostat whose base parameters are off the shipped
 model's at random (each gain and time constant by up to +-5 %, the line's phase
@@ -16,7 +17,18 @@ Three kinds of record:
 * one effect, its size drawn over the range the analysis is meant to detect
   (:data:`RANGES`);
 * two effects from different groups (heater path, link and thermometers,
-  cooler), each drawn the same way.
+  cooler), each drawn the same way;
+* the cooler's amplitude modulation and the cold end's drift, once per protocol;
+* base model off: one parameter of the cryostat 10-30 % off the shipped
+  model's (:data:`FAR_OFF_PARAMETERS`; the answer is ``base_model_off``);
+* outside the catalogue: :data:`OUTSIDE_EFFECTS`, twice each (the answer is
+  ``unexplained``, or ``none`` for an effect too small to matter), with the
+  generic extension's held-out gain;
+* the daemon's own records: ``cryod --simulate --sim-model MODEL`` (30 min of
+  the daemon regulating at its configured setpoint with its feedforward) on a
+  model file with one parameter 10-30 % off (the answer is ``base_model_off``),
+  or with a disturbance of the model's generic kind (:data:`DAEMON_OUTSIDE`:
+  an unrecorded heat load, a pickup; the answer is ``unexplained`` or ``none``).
 
 Every record is analysed against the shipped model (``config/model.yaml``), as a
 user would; a multiprocessing pool of ``--processes`` (2 at most) shares the
@@ -32,6 +44,7 @@ import json
 import math
 import multiprocessing
 import sys
+import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -61,8 +74,8 @@ def _either(generator, negative, positive):
 def draw_effect(cause: str, generator):
     """(changes for the model, {fitted parameter: true value}) of one effect of random size in its range."""
     from cryod.model import (
-        DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, PtcFrequencyDrift, PtcHarmonic,
-        SensorLag,
+        DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, PtcAmplitudeModulation,
+        PtcFrequencyDrift, PtcHarmonic, PtcStageDrift, SensorLag,
     )
 
     if cause == "sensor_lag":
@@ -96,6 +109,17 @@ def draw_effect(cause: str, generator):
         phase = float(generator.uniform(-math.pi, math.pi))
         return ({"ptc_frequency_drift": PtcFrequencyDrift(0.0, amplitude, period, phase)},
                 {"wander_amplitude_rad_s": amplitude, "wander_period_s": period})
+    if cause == "ptc_amplitude_modulation":
+        depth = float(generator.uniform(*RANGES[cause]["depth"]))
+        period = float(generator.uniform(*RANGES[cause]["period_s"]))
+        return ({"ptc_amplitude_modulation": PtcAmplitudeModulation(depth, period, float(generator.uniform(-3, 3)))},
+                {"depth": depth, "period_s": period})
+    if cause == "ptc_stage_drift":
+        rms = _log_uniform(generator, *RANGES[cause]["rms_K"])
+        coupling = float(generator.uniform(*RANGES[cause]["flange_coupling"]))
+        return ({"ptc_stage_drift": PtcStageDrift(rms, float(generator.uniform(300.0, 1200.0)), coupling, 150.0,
+                                                  int(generator.integers(0, 1000)))},
+                {"flange_coupling": coupling})
     raise ValueError(cause)
 
 
@@ -111,7 +135,11 @@ RANGES = {
     "ptc_harmonics": {"amplitude_K": (0.002, 0.025)},
     "ptc_frequency_drift": {"rate_rad_s_per_hour": (0.003, 0.05), "wander_fraction": (0.002, 0.01),
                             "wander_period_s": (600.0, 1800.0)},
+    "ptc_amplitude_modulation": {"depth": (0.03, 0.2), "period_s": (300.0, 1200.0)},
+    "ptc_stage_drift": {"rms_K": (0.5e-3, 3e-3), "flange_coupling": (0.3, 0.9)},
 }
+#: Catalogue causes of the new kind, each in every protocol: one-effect records beside the plan's.
+NEW_CAUSES = ("ptc_amplitude_modulation", "ptc_stage_drift")
 
 
 def plan(records: int, seed: int) -> list[dict]:
@@ -136,16 +164,117 @@ def plan(records: int, seed: int) -> list[dict]:
     for index in range(double):
         jobs.append({"kind": "two effects", "causes": list(pairs[index % len(pairs)]),
                      "protocol": protocols[(index // len(pairs) + index) % 3]})
+    for protocol in protocols:
+        for cause in NEW_CAUSES:
+            jobs.append({"kind": "one effect", "causes": [cause], "protocol": protocol})
+    for index in range(BASE_OFF_RECORDS):
+        jobs.append({"kind": "base model off", "causes": [], "protocol": protocols[index % 3],
+                     "off": FAR_OFF_PARAMETERS[index % len(FAR_OFF_PARAMETERS)]})
+    for index, name in enumerate(OUTSIDE_EFFECTS):
+        for repeat in range(2):
+            jobs.append({"kind": "outside the catalogue", "causes": [], "protocol": protocols[(index + repeat) % 3],
+                         "outside": name})
+    for name in FAR_OFF_PARAMETERS:
+        jobs.append({"kind": "base model off", "causes": [], "protocol": DAEMON, "off": name})
+    for name in DAEMON_OUTSIDE:
+        jobs.append({"kind": "outside the catalogue", "causes": [], "protocol": DAEMON, "outside": name})
     for index, job in enumerate(jobs):
         job["index"] = index
         job["seed"] = int(generator.integers(1, 2 ** 31))
     return jobs
 
 
+#: Base models further off than the recalibration allows: records of a cryostat whose parameter is off by
+#: 10-30 % (a heater's power scale: every heater path; the flange's time constant; the line's gain; G2's time
+#: constant), its other parameters off by up to 5 % as in every record.
+FAR_OFF_PARAMETERS = ("heater power scale", "flange time constant", "line gain", "thermometer time constant")
+BASE_OFF_RECORDS = 12
+FAR_OFF_RANGE = (0.10, 0.30)
+
+
+def far_off(model, parameter: str, generator):
+    """``model`` with ``parameter`` off by 10-30 % either way; returns (model, factor)."""
+    import dataclasses
+
+    from cryod.model import TransferFunction
+
+    factor = 1.0 + float(generator.choice([-1.0, 1.0])) * float(generator.uniform(*FAR_OFF_RANGE))
+    if parameter == "heater power scale":
+        return dataclasses.replace(model, heater_to_flange=model.heater_to_flange * factor,
+                                   heater_to_ptc_stage=model.heater_to_ptc_stage * factor), factor
+    if parameter == "flange time constant":
+        (zero, gain), (pole, one) = model.heater_to_flange.numerator, model.heater_to_flange.denominator
+        return dataclasses.replace(model, heater_to_flange=TransferFunction((zero, gain), (pole * factor, one))), factor
+    if parameter == "line gain":
+        return dataclasses.replace(model, ptc_to_flange=model.ptc_to_flange * factor), factor
+    tau = model.flange_to_thermometer.denominator[0] * factor
+    return dataclasses.replace(model, flange_to_thermometer=TransferFunction.first_order_lag(tau)), factor
+
+
+def _outside(name: str, model, duration_s: float):
+    """(model, make_record keyword arguments) of an effect outside the catalogue."""
+    import dataclasses
+
+    from cryod.model import TransferFunction
+
+    if name == "extra flange mode":           # a sample stage hanging off the flange: a mode G1 does not have
+        return dataclasses.replace(model, heater_to_flange=model.heater_to_flange
+                                   + TransferFunction.first_order_lag(20.0, 0.4)), {}
+    if name == "periodic heat load":          # a pump or a valve heating the flange every 400 s
+        return model, {"unrecorded_heat_w": lambda t: 0.001 * (1.0 + math.sin(2.0 * math.pi * t / 400.0))}
+    if name == "thermometer pickup":          # a 0.37 Hz vibration picked up by the flange thermometer's leads
+        return model, {"flange_offset_K": lambda t: 20e-6 * np.sin(2.0 * math.pi * 0.37 * t)}
+    from simulated_hw.hidden_effects import DISTURBANCES
+
+    return model, DISTURBANCES[name](duration_s)
+
+
+#: Effects outside the catalogue (the answer is ``unexplained``, or ``none`` when too small to matter).
+OUTSIDE_EFFECTS = ("heat leak step", "slow heat load drift", "thermometer drift", "extra flange mode",
+                   "periodic heat load", "thermometer pickup")
+#: The daemon's own records: ``cryod --simulate --sim-model`` for this long.
+DAEMON = "daemon"
+DAEMON_DURATION_S = 1800.0
+#: Disturbances put into the daemon's simulated cryostat (the model's generic kind).
+DAEMON_OUTSIDE = ("daemon: unrecorded heat load", "daemon: flange thermometer pickup")
+
+
+def _daemon_disturbance(name: str):
+    from cryod.model import Disturbance, Pickup, SlowProcess
+
+    if name == "daemon: unrecorded heat load":
+        return Disturbance(unrecorded_heat=SlowProcess(1e-3, 600.0, 7))
+    return Disturbance(pickups=(Pickup("flange", 0.37, 20e-6, 0.5),))
+
+
+def daemon_record(model, folder: Path, seed: int) -> Path:
+    """A record of the daemon (``cryod --simulate``, the example configuration) on a cryostat of ``model``."""
+    import io
+
+    from cryod.model import save_model
+    from cryod.service.simulation import simulate
+
+    model_path = folder / "simulated-cryostat.yaml"
+    save_model(model, model_path)
+    run = simulate(DAEMON_DURATION_S, sim_model=model_path, seed=seed, data_dir=folder / "data",
+                   socket=folder / "control.sock", log_stream=io.StringIO())
+    if run.exit_code != 0:
+        raise RuntimeError(f"the simulated daemon stopped with {run.exit_code}: {run.summary.get('last_fault')}")
+    return Path(run.log_paths[0])
+
+
 def run_one(job: dict) -> dict:
-    """Make one record and analyse it; returns what was found."""
+    """Make one record and analyse it; returns what was found (a failure to make the record is reported as one)."""
+    try:
+        return _run_one(job)
+    except Exception as error:                                   # reported as a failure, the run goes on
+        return {**job, "truths": {}, "named": [], "cause": f"error: {error}", "reason": repr(error),
+                "parameters": {}, "wall_s": 0.0, "cpu_s": 0.0}
+
+
+def _run_one(job: dict) -> dict:
     from cryod.analysis.pipeline import analyze
-    from cryod.analysis.record_data import RecordData
+    from cryod.analysis.record_data import RecordData, read_record_data
     from cryod.model import load_model
     from cryod.records.record import Record
     from simulated_hw.hidden_effects import other_day, perturbed_base
@@ -164,9 +293,20 @@ def run_one(job: dict) -> dict:
         truths[cause] = truth
     model, perturbation = perturbed_base(model, int(generator.integers(1, 2 ** 31)))
     protocol = job["protocol"]
-    record = make_record(model, protocol, duration_s=PROTOCOL_DURATIONS_S[protocol],
-                         seed=int(generator.integers(1, 2 ** 31)), controller_model=shipped)
-    data = RecordData.from_record(Record(record.metadata, record.columns, source=f"record {job['index']}"))
+    extra = {}
+    if job.get("off"):
+        model, truths["base_model_off"] = far_off(model, job["off"], generator)
+    if protocol == DAEMON:
+        if job.get("outside"):
+            model = model.with_effects(disturbance=_daemon_disturbance(job["outside"]))
+        with tempfile.TemporaryDirectory() as folder:
+            data = read_record_data(daemon_record(model, Path(folder), int(generator.integers(1, 2 ** 31))))
+    else:
+        if job.get("outside"):
+            model, extra = _outside(job["outside"], model, PROTOCOL_DURATIONS_S[protocol])
+        record = make_record(model, protocol, duration_s=PROTOCOL_DURATIONS_S[protocol],
+                             seed=int(generator.integers(1, 2 ** 31)), controller_model=shipped, **extra)
+        data = RecordData.from_record(Record(record.metadata, record.columns, source=f"record {job['index']}"))
     started, cpu = time.perf_counter(), time.process_time()
     try:
         analysis = analyze(data, shipped)
@@ -176,10 +316,27 @@ def run_one(job: dict) -> dict:
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu
     named = {item.cause: _plain(item.fit.parameters) for item in analysis.causes} \
         if analysis.cause not in ("none", "unexplained") else {}
+    generic = analysis.generic
+    families = {item.family: item.score.explained_fraction for item in generic.families if item.score is not None} \
+        if generic is not None else {}
     return {**job, "truths": truths, "named": list(named), "cause": analysis.cause,
+            "generic_used": list(generic.used) if generic is not None else [],
+            "generic_removed": generic.score.explained_fraction if generic is not None else None,
+            "generic_families": families, "at_tolerance_within": _at_tolerance(analysis),
             "reason": analysis.decision.reason, "parameters": named, "wall_s": wall, "cpu_s": cpu,
             "gain": analysis.decision.gain.ratio, "recalibrated": analysis.recalibrated,
-            "perturbation": perturbation}
+            "perturbation": perturbation,
+            "generic_gain": generic.score.gain.ratio if generic is not None else None,
+            "generic_added": bool(generic is not None and generic.added),
+            "remaining": bool(analysis.remaining is not None and analysis.remaining.present)}
+
+
+def _at_tolerance(analysis) -> list[str]:
+    beyond = analysis.beyond_recalibration
+    if beyond is not None:
+        return list(beyond.at_tolerance)
+    recalibration = analysis.final_recalibration or analysis.recalibration
+    return [row.parameter for row in recalibration.table() if row.at_tolerance] if recalibration else []
 
 
 def _plain(parameters: dict) -> dict:
@@ -188,9 +345,21 @@ def _plain(parameters: dict) -> dict:
 
 
 def judged(result: dict) -> dict:
-    """Right or wrong, and each true parameter's relative error."""
-    truths = result["truths"]
-    right = sorted(result["named"]) == sorted(truths)
+    """Right or wrong, and each true parameter's relative error (a base model far off: ``base_model_off``;
+    an effect outside the catalogue: no catalogue cause)."""
+    if str(result["cause"]).startswith("error:"):
+        return {"right": False, "errors": {}, "parameters_within": False, "wrong_cause": False}
+    truths = dict(result["truths"])
+    catalogue = [cause for cause in result["named"]]
+    wrong_cause = bool(set(catalogue) - set(truths)) or (result["cause"] == "base_model_off"
+                                                          and "base_model_off" not in truths)
+    if result["kind"] == "base model off":
+        right = result["cause"] == "base_model_off" and not set(catalogue)
+        return {"right": right, "errors": {}, "parameters_within": right, "wrong_cause": wrong_cause}
+    if result["kind"] == "outside the catalogue":
+        right = result["cause"] in ("unexplained", "none")
+        return {"right": right, "errors": {}, "parameters_within": right, "wrong_cause": wrong_cause}
+    right = sorted(result["named"]) == sorted(truths) and result["cause"] != "base_model_off"
     errors = {}
     for cause, truth in truths.items():
         fitted = result["parameters"].get(cause, {})
@@ -198,7 +367,7 @@ def judged(result: dict) -> dict:
             value = fitted.get(name)
             errors[f"{cause}.{name}"] = abs(value - true) / abs(true) if value is not None else math.inf
     within = right and all(error <= PARAMETER_TOLERANCE for error in errors.values())
-    return {"right": right, "errors": errors, "parameters_within": within}
+    return {"right": right, "errors": errors, "parameters_within": within, "wrong_cause": wrong_cause}
 
 
 def tables(results: list[dict]) -> str:
@@ -208,7 +377,9 @@ def tables(results: list[dict]) -> str:
     for result in results:
         by_kind[result["kind"]].append((result, judged(result)))
     goals = {"clean": ("`none`", 0.97), "one effect": ("cause named right", 0.97),
-             "two effects": ("both causes named, nothing else", 0.90)}
+             "two effects": ("both causes named, nothing else", 0.90),
+             "base model off": ("`base_model_off`", 1.0),
+             "outside the catalogue": ("`unexplained` or `none`, no catalogue cause", 0.97)}
     lines += ["| records | count | goal | right | rate | goal met | every parameter within 20 % (of those right) |",
               "|---|---|---|---|---|---|---|"]
     for kind, (goal, rate) in goals.items():
@@ -219,6 +390,41 @@ def tables(results: list[dict]) -> str:
         parameters = f"{within} of {right}" if kind != "clean" else "-"
         lines.append(f"| {kind} | {len(items)} | {goal} >= {100 * rate:.0f} % | {right} | {100 * share:.1f} % | "
                      f"{'yes' if share >= rate else 'no'} | {parameters} |")
+    wrong = sum(judged(result)["wrong_cause"] for result in results)
+    lines += ["", f"A wrong catalogue cause (or `base_model_off` where the base model is not far off) in {wrong} "
+                  f"of {len(results)} records ({100.0 * wrong / max(len(results), 1):.1f} %; goal at most 3 %)."]
+    lines += ["", "| effect | protocol | verdict | discrepancy left | generic families used | removes | "
+                  "held-out gain | added | each family alone removes |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for result in results:
+        if result["kind"] in ("outside the catalogue", "base model off"):
+            what = result.get("outside") or (f"base model off: {result.get('off')} "
+                                             f"x{result['truths'].get('base_model_off', 1):.2f}")
+            gain, removed = result.get("generic_gain"), result.get("generic_removed")
+            alone = ", ".join(f"{family} {100.0 * fraction:.0f} %" for family, fraction in
+                              sorted(result.get("generic_families", {}).items(), key=lambda item: -item[1]))
+            lines.append(f"| {what} | {result['protocol']} | {', '.join(result['named']) or result['cause']} | "
+                         f"{'yes' if result.get('remaining') else 'no'} | "
+                         f"{' + '.join(result.get('generic_used', [])) or '-'} | "
+                         f"{'-' if removed is None else f'{100.0 * removed:.1f} %'} | "
+                         f"{'-' if gain is None else f'{gain:.3g}'} | {'yes' if result.get('generic_added') else 'no'} | "
+                         f"{alone or '-'} |")
+    lines += ["", "| kind | records | verdict right | generic extension added | its held-out gain: median (least, "
+                  "most) | families used |", "|---|---|---|---|---|---|"]
+    kinds = defaultdict(list)
+    for result in results:
+        if result["kind"] in ("outside the catalogue", "base model off"):
+            kinds[result.get("outside") or f"base model off: {result.get('off')}"].append(result)
+    for kind, items in kinds.items():
+        gains = [item["generic_gain"] for item in items if item.get("generic_added")]
+        used = defaultdict(int)
+        for item in items:
+            for family in item.get("generic_used", []) if item.get("generic_added") else []:
+                used[family] += 1
+        spread = (f"{np.median(gains):.3g} ({min(gains):.3g}, {max(gains):.3g})" if gains else "-")
+        lines.append(f"| {kind} | {len(items)} | {sum(judged(item)['right'] for item in items)} | "
+                     f"{sum(bool(item.get('generic_added')) for item in items)} | {spread} | "
+                     f"{', '.join(f'{family} ({count})' for family, count in used.items()) or '-'} |")
     lines += ["", "| cause | protocol | records | named right | parameters within 20 % |", "|---|---|---|---|---|"]
     cells = defaultdict(lambda: [0, 0, 0])
     for result, judgement in by_kind.get("one effect", []):
@@ -240,6 +446,8 @@ def tables(results: list[dict]) -> str:
     for result, judgement in failures:
         parts = []
         for cause, truth in result["truths"].items():
+            if not isinstance(truth, dict):
+                continue
             for name, true in truth.items():
                 fitted = result["parameters"].get(cause, {}).get(name)
                 parts.append(f"{name} {fitted:.4g} / {true:.4g}" if fitted is not None else f"{name} - / {true:.4g}")
@@ -265,14 +473,22 @@ def main() -> None:
     parser.add_argument("--processes", type=int, default=2, help="worker processes, at most 2 (default 2)")
     parser.add_argument("--seed", type=int, default=12, help="seed of the plan (default 12)")
     parser.add_argument("--json", default=None, help="also write every result to this JSON file")
+    parser.add_argument("--only", default=None, metavar="INDEXES",
+                        help="run only these records of the plan (comma-separated indexes)")
     args = parser.parse_args()
     jobs = plan(args.records, args.seed)
+    if args.only:
+        wanted = {int(index) for index in args.only.split(",")}
+        jobs = [job for job in jobs if job["index"] in wanted]
     processes = max(1, min(args.processes, 2))
     results = []
     started = time.perf_counter()
     with multiprocessing.get_context("spawn").Pool(processes) as pool:
         for result in pool.imap_unordered(run_one, jobs):
             results.append(result)
+            if args.json:                 # written as the results come: a run cut short keeps what it found
+                Path(args.json).write_text(json.dumps(sorted(results, key=lambda item: item["index"]), indent=1,
+                                                      default=str) + "\n", encoding="utf-8")
             print(f"{len(results)}/{len(jobs)} record {result['index']} ({result['kind']}, {result['protocol']}): "
                   f"{' + '.join(result['causes']) or 'none'} -> {', '.join(result['named']) or result['cause']} "
                   f"({result['wall_s']:.1f} s)", file=sys.stderr, flush=True)

@@ -30,6 +30,7 @@ from cryod.alarms.settings import AlarmsConfig, alarms_from_section
 from cryod.control.ramp import MIN_RATE_K_PER_MIN, rate_refusal
 from cryod.control.regulator import ControlConfig
 from cryod.control.terms import term_settings_from
+from cryod.control.zones import zone_table_from
 from cryod.instrument_waits import InstrumentWaits
 from cryod.listen_address import parse_address
 from cryod.thermometry import CalibrationCurve, load_calibration
@@ -543,7 +544,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     section.finish()
 
     control_section = top.section("control")
-    control = _control(control_section, safety)
+    control = _control(control_section, safety, heater)
     _check_limits_against_calibrations(control, control_section, safety, safety_section,
                                        (flange_curve, flange), (stage_curve, stage))
 
@@ -655,7 +656,7 @@ def _lakeshore336(section: Section | None) -> Lakeshore336Config | None:
     return lakeshore
 
 
-def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
+def _control(section: Section, safety: SafetyConfig, heater: HeaterConfig) -> ControlConfig:
     setpoint_min = section.number("setpoint_min_K", 1.0, minimum=0.0, exclusive_minimum=True)
     setpoint_max = section.number("setpoint_max_K", minimum=0.0, exclusive_minimum=True)
     if setpoint_max <= setpoint_min:
@@ -689,6 +690,7 @@ def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
         setpoint_max_K=setpoint_max,
         max_ramp_K_per_min=max_ramp,
         terms=term_settings_from(section),
+        zones=zone_table_from(section, setpoint_min, setpoint_max, heater.max_power_w),
     )
     section.finish()
     return control

@@ -91,15 +91,19 @@ def test_recalibration_is_reported_parameter_by_parameter(perturbed_identificati
 
 
 def test_the_recalibration_stays_within_its_tolerance():
-    """G1's static gain 20 % off: the recalibration stops at 10 % and the rest is left as a discrepancy
-    (an identification record: its steps from 0 W tell the static gain from the operating point)."""
+    """G1's static gain 20 % off: the recalibration stops at 10 %, and the record is said to need a base model
+    further off, with the value it asks for (an identification record: its steps from 0 W tell the static gain
+    from the operating point)."""
     model = other_day(base_model(), 0)
     parameters = structure_parameters(model)
     far = with_factors(model, parameters, [math.log(1.2)] + [0.0] * 7)
     analysis = analyze(_data(far, "identification", 1200.0, 4), base_model())
-    rows = analysis.recalibration.table()
+    within = analysis.beyond_recalibration.within_tolerance
+    rows = within.recalibration.table()
     assert rows[0].at_tolerance and rows[0].fitted == pytest.approx(6.8182 * math.exp(TOLERANCE))
-    assert analysis.cause != "none"
+    assert analysis.cause == "base_model_off" and not analysis.causes, analysis.decision.reason
+    asked = {row.parameter: row.fitted for row in analysis.beyond_recalibration.parameters}
+    assert asked["heater_to_flange static gain"] == pytest.approx(6.8182 * 1.2, rel=0.01)
 
 
 def test_a_dead_time_is_not_taken_for_a_time_constant():

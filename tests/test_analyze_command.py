@@ -44,7 +44,10 @@ def test_analyze_writes_report_figures_model_and_json(dead_time_record, tmp_path
     assert status == 0, err
     result = json.loads(out)
     assert set(result) == {"cause", "causes", "recalibrated", "discrepancies", "extended_model", "gain",
-                           "candidates"}
+                           "candidates", "remaining", "base_model_off", "generic_extension", "residual_signature"}
+    assert result["base_model_off"] is None and result["remaining"]["discrepancy"] is False
+    assert result["causes"][0]["equivalent_to"] == []
+    assert {"spectral_peaks", "drift", "cross_correlations", "segments", "resid"} <= set(result["residual_signature"])
     assert [named["cause"] for named in result["causes"]] == ["dead_time"]
     assert {"parameters", "explained_fraction", "gain"} <= set(result["causes"][0])
     assert {row["parameter"] for row in result["recalibrated"]["parameters"]} >= {
@@ -56,7 +59,11 @@ def test_analyze_writes_report_figures_model_and_json(dead_time_record, tmp_path
     assert all(set(d) == {"quantity", "model", "measured", "significance"} for d in result["discrepancies"])
     assert max(d["significance"] for d in result["discrepancies"]) > 100.0
     assert set(result["gain"]) == {"metric", "base", "extended", "ratio"} and result["gain"]["ratio"] > 5.0
-    assert sorted(c["cause"] for c in result["candidates"]) == sorted(set(CAUSES) - {"none", "unexplained"})
+    assert sorted(c["cause"] for c in result["candidates"]) == sorted(set(CAUSES) - {"none", "unexplained",
+                                                                                   "base_model_off"})
+    assert CAUSES == ("none", "sensor_lag", "link_dynamics", "dead_time", "heat_capacity_temperature",
+                      "heater_nonlinearity", "ptc_harmonics", "ptc_frequency_drift", "ptc_amplitude_modulation",
+                      "ptc_stage_drift", "unexplained", "base_model_off")
     assert all({"score", "parameters"} <= set(c) for c in result["candidates"])
     extended = load_model(result["extended_model"])
     assert extended.effects.dead_time.heater_to_flange_s == pytest.approx(1.5, rel=0.02)

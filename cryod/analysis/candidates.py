@@ -32,7 +32,7 @@ ptc_frequency_drift          the record replayed at the phase measured sample by
 
 When the base model is recalibrated (:mod:`cryod.analysis.recalibration`),
 every replay also fits the recalibration linearised about the model
-(:attr:`cryod.analysis.replay.Replayer.basis_for`): a cause and the
+(:attr:`FitContext.basis_for`): a cause and the
 recalibration are fitted together. The link cause replaces the line's gain and
 phase on T2, which it leaves out. Each fit that has numbers of its own says so
 (:class:`EffectForm`), for the joint refit of :mod:`cryod.analysis.refinement`.
@@ -45,6 +45,7 @@ from __future__ import annotations
 import cmath
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,7 +54,7 @@ from scipy import optimize
 from cryod.cooler.line import PtcLine, measurable_orders
 from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD, LINK_PARAMETERS, RecalibratedBase
 from cryod.analysis.record_data import RecordData
-from cryod.analysis.replay import Replay, Replayer
+from cryod.analysis.replay import LinearBasis, Replay, Replayer
 from cryod.model import (
     EFFECT_NAMES, CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, SensorLag,
 )
@@ -88,6 +89,22 @@ class FitContext:
     recalibrated: RecalibratedBase | None = None
     #: The model whose heater part of T5 is taken out before the line is measured in it (None: ``base_model``).
     line_model: CryostatModel | None = None
+    #: ``basis_for(line)``: the linearised model change (a :class:`~cryod.analysis.replay.LinearBasis`, the
+    #: recalibration's) fitted in every replay with that line, or None (see :mod:`cryod.analysis.recalibration`).
+    basis_for: Callable[[PtcLine | None], LinearBasis | None] | None = None
+
+    def basis(self, line: PtcLine | None, without=()) -> LinearBasis | None:
+        """The linearised model change fitted in replays with ``line`` (None: none), less ``without``."""
+        if self.basis_for is None:
+            return None
+        basis = self.basis_for(line)
+        return basis.without(without) if basis is not None and without else basis
+
+    def replay(self, model: CryostatModel, line: PtcLine | None = None, shared_columns=None, *,
+               basis_without=()) -> Replay:
+        """The record replayed with ``model`` (see :meth:`cryod.analysis.replay.Replayer.replay`), the context's
+        linearised model change fitted alongside, less the parameters ``basis_without``."""
+        return self.replayer.replay(model, line, shared_columns, basis=self.basis(line, basis_without))
 
     def fit_chi_square(self, replay: Replay) -> float:
         """Weighted sum of squares of both thermometers on the fit samples."""
@@ -141,6 +158,12 @@ class CandidateFit:
     effect: "EffectForm | None" = None
     excluded: tuple = ()
 
+    @property
+    def at_limit(self) -> bool:
+        """Whether the effect's values sit at a physical limit of the effect (:attr:`EffectForm.at_limit`)."""
+        effect = self.effect
+        return bool(effect is not None and effect.at_limit is not None and effect.at_limit(effect.values))
+
 
 @dataclass(frozen=True)
 class EffectForm:
@@ -157,6 +180,9 @@ class EffectForm:
         ``apply(model, values)``: the model with the effect at these values.
     describe : callable
         ``describe(model)``: the fitted parameters (a dict) of a model with the effect.
+    at_limit : callable, optional
+        ``at_limit(values)``: whether these values sit at a physical limit of the effect (a bound the physics
+        sets, not the search's).
     """
 
     values: tuple
@@ -165,13 +191,14 @@ class EffectForm:
     steps: tuple
     apply: object
     describe: object
+    at_limit: object = None
 
 
 def _effect_parameters(name: str):
     return lambda model: dataclasses.asdict(getattr(model.effects, name))
 
 
-def _scalar_search(objective, grid, bounds, tolerance):
+def scalar_search(objective, grid, bounds, tolerance):
     """Minimise a 1-D cost: the best of a grid, then bounded Brent between its neighbours."""
     grid = np.asarray(grid, dtype=float)
     values = np.array([objective(x) for x in grid])
@@ -194,7 +221,7 @@ class _CachedObjective:
 
     def __init__(self, context: FitContext, make_model, line: PtcLine, replay_for=None):
         self.context = context
-        self.replay_for = replay_for or (lambda value: context.replayer.replay(make_model(value), line))
+        self.replay_for = replay_for or (lambda value: context.replay(make_model(value), line))
         self.replays: dict[float, Replay] = {}
 
     def __call__(self, value: float) -> float:
@@ -241,10 +268,10 @@ def fit_sensor_lag(context: FitContext) -> CandidateFit:
         angle = cmath.phase(factor)
         stage = float(min(math.tan(angle) / omega, 30.0)) if smallest < angle < math.pi / 2 else 0.0
         stage_taus[tau] = stage
-        return replay if stage == 0.0 else context.replayer.replay(model(tau, stage), context.base_line)
+        return replay if stage == 0.0 else context.replay(model(tau, stage), context.base_line)
 
     objective = _CachedObjective(context, model, context.base_line, replay_at)
-    tau = _scalar_search(objective, np.geomspace(0.01, 20.0, 15), (0.0, 30.0), 1e-6)
+    tau = scalar_search(objective, np.geomspace(0.01, 20.0, 15), (0.0, 30.0), 1e-6)
     best = objective.replay(tau)
     stage = stage_taus[float(tau)]
     if stage > 0.0:
@@ -269,7 +296,7 @@ def fit_dead_time(context: FitContext) -> CandidateFit:
 
     grid = np.concatenate([np.arange(0.05, 2.0, 0.1), np.geomspace(2.0, longest, 10)])
     objective = _CachedObjective(context, model, context.base_line)
-    delay = _scalar_search(objective, grid, (0.0, longest), 1e-5)
+    delay = scalar_search(objective, grid, (0.0, longest), 1e-5)
     effect = EffectForm((delay,), (0.0,), (longest,), (2e-3,),
                         lambda base, v: base.with_effects(dead_time=DeadTime(max(v[0], 0.0))),
                         _effect_parameters("dead_time"))
@@ -288,7 +315,7 @@ def fit_heat_capacity_temperature(context: FitContext) -> CandidateFit:
         return base.with_effects(heat_capacity_temperature=HeatCapacityTemperature(exponent, reference))
 
     objective = _CachedObjective(context, model, context.base_line)
-    exponent = _scalar_search(objective, [-4.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 4.0], (-6.0, 6.0), 1e-5)
+    exponent = scalar_search(objective, [-4.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 4.0], (-6.0, 6.0), 1e-5)
     point = context.base_replay.operating_point
     effect = EffectForm(
         (exponent,), (-6.0,), (6.0,), (1e-2,),
@@ -316,7 +343,7 @@ def fit_heater_nonlinearity(context: FitContext) -> CandidateFit:
                                         cycle=context.base_line.cycle)
     linear = replayer.replay_simulated(context.base_line.applied_to(context.base_model), base_simulation.flange_K,
                                        base_simulation.ptc_stage_K, shared_columns=columns,
-                                       basis=replayer.basis(context.base_line))
+                                       basis=context.basis(context.base_line))
     found = already + float(linear.shared_coefficients[0])
     coefficient = float(np.clip(found, -1.0, 10.0))
     model = context.base_model.with_effects(heater_nonlinearity=HeaterNonlinearity(coefficient))
@@ -325,7 +352,7 @@ def fit_heater_nonlinearity(context: FitContext) -> CandidateFit:
                         lambda base, v: base.with_effects(heater_nonlinearity=HeaterNonlinearity(v[0])),
                         _effect_parameters("heater_nonlinearity"))
     return CandidateFit("heater_nonlinearity", {"quadratic_coefficient_per_W": coefficient}, model,
-                        replayer.replay(model, context.base_line), context.base_line, note, effect=effect)
+                        context.replay(model, context.base_line), context.base_line, note, effect=effect)
 
 
 def _ptc_fundamental_on_flange(model: CryostatModel, elapsed_s: np.ndarray, cycle=None) -> np.ndarray:
@@ -351,7 +378,7 @@ def line_factor(context: FitContext, model: CryostatModel | None = None) -> tupl
     cycle = context.base_line.cycle
     response = _ptc_fundamental_on_flange(aligned, data.elapsed_s, cycle)
     simulated = context.replayer.simulate(aligned, cycle=cycle)
-    basis = context.replayer.basis(context.base_line, without=LINK_PARAMETERS)
+    basis = context.basis(context.base_line, without=LINK_PARAMETERS)
     linear = context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K,
                                                shared_columns=(np.column_stack([response.real, -response.imag]),
                                                                np.zeros((data.time_s.size, 2))), basis=basis)
@@ -399,7 +426,7 @@ def fit_link_dynamics(context: FitContext) -> CandidateFit:
         note = ("the measured line leads the model's by {:.3f} rad: no lag g/(tau s + 1) gives that, so the "
                 "PTC-to-flange link itself is refitted".format(cmath.phase(factor)))
     return CandidateFit("link_dynamics", parameters, model,
-                        context.replayer.replay(model, context.base_line, basis_without=LINK_PARAMETERS),
+                        context.replay(model, context.base_line, basis_without=LINK_PARAMETERS),
                         context.base_line, note, parameter_count=2, effect=effect, excluded=LINK_PARAMETERS)
 
 
@@ -416,7 +443,7 @@ def fit_ptc_harmonics(context: FitContext) -> CandidateFit:
         parameters[f"order_{component.order}_amplitude_K"] = component.amplitude_K
         parameters[f"order_{component.order}_phase_rad"] = component.phase_rad
     note = "" if parameters else "no harmonic of T5 above 5 standard errors"
-    return CandidateFit("ptc_harmonics", parameters, line.shape_for(base), context.replayer.replay(base, line),
+    return CandidateFit("ptc_harmonics", parameters, line.shape_for(base), context.replay(base, line),
                         line, note, parameter_count=max(2 * (len(line.components) - 1), 1))
 
 
@@ -435,11 +462,12 @@ def fit_ptc_frequency_drift(context: FitContext) -> CandidateFit:
     parameters = dataclasses.asdict(drift)
     parameters["angular_frequency_at_start_rad_s"] = line.angular_frequency_rad_s
     return CandidateFit("ptc_frequency_drift", parameters, base.with_effects(ptc_frequency_drift=drift),
-                        context.replayer.replay(base, line), line,
+                        context.replay(base, line), line,
                         parameter_count=2 + 2 * (drift.wander_amplitude_rad_s > 0.0))
 
 
-FITTERS = {
+#: The fitters of this module's causes (every cause's: :data:`cryod.analysis.fitters.FITTERS`).
+CORE_FITTERS = {
     "sensor_lag": fit_sensor_lag,
     "link_dynamics": fit_link_dynamics,
     "dead_time": fit_dead_time,

@@ -20,7 +20,9 @@ The rules:
    noise's; below that the model agrees within the noise in any practical
    sense). No discrepancy: the cause is ``none``, whatever a candidate does.
 2. A candidate counts when its significance is at least 5 and its
-   improvement at least 25. The one with the largest improvement is the best.
+   improvement at least 25, and its fit is not at a physical limit of its
+   effect (the cold end's drift reaching the flange more than fully: the
+   record then asks for more than the cause can be). The one with the largest improvement is the best.
 3. With a discrepancy, the best candidate is named if it explains at least
    70 % of the excess (``Delta / E``), or leaves no discrepancy by rule 1.
    Otherwise, or when no candidate counts, the cause is ``unexplained``.
@@ -111,10 +113,13 @@ class CandidateScore:
     significance: float
     explained_fraction: float
     gain: Gain
+    #: Its fit sits at a physical limit of the effect: the record asks for more than the cause can be.
+    at_limit: bool = False
 
     @property
     def counts(self) -> bool:
-        return self.significance >= CANDIDATE_SIGMA and self.improvement >= CANDIDATE_MINIMUM_IMPROVEMENT
+        return (self.significance >= CANDIDATE_SIGMA and self.improvement >= CANDIDATE_MINIMUM_IMPROVEMENT
+                and not self.at_limit)
 
 
 @dataclass(frozen=True)
@@ -141,6 +146,8 @@ class Decision:
     best: CandidateScore | None
     base: BaseDiscrepancy
     gain: Gain
+    #: Causes the record cannot tell from the one named (rule 4).
+    tied: tuple = ()
 
 
 def base_discrepancy(context: FitContext) -> BaseDiscrepancy:
@@ -164,7 +171,7 @@ def score_candidate(context: FitContext, fit: CandidateFit, base: BaseDiscrepanc
     explained = improvement / base.excess if base.excess > 0.0 else 0.0
     gain = gain_between(base.sum_of_squares, flange + stage, base.terms)
     return CandidateScore(fit.cause, flange, stage, improvement, distinctness,
-                          significance(improvement, distinctness), explained, gain)
+                          significance(improvement, distinctness), explained, gain, fit.at_limit)
 
 
 def gain_between(base_sum_of_squares: float, extended_sum_of_squares: float, terms: int) -> Gain:
@@ -176,7 +183,7 @@ def gain_between(base_sum_of_squares: float, extended_sum_of_squares: float, ter
 #: At equal numbers of parameters, a tie goes to the cause earlier in this list: a link that differs
 #: is more common than two thermometers lagging differently, and so on.
 TIE_PREFERENCE = ("link_dynamics", "sensor_lag", "dead_time", "heater_nonlinearity", "heat_capacity_temperature",
-                  "ptc_harmonics", "ptc_frequency_drift")
+                  "ptc_harmonics", "ptc_frequency_drift", "ptc_amplitude_modulation", "ptc_stage_drift")
 
 
 def _preference(cause: str) -> int:
@@ -217,7 +224,7 @@ def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=Non
     unchanged = gain_between(base.sum_of_squares, base.sum_of_squares, base.terms)
     counting = [score for score in scores if score.counts]
     best = max(counting, key=lambda score: score.improvement) if counting else None
-    tie_text = ""
+    tie_text, tied_causes = "", ()
     if best is not None and distinctness is not None:
         tied = _tied_with(best, counting, distinctness)
         if tied:
@@ -231,6 +238,7 @@ def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=Non
                    else "with the fewest parameters or, at equal numbers, the more common cause")
             tie_text = (f"; this record cannot tell {simplest.cause} from {others} (within {TIE_SIGMA:g} standard "
                         f"deviations on the held-out data): {simplest.cause} is named, {why}")
+            tied_causes = tuple(score.cause for score in [best] + tied if score is not simplest)
             best = simplest
     excess_text = (f"the base model's held-out excess is {base.excess:.4g} "
                    f"({base.significance:.1f} sigma, {100.0 * base.excess / base.terms:.2f} % of the noise power)")
@@ -249,7 +257,7 @@ def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=Non
     if best.explained_fraction >= EXPLAINED_FRACTION or leaves_nothing:
         reason = (f"{excess_text}; {best.cause} removes {100.0 * best.explained_fraction:.1f} % of it "
                   f"({best.significance:.1f} sigma)" + (tie_text or ", the most of any candidate"))
-        return Decision(best.cause, reason, best, base, best.gain)
+        return Decision(best.cause, reason, best, base, best.gain, tied_causes)
     reason = (f"{excess_text}; the best candidate, {best.cause}, removes only "
               f"{100.0 * best.explained_fraction:.1f} % of it and leaves a discrepancy of "
               f"{remaining_significance:.1f} sigma")

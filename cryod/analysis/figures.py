@@ -12,6 +12,8 @@
 * ``steps.png``: T2 around each heater step, measured and replayed.
 * ``correlation.png``: the T2 residual's autocorrelation and cross-correlation
   with the heater, against the bands of white noise.
+* ``resid.png``: the extended model's T2 residual as MATLAB's ``resid``
+  shows it (:mod:`cryod.analysis.residual_signature`).
 """
 
 from __future__ import annotations
@@ -269,9 +271,34 @@ def correlation(analysis: Analysis, path: Path) -> Path:
     return save_figure(figure, path)
 
 
+def resid(analysis: Analysis, path: Path) -> Path | None:
+    """MATLAB's ``resid`` view of the extended model's T2 residual (means over two line periods)."""
+    signature = analysis.residual_signature
+    if signature is None or not signature.resid:
+        return None
+    found = signature.resid
+    figure, axes = plt.subplots(2, 1, figsize=(8, 6))
+    axes[0].bar(found["lag_s"], found["autocorrelation"], width=0.6 * found["window_s"], color=COLOURS["extended"])
+    band = found["autocorrelation_band"]
+    axes[0].axhspan(-band, band, color="k", alpha=0.1, label="99 % band (white residual)")
+    axes[0].set_ylabel("autocorrelation of the residual")
+    axes[0].set_xlabel("lag (s)")
+    axes[1].bar(found["cross_lag_s"], found["cross_correlation_with_heater"], width=0.6 * found["window_s"],
+                color=COLOURS["extended"])
+    band = found["cross_correlation_band"]
+    axes[1].axhspan(-band, band, color="k", alpha=0.1, label="99 % band (independent of the heater)")
+    axes[1].set_ylabel("cross-correlation, heater to residual")
+    axes[1].set_xlabel("lag (s; positive: the heater first)")
+    for axis in axes:
+        axis.axhline(0.0, color="k", lw=0.5)
+        axis.legend(fontsize=8)
+    return save_figure(figure, path)
+
+
 #: The file of each figure, by name.
 FIGURE_FILES = {"overview": "overview.png", "residual_spectrum": "residual_spectrum.png", "ptc_line": "ptc_line.png",
-                "candidates": "candidates.png", "correlation": "correlation.png", "steps": "steps.png"}
+                "candidates": "candidates.png", "correlation": "correlation.png", "steps": "steps.png",
+                "resid": "resid.png"}
 
 
 def make_figures(analysis: Analysis, segments, directory: Path) -> dict[str, Path]:
@@ -288,4 +315,7 @@ def make_figures(analysis: Analysis, segments, directory: Path) -> dict[str, Pat
     step_figure = steps(analysis, segments, files["steps"])
     if step_figure is not None:
         made["steps"] = step_figure
+    resid_figure = resid(analysis, files["resid"])
+    if resid_figure is not None:
+        made["resid"] = resid_figure
     return made

@@ -35,10 +35,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cryod.analysis.candidates import CANDIDATE_CAUSES, FITTERS, CandidateFit, FitContext
+from cryod.analysis.base_model_off import explained_by_widening, judged_beyond_recalibration
+from cryod.analysis.candidates import CANDIDATE_CAUSES, CandidateFit, FitContext
+from cryod.analysis.fitters import FITTERS
+from cryod.analysis.generic_extension import fit_generic_extension
 from cryod.analysis.decision import (
-    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision, Gain, base_discrepancy, decide, gain_between,
-    score_candidate,
+    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision,
+    Gain, base_discrepancy, decide, gain_between, score_candidate, significance,
 )
 from cryod.analysis.noise import white_noise_rms
 from cryod.cooler.line import PtcLine
@@ -48,11 +51,15 @@ from cryod.analysis.recalibration import (
 from cryod.analysis.record_data import RecordData, fit_block_mask
 from cryod.analysis.refinement import NamedEffect, combined_effect, joint_basis, refine
 from cryod.analysis.replay import Replay, Replayer
+from cryod.analysis.residual_signature import describe_residual
 from cryod.analysis.usability import check_usable
 from cryod.model import CryostatModel
 
 #: Causes named in one record at most.
 MOST_CAUSES = 3
+#: The noise is the lowest white floor of the base model's, the recalibration's and this many candidates' replays
+#: (those closest to the record on the fit blocks).
+NOISE_FROM_FITS = 3
 
 
 @dataclass
@@ -119,6 +126,22 @@ class Analysis:
     final_replay : Replay
     base_discrepancy : BaseDiscrepancy
         The base model as given, on the held-out blocks.
+    final_recalibration : Recalibration or None
+        The recalibration as refitted with the causes named (what the extended model has).
+    remaining : BaseDiscrepancy or None
+        What the extended model (the causes named, or the recalibrated model when none is) still shows on the
+        held-out blocks, by the rule that calls for a cause.
+    beyond_recalibration : object or None
+        For ``base_model_off``: the parameters the record asks beyond the recalibration's tolerance
+        (:class:`cryod.analysis.base_model_off.BeyondRecalibration`).
+    generic : object or None
+        The generic extension fitted on top of the extended model, when a discrepancy remains
+        (:class:`cryod.analysis.generic_extension.GenericExtension`).
+    residual_signature : object or None
+        What the extended model leaves, described (:class:`cryod.analysis.residual_signature.ResidualSignature`).
+    widened : Recalibration or None
+        The base model alone recalibrated with the wider tolerances of :mod:`cryod.analysis.base_model_off`,
+        once a parameter reached its usual tolerance.
     """
 
     data: RecordData
@@ -139,6 +162,11 @@ class Analysis:
     final_replay: Replay | None = None
     base_discrepancy: BaseDiscrepancy | None = None
     final_recalibration: Recalibration | None = None
+    remaining: BaseDiscrepancy | None = None
+    beyond_recalibration: object = None
+    generic: object = None
+    residual_signature: object = None
+    widened: Recalibration | None = None
 
     @property
     def cause(self) -> str:
@@ -170,44 +198,6 @@ def measured_noise(data: RecordData, replay: Replay, line: PtcLine) -> tuple[flo
             white_noise_rms(replay.ptc_stage_residual_K[data.valid], interval, frequency))
 
 
-def _carried(reference: CryostatModel | None):
-    """``model -> model`` with ``reference``'s effects, PTC source and operating point (the causes named so far)."""
-    if reference is None:
-        return None
-    return lambda model: dataclasses.replace(model, effects=reference.effects, ptc=reference.ptc,
-                                             operating_point=reference.operating_point)
-
-
-def _context_on(data, replayer: Replayer, base: RecalibratedBase, model: CryostatModel, line: PtcLine,
-                state: Replay, noise, masks, reference: CryostatModel | None, against: Replay | None = None,
-                line_model: CryostatModel | None = None, named=()) -> FitContext:
-    """Candidates' context: ``model`` (the recalibration ``base`` plus the causes named so far, ``reference``),
-    with the recalibration (and the ``named`` causes' own numbers) linearised there fitted in every replay;
-    candidates are judged against ``against`` (default: ``model``'s replay)."""
-    cache = {}
-    carry = _carried(reference)
-    effect = combined_effect([item.effect for item in named])
-    excluded = tuple(sorted(set().union(*[set(item.excluded) for item in named])))
-
-    def basis_for(replayed_line):
-        key = id(replayed_line)
-        if key not in cache:
-            if effect is None:
-                made = linear_basis(replayer, base.shipped, replayed_line, base.parameters, base.log_factors,
-                                    state=state, apply=carry)
-            else:
-                wrapped = dataclasses.replace(effect, apply=lambda m, v: effect.apply(carry(m), v))
-                made = joint_basis(replayer, base, replayed_line, wrapped, np.asarray(effect.values), state)
-            cache[key] = (replayed_line, made.without(excluded) if excluded else made)
-        return cache[key][1]
-
-    replayer.basis_for = basis_for
-    replay = against if against is not None else replayer.replay(model, line)
-    return FitContext(data, replayer, model, line, replay, noise, masks[0], masks[1],
-                      link_reference=base.model(without=LINK_PARAMETERS).ptc_to_flange, recalibrated=base,
-                      line_model=line_model)
-
-
 def _distinctness(context: FitContext, fits: dict):
     mask, noise = context.held_out_mask, context.noise_rms_K
 
@@ -220,13 +210,475 @@ def _distinctness(context: FitContext, fits: dict):
     return distinctness
 
 
-def _fit_candidates(context: FitContext, causes, timings: dict, label: str = "") -> dict:
-    fits = {}
-    for cause in causes:
+@dataclass(frozen=True)
+class ModelPoint:
+    """Where candidates are fitted: a recalibration and the model the causes named so far make of it.
+
+    Attributes
+    ----------
+    recalibration : RecalibratedBase
+        The recalibration, linearised at its log factors in every replay.
+    model : CryostatModel
+        The recalibrated model plus the causes named so far.
+    line : PtcLine
+        The measured line the replays use.
+    state : Replay
+        A replay whose fitted initial state the linearisation holds.
+    named : tuple of NamedEffect
+        The causes named so far whose own numbers are refitted alongside the recalibration.
+    carries_effects : bool
+        Whether ``model``'s effects, PTC source and operating point go into the linearised
+        recalibration's models (they do once a cause is named).
+    """
+
+    recalibration: RecalibratedBase
+    model: CryostatModel
+    line: PtcLine
+    state: Replay
+    named: tuple = ()
+    carries_effects: bool = False
+
+    def carried(self):
+        """``model -> model`` with this point's effects, PTC source and operating point (None: nothing carried)."""
+        if not self.carries_effects:
+            return None
+        reference = self.model
+        return lambda model: dataclasses.replace(model, effects=reference.effects, ptc=reference.ptc,
+                                                 operating_point=reference.operating_point)
+
+
+@dataclass
+class _Path:
+    """Causes named one after another from a first choice, and where that leaves the model."""
+
+    causes: list
+    context: FitContext
+    base: BaseDiscrepancy
+    named_effects: list
+    recalibration_base: RecalibratedBase
+    reasons: list
+
+
+class CauseSearch:
+    """The search for the causes of one record's discrepancy (see the module doc).
+
+    Holds the record, its fit and held-out masks, the replayer and the noise
+    that weights the fits; :meth:`run` makes the :class:`Analysis`.
+
+    Parameters
+    ----------
+    data : RecordData
+    base_model : CryostatModel
+    causes : sequence of str
+        Candidate causes to try.
+    screen_when_fitting : bool
+        Fit the candidates (for the report's table) even when the base model as given shows no discrepancy.
+    widen : bool
+        When the recalibration leaves a parameter at its tolerance, recalibrate with the wider tolerances of
+        :mod:`cryod.analysis.base_model_off`; if that alone explains the record, only the first cause is looked
+        for within the tolerance (what a catalogue cause alone would say), not a path of several.
+    cycle_from : Replayer, optional
+        A replayer of the same record whose cooler's phase, measured sample by sample in T5, is reused (the
+        phase hardly depends on the model's heater part taken out of T5).
+    most_causes : int
+        Causes named at most (with 1, no second path is followed either).
+    """
+
+    def __init__(self, data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES,
+                 screen_when_fitting: bool = True, widen: bool = True, cycle_from: Replayer | None = None,
+                 most_causes: int = MOST_CAUSES):
+        self.data = data
+        self.most_causes = most_causes
+        self.screen_when_fitting = screen_when_fitting
+        self.widen = widen
+        self.base_model = base_model
+        self.causes = tuple(causes)
+        self.fit_mask = fit_block_mask(data.time_s) & data.valid
+        self.held_out_mask = ~fit_block_mask(data.time_s) & data.valid
+        self.replayer = Replayer(data, self.fit_mask)
+        if cycle_from is not None:
+            self.replayer.share_measured_cycle(cycle_from)
+        self.noise_rms_K: tuple[float, float] = self.replayer.noise_rms_K
+        self.timings_s: dict[str, float] = {}
+        self.analysis: Analysis | None = None
+
+    # -- contexts ----------------------------------------------------------
+    def context_on(self, point: ModelPoint, against: Replay | None = None,
+                   line_model: CryostatModel | None = None) -> FitContext:
+        """Candidates' context on ``point``: its recalibration (and its named causes' own numbers) linearised there
+        and fitted in every replay; candidates are judged against ``against`` (default: the point's model replayed)."""
+        cache = {}
+        carry = point.carried()
+        effect = combined_effect([item.effect for item in point.named])
+        excluded = tuple(sorted(set().union(*[set(item.excluded) for item in point.named])))
+        replayer, base = self.replayer, point.recalibration
+
+        def basis_for(replayed_line):
+            key = id(replayed_line)
+            if key not in cache:
+                if effect is None:
+                    made = linear_basis(replayer, base.shipped, replayed_line, base.parameters, base.log_factors,
+                                        state=point.state, apply=carry)
+                else:
+                    wrapped = dataclasses.replace(effect, apply=lambda m, v: effect.apply(carry(m), v))
+                    made = joint_basis(replayer, base, replayed_line, wrapped, np.asarray(effect.values),
+                                       point.state)
+                cache[key] = (replayed_line, made.without(excluded) if excluded else made)
+            return cache[key][1]
+
+        context = FitContext(self.data, replayer, point.model, point.line, against, self.noise_rms_K, self.fit_mask,
+                             self.held_out_mask, link_reference=base.model(without=LINK_PARAMETERS).ptc_to_flange,
+                             recalibrated=base, line_model=line_model, basis_for=basis_for)
+        if against is None:
+            context = dataclasses.replace(context, base_replay=context.replay(point.model, point.line))
+        return context
+
+    def fit_candidates(self, context: FitContext, causes, label: str = "") -> dict:
+        """Each cause fitted in ``context``, timed under ``cause + label``."""
+        fits = {}
+        for cause in causes:
+            started = time.perf_counter()
+            fits[cause] = FITTERS[cause](context)
+            self.timings_s[cause + label] = self.timings_s.get(cause + label, 0.0) + time.perf_counter() - started
+        return fits
+
+    # -- the analysis --------------------------------------------------------
+    def run(self) -> Analysis:
+        """Analyse the record (see :func:`analyze`)."""
+        data, base_model, timings = self.data, self.base_model, self.timings_s
         started = time.perf_counter()
-        fits[cause] = FITTERS[cause](context)
-        timings[cause + label] = timings.get(cause + label, 0.0) + time.perf_counter() - started
-    return fits
+        check_usable(data)
+        orders = (1,) + tuple(h.order for h in base_model.ptc.harmonics)
+        drift = base_model.effects.ptc_frequency_drift is not None
+        base_line = self.replayer.stage_line(base_model, orders=orders, measured_phase=drift)
+        self.replayer.settle_from(self.replayer.replay(base_model, base_line))
+        base_replay = self.replayer.replay(base_model, base_line)
+        self.noise_rms_K = noise = measured_noise(data, base_replay, base_line)
+        self.replayer = replayer = self.replayer.weighted(noise)
+        shipped_context = FitContext(data, replayer, base_model, base_line, base_replay, noise, self.fit_mask,
+                                     self.held_out_mask)
+        timings["base replay and noise"] = time.perf_counter() - started
+
+        started = time.perf_counter()
+        recalibration = recalibrate(replayer, base_model, base_line)
+        applied = base_discrepancy(shipped_context).present
+        context, recalibrated_replay = shipped_context, recalibration.replay
+        if applied:
+            # Candidates are screened against the base model with the recalibration linearised at the shipped
+            # parameters, as they are fitted themselves; whether anything needs a cause is judged on the
+            # recalibrated model itself.
+            line = replayer.stage_line(recalibration.model, orders=orders, measured_phase=drift)
+            centre = dataclasses.replace(recalibration.base, log_factors=np.zeros(len(recalibration.parameters)))
+            recalibrated_replay = replayer.replay(recalibration.model, line)
+            context = self.context_on(ModelPoint(centre, base_model, line, recalibration.replay),
+                                      line_model=recalibration.model)
+        timings["recalibration"] = time.perf_counter() - started
+
+        fits = self.fit_candidates(context, self.causes if applied or self.screen_when_fitting else ())
+        # A large misfit leaks into the base model's noise floor; the best-fitting replays give the truer noise.
+        closest = sorted(fits.values(), key=lambda fit: context.fit_chi_square(fit.replay))[:NOISE_FROM_FITS]
+        replays = [base_replay, recalibration.replay, context.base_replay] + [fit.replay for fit in closest]
+        lines = [base_line, base_line, context.base_line] + [fit.line for fit in closest]
+        self.noise_rms_K = noise = tuple(
+            min(measured_noise(data, replay, line)[channel] for replay, line in zip(replays, lines))
+            for channel in (0, 1))
+        shipped_context = dataclasses.replace(shipped_context, noise_rms_K=noise)
+        context = dataclasses.replace(context, noise_rms_K=noise)
+        shipped = base_discrepancy(shipped_context)
+        first_base = base_discrepancy(context)
+        scores = {cause: score_candidate(context, fits[cause], first_base) for cause in fits}
+        counts = {cause: fit.parameter_count for cause, fit in fits.items()}
+        first = decide(first_base, list(scores.values()), _distinctness(context, fits), counts)
+
+        recalibrated_sum = sum(shipped_context.chi_square(recalibration.replay, self.held_out_mask))
+        analysis = self.analysis = Analysis(
+            data, base_model, base_line, base_replay, noise, fits, scores, first, context, timings, recalibration,
+            False, gain_between(shipped.sum_of_squares, recalibrated_sum, shipped.terms), [], base_model,
+            base_replay, shipped)
+        if not shipped.present:
+            analysis.decision = decide(shipped, [], None, None)
+            analysis.decision = dataclasses.replace(
+                analysis.decision, reason=analysis.decision.reason + "; the base model is kept as given")
+            analysis.remaining = shipped
+            return analysis
+        analysis.recalibrated = True
+        analysis.final_model, analysis.final_replay = recalibration.model, recalibrated_replay
+        recalibrated_context = dataclasses.replace(context, base_replay=recalibrated_replay)
+        first_only = self.widen and any(row.at_tolerance for row in recalibration.table()) \
+            and explained_by_widening(self, analysis)
+        started = time.perf_counter()
+        self._name_causes(base_discrepancy(recalibrated_context), 1 if first_only else self.most_causes)
+        timings["naming the causes"] = time.perf_counter() - started
+        return analysis
+
+    def _name_causes(self, recalibrated: BaseDiscrepancy, most: int) -> None:
+        """Add causes to the recalibrated model while the record shows a discrepancy (see the module doc).
+
+        The best candidate is added first and the next ones on top of it. When that leaves a discrepancy, the
+        path that starts from the second-best candidate is followed too (one cause can stand in for most of two:
+        a thermometer lag with the stage lagging alike looks much like a dead time plus a link that differs), and
+        the path that explains clearly more is kept. At most ``most`` causes; with 1, no second path.
+        """
+        analysis = self.analysis
+        context, fits, scores, first = analysis.context, analysis.fits, analysis.scores, analysis.decision
+        recalibrated_base = base = recalibrated
+        shipped = analysis.base_discrepancy
+        if not base.present:
+            analysis.decision = dataclasses.replace(
+                first, cause="none", best=None, gain=analysis.recalibration_gain,
+                reason=(f"the recalibrated base model leaves no discrepancy beyond the noise (held-out excess "
+                        f"{base.excess:.4g}, {base.significance:.1f} sigma, {100.0 * base.excess / base.terms:.2f} % "
+                        f"of the noise power); the base model as given left {shipped.excess:.4g} "
+                        f"({shipped.significance:.1f} sigma): its parameters differ, no effect is needed"))
+            analysis.remaining = base
+            return
+        path = None
+        if first.best is not None and first.best.cause in fits:
+            start = _Path([], context, base, [], context.recalibrated, [])
+            decision, refined = self._refined_decision(start, fits, scores)
+            if decision.best is not None:
+                path = self._follow(decision.best, refined, recalibrated_base, most)
+                alternatives = [] if most == 1 else sorted(
+                    (score_candidate(context, refined[cause][0], base) for cause in refined
+                     if cause != decision.best.cause), key=lambda score: -score.improvement)
+                alternatives = [score for score in alternatives if score.counts]
+                if path.base.present and alternatives:
+                    other = self._follow(alternatives[0], refined, recalibrated_base, most)
+                    if other.base.excess < ALTERNATIVE_FRACTION * path.base.excess and len(other.causes) > 1:
+                        path = other
+        excess_text = (f"the recalibrated base model's held-out excess is {recalibrated_base.excess:.4g} "
+                       f"({recalibrated_base.significance:.1f} sigma, "
+                       f"{100.0 * recalibrated_base.excess / recalibrated_base.terms:.2f} % of the noise power)")
+        if path is None or not path.causes:
+            analysis.decision = Decision("unexplained", f"{excess_text}, and no candidate improves it significantly",
+                                         first.best, recalibrated_base,
+                                         gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares,
+                                                      shipped.terms))
+            analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
+            analysis.remaining = recalibrated_base
+            return
+        analysis.causes = path.causes
+        base = path.base
+        explained = (recalibrated_base.excess - base.excess) / recalibrated_base.excess
+        total_gain = gain_between(shipped.sum_of_squares, shipped.sum_of_squares - shipped.excess + base.excess,
+                                  shipped.terms)
+        if base.present and explained >= EXPLAINED_FRACTION:
+            beaten = self._against_generic(path, recalibrated_base)
+            if beaten:
+                analysis.causes = []
+                analysis.decision = Decision(
+                    "unexplained", f"{excess_text}; {'; '.join(path.reasons)}: together {100.0 * explained:.1f} % of "
+                    f"it, and a discrepancy of {base.significance:.1f} sigma is left; {beaten}", first.best,
+                    recalibrated_base, gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares,
+                                                    shipped.terms))
+                analysis.remaining = recalibrated_base
+                return
+        if explained >= EXPLAINED_FRACTION or not base.present:
+            named = analysis.causes[0]
+            reason = f"{excess_text}; " + ", then ".join(path.reasons)
+            tie = first.reason.find("this record cannot tell")
+            if len(analysis.causes) == 1 and first.best is not None and first.best.cause == named.cause and tie >= 0:
+                reason += "; " + first.reason[tie:]
+            tied = first.tied if tie >= 0 and len(analysis.causes) == 1 and first.best.cause == named.cause else ()
+            analysis.decision = Decision(named.cause, reason, named.score, recalibrated_base, total_gain, tied)
+            analysis.final_model, analysis.final_replay = path.context.base_model, path.context.base_replay
+            analysis.final_recalibration = Recalibration.refitted(path.recalibration_base, path.context.base_replay)
+            analysis.remaining = base
+            return
+        analysis.causes = []                   # too little of the discrepancy explained: none is named
+        analysis.decision = Decision(
+            "unexplained",
+            f"{excess_text}; {'; '.join(path.reasons)}: together {100.0 * explained:.1f} % of it, and a discrepancy "
+            f"of {base.significance:.1f} sigma is left", first.best, recalibrated_base,
+            gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares, shipped.terms))
+        analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
+        analysis.remaining = recalibrated_base
+
+    def _against_generic(self, path: _Path, recalibrated_base: BaseDiscrepancy) -> str:
+        """When the causes on ``path`` leave a discrepancy: whether they add anything significant to the generic
+        extension. The extension fitted on the recalibrated model alone is compared, on the held-out blocks, with
+        the extension fitted on top of the causes; if the causes add less than a candidate must (5 sigma and 25),
+        they stand in for something the catalogue does not have, and the reason is returned ('' when they add).
+        The extension that goes with the verdict is kept for the analysis."""
+        analysis = self.analysis
+        adds, sigma, alone, on_causes = self._added_to_generic(
+            (analysis.final_model, analysis.final_replay, recalibrated_base),
+            (path.context.base_model, path.context.base_replay, path.base))
+        if adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA:
+            analysis.generic = on_causes
+            return ""
+        analysis.generic = alone
+        return (f"with the generic extension ({' + '.join(alone.used)}) the causes add only {adds:.4g} "
+                f"({sigma:.1f} sigma) on the held-out blocks: they stand in for something outside the catalogue, "
+                "and no physical cause is named")
+
+    def _added_to_generic(self, without: tuple, with_: tuple):
+        """What the causes of one model add to the generic extension over another's: each given as (model, replay,
+        its held-out discrepancy). Returns (held-out improvement, its significance, the extension on each)."""
+        first = fit_generic_extension(self._extension_context(without[0], without[1]), without[2])
+        second = fit_generic_extension(self._extension_context(with_[0], with_[1]), with_[2])
+        mask, noise = self.held_out_mask, self.noise_rms_K
+        context = self.analysis.context
+        a, b = first.fit.replay, second.fit.replay
+        adds = sum(context.chi_square(a, mask)) - sum(context.chi_square(b, mask))
+        flange = (a.flange_K - b.flange_K)[mask] / noise[0]
+        stage = (a.ptc_stage_K - b.ptc_stage_K)[mask] / noise[1]
+        return adds, significance(adds, float(flange @ flange + stage @ stage)), first, second
+
+    def _extension_context(self, model: CryostatModel, replay: Replay) -> FitContext:
+        """A context on ``model`` and its replay, without a linearised recalibration (for the generic extension)."""
+        context = self.analysis.context
+        return FitContext(self.data, self.replayer, model, context.base_line, replay, self.noise_rms_K,
+                          self.fit_mask, self.held_out_mask)
+
+    def _follow(self, choice: CandidateScore, refined: dict, recalibrated_base: BaseDiscrepancy,
+                most: int = MOST_CAUSES) -> _Path:
+        """Name ``choice`` (a refined candidate's score) first, then causes on top of it while one counts and
+        removes at least 70 % of what is left (``most`` causes in all). A further cause that leaves a discrepancy
+        must also add significantly to the generic extension on the model without it: a leftover of the causes
+        named (a drift's spline that is a little too stiff) is not taken for another cause."""
+        context = self.analysis.context
+        path = _Path([], context, recalibrated_base, [], context.recalibrated, [])
+        remaining = improving_causes(self.analysis.scores) if self.analysis.scores else list(self.causes)
+        if choice.cause not in remaining:
+            remaining.append(choice.cause)
+        best = choice
+        for round_index in range(most):
+            if round_index > 0:
+                fits = self.fit_candidates(path.context, [c for c in remaining
+                                                          if not _already_in(c, path.context.base_model)],
+                                           " (next cause)")
+                if not fits:
+                    break
+                scores = {cause: score_candidate(path.context, fit, path.base) for cause, fit in fits.items()}
+                if not any(score.counts for score in scores.values()):
+                    break
+                decision, refined = self._refined_decision(path, fits, scores)
+                best = decision.best
+                if best is None or not (best.counts and best.explained_fraction >= EXPLAINED_FRACTION):
+                    if best is not None:
+                        path.reasons.append(f"{best.cause} would remove {100.0 * best.explained_fraction:.1f} % of "
+                                            "what is left, too little for a further cause")
+                    break
+            if not best.counts:
+                break
+            before = dataclasses.replace(path, causes=list(path.causes), named_effects=list(path.named_effects),
+                                         reasons=list(path.reasons))
+            fit, refined_base, others = refined[best.cause]
+            after = gain_between(path.base.sum_of_squares, path.base.sum_of_squares - best.improvement,
+                                 path.base.terms)
+            earlier = [named for named in path.causes if named.fit.effect is not None]
+            path.causes = [dataclasses.replace(named, fit=dataclasses.replace(
+                named.fit, effect=other.effect, parameters=other.effect.describe(fit.extended_model)))
+                if named in earlier else named for named, other in _pair_up(path.causes, earlier, others)]
+            path.causes.append(NamedCause(best.cause, fit, best, best.improvement / recalibrated_base.excess, after))
+            path.reasons.append(f"{best.cause} removes {100.0 * best.improvement / recalibrated_base.excess:.1f} % "
+                                f"({best.significance:.1f} sigma)")
+            remaining.remove(best.cause)
+            self._settle(path, best.cause, refined[best.cause])
+            if len(path.causes) > 1:
+                self._drop_unneeded(path)
+            if round_index > 0 and path.base.present:
+                adds, sigma, _, _ = self._added_to_generic(
+                    (before.context.base_model, before.context.base_replay, before.base),
+                    (path.context.base_model, path.context.base_replay, path.base))
+                if not (adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA):
+                    before.reasons.append(f"{best.cause} would remove {100.0 * best.explained_fraction:.1f} % of what "
+                                          f"is left but adds only {adds:.4g} ({sigma:.1f} sigma) to the generic "
+                                          "extension: not a further cause")
+                    path.__dict__.update(vars(before))
+                    break
+            if not path.base.present or len(path.causes) == most:
+                break
+        return path
+
+    def _settle(self, path: _Path, cause: str, refined: tuple) -> None:
+        """The path on the model a refined fit extends (``refined``: ``cause``'s fit refitted with the recalibration
+        and the other named effects, :func:`cryod.analysis.refinement.refine`): its named effects,
+        recalibration, fit context and discrepancy."""
+        fit, refined_base, others = refined
+        path.named_effects = others + ([NamedEffect(cause, fit.effect, tuple(fit.excluded))]
+                                       if fit.effect is not None else [])
+        path.recalibration_base = refined_base
+        point = ModelPoint(refined_base, fit.extended_model, fit.line, fit.replay, tuple(path.named_effects),
+                           carries_effects=True)
+        path.context = self.context_on(point)
+        path.base = base_discrepancy(path.context)
+
+    def _drop_unneeded(self, path: _Path) -> None:
+        """Leave out an earlier cause that the later ones have made unnecessary (it no longer counts on top of them).
+
+        Once a further cause is named and all are refitted together, each earlier one is tried without: if what it
+        adds no longer counts (5 sigma and 25), it is left out.
+        """
+        newest = path.causes[-1]
+        for named in list(path.causes[:-1]):
+            if named.fit.effect is None or len(path.named_effects) < 2:
+                continue
+            context = path.context
+            kept = [item for item in path.named_effects if item.cause != named.cause]
+            own = next((item.effect for item in kept if item.cause == newest.cause), newest.fit.effect)
+            without = dataclasses.replace(newest.fit,
+                                          extended_model=context.base_model.with_effects(**{named.cause: None}),
+                                          replay=context.base_replay, effect=own)
+            others = [item for item in kept if item.cause != newest.cause]
+            fit, refined_base, others = refine(self.replayer, path.recalibration_base, without, others)
+            mask, noise = context.held_out_mask, context.noise_rms_K
+            flange = (fit.replay.flange_K - context.base_replay.flange_K)[mask] / noise[0]
+            stage = (fit.replay.ptc_stage_K - context.base_replay.ptc_stage_K)[mask] / noise[1]
+            distinct = float(flange @ flange + stage @ stage)
+            adds = sum(context.chi_square(fit.replay, mask)) - path.base.sum_of_squares
+            sigma = adds / (2.0 * math.sqrt(distinct)) if distinct > 0 else 0.0
+            if adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA:
+                continue
+            path.reasons.append(f"{named.cause} left out: with {newest.cause} it adds only {adds:.4g} "
+                                f"({sigma:.1f} sigma)")
+            earlier = [item for item in path.causes if item is not named and item is not newest
+                       and item.fit.effect is not None]
+            refitted = dict(zip([id(item) for item in earlier], others))
+            updated = []
+            for item in path.causes:
+                if item is named:
+                    continue
+                if item is newest:
+                    item = dataclasses.replace(item, fit=dataclasses.replace(
+                        item.fit, effect=fit.effect, parameters=fit.parameters if fit.effect else item.fit.parameters,
+                        extended_model=fit.extended_model, replay=fit.replay))
+                elif id(item) in refitted:
+                    item = dataclasses.replace(item, fit=dataclasses.replace(
+                        item.fit, effect=refitted[id(item)].effect,
+                        parameters=refitted[id(item)].effect.describe(fit.extended_model)))
+                updated.append(item)
+            path.causes = updated
+            self._settle(path, newest.cause, (fit, refined_base, others))
+            newest = path.causes[-1]
+
+    def _refined_decision(self, path: _Path, fits: dict, scores: dict):
+        """Refit the leading candidates jointly with the recalibration (and the causes named so far on ``path``),
+        then apply the rules to them. Returns the decision and, per leading cause, (fit, recalibration, named
+        effects)."""
+        context, base = path.context, path.base
+        counting = sorted((score for score in scores.values() if score.counts), key=lambda score: -score.improvement)
+        leading = [score.cause for score in counting
+                   if score.improvement >= REFINED_FRACTION * counting[0].improvement][:REFINED_MOST] \
+            if counting else []
+        refined, refined_fits, refined_scores = {}, {}, {}
+        for cause in leading:
+            refined[cause] = refine(self.replayer, path.recalibration_base, fits[cause], path.named_effects)
+            refined_fits[cause] = refined[cause][0]
+            refined_scores[cause] = score_candidate(context, refined_fits[cause], base)
+        decision = decide(base, list(refined_scores.values()), _distinctness(context, refined_fits),
+                          {cause: fit.parameter_count for cause, fit in refined_fits.items()},
+                          {cause: _strained(fit.replay) for cause, fit in refined_fits.items()})
+        return decision, refined
+
+
+def improving_causes(scores: dict) -> list[str]:
+    """The causes whose first fit improved the held-out residual at all: the only ones tried again on top of a
+    cause named, and on a base model widened beyond the recalibration. A cause the record holds improves it from
+    the first round on, whatever else the record holds; one that makes it worse only fits the fit blocks' noise
+    or another effect's misfit."""
+    return [cause for cause, score in scores.items() if score.improvement > 0.0]
 
 
 def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES) -> Analysis:
@@ -248,193 +700,37 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
     cryod.analysis.usability.UnusableRecordError
         When the record cannot be analysed, saying what it is missing.
     """
-    timings = {}
+    search = CauseSearch(data, base_model, causes)
+    analysis = judged_beyond_recalibration(
+        search, search.run(), lambda model: CauseSearch(
+            data, model, improving_causes(search.analysis.scores) or causes, screen_when_fitting=False,
+            widen=False, cycle_from=search.replayer, most_causes=1).run())
     started = time.perf_counter()
-    check_usable(data)
-    fit_mask = fit_block_mask(data.time_s) & data.valid
-    held_out_mask = ~fit_block_mask(data.time_s) & data.valid
-    masks = (fit_mask, held_out_mask)
-    replayer = Replayer(data, fit_mask)
-    orders = (1,) + tuple(h.order for h in base_model.ptc.harmonics)
-    drift = base_model.effects.ptc_frequency_drift is not None
-    base_line = replayer.stage_line(base_model, orders=orders, measured_phase=drift)
-    replayer.settle_from(replayer.replay(base_model, base_line))
-    base_replay = replayer.replay(base_model, base_line)
-    noise = measured_noise(data, base_replay, base_line)
-    replayer.noise_rms_K = noise
-    shipped_context = FitContext(data, replayer, base_model, base_line, base_replay, noise, fit_mask, held_out_mask)
-    timings["base replay and noise"] = time.perf_counter() - started
-
-    started = time.perf_counter()
-    recalibration = recalibrate(replayer, base_model, base_line)
-    applied = base_discrepancy(shipped_context).present
-    context, recalibrated_replay = shipped_context, recalibration.replay
-    if applied:
-        # Candidates are screened against the base model with the recalibration linearised at the shipped
-        # parameters, as they are fitted themselves; whether anything needs a cause is judged on the
-        # recalibrated model itself.
-        line = replayer.stage_line(recalibration.model, orders=orders, measured_phase=drift)
-        centre = dataclasses.replace(recalibration.base, log_factors=np.zeros(len(recalibration.parameters)))
-        recalibrated_replay = replayer.replay(recalibration.model, line, basis=None)
-        context = _context_on(data, replayer, centre, base_model, line, recalibration.replay, noise, masks, None,
-                              line_model=recalibration.model)
-    timings["recalibration"] = time.perf_counter() - started
-
-    fits = _fit_candidates(context, causes, timings)
-    # A large misfit leaks into the base model's noise floor; the best-fitting replay gives the truer noise.
-    replays = [base_replay, recalibration.replay, context.base_replay] + [fit.replay for fit in fits.values()]
-    lines = [base_line, base_line, context.base_line] + [fit.line for fit in fits.values()]
-    noise = tuple(min(measured_noise(data, replay, line)[channel] for replay, line in zip(replays, lines))
-                  for channel in (0, 1))
-    shipped_context.noise_rms_K = context.noise_rms_K = noise
-    shipped = base_discrepancy(shipped_context)
-    first_base = base_discrepancy(context)
-    scores = {cause: score_candidate(context, fits[cause], first_base) for cause in causes}
-    counts = {cause: fit.parameter_count for cause, fit in fits.items()}
-    first = decide(first_base, list(scores.values()), _distinctness(context, fits), counts)
-
-    recalibrated_sum = sum(shipped_context.chi_square(recalibration.replay, held_out_mask))
-    analysis = Analysis(data, base_model, base_line, base_replay, noise, fits, scores, first, context, timings,
-                        recalibration, False, gain_between(shipped.sum_of_squares, recalibrated_sum, shipped.terms),
-                        [], base_model, base_replay, shipped)
-    if not shipped.present:
-        analysis.decision = decide(shipped, [], None, None)
-        analysis.decision = dataclasses.replace(
-            analysis.decision, reason=analysis.decision.reason + "; the base model is kept as given")
-        return analysis
-    analysis.recalibrated = True
-    analysis.final_model, analysis.final_replay = recalibration.model, recalibrated_replay
-    recalibrated_context = dataclasses.replace(context, base_replay=recalibrated_replay)
-    started = time.perf_counter()
-    _name_causes(analysis, replayer, context, fits, scores, first, causes, masks,
-                 base_discrepancy(recalibrated_context))
-    timings["naming the causes"] = time.perf_counter() - started
+    described_and_extended(analysis)
+    analysis.timings_s["residual and generic extension"] = time.perf_counter() - started
     return analysis
 
 
-@dataclass
-class _Path:
-    """Causes named one after another from a first choice, and where that leaves the model."""
-
-    causes: list
-    context: FitContext
-    base: BaseDiscrepancy
-    named_effects: list
-    recalibration_base: RecalibratedBase
-    reasons: list
-
-
-def _name_causes(analysis: Analysis, replayer: Replayer, context: FitContext, fits: dict, scores: dict,
-                 first: Decision, causes, masks, recalibrated: BaseDiscrepancy) -> None:
-    """Add causes to the recalibrated model while the record shows a discrepancy (see the module doc).
-
-    The best candidate is added first and the next ones on top of it. When that leaves a discrepancy, the
-    path that starts from the second-best candidate is followed too (one cause can stand in for most of two:
-    a thermometer lag with the stage lagging alike looks much like a dead time plus a link that differs), and
-    the path that explains clearly more is kept.
-    """
-    recalibrated_base = base = recalibrated
-    shipped = analysis.base_discrepancy
-    if not base.present:
-        analysis.decision = dataclasses.replace(
-            first, cause="none", best=None, gain=analysis.recalibration_gain,
-            reason=(f"the recalibrated base model leaves no discrepancy beyond the noise (held-out excess "
-                    f"{base.excess:.4g}, {base.significance:.1f} sigma, {100.0 * base.excess / base.terms:.2f} % of "
-                    f"the noise power); the base model as given left {shipped.excess:.4g} "
-                    f"({shipped.significance:.1f} sigma): its parameters differ, no effect is needed"))
+def described_and_extended(analysis: Analysis) -> None:
+    """The residual's signature, and the generic extension added where the extended model leaves a discrepancy
+    (the one fitted when the causes were weighed against it, if they were); the gain is then the base model's
+    against the model extended by both."""
+    analysis.residual_signature = describe_residual(analysis)
+    if analysis.remaining is None or not analysis.remaining.present:
+        analysis.generic = None
         return
-    path = None
-    if first.best is not None and first.best.cause in fits:
-        decision, refined = _refined_decision(replayer, context, base, fits, scores, context.recalibrated)
-        if decision.best is not None:
-            path = _follow(analysis, replayer, context, base, decision.best, refined, causes, masks, recalibrated_base)
-            alternatives = sorted((score_candidate(context, refined[cause][0], base) for cause in refined
-                                   if cause != decision.best.cause), key=lambda score: -score.improvement)
-            alternatives = [score for score in alternatives if score.counts]
-            if path.base.present and alternatives:
-                other = _follow(analysis, replayer, context, base, alternatives[0], refined, causes, masks,
-                                recalibrated_base)
-                if other.base.excess < ALTERNATIVE_FRACTION * path.base.excess and len(other.causes) > 1:
-                    path = other
-    excess_text = (f"the recalibrated base model's held-out excess is {recalibrated_base.excess:.4g} "
-                   f"({recalibrated_base.significance:.1f} sigma, "
-                   f"{100.0 * recalibrated_base.excess / recalibrated_base.terms:.2f} % of the noise power)")
-    if path is None or not path.causes:
-        analysis.decision = Decision("unexplained", f"{excess_text}, and no candidate improves it significantly",
-                                     first.best, recalibrated_base,
-                                     gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares,
-                                                  shipped.terms))
-        analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
-        return
-    analysis.causes = path.causes
-    base = path.base
-    explained = (recalibrated_base.excess - base.excess) / recalibrated_base.excess
-    total_gain = gain_between(shipped.sum_of_squares, shipped.sum_of_squares - shipped.excess + base.excess,
-                              shipped.terms)
-    if explained >= EXPLAINED_FRACTION or not base.present:
-        named = analysis.causes[0]
-        reason = f"{excess_text}; " + ", then ".join(path.reasons)
-        tie = first.reason.find("this record cannot tell")
-        if len(analysis.causes) == 1 and first.best is not None and first.best.cause == named.cause and tie >= 0:
-            reason += "; " + first.reason[tie:]
-        analysis.decision = Decision(named.cause, reason, named.score, recalibrated_base, total_gain)
-        analysis.final_model, analysis.final_replay = path.context.base_model, path.context.base_replay
-        analysis.final_recalibration = Recalibration.refitted(path.recalibration_base, path.context.base_replay)
-        return
-    analysis.decision = Decision(
-        "unexplained",
-        f"{excess_text}; {'; '.join(path.reasons)}: together {100.0 * explained:.1f} % of it, and a discrepancy "
-        f"of {base.significance:.1f} sigma is left", first.best, recalibrated_base,
-        gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares, shipped.terms))
-    analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
-
-
-#: The path from the second-best first cause is kept when it leaves less than this fraction of the other's excess.
-ALTERNATIVE_FRACTION = 0.5
-
-
-def _follow(analysis: Analysis, replayer: Replayer, context: FitContext, base: BaseDiscrepancy, choice, refined,
-            causes, masks, recalibrated_base: BaseDiscrepancy) -> _Path:
-    """Name ``choice`` (a refined candidate's score) first, then causes on top of it while one counts and removes
-    at least 70 % of what is left."""
-    path = _Path([], context, base, [], context.recalibrated, [])
-    remaining = list(causes)
-    best = choice
-    for round_index in range(MOST_CAUSES):
-        if round_index > 0:
-            fits = _fit_candidates(path.context, [c for c in remaining if not _already_in(c, path.context.base_model)],
-                                   analysis.timings_s, " (next cause)")
-            if not fits:
-                break
-            scores = {cause: score_candidate(path.context, fit, path.base) for cause, fit in fits.items()}
-            if not any(score.counts for score in scores.values()):
-                break
-            decision, refined = _refined_decision(replayer, path.context, path.base, fits, scores,
-                                                  path.recalibration_base, path.named_effects)
-            best = decision.best
-            if best is None or not (best.counts and best.explained_fraction >= EXPLAINED_FRACTION):
-                if best is not None:
-                    path.reasons.append(f"{best.cause} would remove {100.0 * best.explained_fraction:.1f} % of "
-                                        "what is left, too little for a further cause")
-                break
-        if not best.counts:
-            break
-        fit, refined_base, others = refined[best.cause]
-        after = gain_between(path.base.sum_of_squares, path.base.sum_of_squares - best.improvement, path.base.terms)
-        earlier = [named for named in path.causes if named.fit.effect is not None]
-        path.causes = [dataclasses.replace(named, fit=dataclasses.replace(
-            named.fit, effect=other.effect, parameters=other.effect.describe(fit.extended_model)))
-            if named in earlier else named for named, other in _pair_up(path.causes, earlier, others)]
-        path.causes.append(NamedCause(best.cause, fit, best, best.improvement / recalibrated_base.excess, after))
-        path.reasons.append(f"{best.cause} removes {100.0 * best.improvement / recalibrated_base.excess:.1f} % "
-                            f"({best.significance:.1f} sigma)")
-        remaining.remove(best.cause)
-        _settle(path, analysis, replayer, masks, best.cause, fit, refined_base, others)
-        if len(path.causes) > 1:
-            _drop_unneeded(analysis, replayer, path, masks)
-        if not path.base.present or len(path.causes) == MOST_CAUSES:
-            break
-    return path
+    if analysis.generic is None or analysis.generic.on_model is not analysis.extended_model:
+        context = analysis.context
+        on_extended = FitContext(analysis.data, context.replayer, analysis.extended_model, analysis.base_line,
+                                 analysis.extended_replay, analysis.noise_rms_K, context.fit_mask,
+                                 context.held_out_mask)
+        analysis.generic = fit_generic_extension(on_extended, analysis.remaining)
+    if analysis.generic.added:
+        analysis.final_model = analysis.generic.fit.extended_model
+        analysis.final_replay = analysis.generic.fit.replay
+        score, shipped = analysis.generic.score, analysis.base_discrepancy
+        analysis.decision = dataclasses.replace(analysis.decision, gain=gain_between(
+            shipped.sum_of_squares, score.held_out_flange + score.held_out_stage, shipped.terms))
 
 
 def _pair_up(causes: list, earlier: list, others: list):
@@ -443,88 +739,12 @@ def _pair_up(causes: list, earlier: list, others: list):
     return [(named, refitted.get(id(named))) for named in causes]
 
 
-def _settle(path: _Path, analysis: Analysis, replayer: Replayer, masks, cause: str, fit, refined_base,
-            others) -> None:
-    """The path on the model ``fit`` extends (``cause`` refitted with the other named effects ``others`` and the
-    recalibration ``refined_base``): its named effects, recalibration, fit context and discrepancy."""
-    path.named_effects = others + ([NamedEffect(cause, fit.effect, tuple(fit.excluded))]
-                                   if fit.effect is not None else [])
-    path.recalibration_base = refined_base
-    path.context = _context_on(analysis.data, replayer, refined_base, fit.extended_model, fit.line, fit.replay,
-                               path.context.noise_rms_K, masks, fit.extended_model, named=path.named_effects)
-    path.base = base_discrepancy(path.context)
-
-
-def _drop_unneeded(analysis: Analysis, replayer: Replayer, path: _Path, masks) -> None:
-    """Leave out an earlier cause that the later ones have made unnecessary (it no longer counts on top of them).
-
-    Once a further cause is named and all are refitted together, each earlier one is tried without: if what it
-    adds no longer counts (5 sigma and 25), it is left out.
-    """
-    newest = path.causes[-1]
-    for named in list(path.causes[:-1]):
-        if named.fit.effect is None or len(path.named_effects) < 2:
-            continue
-        context = path.context
-        kept = [item for item in path.named_effects if item.cause != named.cause]
-        own = next((item.effect for item in kept if item.cause == newest.cause), newest.fit.effect)
-        without = dataclasses.replace(newest.fit, extended_model=context.base_model.with_effects(**{named.cause: None}),
-                                      replay=context.base_replay, effect=own)
-        others = [item for item in kept if item.cause != newest.cause]
-        fit, refined_base, others = refine(replayer, path.recalibration_base, without, others)
-        mask, noise = context.held_out_mask, context.noise_rms_K
-        flange = (fit.replay.flange_K - context.base_replay.flange_K)[mask] / noise[0]
-        stage = (fit.replay.ptc_stage_K - context.base_replay.ptc_stage_K)[mask] / noise[1]
-        distinct = float(flange @ flange + stage @ stage)
-        adds = sum(context.chi_square(fit.replay, mask)) - path.base.sum_of_squares
-        sigma = adds / (2.0 * math.sqrt(distinct)) if distinct > 0 else 0.0
-        if adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA:
-            continue
-        path.reasons.append(f"{named.cause} left out: with {newest.cause} it adds only {adds:.4g} "
-                            f"({sigma:.1f} sigma)")
-        earlier = [item for item in path.causes if item is not named and item is not newest
-                   and item.fit.effect is not None]
-        refitted = dict(zip([id(item) for item in earlier], others))
-        updated = []
-        for item in path.causes:
-            if item is named:
-                continue
-            if item is newest:
-                item = dataclasses.replace(item, fit=dataclasses.replace(
-                    item.fit, effect=fit.effect, parameters=fit.parameters if fit.effect else item.fit.parameters,
-                    extended_model=fit.extended_model, replay=fit.replay))
-            elif id(item) in refitted:
-                item = dataclasses.replace(item, fit=dataclasses.replace(
-                    item.fit, effect=refitted[id(item)].effect,
-                    parameters=refitted[id(item)].effect.describe(fit.extended_model)))
-            updated.append(item)
-        path.causes = updated
-        _settle(path, analysis, replayer, masks, newest.cause, fit, refined_base, others)
-        newest = path.causes[-1]
-
-
+#: The path from the second-best first cause is kept when it leaves less than this fraction of the other's excess.
+ALTERNATIVE_FRACTION = 0.5
 #: Candidates refitted with the recalibration before one is chosen: those counting whose improvement is at least
 #: this fraction of the best one's, at most this many.
 REFINED_FRACTION = 0.5
 REFINED_MOST = 3
-
-
-def _refined_decision(replayer: Replayer, context: FitContext, base: BaseDiscrepancy, fits: dict, scores: dict,
-                      recalibration_base: RecalibratedBase, named_effects=()):
-    """Refit the leading candidates jointly with the recalibration (and the causes named so far), then apply
-    the rules to them. Returns the decision and, per leading cause, (fit, recalibration, named effects)."""
-    counting = sorted((score for score in scores.values() if score.counts), key=lambda score: -score.improvement)
-    leading = [score.cause for score in counting
-               if score.improvement >= REFINED_FRACTION * counting[0].improvement][:REFINED_MOST] if counting else []
-    refined, refined_fits, refined_scores = {}, {}, {}
-    for cause in leading:
-        refined[cause] = refine(replayer, recalibration_base, fits[cause], named_effects)
-        refined_fits[cause] = refined[cause][0]
-        refined_scores[cause] = score_candidate(context, refined_fits[cause], base)
-    decision = decide(base, list(refined_scores.values()), _distinctness(context, refined_fits),
-                      {cause: fit.parameter_count for cause, fit in refined_fits.items()},
-                      {cause: _strained(fit.replay) for cause, fit in refined_fits.items()})
-    return decision, refined
 
 
 #: A recalibration factor beyond this fraction of its tolerance is beyond the spread expected of a base model.
@@ -544,4 +764,4 @@ def _already_in(cause: str, model: CryostatModel) -> bool:
     return cause in model.effect_names()
 
 
-__all__ = ["Analysis", "NamedCause", "analyze"]
+__all__ = ["Analysis", "CauseSearch", "ModelPoint", "NamedCause", "analyze", "improving_causes"]

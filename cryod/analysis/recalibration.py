@@ -72,6 +72,26 @@ from cryod.model.transfer_function import TransferFunction
 TOLERANCE = 0.10
 #: Largest change of the line's phase on T2 the link's time scale may make (rad).
 LINE_PHASE_TOLERANCE_RAD = 0.10
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """How far a recalibration may move the base model's parameters.
+
+    Attributes
+    ----------
+    relative : float
+        Largest |log factor| of a gain or a time constant.
+    line_phase_rad : float
+        Largest change of the line's phase on T2 (rad) the link's time scale may make.
+    """
+
+    relative: float = TOLERANCE
+    line_phase_rad: float = LINE_PHASE_TOLERANCE_RAD
+
+
+#: The recalibration's tolerances (what a base model's parameters are expected to be off by).
+USUAL = Tolerances()
 #: Largest log factor of the link's time scale, whatever its phase sensitivity.
 LARGEST_TIME_SCALE = 0.5
 #: Forward-difference step of the columns (log factor).
@@ -154,7 +174,7 @@ def _phase_per_time_scale(link: TransferFunction, angular_frequency_rad_s: float
     return cmath.phase(after / before) / step
 
 
-def _time_scale_tolerance(link: TransferFunction, model: CryostatModel) -> float:
+def _time_scale_tolerance(link: TransferFunction, model: CryostatModel, line_phase_rad: float) -> float:
     """Largest |log time scale| of the link that moves its phase at the line by at most the tolerance,
     either way (the smaller of the two scales that move it by exactly the tolerance)."""
     omega = model.ptc.angular_frequency_rad_s
@@ -165,15 +185,15 @@ def _time_scale_tolerance(link: TransferFunction, model: CryostatModel) -> float
 
     limits = []
     for direction in (1.0, -1.0):
-        if shift(direction * LARGEST_TIME_SCALE) <= LINE_PHASE_TOLERANCE_RAD:
+        if shift(direction * LARGEST_TIME_SCALE) <= line_phase_rad:
             limits.append(LARGEST_TIME_SCALE)
             continue
-        limits.append(optimize.brentq(lambda x: shift(direction * x) - LINE_PHASE_TOLERANCE_RAD, 0.0,
+        limits.append(optimize.brentq(lambda x: shift(direction * x) - line_phase_rad, 0.0,
                                       LARGEST_TIME_SCALE, xtol=1e-10))
     return float(min(limits))
 
 
-def structure_parameters(model: CryostatModel) -> list[StructureParameter]:
+def structure_parameters(model: CryostatModel, tolerances: Tolerances = USUAL) -> list[StructureParameter]:
     """The parameters of ``model``'s structure a recalibration may change, with their tolerances.
 
     A transfer function whose zeros or poles are not all real keeps its time
@@ -185,24 +205,27 @@ def structure_parameters(model: CryostatModel) -> list[StructureParameter]:
         factored = _factored(transfer_function)
         if path == "ptc_to_flange":
             line = line_on_flange(model)
-            found.append(StructureParameter("line gain on T2", path, "gain", 0, "K/K", abs(line), TOLERANCE))
+            found.append(StructureParameter("line gain on T2", path, "gain", 0, "K/K", abs(line),
+                                            tolerances.relative))
             sensitivity = abs(_phase_per_time_scale(transfer_function, model.ptc.angular_frequency_rad_s))
             if factored is not None and sensitivity > 0.0:
                 found.append(StructureParameter("line phase on T2", path, "time_scale", 0, "rad",
-                                                -cmath.phase(line), _time_scale_tolerance(transfer_function, model)))
+                                                -cmath.phase(line),
+                                                _time_scale_tolerance(transfer_function, model,
+                                                                      tolerances.line_phase_rad)))
             continue
         if with_gain:
             found.append(StructureParameter(f"{path} static gain", path, "gain", 0, "K/W",
-                                            transfer_function.dc_gain, TOLERANCE))
+                                            transfer_function.dc_gain, tolerances.relative))
         if factored is None:
             continue
         _, zeros, poles = factored
         for index, tau in enumerate(zeros):
             name = f"{path} zero time constant" if len(zeros) == 1 else f"{path} zero time constant {index + 1}"
-            found.append(StructureParameter(name, path, "zero", index, "s", tau, TOLERANCE))
+            found.append(StructureParameter(name, path, "zero", index, "s", tau, tolerances.relative))
         for index, tau in enumerate(poles):
             name = f"{path} time constant" if len(poles) == 1 else f"{path} time constant {index + 1}"
-            found.append(StructureParameter(name, path, "pole", index, "s", tau, TOLERANCE))
+            found.append(StructureParameter(name, path, "pole", index, "s", tau, tolerances.relative))
     return found
 
 
@@ -470,7 +493,8 @@ class Recalibration:
         return rows
 
 
-def recalibrate(replayer: Replayer, model: CryostatModel, line: PtcLine | None) -> Recalibration:
+def recalibrate(replayer: Replayer, model: CryostatModel, line: PtcLine | None,
+                tolerances: Tolerances = USUAL) -> Recalibration:
     """Refit the structure's parameters of ``model`` on the replayer's fit samples (Gauss-Newton).
 
     Parameters
@@ -481,12 +505,14 @@ def recalibrate(replayer: Replayer, model: CryostatModel, line: PtcLine | None) 
         The base model.
     line : PtcLine or None
         The measured line.
+    tolerances : Tolerances
+        How far each parameter may move (default: :data:`USUAL`).
 
     Returns
     -------
     Recalibration
     """
-    parameters = structure_parameters(model)
+    parameters = structure_parameters(model, tolerances)
     x = np.zeros(len(parameters))
     tolerances = np.array([parameter.tolerance for parameter in parameters])
     steps = 0
@@ -508,6 +534,6 @@ def recalibrate(replayer: Replayer, model: CryostatModel, line: PtcLine | None) 
     return Recalibration(parameters, x, errors, recalibrated, replay, steps, model)
 
 
-__all__ = ["LINK_PARAMETERS", "LINE_PHASE_TOLERANCE_RAD", "TOLERANCE", "RecalibratedBase", "RecalibratedParameter",
-           "Recalibration",
+__all__ = ["LINK_PARAMETERS", "LINE_PHASE_TOLERANCE_RAD", "TOLERANCE", "USUAL", "RecalibratedBase",
+           "RecalibratedParameter", "Recalibration", "Tolerances",
            "StructureParameter", "linear_basis", "recalibrate", "structure_parameters", "with_factors"]

@@ -43,35 +43,50 @@ from cryod.cooler.line import PtcLine, estimate_ptc_line, measured_cycle
 from cryod.analysis.record_data import RecordData
 from cryod.model import CryostatModel, OperatingPoint
 from cryod.model.dynamics import flange_transfer_functions, simulate, stage_transfer_functions
+from cryod.model.kept_results import KeptResults, digest
 from cryod.model.transfer_function import TransferFunction
 
 
+#: Free decays and release responses of the last models' paths over the last records (the analysis replays one
+#: record through many models that share their heater paths).
+_FREE_RESPONSES = KeptResults(16)
+
+
 def _release_response(transfer_function: TransferFunction, elapsed_s: np.ndarray) -> np.ndarray:
-    """Output (per W) of a path settled at 1 W above what it gets from t = 0 on."""
+    """Output (per W) of a path settled at 1 W above what it gets from t = 0 on (kept, read-only)."""
     form = transfer_function.modal_form()
-    elapsed_s = np.clip(elapsed_s, 0.0, None)
-    response = np.zeros(elapsed_s.size)
-    for pole, residue in zip(form.poles, form.residues):
-        response += np.real(-residue / pole * np.exp(pole * elapsed_s))
-    return response
+
+    def made():
+        elapsed = np.clip(elapsed_s, 0.0, None)
+        response = np.zeros(elapsed.size)
+        for pole, residue in zip(form.poles, form.residues):
+            response += np.real(-residue / pole * np.exp(pole * elapsed))
+        return response
+
+    return _FREE_RESPONSES.get_or_make(digest("release", form.poles, form.residues, elapsed_s), made)
 
 
 def flange_mode_columns(model: CryostatModel, elapsed_s, sample_interval_s: float) -> np.ndarray:
     """Free decays of the T2 heater path's modes from the first sample (one column per real mode,
-    two per complex pair); modes faster than two samples are left out."""
+    two per complex pair); modes faster than two samples are left out. Kept, read-only."""
     elapsed_s = np.asarray(elapsed_s, dtype=float)
     flange_heater, _ = flange_transfer_functions(model)
     delay = model.effects.dead_time.heater_to_flange_s if model.effects.dead_time else 0.0
-    shifted = np.clip(elapsed_s - delay, 0.0, None)
-    columns = []
-    for pole in flange_heater.modal_form().poles:
-        if -1.0 / pole.real < 2.0 * sample_interval_s or pole.imag < 0.0:
-            continue
-        decay = np.exp(pole * shifted)
-        columns.append(decay.real)
-        if pole.imag > 0.0:
-            columns.append(decay.imag)
-    return np.column_stack(columns) if columns else np.zeros((elapsed_s.size, 0))
+    poles = flange_heater.modal_form().poles
+
+    def made():
+        shifted = np.clip(elapsed_s - delay, 0.0, None)
+        columns = []
+        for pole in poles:
+            if -1.0 / pole.real < 2.0 * sample_interval_s or pole.imag < 0.0:
+                continue
+            decay = np.exp(pole * shifted)
+            columns.append(decay.real)
+            if pole.imag > 0.0:
+                columns.append(decay.imag)
+        return np.column_stack(columns) if columns else np.zeros((elapsed_s.size, 0))
+
+    return _FREE_RESPONSES.get_or_make(digest("modes", poles, delay, sample_interval_s, elapsed_s), made)
 
 
 def stage_release_response(model: CryostatModel, elapsed_s) -> np.ndarray:
@@ -82,6 +97,9 @@ def stage_release_response(model: CryostatModel, elapsed_s) -> np.ndarray:
     stage_heater, _ = stage_transfer_functions(model)
     return _release_response(stage_heater, np.asarray(elapsed_s, dtype=float))
 
+
+#: Bases whose columns on the fit rows a replayer keeps (the recalibration's, in the replays of one search).
+BASES_KEPT = 8
 
 #: The T2 modes' amplitudes at the first sample are free, with a penalty (a / width)^2 that prefers a settled
 #: start where the record cannot tell (a record starting inside a transient shows it at thousands of sigma).
@@ -265,7 +283,7 @@ class Replayer:
         Samples the nuisance parameters (and any candidate parameters) are fitted on.
     noise_rms_K : tuple of float, optional
         (T2, T5) noise used to weight the two thermometers when columns are
-        fitted jointly; set once measured.
+        fitted jointly (once measured: :meth:`weighted`).
     """
 
     def __init__(self, data: RecordData, fit_mask: np.ndarray, noise_rms_K: tuple[float, float] = (20e-6, 0.3e-3)):
@@ -275,14 +293,38 @@ class Replayer:
         #: Heater power the cryostat had settled at before the first sample (W); None: the first sample's.
         self.initial_heater_power_w: float | None = None
         self._measured_cycle = None
-        #: Makes the linearised model change fitted in every replay: ``basis_for(line)`` gives a
-        #: :class:`LinearBasis` for the line replayed, or None (see :mod:`cryod.analysis.recalibration`).
-        self.basis_for = None
+        self._fit_rows = np.flatnonzero(self.fit_mask)
+        self._basis_rows: dict = {}
+
+    def weighted(self, noise_rms_K: tuple[float, float]) -> "Replayer":
+        """The same replayer (record, fit samples, settled power, measured cycle) weighting by ``noise_rms_K``."""
+        other = Replayer(self.data, self.fit_mask, noise_rms_K)
+        other.initial_heater_power_w = self.initial_heater_power_w
+        other._measured_cycle = self._measured_cycle
+        return other
+
+    def share_measured_cycle(self, other: "Replayer") -> None:
+        """Use ``other``'s cooler phase measured in T5 (same record) instead of measuring it again."""
+        if other.data is not self.data:
+            raise ValueError("the measured cooler phase belongs to another record")
+        self._measured_cycle = other._measured_cycle
 
     def settle_from(self, replay: Replay) -> None:
         """Take the settled power before the record from a replay's T5 initial-state estimate."""
         start = self.initial_heater_power_w if self.initial_heater_power_w is not None else float(self.data.heater_w[0])
         self.initial_heater_power_w = max(start + replay.initial_power_offset_w, 0.0)
+
+    def _basis_on_fit_rows(self, basis: LinearBasis):
+        """A basis's columns on the fit rows (T2, T5) and their weighted Gram matrix, made once per basis."""
+        found = self._basis_rows.get(id(basis))
+        if found is None or found[0] is not basis:
+            flange = basis.flange_columns[self._fit_rows]
+            stage = basis.stage_columns[self._fit_rows]
+            gram = (flange.T @ flange) / self.noise_rms_K[0] ** 2 + (stage.T @ stage) / self.noise_rms_K[1] ** 2
+            if len(self._basis_rows) >= BASES_KEPT:
+                self._basis_rows.pop(next(iter(self._basis_rows)))
+            found = self._basis_rows[id(basis)] = (basis, flange, stage, gram)
+        return found[1:]
 
     # -- the line ----------------------------------------------------------
     def stage_line(self, model: CryostatModel, *, orders=(1,), drift: bool = False,
@@ -326,15 +368,8 @@ class Replayer:
         return simulate(model, self.data.time_s, heater_power_w, initial_heater_power_w=initial_heater_power_w,
                         heater_change_s=self.data.heater_change_s, ptc_cycle=cycle)
 
-    def basis(self, line: PtcLine | None, without=()) -> LinearBasis | None:
-        """The linearised model change fitted in replays with ``line`` (None: none), less ``without``."""
-        if self.basis_for is None:
-            return None
-        basis = self.basis_for(line)
-        return basis.without(without) if basis is not None and without else basis
-
     def replay(self, model: CryostatModel, line: PtcLine | None = None, shared_columns=None, *,
-               basis_without=(), basis: LinearBasis | None | bool = True) -> Replay:
+               basis: LinearBasis | None = None) -> Replay:
         """Predict the record with ``model`` (and the measured ``line``).
 
         Parameters
@@ -346,10 +381,8 @@ class Replayer:
             (T2 columns, T5 columns), each n x m: extra regressors whose m
             coefficients are fitted jointly on both thermometers, weighted by
             their noise (e.g. a linear effect's response).
-        basis_without : sequence of str
-            Parameters of the replayer's linearised model change left out of this replay.
-        basis : LinearBasis, bool or None
-            True: the replayer's own (:meth:`basis`); None or False: none; or this one.
+        basis : LinearBasis, optional
+            A linearised model change fitted alongside (the recalibration's, :class:`LinearBasis`).
 
         Returns
         -------
@@ -357,10 +390,8 @@ class Replayer:
         """
         aligned = line.applied_to(model) if line is not None else model
         simulated = self.simulate(aligned, cycle=line.cycle if line is not None else None)
-        if basis is True:
-            basis = self.basis(line, basis_without)
         return self.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K, shared_columns,
-                                     basis=basis or None)
+                                     basis=basis)
 
     def replay_simulated(self, aligned: CryostatModel, flange_K: np.ndarray, stage_K: np.ndarray,
                          shared_columns=None, basis: LinearBasis | None = None) -> Replay:
@@ -380,23 +411,34 @@ class Replayer:
         start = flange_columns + 2 + shared
         basis_index = slice(start, start + basis_count) if basis is not None else None
         columns = start + basis_count
-        rows = self.fit_mask
-        flange_rows = np.zeros((int(np.count_nonzero(rows)), columns + 1))
-        stage_rows = np.zeros_like(flange_rows)
-        flange_rows[:, 0] = 1.0
-        flange_rows[:, 1:flange_columns] = modes[rows]
-        stage_rows[:, flange_columns] = 1.0
-        stage_rows[:, flange_columns + 1] = stage_release[rows]
+        rows = self._fit_rows
+        # Each thermometer's design has only some of the columns: T2 the offset, the modes, the shared columns,
+        # the basis and the target; T5 its offset, the release, the shared, the basis and the target.
+        flange_part = np.empty((rows.size, flange_columns + shared + 1))
+        flange_part[:, 0] = 1.0
+        flange_part[:, 1:flange_columns] = modes[rows]
+        stage_part = np.empty((rows.size, 2 + shared + 1))
+        stage_part[:, 0] = 1.0
+        stage_part[:, 1] = stage_release[rows]
         if shared:
-            flange_rows[:, flange_columns + 2:start] = flange_extra[rows]
-            stage_rows[:, flange_columns + 2:start] = stage_extra[rows]
+            flange_part[:, flange_columns:-1] = flange_extra[rows]
+            stage_part[:, 2:-1] = stage_extra[rows]
+        flange_part[:, -1] = (data.flange_K - flange_K)[rows]
+        stage_part[:, -1] = (data.ptc_stage_K - stage_K)[rows]
+        flange_weight, stage_weight = 1.0 / self.noise_rms_K[0] ** 2, 1.0 / self.noise_rms_K[1] ** 2
+        flange_at = np.r_[0:flange_columns, flange_columns + 2:start, columns]
+        stage_at = np.r_[flange_columns:start, columns]
+        gram = np.zeros((columns + 1, columns + 1))
+        gram[np.ix_(flange_at, flange_at)] = (flange_part.T @ flange_part) * flange_weight
+        gram[np.ix_(stage_at, stage_at)] += (stage_part.T @ stage_part) * stage_weight
         if basis is not None:
-            flange_rows[:, basis_index] = basis.flange_columns[rows]
-            stage_rows[:, basis_index] = basis.stage_columns[rows]
-        flange_rows[:, columns] = (data.flange_K - flange_K)[rows]
-        stage_rows[:, columns] = (data.ptc_stage_K - stage_K)[rows]
-        gram = (flange_rows.T @ flange_rows) / self.noise_rms_K[0] ** 2 \
-            + (stage_rows.T @ stage_rows) / self.noise_rms_K[1] ** 2
+            flange_basis, stage_basis, basis_gram = self._basis_on_fit_rows(basis)
+            crossed = np.zeros((columns + 1, basis_count))
+            crossed[flange_at] = (flange_part.T @ flange_basis) * flange_weight
+            crossed[stage_at] += (stage_part.T @ stage_basis) * stage_weight
+            gram[:, basis_index] = crossed
+            gram[basis_index, :] = crossed.T
+            gram[basis_index, basis_index] = basis_gram
         modes_index = np.arange(1, flange_columns)
         gram[modes_index, modes_index] += 1.0 / INITIAL_STATE_WIDTH_K ** 2
         solution, penalty, normal_inverse = solve_with_basis(gram, basis_index, basis)

@@ -11,7 +11,9 @@ from cryod.analysis.decision import (
     CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, DISCREPANCY_FRACTION_OF_NOISE, DISCREPANCY_SIGMA,
     EXPLAINED_FRACTION,
 )
+from cryod.analysis.base_model_off import ADVICE
 from cryod.analysis.discrepancies import Discrepancy
+from cryod.analysis.equivalence import equivalents, sentence
 from cryod.analysis.pipeline import Analysis
 from cryod.analysis.record_data import block_length_s, saturation_fraction
 from cryod.analysis.summary import format_parameters
@@ -72,6 +74,77 @@ def _recalibration_section(analysis: Analysis) -> list[str]:
     return lines
 
 
+def _still_left(analysis: Analysis) -> str:
+    """The first line's words on what is left: a discrepancy the causes named leave, and the generic extension."""
+    left = analysis.remaining
+    if left is None or not left.present or analysis.cause == "none":
+        return ""
+    text = "" if analysis.cause == "unexplained" else (
+        f", and a discrepancy is still left ({left.significance:.1f} sigma, "
+        f"{100.0 * left.excess / left.terms:.2f} % of the noise power)")
+    generic = analysis.generic
+    if generic is not None:
+        verb = "extended by" if generic.added else "not extended: it does not count,"
+        text += (f"; {'no physical cause is named, ' if analysis.cause == 'unexplained' else ''}the model is {verb} "
+                 f"the generic extension ({' + '.join(generic.used)}), which removes "
+                 f"{100.0 * generic.score.explained_fraction:.1f} % of what is left (held-out gain "
+                 f"{generic.score.gain.ratio:.3g})")
+    return text + ": see \"What is left\""
+
+
+def _base_model_off_section(analysis: Analysis) -> list[str]:
+    beyond = analysis.beyond_recalibration
+    if beyond is None:
+        return []
+    lines = ["", "## The base model is further off than the recalibration allows", "",
+             f"Advice: {ADVICE}. Within the usual tolerance the analysis would have said "
+             f"`{beyond.within_tolerance.cause}` ({', '.join(beyond.within_tolerance.cause_names) or 'no cause'}); "
+             f"parameters it left at the tolerance: {', '.join(beyond.at_tolerance) or 'none'}.", "",
+             "| parameter | shipped | asked by the record | uncertainty | change |", "|---|---|---|---|---|"]
+    for row in beyond.parameters:
+        lines.append(f"| {row.parameter} {row.unit} | {_number(row.shipped)} | {_number(row.fitted)} | "
+                     f"{_number(row.uncertainty)} | {100.0 * (row.fitted / row.shipped - 1.0):+.1f} % |")
+    return lines
+
+
+def _left_section(analysis: Analysis) -> list[str]:
+    signature = analysis.residual_signature
+    lines = ["", "## What is left", ""]
+    left = analysis.remaining
+    if left is not None:
+        lines.append(f"The extended model's held-out excess: {left.excess:.4g} ({left.significance:.1f} sigma, "
+                     f"{100.0 * left.excess / left.terms:.2f} % of the noise power): "
+                     + ("a discrepancy." if left.present else "within the noise."))
+    if signature is not None:
+        sentences = signature.sentences()
+        lines += [""] + ([f"- {text}" for text in sentences] if sentences else
+                         ["- no spectral peak, drift or correlation above its band"])
+        if signature.worst_blocks:
+            lines.append("- largest in " + ", ".join(f"{block['from_s']:.0f}-{block['to_s']:.0f} s "
+                                                    f"({block['chi_square_per_term']:.3g} per term)"
+                                                    for block in signature.worst_blocks))
+    generic = analysis.generic
+    if generic is not None:
+        gain = generic.score.gain
+        state = ("added to the extended model (marked generic: effects "
+                 f"{', '.join(_generic_effects(generic))}, no cause)" if generic.added
+                 else "not added: it does not count on the held-out blocks")
+        lines += ["", f"**Generic extension** (data-driven, not a physical cause; fitted on the fit blocks, judged on "
+                      f"the held-out ones): {' + '.join(generic.used)} removes "
+                      f"{100.0 * generic.score.explained_fraction:.1f} % of what is left "
+                      f"({generic.score.significance:.1f} sigma), held-out gain {gain.ratio:.4g} "
+                      f"({_number(gain.base)} -> {_number(gain.extended)} times the noise); {state}. "
+                      "Each family alone:", ""]
+        lines += [f"- {text}" for text in generic.sentences()]
+    return lines
+
+
+def _generic_effects(generic) -> list[str]:
+    """The model file's effects the generic extension adds."""
+    return [f"`{name}`" for name, used in (("heater_path_correction", "heater_path_correction" in generic.used),
+                                           ("disturbance", set(generic.used) - {"heater_path_correction"})) if used]
+
+
 def _causes_section(analysis: Analysis) -> list[str]:
     named = _named(analysis)
     if not named:
@@ -83,6 +156,10 @@ def _causes_section(analysis: Analysis) -> list[str]:
         lines.append(f"| {cause.cause} | {format_parameters(cause.fit.parameters)} | "
                      f"{100 * cause.explained_fraction:.1f} % | {cause.gain.ratio:.4g} | "
                      f"{cause.score.significance:.3g} |")
+    for cause in named:
+        text = sentence(cause, equivalents(analysis, cause))
+        if text:
+            lines += ["", text]
     return lines
 
 
@@ -97,7 +174,7 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
     lines = [
         f"# Analysis of `{Path(data.source).name}`",
         "",
-        f"**Cause: `{analysis.cause}`.** {decision.reason[0].upper() + decision.reason[1:]}.",
+        f"**Cause: `{analysis.cause}`{_still_left(analysis)}.** {decision.reason[0].upper() + decision.reason[1:]}.",
         "",
         f"**Gain: {decision.gain.ratio:.4g}** ({decision.gain.metric}: base model {decision.gain.base:.4g}, "
         f"extended model {decision.gain.extended:.4g}). Fit and held-out data: alternate blocks of "
@@ -129,8 +206,10 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
         setpoint = f"{segment.setpoint_K:.4f}" if math.isfinite(segment.setpoint_K) else "-"
         lines.append(f"| {segment.kind} | {segment.start_s:.1f} | {segment.stop_s:.1f} | "
                      f"{1e3 * segment.mean_heater_w:.3f} | {setpoint} |")
+    lines += _base_model_off_section(analysis)
     lines += _recalibration_section(analysis)
     lines += _causes_section(analysis)
+    lines += _left_section(analysis)
     listed = [d for d in discrepancies if d.significance >= LISTED_SIGNIFICANCE][:LISTED_MOST]
     lines += ["", "## What the base model gets wrong", "",
               f"Quantities whose model and measured values differ by {LISTED_SIGNIFICANCE:g} standard errors or more "
@@ -166,6 +245,8 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
         "candidates": "held-out improvement of each candidate",
         "steps": "T2 after each heater step",
         "correlation": "T2 residual: autocorrelation and cross-correlation with the heater",
+        "resid": "the extended model's T2 residual as MATLAB's resid shows it: autocorrelation and cross-correlation "
+                 "with the heater (means over two line periods), 99 % bands",
     }
     for name, path in figures.items():
         lines += [f"![{captions[name]}]({path.name})", "", f"*{captions[name]}.*", ""]

@@ -8,10 +8,20 @@ parameters: list of {parameter, unit, shipped, fitted, uncertainty,
 significance, at_tolerance}, gain, tolerance}), ``discrepancies`` (list of
 {quantity, model, measured, significance}), ``extended_model`` (path of the
 model file written), ``gain`` ({metric, base, extended, ratio}: the base model
-as given against the extended one), ``candidates`` (list, one per cause tried
+as given against the extended one, generic extension included), ``candidates`` (list, one per cause tried
 on the recalibrated model: {cause, score, parameters, significance,
 explained_fraction, gain_ratio}; ``score`` is the held-out improvement in
-noise-variance units).
+noise-variance units); ``remaining`` (what the causes' model still shows:
+{discrepancy, excess, significance, fraction_of_noise_power}); ``base_model_off``
+(for that verdict: the parameters the record asks beyond the tolerance, with
+the values asked for, the advice, what a catalogue cause alone would have
+said); ``generic_extension`` (what is left modelled without physics: each
+family alone, the families used, the heater-path terms and the disturbance's
+statistics, its held-out gain and whether it is in the extended model: then
+``gain`` counts it); ``residual_signature`` (spectral peaks,
+drift, cross-correlations, segments, the resid-style correlations:
+:mod:`cryod.analysis.residual_signature`). Each named cause also carries
+``equivalent_to`` (other readings that fit alike: :mod:`cryod.analysis.equivalence`).
 """
 
 from __future__ import annotations
@@ -22,10 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from cryod.analysis.candidates import CANDIDATE_CAUSES
+from cryod.analysis.equivalence import equivalents
 from cryod.analysis.pipeline import Analysis
 
 #: The cause vocabulary of ``cryod analyze`` (DESIGN.md 4.3).
-CAUSES = ("none", *CANDIDATE_CAUSES, "unexplained")
+CAUSES = ("none", *CANDIDATE_CAUSES, "unexplained", "base_model_off")
 
 
 def plain(value):
@@ -68,6 +79,7 @@ def causes_summary(analysis: Analysis) -> list[dict]:
         "gain": named.gain.as_dict(),
         "significance": named.score.significance,
         "score": named.score.improvement,
+        "equivalent_to": equivalents(analysis, named),
     } for named in analysis.causes])
 
 
@@ -125,7 +137,20 @@ def json_summary(analysis: Analysis, discrepancies, extended_model_path: Path) -
         "extended_model": str(extended_model_path),
         "gain": plain(analysis.decision.gain.as_dict()),
         "candidates": candidates_summary(analysis),
+        "remaining": plain(_remaining(analysis)),
+        "base_model_off": plain(analysis.beyond_recalibration.as_dict()) if analysis.beyond_recalibration else None,
+        "generic_extension": plain(analysis.generic.as_dict()) if analysis.generic else None,
+        "residual_signature": plain(analysis.residual_signature.as_dict()) if analysis.residual_signature else None,
     }
+
+
+def _remaining(analysis: Analysis) -> dict | None:
+    """What the causes' model still shows on the held-out blocks (before any generic extension)."""
+    left = analysis.remaining
+    if left is None:
+        return None
+    return {"discrepancy": left.present, "excess": left.excess, "significance": left.significance,
+            "fraction_of_noise_power": left.excess / left.terms}
 
 
 def format_parameters(parameters: dict) -> str:
@@ -156,6 +181,10 @@ def model_header(analysis: Analysis, record_path: Path, base_model_path: Path) -
         lines.append(f"Recalibrated (base model's parameters refitted to the record): {changed}")
     for named in (analysis.causes if analysis.cause not in ("none", "unexplained") else []):
         lines.append(f"Fitted effect: {named.cause}: {format_parameters(named.fit.parameters)}")
+    if analysis.generic is not None and analysis.generic.added:
+        gain = analysis.generic.score.gain
+        lines.append(f"Generic (data-driven, not a physical cause): {' + '.join(analysis.generic.used)}, held-out "
+                     f"gain {gain.ratio:.4g} on top of the causes")
     if analysis.extended:
         lines.append(f"Gain on held-out data: {decision.gain.ratio:.4g} ({decision.gain.metric}: "
                      f"base {decision.gain.base:.4g}, extended {decision.gain.extended:.4g})")

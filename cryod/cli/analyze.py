@@ -29,6 +29,7 @@ from cryod.analysis.record_data import analysed_stretch, read_record_data
 from cryod.analysis.record_window import ANALYSIS_WINDOW_S
 from cryod.analysis.report import REPORT_NAME, write_report
 from cryod.analysis.segments import find_segments
+from cryod.analysis.slow_series import in_file_form
 from cryod.analysis.summary import json_summary, model_header
 from cryod.analysis.usability import check_usable
 from cryod.argument_types import not_negative
@@ -137,10 +138,12 @@ def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Pat
                                       frequency, segments)
     analysis.timings_s["discrepancies"] = time.perf_counter() - moment
     model_path_out = out / EXTENDED_MODEL_NAME
-    extended_model = analysis.extended_model
+    extended_model = in_file_form(analysis.extended_model)
     if analysis.extended:
         base_name = model.name or "model"
         added = [named.cause for named in analysis.causes] if analysis.cause not in ("none", "unexplained") else []
+        added += ([f"generic {' + '.join(analysis.generic.used)}"]
+                  if analysis.generic is not None and analysis.generic.added else [])
         what = " + ".join((["recalibrated"] if analysis.recalibrated else []) + added)
         extended_model = dataclasses.replace(
             extended_model, name=f"{base_name} + {what}",

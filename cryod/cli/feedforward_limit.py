@@ -5,6 +5,11 @@ for one setpoint and heater, and how it changes with the setpoint, the heater re
 current limit: a table for a user choosing a heater before buying one. Defaults come from the
 example configuration (heater, setpoint, loop period) and the shipped model.
 
+``--setpoints K,K,...`` gives the limit across a range instead, each setpoint with the model that holds
+there: a temperature-dependent model's linear model about it, or with ``--zones TABLE`` the feedforward's
+model of the zone holding it (:func:`cryod.control.zone_commissioning.limits_across_range`). A
+temperature-dependent model at one setpoint is taken about that setpoint too.
+
 Exit status: 0 done; 2 unusable input (a bad number, a setpoint the heater cannot hold, a model
 or configuration file that cannot be read).
 """
@@ -16,9 +21,10 @@ import json
 import math
 import sys
 import textwrap
+from pathlib import Path
 
 from cryod.cli.lab_inputs import InputsNotUsable, lab_inputs
-from cryod.argument_types import not_negative, number, positive
+from cryod.argument_types import not_negative, number, positive, setpoint_list
 
 from cryod.config import EXAMPLE_CONFIG_PATH
 from cryod.control.feedforward_limit import (
@@ -28,7 +34,10 @@ from cryod.control.feedforward_limit import (
 )
 from cryod.control.limit_binding import LimitBinding, limit_binding
 from cryod.control.feedforward_limit_range import LimitRange, limit_range
-from cryod.model import DEFAULT_MODEL_PATH
+from cryod.control.zone_commissioning import limits_across_range, model_at_temperature, model_of_zone
+from cryod.control.zones import zone_table_from
+from cryod.model import DEFAULT_MODEL_PATH, linearised_at
+from cryod.yaml_source import FileFormatError, Section
 
 PROGRAM = "cryod feedforward-limit"
 
@@ -59,6 +68,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     parser.add_argument("--measure", choices=MEASURES, default="sampled",
                         help="harmonics of the readings at the loop's instants, as the daemon measures (default), "
                              "or of the thermometer's continuous temperature")
+    parser.add_argument("--setpoints", type=setpoint_list, default=None, metavar="K,K,...",
+                        help="the limit at each of these setpoints, with the model that holds there (a "
+                             "temperature-dependent --model's, or --zones' models)")
+    parser.add_argument("--zones", type=Path, default=None, metavar="TABLE",
+                        help="with --setpoints: a zone table (cryod tune --zones): each setpoint with its zone's "
+                             "feedforward model, --model where the zone has none")
     parser.add_argument("--config", default=str(EXAMPLE_CONFIG_PATH), metavar="PATH",
                         help="configuration giving the defaults (default: the example config/cryod.yaml)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -72,7 +87,15 @@ def run(args: argparse.Namespace) -> int:
     except InputsNotUsable as error:
         print(f"{PROGRAM}: {error}", file=sys.stderr)
         return 2
+    if getattr(args, "setpoints", None) is not None or getattr(args, "zones", None) is not None:
+        return run_range(args, inputs)
     config, model, setpoint = inputs.config, inputs.model, inputs.setpoint_K
+    if model.temperature_dependence is not None:
+        try:
+            model = linearised_at(model, setpoint)
+        except ValueError as error:
+            print(f"{PROGRAM}: {args.model} at {setpoint:g} K: {error}", file=sys.stderr)
+            return 2
     resistance, current = inputs.heater_ohm, inputs.max_current_A
     period = args.period if args.period is not None else config.loop.period_s
     options = {"period_s": period, "heater_delay_s": args.heater_delay, "measure": args.measure,
@@ -103,6 +126,56 @@ def run(args: argparse.Namespace) -> int:
         bindings = {name: [row_binding(model, row, **options) for row in rows] for name, rows in sweeps.items()}
         print(report(limit, sweeps, model_path=str(args.model), spread=spread, binding=binding, bindings=bindings))
     return 0
+
+
+def run_range(args: argparse.Namespace, inputs) -> int:
+    """``--setpoints``: the limit at each setpoint with the model that holds there; returns the exit status."""
+    if args.setpoints is None:
+        print(f"{PROGRAM}: --zones gives the models of a range: give the range with --setpoints", file=sys.stderr)
+        return 2
+    config, model = inputs.config, inputs.model
+    resistance, current = inputs.heater_ohm, inputs.max_current_A
+    if args.zones is not None:
+        try:
+            table = zone_table_file(args.zones, resistance * current ** 2)
+        except FileFormatError as error:
+            print(f"{PROGRAM}: {error}", file=sys.stderr)
+            return 2
+        if model.temperature_dependence is not None:
+            print(f"{PROGRAM}: --model {args.model} is a temperature-dependent cryostat: with --zones give the "
+                  f"controller's model for zones without one (default: the shipped model)", file=sys.stderr)
+            return 2
+        model_at, source = model_of_zone(table, model), f"the zones of {args.zones}"
+    else:
+        model_at, source = model_at_temperature(model), str(args.model)
+    period = args.period if args.period is not None else config.loop.period_s
+    rows = limits_across_range(args.setpoints, model_at, resistance, current, period,
+                               heater_delay_s=args.heater_delay, measure=args.measure,
+                               averaging_time_s=args.averaging_time)
+    if args.json:
+        print(json.dumps({"models": source, "heater_resistance_ohm": resistance, "max_current_A": current,
+                          "period_s": period, "setpoints": [row.to_dict() for row in rows]}))
+        return 0
+    print(f"the feedforward's limit with {resistance:g} ohm at up to {current * 1e3:g} mA "
+          f"({resistance * current ** 2:.4g} W), models: {source}")
+    print("setpoint   model                                 mean heater   open line    limit        reachable    authority  "
+          "limited by")
+    for row in rows:
+        if row.problem:
+            print(f"{row.setpoint_K:8g} K  {row.model_name[:36]:36s}  {row.problem}")
+            continue
+        print(f"{row.setpoint_K:8g} K  {row.model_name[:36]:36s}  {_mw(row.mean_heater_power_W):>11s}  "
+              f"{_mk(row.open_line_K):>11s}  {_mk(row.ptc_periodic_limit_K):>11s}  "
+              f"{_mk(row.predicted_best_residual_K):>11s}  {row.authority:9.3g}  {row.limited_by}")
+    return 0
+
+
+def zone_table_file(path: Path, heater_max_power_w: float):
+    """The zone table in a file holding ``zones:`` (as ``cryod tune --zones`` writes it), checked."""
+    holder = Section.from_file(path)
+    table = zone_table_from(holder, 0.0, 0.0, heater_max_power_w)
+    holder.finish()
+    return table
 
 
 def row_binding(model, row: SweepPoint, period_s: float, **options) -> LimitBinding | None:

@@ -18,7 +18,9 @@ Modules:
 * :mod:`~cryod.model.transfer_function`: G(s), its frequency response and modal form;
 * :mod:`~cryod.model.ptc_cycle`: the cooler's phase and frequency over time;
 * :mod:`~cryod.model.heater_path`, :mod:`~cryod.model.ptc_path`: the two kinds of path;
-* :mod:`~cryod.model.dynamics`: how they and the effects combine into T2 and T5.
+* :mod:`~cryod.model.dynamics`: how they and the effects combine into T2 and T5;
+* :mod:`~cryod.model.temperature_laws`, :mod:`~cryod.model.temperature_plant`: the cryostat
+  across temperature (copper's heat capacity, the conductances' law, the cooler's line).
 
 Examples
 --------
@@ -35,17 +37,25 @@ from cryod.model.model_file import (
     model_to_dict, save_model,
 )
 from cryod.model.parameters import (
-    EFFECT_NAMES, CryostatModel, DeadTime, Effects, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics,
-    OperatingPoint, PtcFrequencyDrift, PtcHarmonic, PtcSource, SensorLag, SensorNoise,
+    EFFECT_NAMES, GENERIC_EFFECT_NAMES, CryostatModel, DeadTime, Disturbance, Effects, HeatCapacityTemperature,
+    HeaterNonlinearity, HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, PtcAmplitudeModulation,
+    PtcFrequencyDrift, PtcHarmonic, PtcSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
 )
 from cryod.model.ptc_cycle import PtcCycle
+from cryod.model.temperature_laws import TemperatureDependence
+from cryod.model.temperature_plant import (
+    TEMPERATURE_MODEL_PATH, TemperatureDependentPlant, cryostat_plant, linearised_at, steady_state,
+)
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
 from cryod.yaml_source import FileFormatError
 
 __all__ = [
-    "CryostatModel", "CryostatPlant", "DeadTime", "Effects", "EFFECT_NAMES", "FileFormatError",
-    "HeatCapacityTemperature", "HeaterNonlinearity", "LinkDynamics", "OperatingPoint", "PtcCycle",
-    "PtcFrequencyDrift", "PtcHarmonic", "PtcSource", "SensorLag", "SensorNoise", "SimulatedRecord",
+    "CryostatModel", "CryostatPlant", "DeadTime", "Disturbance", "Effects", "EFFECT_NAMES", "FileFormatError",
+    "GENERIC_EFFECT_NAMES", "HeatCapacityTemperature", "HeaterNonlinearity", "HeaterPathCorrection", "LinkDynamics",
+    "OperatingPoint", "Pickup", "PtcAmplitudeModulation", "PtcCycle", "PtcFrequencyDrift", "PtcHarmonic",
+    "PtcStageDrift", "PtcSource", "SensorLag", "SensorNoise", "SimulatedRecord", "SlowProcess",
+    "TemperatureDependence", "TemperatureDependentPlant", "TEMPERATURE_MODEL_PATH", "cryostat_plant",
+    "linearised_at", "steady_state",
     "TransferFunction", "TransferFunctionError", "DEFAULT_MODEL_PATH", "MODEL_FORMAT", "TRANSFER_FUNCTION_UNITS",
     "load_model", "load_model_text", "model_from_section", "model_to_dict", "save_model", "simulate",
 ]

@@ -13,7 +13,11 @@ Effects of the model are applied as physics: delivered heater power
 (nonlinearity), a delay queue (dead time), an extra lag on the readings
 (sensor lag), a changed PTC-to-flange path (link dynamics), time constants
 scaled with the flange temperature (heat capacity), harmonics and frequency
-drift of the cooler.
+drift of the cooler, its amplitude modulated (the whole oscillation scaled by a
+slow envelope), the cold end's drift (added to T5, and to T2 through its
+coupling), and the generic extension: a correction of the heater paths (terms
+in parallel with G1 and G3) and a disturbance (an unrecorded heat load, slow
+offsets and pickups of the readings).
 
 :class:`CryostatPlant` steps through time, an instant at a time (the
 simulated cryostat on a clock, the closed-loop studies); :func:`simulate`
@@ -32,14 +36,12 @@ Examples
 from __future__ import annotations
 
 import functools
-import hashlib
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 
 from cryod.model.heater_path import HeaterPath
+from cryod.model.kept_results import KeptResults, digest
 from cryod.model.parameters import CryostatModel
 from cryod.model.ptc_path import PtcDrive, PtcPath
 from cryod.model.transfer_function import TransferFunction
@@ -70,7 +72,10 @@ def flange_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, T
     builds a plant for the same model many times.
     """
     effects = model.effects
-    heater = model.flange_to_thermometer * model.heater_to_flange
+    heater_to_flange = model.heater_to_flange
+    if effects.heater_path_correction is not None and effects.heater_path_correction.paths()[0] is not None:
+        heater_to_flange = heater_to_flange + effects.heater_path_correction.paths()[0]
+    heater = model.flange_to_thermometer * heater_to_flange
     link = model.ptc_to_flange
     if effects.link_dynamics is not None:
         extra = TransferFunction.first_order_lag(
@@ -88,6 +93,9 @@ def flange_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, T
 def stage_transfer_functions(model: CryostatModel) -> tuple[TransferFunction, TransferFunction]:
     """(heater to PTC-stage thermometer, stage oscillation to PTC-stage thermometer)."""
     heater = model.heater_to_ptc_stage
+    correction = model.effects.heater_path_correction
+    if correction is not None and correction.paths()[1] is not None:
+        heater = heater + correction.paths()[1]
     oscillation = TransferFunction((1.0,), (1.0,))
     lag = model.effects.sensor_lag
     if lag is not None and lag.ptc_stage_thermometer_time_constant_s > 0.0:
@@ -131,6 +139,10 @@ class CryostatPlant:
         self.dead_time_s = effects.dead_time.heater_to_flange_s if effects.dead_time else 0.0
         self.nonlinearity = effects.heater_nonlinearity
         self.heat_capacity = effects.heat_capacity_temperature
+        self.modulation = effects.ptc_amplitude_modulation
+        self.stage_drift = effects.ptc_stage_drift
+        self.disturbance = effects.disturbance
+        self._heater_responses = (flange_heater.frequency_response, stage_heater.frequency_response)
         self.commanded_power_w = float(initial_heater_power_w)
         delivered = self.delivered_power_w(self.commanded_power_w)
         self.flange_heater.settle(delivered)
@@ -191,14 +203,34 @@ class CryostatPlant:
         self.time_s = time_s
 
     # -- outputs ------------------------------------------------------------
+    def envelope(self, elapsed_s):
+        """Factor on the cooler's oscillation ``elapsed_s`` after the start (1 without amplitude modulation)."""
+        return 1.0 if self.modulation is None else self.modulation.envelope(elapsed_s)
+
+    def drift_offsets_K(self, elapsed_s):
+        """(flange, stage) offsets ``elapsed_s`` after the start (K; 0 without): the cold end's drift, and the
+        generic disturbance (its unrecorded heat through the heater paths without their dead time)."""
+        flange, stage = 0.0, 0.0
+        if self.stage_drift is not None:
+            flange, stage = self.stage_drift.offsets_K(elapsed_s)
+        if self.disturbance is not None:
+            extra_flange, extra_stage = self.disturbance.offsets_K(elapsed_s, *self._heater_responses)
+            flange, stage = flange + extra_flange, stage + extra_stage
+        return flange, stage
+
     def temperatures(self) -> tuple[float, float]:
         """(T2, T5) in K at the current instant, noise-free."""
         point = self.model.operating_point
-        rotor, frequency = self.drive.cycle.rotor(self.time_s - self.start_time_s)
+        elapsed = self.time_s - self.start_time_s
+        rotor, frequency = self.drive.cycle.rotor(elapsed)
         heater = self.flange_heater.output()
         scale = 1.0 if self.heat_capacity is None else float(self.time_scale_at(heater))
-        flange = point.flange_temperature_K + heater + self.flange_ptc.value_at(rotor, frequency, scale)
-        stage = point.ptc_stage_temperature_K + self.stage_heater.output() + self.stage_ptc.value_at(rotor, frequency)
+        envelope = float(self.envelope(elapsed))
+        flange_drift, stage_drift = self.drift_offsets_K(elapsed)
+        flange = (point.flange_temperature_K + heater + envelope * self.flange_ptc.value_at(rotor, frequency, scale)
+                  + float(flange_drift))
+        stage = (point.ptc_stage_temperature_K + self.stage_heater.output()
+                 + envelope * self.stage_ptc.value_at(rotor, frequency) + float(stage_drift))
         return flange, stage
 
     def mean_temperatures(self, duration_s: float) -> tuple[float, float]:
@@ -209,10 +241,12 @@ class CryostatPlant:
         point = self.model.operating_point
         elapsed = self.time_s - self.start_time_s
         scale = self.time_scale()
+        envelope = float(self.envelope(elapsed))          # the modulation and the drift are slow: taken at the start
+        flange_drift, stage_drift = self.drift_offsets_K(elapsed)
         flange = (point.flange_temperature_K + self.flange_heater.mean_output(duration_s, scale)
-                  + self.flange_ptc.mean_value(elapsed, duration_s, scale))
+                  + envelope * self.flange_ptc.mean_value(elapsed, duration_s, scale) + float(flange_drift))
         stage = (point.ptc_stage_temperature_K + self.stage_heater.mean_output(duration_s)
-                 + self.stage_ptc.mean_value(elapsed, duration_s))
+                 + envelope * self.stage_ptc.mean_value(elapsed, duration_s) + float(stage_drift))
         return flange, stage
 
 
@@ -282,8 +316,13 @@ def simulate(model: CryostatModel, time_s, heater_power_w, *, initial_heater_pow
         if heater_change_s.shape != time_s.shape or np.any(heater_change_s < time_s) \
                 or np.any(heater_change_s[:-1] >= time_s[1:]):
             raise ValueError("heater_change_s must have one instant per sample, each between its sample and the next")
-    plant = CryostatPlant(model, float(time_s[0]) if time_s.size else 0.0, initial_heater_power_w, ptc_cycle)
-    flange, stage = _simulate_whole(plant, time_s, heater_power_w, heater_change_s)
+    if model.temperature_dependence is not None:      # no whole-array form: instant by instant
+        from cryod.model.temperature_plant import simulate_stepping
+        record = simulate_stepping(model, time_s, heater_power_w, initial_heater_power_w, heater_change_s, ptc_cycle)
+        flange, stage = record.flange_K, record.ptc_stage_K
+    else:
+        plant = CryostatPlant(model, float(time_s[0]) if time_s.size else 0.0, initial_heater_power_w, ptc_cycle)
+        flange, stage = _simulate_whole(plant, time_s, heater_power_w, heater_change_s)
     if noise:
         generator = np.random.default_rng(seed)
         flange = flange + generator.normal(0.0, model.sensor_noise.flange_thermometer_rms_K, flange.size)
@@ -306,27 +345,94 @@ def _simulate_whole(plant: CryostatPlant, time_s: np.ndarray, heater_power_w: np
     factors is found as the fixed point of "run the path with these factors,
     recompute the factors from its output", which converges in a few passes
     because the factor changes slowly with temperature.
+
+    Each heater path's response is kept for the next call with the same path,
+    state and inputs (:mod:`cryod.model.kept_results`).
     """
     point = plant.model.operating_point
     delivered = heater_power_w if plant.nonlinearity is None \
         else plant.nonlinearity.delivered_power_w(heater_power_w)
     changes = time_s if heater_change_s is None else heater_change_s
+    record_key = digest(time_s, delivered, None if heater_change_s is None else changes)
     # PTC stage: input changes at the heater's change instants.
-    grid, inputs = _input_grid(time_s, changes, delivered, plant.stage_heater.input)
-    outputs = plant.stage_heater.run(np.diff(grid), inputs[:-1])
-    stage_heater = outputs[np.searchsorted(grid, time_s)] if grid.size != time_s.size else outputs
+    held = _held_inputs(time_s, changes, 0.0, delivered, plant.stage_heater.input, record_key)
+    stage_heater = _path_at_samples(plant.stage_heater, held)
     # Flange: input changes at those instants plus the dead time.
-    grid, inputs = _input_grid(time_s, changes + plant.dead_time_s, delivered, plant.flange_heater.input)
+    held = _held_inputs(time_s, changes, plant.dead_time_s, delivered, plant.flange_heater.input, record_key)
     if plant.heat_capacity is None:
-        outputs = plant.flange_heater.run(np.diff(grid), inputs[:-1])
+        flange_heater = _path_at_samples(plant.flange_heater, held)
     else:
-        outputs = _run_time_scaled(plant, grid, inputs)
-    flange_heater = outputs[np.searchsorted(grid, time_s)] if grid.size != time_s.size else outputs
+        outputs = _run_time_scaled(plant, held)
+        flange_heater = outputs if held.sample_positions is None else outputs[held.sample_positions]
     elapsed = time_s - plant.start_time_s
     scale = 1.0 if plant.heat_capacity is None else plant.time_scale_at(flange_heater)
-    flange = point.flange_temperature_K + flange_heater + plant.flange_ptc.values(elapsed, scale)
-    stage = point.ptc_stage_temperature_K + stage_heater + plant.stage_ptc.values(elapsed)
+    envelope = plant.envelope(elapsed)
+    flange_drift, stage_drift = plant.drift_offsets_K(elapsed)
+    flange = point.flange_temperature_K + flange_heater + envelope * plant.flange_ptc.values(elapsed, scale) \
+        + flange_drift
+    stage = point.ptc_stage_temperature_K + stage_heater + envelope * plant.stage_ptc.values(elapsed) + stage_drift
     return flange, stage
+
+
+@dataclass(frozen=True)
+class _HeldInputs:
+    """A path's input over a record: the instants it is held between and its value from each.
+
+    Attributes
+    ----------
+    grid : numpy.ndarray
+        The sample instants and the instants the input changes, in order.
+    inputs : numpy.ndarray
+        The input held from each grid instant.
+    sample_positions : numpy.ndarray or None
+        Where each sample instant is in ``grid`` (None: the grid is the sample instants).
+    key : bytes
+        A digest of everything the above depend on.
+    """
+
+    grid: np.ndarray
+    inputs: np.ndarray
+    sample_positions: np.ndarray | None
+    key: bytes
+
+
+#: Inputs of the last paths simulated, and the paths' responses to them (each an hour's record or so).
+_HELD_INPUTS = KeptResults(8)
+_PATH_RUNS = KeptResults(16)
+
+
+def _held_inputs(time_s: np.ndarray, change_times: np.ndarray, delay_s: float, delivered: np.ndarray,
+                 before: float, record_key: bytes) -> _HeldInputs:
+    """The input held between the sample instants and the instants it changes (``delivered[k]`` from
+    ``change_times[k] + delay_s`` on, ``before`` until the first), kept by ``record_key`` (a digest of the
+    instants and ``delivered``), the delay and ``before``."""
+    key = digest(record_key, delay_s, before)
+
+    def made():
+        shifted = change_times + delay_s if delay_s else change_times
+        grid, inputs = _input_grid(time_s, shifted, delivered, before)
+        positions = np.searchsorted(grid, time_s) if grid.size != time_s.size else None
+        grid, inputs = np.array(grid), np.array(inputs)        # copies: kept read-only, the caller's untouched
+        for array in (grid, inputs) + ((positions,) if positions is not None else ()):
+            array.setflags(write=False)
+        return _HeldInputs(grid, inputs, positions, key)
+
+    return _HELD_INPUTS.get_or_make(key, made)
+
+
+def _path_at_samples(path: HeaterPath, held: _HeldInputs) -> np.ndarray:
+    """A heater path's output at the sample instants for ``held`` inputs (kept); the path is left in the state
+    its run ends in."""
+    key = digest(held.key, path.poles, path.residues, path.direct, path.state, path.input)
+
+    def made():
+        outputs = path.run(np.diff(held.grid), held.inputs[:-1])
+        at_samples = outputs if held.sample_positions is None else outputs[held.sample_positions]
+        return at_samples, tuple(path.state), path.input
+
+    outputs, state, final_input = _PATH_RUNS.get_or_make(key, made)
+    path.state, path.input = list(state), final_input
+    return outputs
 
 
 def _input_grid(time_s: np.ndarray, change_times: np.ndarray, delivered: np.ndarray, before: float):
@@ -334,21 +440,29 @@ def _input_grid(time_s: np.ndarray, change_times: np.ndarray, delivered: np.ndar
     ``change_times[k]`` on, ``before`` until the first), and the input held from each."""
     if change_times is time_s or np.array_equal(change_times, time_s):
         return time_s, delivered
-    grid = np.union1d(time_s, change_times[change_times < time_s[-1]])
+    grid = _sorted_union(time_s, change_times[change_times < time_s[-1]])
     index = np.searchsorted(change_times, grid, side="right") - 1
     inputs = np.where(index >= 0, delivered[np.clip(index, 0, None)], before)
     return grid, inputs
 
 
+def _sorted_union(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """The sorted distinct values of two increasing arrays (``numpy.union1d``, by a merge: both are sorted)."""
+    merged = np.concatenate((first, second))
+    merged.sort(kind="stable")                 # two increasing runs: merged in linear time
+    keep = np.empty(merged.size, dtype=bool)
+    keep[:1] = True
+    np.not_equal(merged[1:], merged[:-1], out=keep[1:])
+    return merged[keep]
+
+
 #: The last fixed points of the heat-capacity effect, by everything they depend on. The analysis replays
 #: one record many times with the flange's heater path unchanged (a thermometer's lag, the cooler's line,
 #: the linear parameters), and on such a model the fixed point is most of each replay's time.
-_TIME_SCALED_RUNS: OrderedDict = OrderedDict()
-_TIME_SCALED_RUNS_KEPT = 4
-_TIME_SCALED_LOCK = threading.Lock()
+_TIME_SCALED_RUNS = KeptResults(4)
 
 
-def _run_time_scaled(plant: CryostatPlant, grid: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+def _run_time_scaled(plant: CryostatPlant, held: _HeldInputs) -> np.ndarray:
     """Flange heater path at the grid instants, time constants scaled per interval (fixed point).
 
     The result is the same for the same path, state, inputs and effect; it is
@@ -356,25 +470,16 @@ def _run_time_scaled(plant: CryostatPlant, grid: np.ndarray, inputs: np.ndarray)
     in the state the run ends in, as without the cache.
     """
     path = plant.flange_heater
-    digest = hashlib.blake2b(digest_size=20)
-    for array in (grid, inputs, path.poles, path.residues, path.state):
-        digest.update(np.ascontiguousarray(array, dtype=complex).tobytes())
-    digest.update(repr((path.direct, path.input, plant.model.operating_point.flange_temperature_K,
-                        plant.heat_capacity.exponent, plant.heat_capacity.reference_temperature_K)).encode())
-    key = digest.digest()
-    with _TIME_SCALED_LOCK:
-        kept = _TIME_SCALED_RUNS.get(key)
-        if kept is not None:
-            _TIME_SCALED_RUNS.move_to_end(key)
-    if kept is not None:
-        outputs, path.state, path.input = kept[0], list(kept[1]), kept[2]
-        return outputs
-    outputs = _fixed_point(plant, grid, inputs)
-    outputs.setflags(write=False)
-    with _TIME_SCALED_LOCK:
-        _TIME_SCALED_RUNS[key] = (outputs, tuple(path.state), path.input)
-        while len(_TIME_SCALED_RUNS) > _TIME_SCALED_RUNS_KEPT:
-            _TIME_SCALED_RUNS.popitem(last=False)
+    key = digest(held.key, path.poles, path.residues, path.state, path.direct, path.input,
+                 plant.model.operating_point.flange_temperature_K, plant.heat_capacity.exponent,
+                 plant.heat_capacity.reference_temperature_K)
+
+    def made():
+        outputs = _fixed_point(plant, held.grid, held.inputs)
+        return outputs, tuple(path.state), path.input
+
+    outputs, state, final_input = _TIME_SCALED_RUNS.get_or_make(key, made)
+    path.state, path.input = list(state), final_input
     return outputs
 
 

@@ -23,9 +23,11 @@ from pathlib import Path
 import yaml
 
 from cryod.model.parameters import (
-    CryostatModel, DeadTime, Effects, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, OperatingPoint,
-    PtcFrequencyDrift, PtcHarmonic, PtcSource, SensorLag, SensorNoise,
+    PICKUP_THERMOMETERS, CryostatModel, DeadTime, Disturbance, Effects, HeatCapacityTemperature, HeaterNonlinearity,
+    HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, PtcAmplitudeModulation, PtcFrequencyDrift,
+    PtcHarmonic, PtcSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
 )
+from cryod.model.temperature_laws import TemperatureDependence
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
 from cryod.model.uncertainty import ModelUncertainty, UncertaintyError, check_consistent, inconsistencies
 from cryod.yaml_source import Section
@@ -103,6 +105,13 @@ def model_from_section(top: Section) -> CryostatModel:
         )
         noise_section.finish()
     uncertainty_section = top.section("uncertainty", None)
+    temperature_section = top.section("temperature_dependence", None)
+    temperature_dependence = None
+    if temperature_section is not None:
+        temperature_dependence = _temperature_dependence(temperature_section)
+        if effects.present():
+            raise top.error("temperature_dependence", f"the temperature-dependent cryostat takes no effects: remove "
+                                                      f"effects ({', '.join(effects.present())}) or this section")
     top.finish()
     model = CryostatModel(
         operating_point=operating_point,
@@ -112,6 +121,7 @@ def model_from_section(top: Section) -> CryostatModel:
         name=name,
         description=description,
         source=top.source,
+        temperature_dependence=temperature_dependence,
         **loaded,
     )
     if uncertainty_section is not None:
@@ -141,6 +151,24 @@ def _uncertainty(section: Section, model: CryostatModel) -> ModelUncertainty:
     except UncertaintyError as error:
         raise section.error("parameters", str(error)) from None
     return uncertainty
+
+
+def _temperature_dependence(section: Section) -> TemperatureDependence:
+    """The optional ``temperature_dependence`` section (the laws of :mod:`cryod.model.temperature_laws`)."""
+    defaults = TemperatureDependence()
+    values = {
+        "gamma_J_per_mol_K2": section.number("gamma_J_per_mol_K2", defaults.gamma_J_per_mol_K2, minimum=0.0),
+        "beta_J_per_mol_K4": section.number("beta_J_per_mol_K4", defaults.beta_J_per_mol_K4, minimum=0.0),
+        "conductance_exponent": section.number("conductance_exponent", defaults.conductance_exponent,
+                                               minimum=0.0, maximum=4.0),
+        "stage_line_exponent": section.number("stage_line_exponent", defaults.stage_line_exponent,
+                                              minimum=-4.0, maximum=4.0),
+    }
+    section.finish()
+    try:
+        return TemperatureDependence(**values)
+    except ValueError as error:
+        raise section.error("gamma_J_per_mol_K2", str(error)) from None
 
 
 def _transfer_function(functions: Section, key: str, units: str) -> TransferFunction:
@@ -181,59 +209,132 @@ def _ptc_source(section: Section) -> PtcSource:
     return source
 
 
+def _sensor_lag(part: Section) -> SensorLag:
+    return SensorLag(
+        flange_thermometer_time_constant_s=part.number(
+            "flange_thermometer_time_constant_s", minimum=0.0, exclusive_minimum=True),
+        ptc_stage_thermometer_time_constant_s=part.number("ptc_stage_thermometer_time_constant_s", 0.0, minimum=0.0))
+
+
+def _link_dynamics(part: Section) -> LinkDynamics:
+    return LinkDynamics(time_constant_s=part.number("time_constant_s", minimum=0.0),
+                        gain_factor=part.number("gain_factor", 1.0, minimum=0.0, exclusive_minimum=True))
+
+
+def _dead_time(part: Section) -> DeadTime:
+    return DeadTime(heater_to_flange_s=part.number("heater_to_flange_s", minimum=0.0, maximum=600.0))
+
+
+def _heat_capacity_temperature(part: Section) -> HeatCapacityTemperature:
+    return HeatCapacityTemperature(
+        exponent=part.number("exponent", minimum=-6.0, maximum=6.0),
+        reference_temperature_K=part.number("reference_temperature_K", minimum=0.0, exclusive_minimum=True))
+
+
+def _heater_nonlinearity(part: Section) -> HeaterNonlinearity:
+    return HeaterNonlinearity(
+        quadratic_coefficient_per_W=part.number("quadratic_coefficient_per_W", minimum=-1.0, maximum=10.0))
+
+
+def _ptc_frequency_drift(part: Section) -> PtcFrequencyDrift:
+    return PtcFrequencyDrift(
+        rate_rad_s_per_hour=part.number("rate_rad_s_per_hour", 0.0),
+        wander_amplitude_rad_s=part.number("wander_amplitude_rad_s", 0.0, minimum=0.0),
+        wander_period_s=part.number("wander_period_s", 3600.0, minimum=0.0, exclusive_minimum=True),
+        wander_phase_rad=part.number("wander_phase_rad", 0.0))
+
+
+def _ptc_amplitude_modulation(part: Section) -> PtcAmplitudeModulation:
+    return PtcAmplitudeModulation(
+        depth=part.number("depth", minimum=0.0, maximum=0.9),
+        period_s=part.number("period_s", minimum=0.0, exclusive_minimum=True),
+        phase_rad=part.number("phase_rad", 0.0))
+
+
+def _ptc_stage_drift(part: Section) -> PtcStageDrift:
+    return PtcStageDrift(
+        rms_K=part.number("rms_K", minimum=0.0, maximum=1.0),
+        correlation_time_s=part.number("correlation_time_s", minimum=0.0, exclusive_minimum=True),
+        flange_coupling=part.number("flange_coupling", minimum=-10.0, maximum=10.0),
+        coupling_time_constant_s=part.number("coupling_time_constant_s", minimum=0.0),
+        seed=part.number("seed", 0, minimum=0.0, integer=True))
+
+
+def _heater_path_correction(part: Section) -> HeaterPathCorrection:
+    taus = part.numbers("time_constants_s")
+    if any(tau <= 0.0 for tau in taus):
+        raise part.error("time_constants_s", f"each time constant must be positive, got {taus}")
+    gains = {}
+    for key in ("flange_gains_K_per_W", "ptc_stage_gains_K_per_W"):
+        gains[key] = part.numbers(key)
+        if len(gains[key]) != len(taus):
+            raise part.error(key, f"needs one gain per time constant ({len(taus)}), got {len(gains[key])}")
+    return HeaterPathCorrection(tuple(taus), tuple(gains["flange_gains_K_per_W"]),
+                                tuple(gains["ptc_stage_gains_K_per_W"]))
+
+
 def _effects(section: Section) -> Effects:
+    readers = {"sensor_lag": _sensor_lag, "link_dynamics": _link_dynamics, "dead_time": _dead_time,
+               "heat_capacity_temperature": _heat_capacity_temperature, "heater_nonlinearity": _heater_nonlinearity,
+               "ptc_frequency_drift": _ptc_frequency_drift, "ptc_amplitude_modulation": _ptc_amplitude_modulation,
+               "ptc_stage_drift": _ptc_stage_drift, "heater_path_correction": _heater_path_correction,
+               "disturbance": _disturbance}
     found = {}
-    lag = section.section("sensor_lag", None)
-    if lag is not None:
-        found["sensor_lag"] = SensorLag(
-            flange_thermometer_time_constant_s=lag.number(
-                "flange_thermometer_time_constant_s", minimum=0.0, exclusive_minimum=True),
-            ptc_stage_thermometer_time_constant_s=lag.number(
-                "ptc_stage_thermometer_time_constant_s", 0.0, minimum=0.0),
-        )
-        lag.finish()
-    link = section.section("link_dynamics", None)
-    if link is not None:
-        found["link_dynamics"] = LinkDynamics(
-            time_constant_s=link.number("time_constant_s", minimum=0.0),
-            gain_factor=link.number("gain_factor", 1.0, minimum=0.0, exclusive_minimum=True),
-        )
-        link.finish()
-    delay = section.section("dead_time", None)
-    if delay is not None:
-        found["dead_time"] = DeadTime(
-            heater_to_flange_s=delay.number("heater_to_flange_s", minimum=0.0, maximum=600.0))
-        delay.finish()
-    capacity = section.section("heat_capacity_temperature", None)
-    if capacity is not None:
-        found["heat_capacity_temperature"] = HeatCapacityTemperature(
-            exponent=capacity.number("exponent", minimum=-6.0, maximum=6.0),
-            reference_temperature_K=capacity.number(
-                "reference_temperature_K", minimum=0.0, exclusive_minimum=True),
-        )
-        capacity.finish()
-    heater = section.section("heater_nonlinearity", None)
-    if heater is not None:
-        found["heater_nonlinearity"] = HeaterNonlinearity(
-            quadratic_coefficient_per_W=heater.number(
-                "quadratic_coefficient_per_W", minimum=-1.0, maximum=10.0))
-        heater.finish()
-    drift = section.section("ptc_frequency_drift", None)
-    if drift is not None:
-        found["ptc_frequency_drift"] = PtcFrequencyDrift(
-            rate_rad_s_per_hour=drift.number("rate_rad_s_per_hour", 0.0),
-            wander_amplitude_rad_s=drift.number("wander_amplitude_rad_s", 0.0, minimum=0.0),
-            wander_period_s=drift.number("wander_period_s", 3600.0, minimum=0.0, exclusive_minimum=True),
-            wander_phase_rad=drift.number("wander_phase_rad", 0.0),
-        )
-        drift.finish()
+    for name, read in readers.items():
+        part = section.section(name, None)
+        if part is not None:
+            found[name] = read(part)
+            part.finish()
     section.finish()
     return Effects(**found)
+
+
+#: The disturbance's slow processes: (key, unit of its rms).
+DISTURBANCE_PROCESSES = (("unrecorded_heat", "W"), ("flange_offset", "K"), ("ptc_stage_offset", "K"))
+
+
+def _disturbance(section: Section) -> Disturbance:
+    processes = {}
+    for key, unit in DISTURBANCE_PROCESSES:
+        process = section.section(key, None)
+        if process is not None:
+            processes[key] = SlowProcess(
+                rms=process.number(f"rms_{unit}", minimum=0.0, maximum=1.0),
+                correlation_time_s=process.number("correlation_time_s", minimum=0.0, exclusive_minimum=True),
+                seed=process.number("seed", 0, minimum=0.0, integer=True))
+            process.finish()
+    pickups = []
+    for pickup in section.sections("pickups", []):
+        pickups.append(Pickup(
+            thermometer=pickup.text("thermometer", choices=PICKUP_THERMOMETERS),
+            frequency_hz=pickup.number("frequency_hz", minimum=0.0, exclusive_minimum=True),
+            amplitude_K=pickup.number("amplitude_K", minimum=0.0, maximum=1.0),
+            phase_rad=pickup.number("phase_rad", 0.0)))
+        pickup.finish()
+    return Disturbance(pickups=tuple(pickups), **processes)
+
+
+def _disturbance_dict(disturbance: Disturbance) -> dict:
+    data = {}
+    for key, unit in DISTURBANCE_PROCESSES:
+        process = getattr(disturbance, key)
+        if process is not None:
+            data[key] = {f"rms_{unit}": process.rms, "correlation_time_s": process.correlation_time_s,
+                         "seed": process.seed}
+    if disturbance.pickups:
+        data["pickups"] = [dataclasses.asdict(pickup) for pickup in disturbance.pickups]
+    return data
 
 
 # ---------------------------------------------------------------------------
 # writing
 # ---------------------------------------------------------------------------
+def _plain_effect(effect) -> dict:
+    """An effect's fields as a mapping (tuples as lists)."""
+    return {key: list(value) if isinstance(value, tuple) else value
+            for key, value in dataclasses.asdict(effect).items()}
+
+
 def model_to_dict(model: CryostatModel) -> dict:
     """The model as the plain mapping written to a model file."""
     data: dict = {"format": MODEL_FORMAT}
@@ -255,10 +356,13 @@ def model_to_dict(model: CryostatModel) -> dict:
     if model.ptc.harmonics:
         ptc["harmonics"] = [dataclasses.asdict(h) for h in model.ptc.harmonics]
     data["ptc"] = ptc
-    effects = {name: dataclasses.asdict(getattr(model.effects, name)) for name in model.effects.present()}
+    effects = {name: _disturbance_dict(model.effects.disturbance) if name == "disturbance"
+               else _plain_effect(getattr(model.effects, name)) for name in model.effects.present()}
     if effects:
         data["effects"] = effects
     data["sensor_noise"] = dataclasses.asdict(model.sensor_noise)
+    if model.temperature_dependence is not None:
+        data["temperature_dependence"] = dataclasses.asdict(model.temperature_dependence)
     if model.uncertainty is not None and not inconsistencies(model, model.uncertainty):
         # (a model changed after identification keeps no uncertainty: the stated one was of other values)
         stated = model.uncertainty

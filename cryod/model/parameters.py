@@ -18,11 +18,13 @@ Examples
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from cryod.model.temperature_laws import TemperatureDependence
 from cryod.model.transfer_function import TransferFunction
 from cryod.model.uncertainty import ModelUncertainty
 
@@ -35,7 +37,12 @@ EFFECT_NAMES = (
     "heater_nonlinearity",
     "ptc_harmonics",
     "ptc_frequency_drift",
+    "ptc_amplitude_modulation",
+    "ptc_stage_drift",
 )
+#: The generic, data-driven extension ``cryod analyze`` adds where no cause of :data:`EFFECT_NAMES` explains
+#: the record: an effect of the model file, but no cause.
+GENERIC_EFFECT_NAMES = ("heater_path_correction", "disturbance")
 
 
 @dataclass(frozen=True)
@@ -156,6 +163,177 @@ class PtcFrequencyDrift:
 
 
 @dataclass(frozen=True)
+class PtcAmplitudeModulation:
+    """The cooler's stroke breathing: the whole oscillation (T5's line and the heat it drives) scaled by
+    ``1 + depth * sin(2 pi t / period_s + phase_rad)``, t from the phase reference."""
+
+    depth: float
+    period_s: float
+    phase_rad: float = 0.0
+
+    def envelope(self, time_s):
+        """Factor on the oscillation at ``time_s`` (dimensionless)."""
+        return 1.0 + self.depth * np.sin(2.0 * math.pi * np.asarray(time_s, dtype=float) / self.period_s
+                                         + self.phase_rad)
+
+
+#: Components of a slow random process's realisation (:func:`slow_process_components`).
+STAGE_DRIFT_COMPONENTS = 48
+
+
+@functools.lru_cache(maxsize=64)
+def slow_process_components(rms: float, correlation_time_s: float, seed: int
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(angular frequencies in rad/s, amplitudes, phases in rad) of a slow random process realised as a sum of
+    sinusoids: a Lorentzian spectrum of correlation time ``correlation_time_s`` (a random walk above
+    ``1 / (2 pi correlation_time_s)``, flat below) and rms ``rms``, its phases drawn from ``seed``.
+
+    Frequencies log-spaced from a hundredth to ten times the corner (faster changes are smoothed by the
+    cryostat's own heat capacities), each amplitude the square root of the Lorentzian's power in its band,
+    scaled to ``rms`` in all. Remembered: the stepping plant asks at every instant (do not change the arrays).
+    """
+    corner = 1.0 / correlation_time_s
+    edges = np.geomspace(0.01 * corner, 10.0 * corner, STAGE_DRIFT_COMPONENTS + 1)
+    power = np.diff(np.arctan(edges / corner))          # integral of 1 / (1 + (w / corner)^2) per band
+    frequencies = np.sqrt(edges[:-1] * edges[1:])
+    amplitudes = np.sqrt(2.0 * power / power.sum()) * rms
+    phases = np.random.default_rng(seed).uniform(-math.pi, math.pi, frequencies.size)
+    return frequencies, amplitudes, phases
+
+
+def realised(components, time_s, response=None) -> np.ndarray:
+    """A sum of sinusoids ``components`` (:func:`slow_process_components`) at ``time_s``, each through
+    ``response(angular frequency) -> complex gain`` when given."""
+    frequencies, amplitudes, phases = components
+    time_s = np.asarray(time_s, dtype=float)
+    if response is not None:
+        gains = np.asarray(response(frequencies), dtype=complex)
+        amplitudes, phases = amplitudes * np.abs(gains), phases + np.angle(gains)
+    return np.cos(np.multiply.outer(time_s, frequencies) + phases) @ amplitudes
+
+
+@dataclass(frozen=True)
+class PtcStageDrift:
+    """The cold end's base temperature wandering (cooling water, compressor): d(t) added to T5, reaching the
+    flange through ``flange_coupling / (coupling_time_constant_s s + 1)``.
+
+    d(t) is a random process of rms ``rms_K`` whose spectrum is a Lorentzian of correlation time
+    ``correlation_time_s``, realised deterministically from ``seed`` (:func:`slow_process_components`).
+    """
+
+    rms_K: float
+    correlation_time_s: float
+    flange_coupling: float
+    coupling_time_constant_s: float
+    seed: int = 0
+
+    def components(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(angular frequencies in rad/s, amplitudes in K, phases in rad) of the realisation."""
+        return slow_process_components(self.rms_K, self.correlation_time_s, self.seed)
+
+    def offsets_K(self, time_s) -> tuple[np.ndarray, np.ndarray]:
+        """(flange, stage) temperature offsets (K) at ``time_s``: the drift and its response through the coupling."""
+        components = self.components()
+        coupling = lambda w: self.flange_coupling / (1j * w * self.coupling_time_constant_s + 1.0)  # noqa: E731
+        return realised(components, time_s, coupling), realised(components, time_s)
+
+
+@dataclass(frozen=True)
+class SlowProcess:
+    """A slow random process of rms ``rms`` (in its quantity's unit) and correlation time ``correlation_time_s``,
+    realised deterministically from ``seed`` (:func:`slow_process_components`)."""
+
+    rms: float
+    correlation_time_s: float
+    seed: int = 0
+
+    def values(self, time_s, response=None) -> np.ndarray:
+        """The realisation at ``time_s`` (through ``response(angular frequency)`` when given)."""
+        return realised(slow_process_components(self.rms, self.correlation_time_s, self.seed), time_s, response)
+
+
+#: Thermometers a pickup can be on.
+PICKUP_THERMOMETERS = ("flange", "ptc_stage")
+
+
+@dataclass(frozen=True)
+class Pickup:
+    """A sinusoid on one thermometer's reading that no heat makes (vibration, mains, a ground loop)."""
+
+    thermometer: str
+    frequency_hz: float
+    amplitude_K: float
+    phase_rad: float = 0.0
+
+    def values(self, time_s) -> np.ndarray:
+        return self.amplitude_K * np.sin(2.0 * math.pi * self.frequency_hz * np.asarray(time_s, dtype=float)
+                                         + self.phase_rad)
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """Generic, data-driven extension: what a record shows that neither the heater nor the cooler makes.
+
+    ``unrecorded_heat`` (W) reaches the thermometers as the heater's power does (through the model's heater
+    paths, G2 G1 to T2 and G3 to T5: a heat load nobody recorded); ``flange_offset`` and ``ptc_stage_offset``
+    (K) are added to the readings (a thermometer's drift); ``pickups`` are sinusoids on a reading. Not a
+    physical cause: ``cryod analyze`` fits it where no cause explains the record; the processes' statistics
+    are what a record gives, realised from their seeds (:class:`SlowProcess`).
+    """
+
+    unrecorded_heat: SlowProcess | None = None
+    flange_offset: SlowProcess | None = None
+    ptc_stage_offset: SlowProcess | None = None
+    pickups: tuple = ()
+
+    def offsets_K(self, time_s, heat_to_flange=None, heat_to_stage=None) -> tuple[np.ndarray, np.ndarray]:
+        """(flange, stage) offsets (K) at ``time_s``; ``heat_to_flange(w)`` and ``heat_to_stage(w)`` give the
+        heater paths' complex gains (K/W) at angular frequency w (rad/s)."""
+        time_s = np.asarray(time_s, dtype=float)
+        flange, stage = np.zeros(time_s.shape), np.zeros(time_s.shape)
+        if self.unrecorded_heat is not None:
+            flange = flange + self.unrecorded_heat.values(time_s, heat_to_flange)
+            stage = stage + self.unrecorded_heat.values(time_s, heat_to_stage)
+        if self.flange_offset is not None:
+            flange = flange + self.flange_offset.values(time_s)
+        if self.ptc_stage_offset is not None:
+            stage = stage + self.ptc_stage_offset.values(time_s)
+        for pickup in self.pickups:
+            if pickup.thermometer == "flange":
+                flange = flange + pickup.values(time_s)
+            else:
+                stage = stage + pickup.values(time_s)
+        return flange, stage
+
+
+@dataclass(frozen=True)
+class HeaterPathCorrection:
+    """Generic, data-driven extension: first-order terms added in parallel to the heater's paths.
+
+    ``G1 -> G1 + sum(flange_gains_K_per_W[i] / (time_constants_s[i] s + 1))`` and the same on G3 with
+    ``ptc_stage_gains_K_per_W``. Not a physical cause: ``cryod analyze`` fits it where no cause explains the
+    record, to model what is left.
+    """
+
+    time_constants_s: tuple
+    flange_gains_K_per_W: tuple
+    ptc_stage_gains_K_per_W: tuple
+
+    def paths(self) -> tuple:
+        """(added to G1, added to G3) as transfer functions (None where every gain is 0)."""
+        found = []
+        for gains in (self.flange_gains_K_per_W, self.ptc_stage_gains_K_per_W):
+            total = None
+            for tau, gain in zip(self.time_constants_s, gains):
+                if gain == 0.0:
+                    continue
+                term = TransferFunction.first_order_lag(tau, gain)
+                total = term if total is None else total + term
+            found.append(total)
+        return tuple(found)
+
+
+@dataclass(frozen=True)
 class SensorNoise:
     """White reading noise of each thermometer, rms in K."""
 
@@ -173,6 +351,12 @@ class Effects:
     heat_capacity_temperature: HeatCapacityTemperature | None = None
     heater_nonlinearity: HeaterNonlinearity | None = None
     ptc_frequency_drift: PtcFrequencyDrift | None = None
+    ptc_amplitude_modulation: PtcAmplitudeModulation | None = None
+    #: A :class:`PtcStageDrift`, or any object with its ``offsets_K(time_s)`` (a drift measured in a record).
+    ptc_stage_drift: PtcStageDrift | None = None
+    heater_path_correction: HeaterPathCorrection | None = None
+    #: A :class:`Disturbance`, or any object with its ``offsets_K(time_s, heat_to_flange, heat_to_stage)``.
+    disturbance: Disturbance | None = None
 
     def present(self) -> list[str]:
         """Names of the effects that are set."""
@@ -196,6 +380,8 @@ class CryostatModel:
     source: str = ""
     #: The identified parameters' values, standard uncertainties and correlation (None: not stated).
     uncertainty: ModelUncertainty | None = None
+    #: How the cryostat changes with temperature (None: the linear model holds at every temperature).
+    temperature_dependence: TemperatureDependence | None = None
 
     # -- derived paths (the observable products) ----------------------------
     @property

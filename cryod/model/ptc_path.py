@@ -63,6 +63,20 @@ class PtcDrive:
             )
             for order, amplitude, phase in ptc.components()
         ]
+        self._terms_at: np.ndarray | None = None
+        self._terms: tuple = ()
+
+    def phase_terms(self, elapsed_s: np.ndarray) -> tuple:
+        """(angular frequency, ``exp(j (order theta + phase))`` of each component) at the instants ``elapsed_s``.
+
+        The last instants' are kept: both thermometers' paths ask for the same ones.
+        """
+        if self._terms_at is None or self._terms_at.shape != elapsed_s.shape \
+                or not np.array_equal(self._terms_at, elapsed_s):
+            phase, frequency = self.cycle.phase_and_frequency(elapsed_s)
+            terms = [np.exp(1j * (component.order * phase + component.phase_rad)) for component in self.components]
+            self._terms_at, self._terms = np.array(elapsed_s, dtype=float), (frequency, terms)
+        return self._terms
 
 
 class PtcPath:
@@ -125,10 +139,11 @@ class PtcPath:
         ``time_scale`` multiplies the path's time constants: a float, or one
         factor per instant (heat-capacity effect).
         """
-        phase, frequency = self.drive.cycle.phase_and_frequency(np.asarray(elapsed_s, dtype=float))
-        total = np.zeros_like(phase)
-        for component, phasor in zip(self.drive.components, self.output_phasors(frequency, time_scale)):
-            total += np.real(phasor * np.exp(1j * (component.order * phase + component.phase_rad)))
+        elapsed_s = np.asarray(elapsed_s, dtype=float)
+        frequency, terms = self.drive.phase_terms(elapsed_s)
+        total = np.zeros(elapsed_s.shape)
+        for term, phasor in zip(terms, self.output_phasors(frequency, time_scale)):
+            total += np.real(phasor * term)
         return total
 
     def mean_value(self, elapsed_s: float, duration_s: float, time_scale: float = 1.0) -> float:

@@ -163,6 +163,18 @@ class TransferFunction:
 
     __rmul__ = __mul__
 
+    def __add__(self, other: "TransferFunction") -> "TransferFunction":
+        """Parallel connection ``self + other`` (outputs added)."""
+        return TransferFunction(
+            tuple(np.polyadd(np.polymul(self.numerator, other.denominator),
+                             np.polymul(other.numerator, self.denominator))),
+            tuple(np.polymul(self.denominator, other.denominator)),
+        )
+
+    def __sub__(self, other: "TransferFunction") -> "TransferFunction":
+        """``self - other``: the parallel connection with ``other`` negated."""
+        return self + (-1.0) * other
+
     def time_scaled(self, factor: float) -> "TransferFunction":
         """The same path with every time constant multiplied by ``factor``.
 

@@ -1,0 +1,210 @@
+"""A base model further off than the recalibration allows: ``base_model_off``.
+
+The recalibration (:mod:`cryod.analysis.recalibration`) may move each of the
+base model's gains and time constants by 10 % (the line's phase by 0.1 rad):
+the spread expected of a cryostat of the kind the model was made for. A record
+of another cryostat (another flange, another heater, a wrong heater
+resistance in the configuration) asks for more, and a catalogue cause then
+takes up what the recalibration cannot: a heater 15 % stronger than the model
+says looks like a heater nonlinearity with the gains at their tolerance.
+
+The rule (:func:`judged_beyond_recalibration`), after the causes are searched
+within the tolerance:
+
+1. It is asked only when the search needs it: a parameter of the
+   recalibration (refitted with the causes named) is at its tolerance, or the
+   extended model still shows a discrepancy by the rule that calls for a cause.
+2. The base model alone is then recalibrated with :data:`WIDE` tolerances
+   (50 % on gains and time constants, 0.4 rad on the line's phase). A
+   parameter is *beyond* the recalibration when its widened value is past its
+   usual tolerance by at least :data:`BEYOND_SIGMA` standard errors.
+3. With a parameter beyond, the causes are searched again on the widened
+   model (its own recalibration of 10 % around it; the causes tried are those
+   that improved the held-out residual within the tolerance,
+   :func:`cryod.analysis.pipeline.improving_causes`; one cause at most). The verdict is ``base_model_off``
+   (with what that search names on top of it) when that search explains the
+   record to the noise (no discrepancy left by the rule that calls for a
+   cause: a record with something outside the catalogue is not put down to
+   the base model, nor is a widened model patched by causes) and its extended
+   model is significantly better on the held-out blocks than the first one's
+   (improvement at least 25 and 5 sigma), or, when a parameter was at its
+   tolerance, not significantly worse. Otherwise the first verdict stands: a
+   catalogue cause that explains the record better than any change of the base
+   model's parameters is named, and a parameter at its tolerance is reported
+   with it.
+
+When the recalibration alone leaves a parameter at its tolerance and the
+widened recalibration alone leaves no discrepancy (:func:`explained_by_widening`),
+the search within the tolerance looks for the first cause only (what a
+catalogue cause alone would say), not for a path of several: the record is
+explained without any.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+
+from cryod.analysis.decision import (
+    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, Decision, base_discrepancy, gain_between, significance,
+)
+from cryod.analysis.recalibration import (
+    RecalibratedParameter, Recalibration, Tolerances, recalibrate, structure_parameters,
+)
+
+#: Tolerances of the widened recalibration.
+WIDE = Tolerances(relative=0.5, line_phase_rad=0.4)
+#: A widened parameter is beyond its usual tolerance when past it by at least this many standard errors.
+BEYOND_SIGMA = 3.0
+#: What the report advises for ``base_model_off``.
+ADVICE = ("identify the cryostat (`cryod identify`, docs/commissioning.md) and analyse the record again with "
+          "that model (`cryod analyze RECORD --model MODEL`)")
+
+
+@dataclass
+class BeyondRecalibration:
+    """What makes a verdict ``base_model_off``.
+
+    Attributes
+    ----------
+    parameters : list of RecalibratedParameter
+        The parameters the record asks beyond their usual tolerance: shipped value, the value the record asks
+        for (the widened recalibration's), its standard error.
+    at_tolerance : list of str
+        The parameters the search within the tolerance left at it.
+    widened : Recalibration
+        The base model alone recalibrated with :data:`WIDE` tolerances.
+    within_tolerance : object
+        The analysis within the usual tolerance (an :class:`~cryod.analysis.pipeline.Analysis`): what a catalogue
+        cause alone would have said.
+    on_widened : str
+        The verdict of the search on the widened model (``none``, a cause, ``unexplained``).
+    improvement : float
+        Held-out sum of squares (noise units) of the first extended model less the widened one's.
+    """
+
+    parameters: list
+    at_tolerance: list
+    widened: Recalibration
+    within_tolerance: object
+    on_widened: str
+    improvement: float
+
+    def as_dict(self) -> dict:
+        return {"parameters": [row.as_dict() | {"relative_change": row.fitted / row.shipped - 1.0}
+                               for row in self.parameters],
+                "at_tolerance": list(self.at_tolerance), "within_tolerance_cause": self.within_tolerance.cause,
+                "within_tolerance_causes": self.within_tolerance.cause_names, "on_widened_model": self.on_widened,
+                "held_out_improvement": self.improvement, "advice": ADVICE}
+
+
+def _held_out(analysis, replay) -> float:
+    mask, noise = analysis.context.held_out_mask, analysis.noise_rms_K
+    flange = replay.flange_residual_K[mask] / noise[0]
+    stage = replay.ptc_stage_residual_K[mask] / noise[1]
+    return float(flange @ flange + stage @ stage)
+
+
+def _distinct(analysis, first, second) -> float:
+    mask, noise = analysis.context.held_out_mask, analysis.noise_rms_K
+    flange = (first.flange_K - second.flange_K)[mask] / noise[0]
+    stage = (first.ptc_stage_K - second.ptc_stage_K)[mask] / noise[1]
+    return float(flange @ flange + stage @ stage)
+
+
+def beyond_parameters(widened: Recalibration, base_model) -> list[RecalibratedParameter]:
+    """The widened recalibration's parameters past their usual tolerance by :data:`BEYOND_SIGMA` standard errors."""
+    usual = {parameter.name: parameter.tolerance for parameter in structure_parameters(base_model)}
+    found = []
+    for row, parameter, x, error in zip(widened.table(), widened.parameters, widened.log_factors,
+                                        widened.uncertainties):
+        tolerance = usual.get(parameter.name, parameter.tolerance)
+        past = abs(float(x)) - tolerance
+        if past > 0.0 and (not math.isfinite(error) or past >= BEYOND_SIGMA * float(error)):
+            found.append(row)
+    return found
+
+
+def _combined_recalibration(widened: Recalibration, inner) -> Recalibration:
+    """The widened factors plus those the search on the widened model refitted (same structure)."""
+    own = inner.final_recalibration or (inner.recalibration if inner.recalibrated else None)
+    if own is None:
+        return widened
+    return Recalibration(widened.parameters, widened.log_factors + own.log_factors, own.uncertainties,
+                         own.model, inner.extended_replay, own.steps, widened.shipped)
+
+
+def _reason(beyond: list, inner) -> str:
+    asked = ", ".join(f"{row.parameter} {row.shipped:.4g} -> {row.fitted:.4g} {row.unit} "
+                      f"({100.0 * (row.fitted / row.shipped - 1.0):+.0f} %)".replace("  ", " ") for row in beyond)
+    if inner.cause == "none":
+        then = "with those values the model leaves no discrepancy beyond the noise"
+    else:
+        then = f"with those values, {inner.decision.reason}"
+    return (f"the base model is further off than the recalibration allows: the record asks {asked}; {ADVICE}; "
+            f"{then}")
+
+
+def widened_recalibration(search, analysis) -> Recalibration:
+    """The base model alone recalibrated with :data:`WIDE` tolerances (made once per analysis)."""
+    if analysis.widened is None:
+        started = time.perf_counter()
+        analysis.widened = recalibrate(search.replayer, analysis.base_model, analysis.base_line, WIDE)
+        analysis.timings_s["wider recalibration"] = time.perf_counter() - started
+    return analysis.widened
+
+
+def explained_by_widening(search, analysis) -> bool:
+    """Whether the widened recalibration alone moves a parameter beyond its usual tolerance and leaves no
+    discrepancy on the held-out blocks (the rule that calls for a cause)."""
+    widened = widened_recalibration(search, analysis)
+    if not beyond_parameters(widened, analysis.base_model):
+        return False
+    return not base_discrepancy(dataclasses.replace(analysis.context, base_replay=widened.replay)).present
+
+
+def judged_beyond_recalibration(search, analysis, search_on):
+    """``analysis`` (from ``search``, a :class:`~cryod.analysis.pipeline.CauseSearch`), or the ``base_model_off``
+    verdict when the rule of this module says so; ``search_on(model)`` searches the causes on another base model."""
+    if not analysis.recalibrated:
+        return analysis
+    narrow = analysis.final_recalibration or analysis.recalibration
+    at_tolerance = [row.parameter for row in narrow.table() if row.at_tolerance]
+    remaining = analysis.remaining is not None and analysis.remaining.present
+    if not at_tolerance and not remaining:
+        return analysis
+    widened = widened_recalibration(search, analysis)
+    beyond = beyond_parameters(widened, analysis.base_model)
+    if not beyond:
+        return analysis
+    inner = search_on(widened.model)
+    analysis.timings_s.update({f"{step} (widened model)": seconds for step, seconds in inner.timings_s.items()})
+    if inner.remaining is not None and inner.remaining.present:
+        return analysis
+    first_sum, inner_sum = _held_out(analysis, analysis.extended_replay), _held_out(analysis, inner.extended_replay)
+    improvement = first_sum - inner_sum
+    spread = significance(improvement, _distinct(analysis, analysis.extended_replay, inner.extended_replay))
+    better = improvement >= CANDIDATE_MINIMUM_IMPROVEMENT and spread >= CANDIDATE_SIGMA
+    worse = -improvement >= CANDIDATE_MINIMUM_IMPROVEMENT and -spread >= CANDIDATE_SIGMA
+    if inner.cause == "unexplained" or not (better or (at_tolerance and not worse)):
+        return analysis
+    shipped = analysis.base_discrepancy
+    gain = gain_between(shipped.sum_of_squares, inner_sum, shipped.terms)
+    decision = Decision("base_model_off", _reason(beyond, inner), inner.decision.best, shipped, gain)
+    widened_sum = _held_out(analysis, widened.replay)
+    return dataclasses.replace(
+        inner, base_model=analysis.base_model, base_line=analysis.base_line, base_replay=analysis.base_replay,
+        base_discrepancy=shipped, decision=decision, noise_rms_K=analysis.noise_rms_K, recalibrated=True,
+        recalibration=widened, final_recalibration=_combined_recalibration(widened, inner),
+        recalibration_gain=gain_between(shipped.sum_of_squares, widened_sum, shipped.terms),
+        causes=list(inner.causes) if inner.cause not in ("none", "unexplained") else [],
+        final_model=inner.extended_model, final_replay=inner.extended_replay,
+        timings_s=analysis.timings_s,
+        beyond_recalibration=BeyondRecalibration(beyond, at_tolerance, widened, analysis, inner.cause,
+                                                 float(improvement)))
+
+
+__all__ = ["ADVICE", "BEYOND_SIGMA", "WIDE", "BeyondRecalibration", "beyond_parameters",
+           "explained_by_widening", "judged_beyond_recalibration", "widened_recalibration"]

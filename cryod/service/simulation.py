@@ -42,6 +42,7 @@ from cryod.service.discovery import simulation_socket
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
 from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit, limit_changes
+from cryod.control.limit_binding import limit_binding
 from cryod.records.columns import Event, Row
 from cryod.records.metrics import regulation_metrics
 from cryod.model import DEFAULT_MODEL_PATH, linearised_at, load_model
@@ -433,7 +434,7 @@ def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None)
     term = loop.regulator.term("feedforward") if loop is not None else None
     delay = term.setting_delay_s if term is not None else 0.0
     empty = {"ptc_periodic_limit_K": None, "feedforward_authority": None, "feedforward_limited_by": None,
-             "feedforward_limit_changes": []}
+             "feedforward_limit_bound": None, "feedforward_limit_explained": None, "feedforward_limit_changes": []}
     if setpoint_K is None:
         return empty
     try:
@@ -444,8 +445,10 @@ def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None)
     except (FeedforwardLimitError, ValueError):
         return empty
     changes = limit_changes(model, setpoint_K, limit.max_heater_power_W, config.loop.period_s, heater_delay_s=delay)
+    binding = limit_binding(limit, changes)
     return {"ptc_periodic_limit_K": limit.ptc_periodic_limit_K, "feedforward_authority": round(limit.authority, 4),
-            "feedforward_limited_by": limit.limited_by,
+            "feedforward_limited_by": limit.limited_by, "feedforward_limit_bound": binding.bound,
+            "feedforward_limit_explained": binding.explanation,
             "feedforward_limit_changes": [change.to_dict() for change in changes]}
 
 

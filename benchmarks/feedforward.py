@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cryod.control.feedforward_limit import feedforward_limit
+from cryod.control.feedforward.limit import feedforward_limit
 from cryod.model import load_model
 from cryod.cooler.periodic import periodic_amplitudes
 from cryod.records.record import read_record

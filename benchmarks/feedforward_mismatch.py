@@ -53,8 +53,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit, noise_floor_K
-from cryod.control.harmonic_plant import plant_at_harmonics
+from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit, noise_floor_K
+from cryod.control.feedforward.harmonic_plant import plant_at_harmonics
 from cryod.model import load_model
 from cryod.model.model_file import save_model
 from cryod.model.parameters import DeadTime, PtcFrequencyDrift, SensorLag

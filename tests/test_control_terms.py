@@ -14,7 +14,7 @@ import pytest
 
 from cryod.config import load_config
 from cryod.control.pi import PiGains
-from cryod.control.terms import TERM_TYPES, TickInputs, term_type
+from cryod.control.terms import TERM_TYPES, ControlTerm, TickInputs, term_type
 from cryod.records.columns import Column, Row
 from cryod.records.record import read_record_text
 from cryod.service.commands import Command
@@ -28,7 +28,7 @@ from tests.conftest import CONFIG
 from tests.loop_doubles import DirectInstruments
 
 
-class BiasTerm:
+class BiasTerm(ControlTerm):
     """A constant heater power added to the other terms (W)."""
 
     name = "bias"

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from cryod.cooler.phase import CoolerPhaseTracker
-from cryod.control.bounded_waveform import best_bounded_waveform, waveform_values
+from cryod.control.feedforward.bounded_waveform import best_bounded_waveform, waveform_values
 from cryod.control.feedforward import FeedforwardSettings, FeedforwardTerm, SynchronousEstimator
-from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
+from cryod.control.feedforward.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.control.pi import PiGains
 from cryod.control.terms import TickInputs
 from cryod.model import CryostatPlant
@@ -279,7 +279,7 @@ def test_at_6_K_the_waveform_stays_below_the_heaters_maximum(reference_model):
 def test_the_power_held_back_is_followed_as_the_cryostat_answers_it(reference_model):
     """UnplayedPower against the simulated cryostat: two records, one with the power asked, one with it
     held at 170 mW; their difference at every reading is what UnplayedPower says it is."""
-    from cryod.control.unplayed_power import UnplayedPower
+    from cryod.control.feedforward.unplayed_power import UnplayedPower
     from cryod.model.dynamics import simulate
     t = np.arange(0.0, 60.0, PERIOD)
     setting = t + 0.0325                                        # the heater set 32.5 ms after the readings
@@ -301,7 +301,7 @@ def test_a_heater_held_at_its_bounds_does_not_stop_the_learning(reference_model,
     held at a bound on a large share of the ticks; the estimator still takes every reading (T2 as if
     the heater had played what was asked; only those just after a change of the waveform are left out),
     learns a controller model 0.7x too weak and reaches the limit."""
-    from cryod.control.feedforward_learning import LearningWorker
+    from cryod.control.feedforward.learning_worker import LearningWorker
     taken = []
     original = LearningWorker.reading
     monkeypatch.setattr(LearningWorker, "reading", lambda self, *values: (taken.append(1), original(self, *values)))

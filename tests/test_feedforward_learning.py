@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 
 from cryod.control.closed_loop import Segment, run_program
-from cryod.control.divergence_guard import DivergenceGuard
+from cryod.control.feedforward.divergence_guard import DivergenceGuard
 from cryod.control.feedforward import FeedforwardSettings, FeedforwardTerm, SynchronousEstimator
-from cryod.control.feedforward_limit import feedforward_limit, limit_for_plant, mean_heater_power_w
-from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
-from cryod.control.learned_projection import learning_step
+from cryod.control.feedforward.limit import feedforward_limit, limit_for_plant, mean_heater_power_w
+from cryod.control.feedforward.harmonic_plant import line_at_harmonics, plant_at_harmonics
+from cryod.control.feedforward.learned_projection import learning_step
 from cryod.control.pi import PiGains
-from cryod.control.plant_learner import MODEL_ERROR, LearnedPlant
-from cryod.control.plant_probe import ProbeSettings, ProbeState, next_probe
+from cryod.control.feedforward.plant_learner import MODEL_ERROR, LearnedPlant
+from cryod.control.feedforward.plant_probe import ProbeSettings, ProbeState, next_probe
 from cryod.model.parameters import DeadTime, PtcFrequencyDrift, SensorLag
 from cryod.records.metrics import periodic_amplitudes
 from test_feedforward import feed

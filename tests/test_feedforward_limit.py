@@ -10,8 +10,8 @@ import pytest
 from scipy import optimize, signal
 
 from cryod.cli import main
-from cryod.control.bounded_waveform import best_bounded_waveform, largest_fundamental, residual_lower_bound
-from cryod.control.feedforward_limit import (
+from cryod.control.feedforward.bounded_waveform import best_bounded_waveform, largest_fundamental, residual_lower_bound
+from cryod.control.feedforward.limit import (
     FeedforwardLimitError, feedforward_limit, limit_sweep, mean_heater_power_w, noise_floor_K,
 )
 from cryod.model import DeadTime, HeaterNonlinearity, PtcHarmonic, SensorLag

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cryod import cli
-from cryod.control.feedforward_limit_range import limit_range
+from cryod.control.feedforward.limit_range import limit_range
 from cryod.control.regulator import HeaterModulation, HeaterPowerOutput, Regulator
 from cryod.config import load_config
 from cryod.identification.record_check import fit_support_problems

@@ -245,7 +245,7 @@ def reading_was_a_tick_between(process, reading_K, before, after):
     deadline = time.monotonic() + 30
     while True:
         record = cryod.read_record(sorted(process.data.glob("cryod-*.csv"))[-1])
-        if record.time_s[-1] >= after["time_s"] or time.monotonic() > deadline:
+        if (record.time_s.size and record.time_s[-1] >= after["time_s"]) or time.monotonic() > deadline:
             break
         time.sleep(0.1)
     window = (record.time_s >= before["time_s"] - 1e-6) & (record.time_s <= after["time_s"] + 1e-6)

@@ -7,7 +7,7 @@ import time
 import pytest
 
 from cryod.cli import main
-from cryod.control.feedforward_limit import feedforward_limit, limit_changes
+from cryod.control.feedforward.limit import feedforward_limit, limit_changes
 from cryod.control.limit_binding import limit_binding, measured_against_limit
 
 

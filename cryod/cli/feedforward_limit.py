@@ -1,6 +1,6 @@
 """``cryod feedforward-limit [--setpoint K] [--heater-ohm R] [--max-current A] [--model M] ...``.
 
-Prints the physical limit of the cooler-locked feedforward (:mod:`cryod.control.feedforward_limit`)
+Prints the physical limit of the cooler-locked feedforward (:mod:`cryod.control.feedforward.limit`)
 for one setpoint and heater, and how it changes with the setpoint, the heater resistance and the
 current limit: a table for a user choosing a heater before buying one. Defaults come from the
 example configuration (heater, setpoint, loop period) and the shipped model.
@@ -27,13 +27,13 @@ from cryod.cli.lab_inputs import InputsNotUsable, lab_inputs
 from cryod.argument_types import not_negative, number, positive, setpoint_list
 
 from cryod.config import EXAMPLE_CONFIG_PATH
-from cryod.control.feedforward_limit import (
+from cryod.control.feedforward.limit import (
     DEFAULT_AVERAGING_TIME_S, MEASURES, REPORTED_HARMONICS, SWEEP_MAX_CURRENTS_A, SWEEP_RESISTANCES_OHM,
     SWEEP_SETPOINTS_K, FeedforwardLimit, FeedforwardLimitError, SweepPoint, feedforward_limit, limit_changes,
     limit_sweep,
 )
+from cryod.control.feedforward.limit_range import LimitRange, limit_range
 from cryod.control.limit_binding import LimitBinding, limit_binding
-from cryod.control.feedforward_limit_range import LimitRange, limit_range
 from cryod.control.zone_commissioning import limits_across_range, model_at_temperature, model_of_zone
 from cryod.control.zones import zone_table_from
 from cryod.model import DEFAULT_MODEL_PATH, linearised_at

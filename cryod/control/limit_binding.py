@@ -1,6 +1,6 @@
 """What binds the feedforward's limit, in the lab's words: the heater's 0 W floor, its top, or neither.
 
-The limit (:mod:`cryod.control.feedforward_limit`) is the least cooler-synchronous T2
+The limit (:mod:`cryod.control.feedforward.limit`) is the least cooler-synchronous T2
 any heater waveform can leave, with the waveform's mean fixed by the setpoint and its
 values within 0 .. R I_max^2. What the best waveform rests on says what would change it:
 
@@ -18,7 +18,7 @@ sqrt(2) x rms); one below the limit is said, with why (:func:`measured_against_l
 Examples
 --------
 >>> from cryod.model import load_model
->>> from cryod.control.feedforward_limit import feedforward_limit, limit_changes
+>>> from cryod.control.feedforward.limit import feedforward_limit, limit_changes
 >>> model = load_model()
 >>> limit = feedforward_limit(model, 5.0, 50.0, 0.1, certify=False)
 >>> binding = limit_binding(limit, limit_changes(model, 5.0, 0.5))
@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cryod.control.feedforward_limit import FeedforwardLimit, LimitChange
+from cryod.control.feedforward.limit import FeedforwardLimit, LimitChange
 
 #: A waveform within this fraction of R I_max^2 of a bound rests on it.
 AT_BOUND = 1e-3
@@ -97,7 +97,7 @@ def _advice(first: str, first_figure: str, second: str, second_figure: str) -> s
 
 
 def _changes_by_kind(limit: FeedforwardLimit, changes) -> dict[str, LimitChange]:
-    """The changes of :func:`~cryod.control.feedforward_limit.limit_changes` by what they change: ``bigger heater``,
+    """The changes of :func:`~cryod.control.feedforward.limit.limit_changes` by what they change: ``bigger heater``,
     ``higher setpoint``, ``lower setpoint``."""
     kinds = {}
     for change in changes:
@@ -118,7 +118,7 @@ def limit_binding(limit: FeedforwardLimit, changes=()) -> LimitBinding:
     ----------
     limit : FeedforwardLimit
     changes : iterable of LimitChange
-        What would change it (:func:`~cryod.control.feedforward_limit.limit_changes`, or the learned
+        What would change it (:func:`~cryod.control.feedforward.limit.limit_changes`, or the learned
         plant's): the figures of a bigger heater and another setpoint are quoted from them. A top the
         waveform touches while it also rests at 0 W binds only when the bigger heater's limit is lower.
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from cryod.control.terms import TickInputs
+from cryod.control.terms import ControlTerm, TickInputs
 from cryod.records.columns import Column
 from cryod.yaml_source import Section
 
@@ -171,7 +171,7 @@ class PiController:
             self.output_w = self.proportional_w + self.integral_w
 
 
-class PiTerm:
+class PiTerm(ControlTerm):
     """PI feedback on the flange temperature, as a control term (section ``control.pi``).
 
     Parameters

@@ -202,9 +202,7 @@ class Regulator:
         self.output = output
         self.control = control
         self.terms: list[ControlTerm] = build_terms(control.terms, output.maximum)
-        self._conditioners = [term for term in self.terms if hasattr(term, "condition")]
-        self._riding = [term for term in self.terms if getattr(term, "rides_on_feedback", False)]
-        self._speaking = [term for term in self.terms if hasattr(term, "take_events")]
+        self._riding = [term for term in self.terms if term.rides_on_feedback]
         self._column_names = [(term, tuple(column.name for column in term.columns)) for term in self.terms]
         self._feedback = [term for term in self.terms if term not in self._riding]
         self.columns = term_columns(control.terms)
@@ -245,7 +243,7 @@ class Regulator:
         """
         tick = TickInputs.at(time_s, dt_s, flange_K, ptc_stage_K, self.ramp.setpoint_K, flange_time_s,
                              ptc_stage_time_s, output_time_s)
-        for term in self._conditioners:        # every mode: a phase tracker keeps its lock while the loop is open
+        for term in self.terms:        # every mode: a phase tracker keeps its lock while the loop is open
             tick = term.condition(tick)
         self._feedback_offset_K = tick.flange_K - tick.flange_feedback_K
         if self.mode is RegulatorMode.MANUAL:
@@ -280,7 +278,7 @@ class Regulator:
         for term, names in self._column_names:
             columns.update(zip(names, term.column_values()))
         events = ()
-        for term in self._speaking:
+        for term in self.terms:
             said = term.take_events()
             if said:
                 events += tuple((term.name, level, text) for level, text in said)
@@ -331,8 +329,7 @@ class Regulator:
     def close(self) -> None:
         """Release what the terms hold (the feedforward's learning thread)."""
         for term in self.terms:
-            if hasattr(term, "close"):
-                term.close()
+            term.close()
 
     def term(self, name: str) -> ControlTerm | None:
         """The control term called ``name``, if this regulator has it."""

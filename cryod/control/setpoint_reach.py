@@ -81,7 +81,7 @@ def setpoint_reach(model, setpoint_K: float, max_power_W: float, model_source: s
     model_source : str
         Named in the warning.
     """
-    from cryod.control.feedforward_limit import mean_heater_power_w
+    from cryod.control.feedforward.limit import mean_heater_power_w
 
     lowest = model.operating_point.flange_temperature_K
     gain = model.heater_to_thermometer.dc_gain

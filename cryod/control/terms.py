@@ -1,6 +1,6 @@
 """Control terms: the additive parts of the heater power, and the one place that builds them.
 
-A control term is a class with
+A control term is a subclass of :class:`ControlTerm` with
 
 * ``name``: its name, also its configuration section under ``control:``;
 * ``required``: whether that section must be given;
@@ -9,13 +9,15 @@ A control term is a class with
   static method; called with None when an optional section is absent);
 * ``__init__(settings, output_max)`` and ``reconfigure(settings, output_max)``
   (a reload: bumpless);
-* ``start``, ``update``, ``limit``, ``column_values``: the cycle, below;
-* optionally ``condition(tick)`` (see :meth:`ControlTerm.start`),
-  ``rides_on_feedback = True``: the term is added after the feedback terms'
-  sum has been held within the heater's range (the feedforward), and
-  ``take_events()``: what the term has to say since the last tick, as
-  (logging level, text) pairs, which the loop logs and writes into the
-  record as events named after the term.
+* ``start``, ``update``, ``limit``, ``column_values``: the cycle, below.
+
+:class:`ControlTerm` declares every hook the regulator calls; those a term
+may leave out have defaults there: ``condition(tick)`` (what the following
+terms see), ``rides_on_feedback`` (the term is added after the feedback
+terms' sum has been held within the heater's range: the feedforward),
+``take_events()`` (what the term has to say since the last tick, as
+(logging level, text) pairs, which the loop logs and writes into the record
+as events named after the term) and ``close()`` (release what it holds).
 
 A new term is one module with such a class and one line in :data:`TERM_TYPES`.
 The regulator (:mod:`cryod.control.regulator`) adds the terms' outputs, holds
@@ -26,7 +28,8 @@ from __future__ import annotations
 
 import functools
 import importlib
-from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
+from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple
 
 if TYPE_CHECKING:
     from cryod.records.columns import Column
@@ -84,32 +87,62 @@ class TickInputs(NamedTuple):
                    time_s if output_time_s is None else output_time_s, flange_K)
 
 
-class ControlTerm(Protocol):
-    """One additive part of the regulator's output (W, or A for a current-output study)."""
+class ControlTerm(ABC):
+    """One additive part of the regulator's output (W, or A for a current-output study).
 
-    name: str
-    required: bool
-    columns: tuple["Column", ...]
+    Every hook the regulator calls is declared here; a term overrides the
+    abstract ones and those of the others it needs.
+    """
 
+    #: Its name, also its configuration section under ``control:``.
+    name: ClassVar[str]
+    #: Whether its section must be given.
+    required: ClassVar[bool]
+    #: The record columns it writes, in the order of :meth:`column_values`.
+    columns: ClassVar[tuple["Column", ...]]
+    #: Added after the feedback terms' sum has been held within the heater's range and
+    #: told so (a waveform clipped at 0 W then does not stop PI integrating).
+    rides_on_feedback: ClassVar[bool] = False
+
+    @staticmethod
+    @abstractmethod
+    def settings_from(section: "Section | None") -> Any:
+        """Its validated settings from its section (None: an optional section that is absent)."""
+
+    @abstractmethod
     def reconfigure(self, settings: Any, output_max: float) -> None:
         """New settings from a reload, without a bump in the output."""
 
-    def start(self, tick: TickInputs, present_output: float) -> None:
-        """The loop closes: continue from ``present_output`` without a bump.
+    def condition(self, tick: TickInputs) -> TickInputs:
+        """What the following terms see this tick (by default, what this one sees).
 
-        A term may also have ``condition(tick) -> TickInputs``: called for every
-        term before any ``update``, it may change what the following terms see
-        (the feedforward takes the cooler's line out of ``flange_feedback_K``).
+        Called for every term, in every mode, before any :meth:`update`: the
+        feedforward takes the cooler's line out of ``flange_feedback_K``.
         """
+        return tick
 
+    @abstractmethod
+    def start(self, tick: TickInputs, present_output: float) -> None:
+        """The loop closes: continue from ``present_output`` without a bump."""
+
+    @abstractmethod
     def update(self, tick: TickInputs) -> float:
         """This term's output for the coming period."""
 
+    @abstractmethod
     def limit(self, requested: float, applied: float) -> None:
         """The total requested and what was applied after the heater limits (anti-windup)."""
 
+    @abstractmethod
     def column_values(self) -> tuple[float, ...]:
         """This tick's values of :attr:`columns`, in order."""
+
+    def take_events(self) -> tuple[tuple[int, str], ...]:
+        """What the term has to say since the last tick: (logging level, text) pairs (by default, nothing)."""
+        return ()
+
+    def close(self) -> None:
+        """Release what the term holds (a worker thread); by default, nothing."""
 
 
 #: Every control term: name -> its class, in the order their outputs are added and their columns

@@ -46,7 +46,7 @@ import numpy as np
 from scipy import optimize
 
 from cryod.control.closed_loop import Segment, run_program
-from cryod.control.harmonic_plant import line_at_harmonics
+from cryod.control.feedforward.harmonic_plant import line_at_harmonics
 from cryod.control.pi import MAX_GAIN, PiGains
 from cryod.model import CryostatModel
 from cryod.model.dynamics import flange_transfer_functions

@@ -22,7 +22,7 @@ from typing import Callable, Sequence
 
 import yaml
 
-from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit
+from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit
 from cryod.control.pi import MAX_GAIN, PiGains
 from cryod.control.tuning import Tolerances, Tuning, suggest_gains
 from cryod.control.zones import Zone, ZoneTable
@@ -178,7 +178,7 @@ def limits_across_range(setpoints_K: Sequence[float], model_at: Callable[[float]
 
     ``model_at(setpoint_K)`` gives it: :func:`model_at_temperature` for a temperature-dependent
     cryostat, or a zone table's model (:func:`model_of_zone`). ``options`` go to
-    :func:`cryod.control.feedforward_limit.feedforward_limit` (``averaging_time_s``: the noise floor's).
+    :func:`cryod.control.feedforward.limit.feedforward_limit` (``averaging_time_s``: the noise floor's).
     """
     rows = []
     for setpoint in setpoints_K:

@@ -59,8 +59,8 @@ class FeedforwardSection:
 def feedforward_section(model, setpoint_K: float, heater_resistance_ohm: float, max_current_A: float,
                         period_s: float) -> FeedforwardSection:
     """The limit at the setpoint for the identified model, with its range over the model's uncertainty."""
-    from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit
-    from cryod.control.feedforward_limit_range import limit_range
+    from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit
+    from cryod.control.feedforward.limit_range import limit_range
 
     section = FeedforwardSection(setpoint_K, heater_resistance_ohm, max_current_A)
     try:

@@ -28,8 +28,8 @@ from __future__ import annotations
 import collections
 import logging
 import math
-from dataclasses import dataclass, replace
-from typing import Callable, Protocol
+from dataclasses import dataclass
+from typing import Callable, NamedTuple, Protocol
 
 from cryod.config import DaemonConfig, located_error
 from cryod.control.regulator import HeaterPowerOutput, Regulator, RegulatorMode
@@ -152,6 +152,27 @@ class Status:
         return text
 
 
+class _Snapshot(NamedTuple):
+    """What the last tick left for the status, assigned at once: readers in other threads see one tick's.
+
+    The :class:`Status` is built from it when asked, not every tick.
+    """
+
+    time_s: float
+    state: LoopState
+    flange_K: float
+    ptc_stage_K: float
+    heater_w: float
+    setpoint_K: float | None
+    target_K: float | None
+    ramp_K_per_min: float
+    last_fault: Fault | None
+    control: dict | None
+    last_target_K: float | None
+    #: (the zone in use counted from 1, its upper temperature in K); None without ``control.zones``.
+    zone: tuple[int, float] | None
+
+
 # ---------------------------------------------------------------------------
 # the loop
 # ---------------------------------------------------------------------------
@@ -196,7 +217,10 @@ class ControlLoop:
         self._heater_driven = False         # a power went to the supply since it last confirmed the off
         self._last_row_s = -math.inf        # time of the last row emitted
         self.last_fault: Fault | None = None
-        self.status = Status(target_K=config.control.setpoint_K, ramp_K_per_min=config.control.ramp_K_per_min)
+        self._status: Status | None = None
+        self._publish(_Snapshot(math.nan, LoopState.HOLDING, math.nan, math.nan, self.heater_w, None,
+                                config.control.setpoint_K, config.control.ramp_K_per_min, None, None,
+                                _given(self.regulator.ramp.target_K), self._zone()))
         # appended by any thread, taken by the loop's (deque's append and popleft are atomic)
         self.commands: collections.deque[Command] = collections.deque()
         self._answers: list[tuple[Command, bool, str]] = []
@@ -396,24 +420,45 @@ class ControlLoop:
         self._finish_row(row)
         self.episodes.ran_clean(reading.trigger_time_s)
 
+    # -- what a tick leaves: its row and the status --------------------------------
     def _emit_row(self, row: Row) -> None:
         self._last_row_s = row.time_s
         self.emit(row)
 
-    def _finish_row(self, row: Row) -> None:
+    def _close_row(self, row: Row, zone_events: bool = False) -> None:
+        """The tick's row out, with the time the tick took (and before it, with ``zone_events``, what the
+        regulator's zones have to say)."""
         row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
-        for message in self.regulator.zone_events():     # before the first row the zone's settings made
-            self._event("zone", message)
+        if zone_events:
+            for message in self.regulator.zone_events():     # before the first row the zone's settings made
+                self._event("zone", message)
         self._emit_row(row)
+
+    def _finish_row(self, row: Row) -> None:
+        """The tick's row out, and the status from it: this tick's readings, heater, setpoint and control."""
+        self._close_row(row, zone_events=True)
         closed = self.state is LoopState.CLOSED
         ramp = self.regulator.ramp
         # the target once a setpoint is asked for (also while holding for valid readings), the setpoint in use
         # only while regulating
         aiming = closed or self.regulator.mode is RegulatorMode.CLOSED
-        # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
-        self._latest = (row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
-                        ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
-                        ramp.rate_K_per_min, self.last_fault, row.control, _given(ramp.target_K), self._zone())
+        self._publish(_Snapshot(row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
+                                ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
+                                ramp.rate_K_per_min, self.last_fault, row.control, _given(ramp.target_K),
+                                self._zone()))
+
+    def _publish_fault_state(self, state: LoopState) -> None:
+        """The status after a fault or a stop: the state, the heater, the fault and the zone now; the readings,
+        the setpoint and the control of the last tick that published them."""
+        last = self._snapshot
+        self._publish(last._replace(
+            state=state, heater_w=self.heater_w, last_fault=self.last_fault,
+            last_target_K=last.last_target_K if last.last_target_K is not None
+            else _given(self.regulator.ramp.target_K), zone=self._zone()))
+
+    def _publish(self, snapshot: _Snapshot) -> None:
+        """The one place the status changes."""
+        self._snapshot = snapshot
         self._status = None
 
     def _zone(self) -> tuple[int, float] | None:
@@ -426,23 +471,18 @@ class ControlLoop:
         """The loop as of its last tick (built when asked, from the tick's snapshot)."""
         status = self._status
         if status is None:
-            (time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control, last_target_K,
-             zone) = self._latest
-            status = Status(time_s=time_s, state=state, flange_K=flange_K, ptc_stage_K=stage_K, heater_w=heater_w,
-                            setpoint_K=setpoint_K, target_K=target_K, ramp_K_per_min=rate,
-                            last_fault=str(fault) if fault else None, loop_timing=self.timing, control=control,
-                            last_target_K=last_target_K, zone=zone[0] if zone else None,
+            snapshot = self._snapshot
+            zone = snapshot.zone
+            status = Status(time_s=snapshot.time_s, state=snapshot.state, flange_K=snapshot.flange_K,
+                            ptc_stage_K=snapshot.ptc_stage_K, heater_w=snapshot.heater_w,
+                            setpoint_K=snapshot.setpoint_K, target_K=snapshot.target_K,
+                            ramp_K_per_min=snapshot.ramp_K_per_min,
+                            last_fault=str(snapshot.last_fault) if snapshot.last_fault else None,
+                            loop_timing=self.timing, control=snapshot.control,
+                            last_target_K=snapshot.last_target_K, zone=zone[0] if zone else None,
                             zone_upper_K=zone[1] if zone else None)
             self._status = status
         return status
-
-    @status.setter
-    def status(self, status: Status) -> None:
-        self._status = status
-        self._latest = (status.time_s, status.state, status.flange_K, status.ptc_stage_K, status.heater_w,
-                        status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault, status.control,
-                        status.last_target_K if status.last_target_K is not None
-                        else _given(self.regulator.ramp.target_K), self._zone())
 
     # -- start-up and recovery ----------------------------------------------------
     def _count_valid(self, in_range: bool, reading: PairReading, row: Row) -> None:
@@ -533,8 +573,7 @@ class ControlLoop:
         if row is not None:
             row.heater_W = applied_w
             row.state = state
-            row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
-            self._emit_row(row)
+            self._close_row(row)
         self._heater_off_row(driven, state)
         if self.state is LoopState.RECOVERING and fault.recoverable:
             self.last_fault = fault
@@ -593,8 +632,7 @@ class ControlLoop:
             row.heater_W = self.heater_w
             row.heater_set_s = self._heater_off_s
             row.state = LoopState.STOPPED
-            row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
-            self._emit_row(row)
+            self._close_row(row)
         elif off_failure is not None:           # a row says so; a stop's off is said by its event, the last line
             self._heater_off_row(True, "fault:heater_fault")
         if off_failure is not None and exit_code != ExitCode.HEATER_FAULT:
@@ -611,10 +649,6 @@ class ControlLoop:
                 exit_code, fault or reason)
         self.state = LoopState.STOPPED
         self._publish_fault_state(LoopState.STOPPED)
-
-    def _publish_fault_state(self, state: LoopState) -> None:
-        self.status = replace(self.status, state=state, heater_w=self.heater_w, loop_timing=self.timing,
-                              last_fault=str(self.last_fault) if self.last_fault else None)
 
     def _event(self, kind: str, message: str) -> None:
         self.emit(Event(kind, message))

@@ -15,7 +15,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from cryod.control.feedforward_limit import feedforward_limit, limit_sweep
+from cryod.control.feedforward.limit import feedforward_limit, limit_sweep
 from cryod.model import load_model
 
 HERE = Path(__file__).resolve().parent

@@ -28,10 +28,10 @@ import numpy as np
 
 from cryod.cooler.phase import CoolerPhaseTracker
 from cryod.control.feedforward import FeedforwardTerm
-from cryod.control.feedforward_limit import feedforward_limit, mean_heater_power_w
-from cryod.control.harmonic_plant import line_at_harmonics, plant_at_harmonics
+from cryod.control.feedforward.limit import feedforward_limit, mean_heater_power_w
+from cryod.control.feedforward.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.control.pi import PiGains
-from cryod.control.terms import TERM_TYPES, TickInputs, term_type
+from cryod.control.terms import TERM_TYPES, ControlTerm, TickInputs, term_type
 from cryod.model import CryostatModel, load_model
 from cryod.records.columns import Column
 from cryod.cooler.periodic import periodic_amplitudes
@@ -72,7 +72,7 @@ class FixedSinusoid:
     period_s: float = PERIOD_S
 
 
-class FixedSinusoidTerm:
+class FixedSinusoidTerm(ControlTerm):
     """A sinusoid of fixed amplitude and phase, locked to the cooler as the feedforward is.
 
     Each reading of T5 updates a :class:`CoolerPhaseTracker`; once it is locked the term outputs
@@ -213,7 +213,7 @@ def measure(result: ClosedLoopRun, model: CryostatModel = MODEL, window_s: float
 
 def fundamentals(model: CryostatModel) -> tuple[complex, complex]:
     """The line L_1 on T2 (K) and the held heater path H_1 to T2's readings (K/W) at the cooler's fundamental,
-    relative to T5's ``cos(psi)`` (:mod:`cryod.control.harmonic_plant`)."""
+    relative to T5's ``cos(psi)`` (:mod:`cryod.control.feedforward.harmonic_plant`)."""
     return complex(line_at_harmonics(model, 1)[0]), complex(plant_at_harmonics(model, [1], PERIOD_S)[0])
 
 

@@ -1,16 +1,18 @@
 """The physical limit at the setpoint in use, from the model until the plant is learned, then from what was learned.
 
+Why, and how well it works: docs/feedforward.md ("The limit from what was learned").
+
 The feedforward reports the limit (``ff_limit_K``, ``ff_authority``,
 ``cryod ctl feedforward status``) and what would change it. It is computed off
 the loop's thread (some 60 ms with what would change it) and taken a fixed
 time after it was asked for (:data:`TAKEN_AFTER_S`: in service long done; on
 virtual time the loop waits for it, so runs stay deterministic):
 
-* **from the model** (:func:`cryod.control.feedforward_limit.limit_for_heater_power`)
+* **from the model** (:func:`cryod.control.feedforward.limit.limit_for_heater_power`)
   once the setpoint has been steady for :data:`MODEL_AFTER_S`, once per
   setpoint, heater and setting delay (none where the model says the heater
   cannot hold the setpoint);
-* **from what was learned** (:mod:`cryod.control.learned_limit`) once the plant
+* **from what was learned** (:mod:`cryod.control.feedforward.learned_limit`) once the plant
   at the fundamental is learned and T2 has settled at the setpoint (the mean
   power PI has found is then the one the setpoint needs), again every
   :data:`LEARNED_EVERY_S` while it is; also where the model said the setpoint
@@ -26,8 +28,8 @@ import math
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable
 
-from cryod.control.feedforward_limit import FeedforwardLimitError, limit_changes, limit_for_heater_power
-from cryod.control.learned_limit import LearnedLimitInputs, learned_limit, learned_limit_changes
+from cryod.control.feedforward.limit import FeedforwardLimitError, limit_changes, limit_for_heater_power
+from cryod.control.feedforward.learned_limit import LearnedLimitInputs, learned_limit, learned_limit_changes
 from cryod.model import CryostatModel
 from cryod.thread_priority import at_normal_priority
 

@@ -1,7 +1,9 @@
 """The probe: a small, bounded excitation at the harmonics whose plant the waveform's own changes do not tell.
 
+Why, and how well it works: docs/feedforward.md ("The probe").
+
 The feedforward learns the plant at each harmonic from how T2 answers changes
-of what the heater plays (:mod:`cryod.control.plant_learner`). The waveform
+of what the heater plays (:mod:`cryod.control.feedforward.plant_learner`). The waveform
 changes a lot at the fundamental (it fades in, it learns), but hardly at a
 harmonic the line does not need, and not at all once it has converged: there
 the plant stays unknown, or its knowledge fades as it may drift. The probe adds,
@@ -35,7 +37,7 @@ learned plant, is reported.
 Examples
 --------
 >>> import numpy as np
->>> from cryod.control.plant_learner import MODEL_ERROR, LearnedPlant
+>>> from cryod.control.feedforward.plant_learner import MODEL_ERROR, LearnedPlant
 >>> plant = LearnedPlant.from_model(np.array([7.36e-3 * np.exp(-2.0j), 4.06e-3 * np.exp(-2.5j)]))
 >>> settings = ProbeSettings(amplitude_K=50e-6)
 >>> state, probe = next_probe(ProbeState.start(2), plant, 0.2, 2.0, settings)
@@ -56,7 +58,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from cryod.control.plant_learner import MODEL_ERROR, LearnedPlant
+from cryod.control.feedforward.plant_learner import MODEL_ERROR, LearnedPlant
 
 #: The probe turns by this at every learning step.
 PHASE_STEP_RAD = 0.5 * math.pi

@@ -1,11 +1,13 @@
 """The best periodic waveform within bounds, when each harmonic acts on its own.
 
+Why, and how well it works: docs/feedforward.md ("The physical limit").
+
 A periodic input ``P(theta) = mean + Re sum_n a_n exp(j n theta)`` (n = 1..N) bounded by
 ``low <= P <= high``, with the mean fixed, moves harmonic n of an output by ``H_n a_n`` against a
 disturbance ``L_n``. This module finds the waveform that leaves the least
 ``sum_n |L_n + H_n a_n|**2`` and a lower bound that no waveform, of any shape, beats. For the
 cryostat, P is the heater power, L the cooler's line on T2 and H the heater's response
-(:mod:`cryod.control.feedforward_limit`).
+(:mod:`cryod.control.feedforward.limit`).
 
 Conventions: ``a_n = (1/pi) int_0^2pi P(theta) exp(-j n theta) d theta`` (phasor amplitude: a
 sinusoid ``A cos(n theta + p)`` has ``a_n = A exp(jp)``), arrays indexed from n = 1.

@@ -2,69 +2,21 @@
 waveform locked to the pulse-tube cooler can leave on the flange thermometer (T2).
 
 The heater can only heat (P >= 0), saturates at R * I_max**2, and its mean is fixed by the thermal
-balance at the setpoint. Within those bounds, which waveform P(phi) of the cooler's phase phi
-leaves the smallest PTC-synchronous part on T2, and how small is it? This module answers with a
-convex optimisation, certifies the answer with a lower bound that holds for every waveform, and
-says what limits it (the heater's authority, or the estimation noise) and what would change it.
+balance at the setpoint. Within those bounds this module finds the waveform P(phi) of the cooler's
+phase that leaves the smallest PTC-synchronous part on T2 (a convex quadratic programme, solved by
+:mod:`cryod.control.feedforward.bounded_waveform`), certifies it with a lower bound that holds for
+every waveform, says what limits it (the heater's authority, or the estimation noise) and what
+would change it (:func:`limit_changes`), and sweeps it over setpoints and heaters
+(:func:`limit_sweep`). The formulation, the certificate, the convergence and the numbers are in
+docs/feedforward.md ("The physical limit").
 
-The measure
------------
-The daemon reports ``ptc_periodic_amplitude_K``: sqrt(2) times the rms of the part of T2 that is
-periodic in the cooler's phase, harmonics 1-6, measured in the readings taken at the loop's
-instants. For phasor amplitudes r_n of those harmonics that is ``sqrt(sum |r_n|**2)``; the limit
-is given in the same measure (``ptc_periodic_limit_K``).
-
-The loop as a sampled system
-----------------------------
-Every period T (80 ms) the loop reads T2 and holds one heater power until the next tick. A
-waveform locked to the cooler sets, at tick k, ``u_k = P(phi_k)`` with phi_k the cooler's phase
-then; T / (cooler period) is not rational, so the phi_k sweep every phase. (A heater sequence
-that is not a function of the phase alone gains nothing: averaged over the ticks that fall in
-each phase bin it gives a function of the phase with the same synchronous content and bounds.) Write
-``P(phi) = P_mean + Re sum_n a_n exp(j n phi)`` (a_n: phasor amplitude of harmonic n, W). The
-held heater power then contains, besides a_n * Hzoh(j n w0) at the harmonic itself
-(Hzoh(jw) = (1 - exp(-jwT)) / (jwT)), images at ``n w0 + 2 pi m / T`` for every m != 0. None of
-them is a multiple of the cooler frequency, but the readings, taken every T, see each image at
-exactly the phase progression of harmonic n. So harmonic n of the *readings* is::
-
-    r_n = L_n + H_n a_n,   H_n = sum_m G(j w_m) Hzoh(j w_m) exp(-j w_m d),   w_m = n w0 + 2 pi m / T
-
-with G the heater-to-thermometer path (G2 G1, with the model's sensor lag), d the delay from a
-reading to the heater change (computation latency plus the model's dead time) and L_n the cooler
-line's phasor on T2 at harmonic n. ``H_n`` is the zero-order-hold discretisation of G evaluated
-at harmonic n's frequency in the readings (``measure="sampled"``, the default). It differs
-from the continuous-time ``G(j n w0) Hzoh(j n w0)`` (``measure="continuous"``, the synchronous
-content of the thermometer's continuous signal, images ignored) by +6 % at the fundamental and
-by factors of 3-25 at harmonics 4-6, which alias to low frequencies in the 12.5 Hz readings; and
-harmonic 7 aliases to 0.44 Hz, where it reaches T2 at 28 mK/W against 7.4 mK/W for the line.
-In the sampled measure no harmonic is free: every one reaches T2 with at least
-``min |G_d|`` (3.1 mK/W for the shipped model, at the Nyquist frequency).
-
-A delay d only rotates the waveform in the continuous measure, which the feedforward
-pre-compensates, so there it does not change the limit. In the sampled measure it also turns
-the images against each other (their phases differ by 2 pi m d / T), so the limit depends on
-where in the period the heater changes: ``heater_delay_s`` (0: the heater changes at the reading).
-
-The optimisation
-----------------
-The waveform is a trigonometric polynomial of degree N (``harmonics``, default 12): its
-readings then hold harmonics 1..N and nothing else, so the objective ``sum_{n<=N} |r_n|**2`` is
-the whole periodic oscillation it leaves. The bounds ``low <= P(phi) <= high`` are imposed at M
-phases (``phase_points``, default 512); the mean is exact by construction. This convex quadratic
-programme is solved as a least-distance problem in the residual phasors by
-:func:`scipy.optimize.nnls` (Lawson and Hanson, *Solving Least Squares Problems*, ch. 23). The
-waveform is then shrunk towards its mean, if needed, until it meets the bounds on a grid 8 times
-finer, so the reported limit is reached by a feasible waveform.
-
-Certificate. For every waveform P (any shape, any harmonics), with h <= |H_n| for every n,::
-
-    sum_n |r_n|**2 >= sum_{n<=N} (|L_n + H_n a_n|**2 - h**2 |a_n|**2) + (h**2 / pi) int (P - P_mean)**2
-
-The right side is convex in P and its Lagrange dual is a smooth concave function of (y, lambda)
-in R^(2N+1) whose every value is a lower bound; maximising it (L-BFGS) gives ``lower_bound_K``.
-With h = min |G_d| (sampled measure) the bracket [lower_bound_K, whole_periodic_limit_K] is
-0.2 % wide for the example heater at 5 K: no heater waveform, however shaped, does better. In
-the continuous measure h = 0 and the bound only covers harmonics 1..N.
+The limit is in the daemon's measure, ``ptc_periodic_amplitude_K``: sqrt(2) times the rms of T2's
+part periodic in the cooler's phase, harmonics 1-6, in the readings taken at the loop's instants
+(``sqrt(sum |r_n|**2)`` for the phasors r_n of those harmonics). ``measure="sampled"`` (the
+default) takes the heater's path as the loop's readings see it, with the images of the hold that
+fold onto each harmonic; ``"continuous"``, the continuous-time path at the harmonics, images
+ignored. In the sampled measure the limit depends on where in the period the heater changes
+(``heater_delay_s``, from the reading; the model's dead time is added).
 
 Heater power here is the power delivered to the flange; with the model's heater nonlinearity
 the bounds and the mean are in delivered power and the waveform is mapped back to commanded
@@ -91,10 +43,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cryod.control.bounded_waveform import (
+from cryod.control.feedforward.bounded_waveform import (
     best_bounded_waveform, largest_fundamental, residual_lower_bound, waveform_values,
 )
-from cryod.control.harmonic_plant import line_at_harmonics
+from cryod.control.feedforward.harmonic_plant import line_at_harmonics
 from cryod.model import CryostatModel, TransferFunction
 from cryod.model.dynamics import flange_transfer_functions
 

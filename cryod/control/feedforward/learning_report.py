@@ -6,7 +6,7 @@ term's name (the loop writes them into the record as ``# event: feedforward:
 
 * the plant at the line learned, or back to the model's;
 * the learned plant differing from the model beyond its uncertainty, in
-  words, with what to do (:meth:`cryod.control.plant_learner.LearnedPlant.differences_said`),
+  words, with what to do (:meth:`cryod.control.feedforward.plant_learner.LearnedPlant.differences_said`),
   and when it agrees again (a warning each time the harmonics that differ
   change, and when the words change, at most every :data:`SAY_AGAIN_S`);
 * the learned plant itself, every :data:`RECORD_EVERY_S` and when the
@@ -18,7 +18,7 @@ term's name (the loop writes them into the record as ``# event: feedforward:
 Examples
 --------
 >>> import numpy as np
->>> from cryod.control.plant_learner import LearnedPlant
+>>> from cryod.control.feedforward.plant_learner import LearnedPlant
 >>> report = LearningReport()
 >>> plant = LearnedPlant(np.array([7.36e-3 * np.exp(-2.0j)]), np.array([0.62 * np.exp(-1.22j)]),
 ...                      np.array([np.eye(2) * 1e-4]))
@@ -37,7 +37,7 @@ from __future__ import annotations
 import logging
 import math
 
-from cryod.control.plant_learner import LearnedPlant
+from cryod.control.feedforward.plant_learner import LearnedPlant
 
 #: The learned plant is written into the data log this often (s), and when the harmonics learned have changed.
 RECORD_EVERY_S = 600.0

@@ -1,13 +1,15 @@
 """The physical limit from what the feedforward learned: the cryostat it is on, not the model.
 
-The limit of :mod:`cryod.control.feedforward_limit` is computed from the
+Why, and how well it works: docs/feedforward.md ("The limit from what was learned").
+
+The limit of :mod:`cryod.control.feedforward.limit` is computed from the
 controller's model: its line, its plant at the harmonics, the mean power its
 DC gain says the setpoint needs. On a cryostat that differs from the model
 each of those is off; once the feedforward has learned them, the limit comes
 from what it learned:
 
 * the line ``L_n`` and the plant ``H_n`` at the waveform's harmonics, as
-  estimated (:class:`cryod.control.plant_learner.LearnedPlant`);
+  estimated (:class:`cryod.control.feedforward.plant_learner.LearnedPlant`);
 * the mean heater power that holds the setpoint, as PI has found it.
 
 What would change it is computed from the same: a setpoint moved by ``step_K``
@@ -18,7 +20,7 @@ R * I_max**2 doubled leaves the rest as it is.
 Examples
 --------
 >>> import numpy as np
->>> from cryod.control.plant_learner import LearnedPlant
+>>> from cryod.control.feedforward.plant_learner import LearnedPlant
 >>> plant = LearnedPlant(np.array([7.36e-3 * np.exp(-2.0j)]), np.array([0.6 + 0j]), np.array([np.eye(2) * 1e-4]))
 >>> learned = LearnedLimitInputs(plant, np.array([1.73e-3 + 0j]), 0.433, 0.5, 6.0, 0.08, 0.03)
 >>> limit = learned_limit(learned, cooler_angular_frequency_rad_s=10.83, sensor_noise_rms_K=20e-6)
@@ -38,10 +40,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cryod.control.feedforward_limit import (
+from cryod.control.feedforward.limit import (
     FeedforwardLimit, FeedforwardLimitError, LimitChange, SweepPoint, limit_for_plant,
 )
-from cryod.control.plant_learner import LearnedPlant
+from cryod.control.feedforward.plant_learner import LearnedPlant
 
 
 @dataclass(frozen=True, eq=False)

@@ -6,7 +6,7 @@ settings are held between ticks and T2 is read once per tick, so above half the
 sampling rate the hold's images fold back onto each harmonic
 (:meth:`~cryod.model.transfer_function.TransferFunction.sampled_response`).
 The feedforward (:mod:`cryod.control.feedforward`) learns on them and the
-physical limit (:mod:`cryod.control.feedforward_limit`) optimises with them.
+physical limit (:mod:`cryod.control.feedforward.limit`) optimises with them.
 
 Examples
 --------

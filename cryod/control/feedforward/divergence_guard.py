@@ -1,5 +1,7 @@
 """The divergence guard: a learning that makes T2 worse is caught, and the feedforward steps back.
 
+Why, and how well it works: docs/feedforward.md ("Never worse").
+
 The learning converges when the plant it uses is close enough to the
 cryostat's (within 90 degrees, and not too strong); a plant that changes faster
 than it is learned, or a learned value that is wrong, makes each step move the

@@ -1,11 +1,13 @@
 """The plant the feedforward learns: how the heater reaches T2's readings at each harmonic, and how well it is known.
 
+Why, and how well it works: docs/feedforward.md ("The plant, with its uncertainty").
+
 The feedforward's estimator (:class:`cryod.control.feedforward.SynchronousEstimator`)
 learns, at each harmonic n of the cooler, a complex correction ``k_n`` of the
 controller model's plant ``H_n`` (from a waveform coefficient to T2's readings,
-as the loop samples them: :func:`cryod.control.harmonic_plant.plant_at_harmonics`)
+as the loop samples them: :func:`cryod.control.feedforward.harmonic_plant.plant_at_harmonics`)
 with its covariance, from how T2 answers the waveform's changes and the probe's
-(:mod:`cryod.control.plant_probe`). :class:`LearnedPlant` turns that into the
+(:mod:`cryod.control.feedforward.plant_probe`). :class:`LearnedPlant` turns that into the
 plant the feedforward uses, over the full +-180 degrees:
 
 * the plant ``k_n H_n`` with the correction as estimated is the best estimate

@@ -1,14 +1,16 @@
 """A learning step of the waveform, projected onto the heater's bounds in the learned plant's metric.
 
+Why, and how well it works: docs/feedforward.md ("The projection in the learned metric").
+
 Every learning interval the waveform's coefficients step toward cancelling the
 estimated line, ``u_n <- u_n + gain (-L_n / H_n - u_n)``, at each harmonic whose
-plant is learned (:class:`cryod.control.plant_learner.LearnedPlant`), and the
+plant is learned (:class:`cryod.control.feedforward.plant_learner.LearnedPlant`), and the
 result is replaced by the waveform the heater can play that is closest to it
 in T2's terms, ``min sum_n |H_n (u_n - stepped_n)|**2`` with the power the
 waveform rides on plus the waveform within the bounds at every phase. In the
 metric of the cryostat's own plant, the fixed point of step and projection is
 the constrained optimum of that cryostat, the physical limit
-(:mod:`cryod.control.feedforward_limit`); in the model's metric it would be
+(:mod:`cryod.control.feedforward.limit`); in the model's metric it would be
 the model's optimum, which can leave much more on a cryostat whose plant
 differs (at 6 K the fundamental needed sits within a few mW of both bounds).
 At harmonics whose plant is not learned the step aims at nothing (their target
@@ -21,7 +23,7 @@ clipped pulse at 5 K is made of them), and its changes teach the plant there.
 Examples
 --------
 >>> import numpy as np
->>> from cryod.control.plant_learner import LearnedPlant
+>>> from cryod.control.feedforward.plant_learner import LearnedPlant
 >>> plant = LearnedPlant(np.array([7.36e-3 * np.exp(-2.0j)]), np.array([0.5 + 0j]), np.array([np.eye(2) * 1e-4]))
 >>> line = np.array([1.73e-3 + 0j])
 >>> step = learning_step(np.zeros(1, dtype=complex), line, plant, gain=1.0, base_w=0.26, low_w=0.0, high_w=0.5)
@@ -33,8 +35,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cryod.control.bounded_waveform import best_bounded_waveform
-from cryod.control.plant_learner import LearnedPlant
+from cryod.control.feedforward.bounded_waveform import best_bounded_waveform
+from cryod.control.feedforward.plant_learner import LearnedPlant
 
 
 def learning_step(coefficients: np.ndarray, line: np.ndarray, plant: LearnedPlant, gain: float, base_w: float,

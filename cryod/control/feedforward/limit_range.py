@@ -1,6 +1,6 @@
 """The feedforward's limit with the model's uncertainty: the range the limit lies in for the model the lab has.
 
-The limit (:func:`cryod.control.feedforward_limit.feedforward_limit`) depends on
+The limit (:func:`cryod.control.feedforward.limit.feedforward_limit`) depends on
 the model: the mean heater power that holds the setpoint (the heater-to-T2 DC
 gain), the heater's path at the line's harmonics (its time constants) and the
 line it has to cancel (the line gain from T5 to T2). A model identified by
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit
+from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit
 from cryod.model import CryostatModel
 
 #: Models drawn for the range.
@@ -85,7 +85,7 @@ def limit_range(model: CryostatModel, setpoint_K: float, heater_resistance_ohm: 
     ----------
     model : CryostatModel
     setpoint_K, heater_resistance_ohm, max_current_A, period_s : float
-        As for :func:`~cryod.control.feedforward_limit.feedforward_limit`.
+        As for :func:`~cryod.control.feedforward.limit.feedforward_limit`.
     draws : int
         Models drawn.
     seed : int, optional

@@ -1,71 +1,38 @@
-"""The feedforward: a heater waveform locked to the cooler that cancels its line on the flange.
+"""The ``feedforward`` control term: a heater waveform locked to the cooler that cancels its line on the flange.
 
-PI cannot remove the pulse-tube cooler's oscillation from T2 (docs/control.md):
-at 10.8 rad/s the heater reaches T2 only through G2*G1, about 7 mK/W lagging
-90 degrees, and a feedback loop that tried would need far more gain than the
-80 ms loop allows. The cooler's own oscillation, seen in T5 at hundreds of
-times its noise, gives the phase; the heater can then play a waveform locked
-to that phase whose effect on T2 cancels the line.
+PI cannot remove the pulse-tube cooler's line from T2: at 10.8 rad/s the heater
+reaches T2 only through G2*G1, about 7 mK/W lagging 90 degrees. The cooler's
+oscillation in T5 gives its phase, and the heater plays a waveform locked to
+that phase whose effect on T2 cancels the line. docs/feedforward.md says how
+and why, with the equations and the results ("How it works", "Learning the
+cryostat it is on"); here, where each part lives. Every tick the term
 
-How it works, every tick:
-
-1. **Phase** (:mod:`cryod.cooler.phase`): T5, at the instant its
-   reading stands for, updates a phase-locked loop; lock, phase and
-   frequency come out.
-2. **Estimate** (:class:`SynchronousEstimator`): T2, at its own instant, updates
-   a Kalman filter of T2's part synchronous with the cooler (harmonics 1 to N
-   of the tracked phase), split into the cooler's line and the waveform's
-   effect through the model's plant response times a correction learned from
-   how T2 answers the waveform's changes. The PI term is given T2 without the
-   estimated synchronous part, so it does not chase the line (and the
-   feedforward's plant is the open-loop one).
-3. **Waveform**: the heater part is ``Re(sum_n u_n exp(j n phase))``, a
-   band-limited waveform (no mean, so the mean heater power stays PI's; no
-   harmonics above N, so none alias below 2 Hz through the 80 ms hold),
-   evaluated at the phase of the middle of the coming hold. Its effect on T2's
-   samples is the plant *as the loop samples it*
-   (:func:`plant_at_harmonics`): above half the sampling rate the hold's
-   folded images make it differ much from ``G(j n omega)``. The tick where the
-   waveform changes gives back the energy the change's place in the period
-   would have added or taken (T2's mean takes no kick); the reading after it
-   is attributed to the waveform played before it, and where the change moves
-   T2 by more than the readings' noise the next ``CHANGE_SETTLE_S`` of readings
-   are left out (a lagging thermometer or a late heater answers both, mixed).
-4. **Plant** (:mod:`cryod.control.plant_learner`): the correction ``k_n``
-   and its covariance give the plant as estimated, over the full +-180
-   degrees, in which the waveform is measured; until a harmonic's plant is
-   known better than the model's assumed error (and confirmed by the step
-   after) the waveform does not aim at the line there. Where the waveform's
-   own changes do not tell the plant to ``plant_precision``, a small probe
-   does (:mod:`cryod.control.plant_probe`), within a share of the heater's room.
-5. **Learning** (iterative learning in the cooler's phase): every
-   ``update_interval_s`` the coefficients step toward cancelling the estimated
-   line, ``u <- u + gain (-L / H_n - u)``, at the harmonics whose plant is
-   learned, and are projected onto what the heater can do,
-   ``margin <= PI's power + waveform + probe <= R I_max^2 - margin`` at every
-   phase, in the metric of the learned plant
-   (:mod:`cryod.control.learned_projection`): the fixed point is the
-   constrained optimum of the cryostat the daemon is on, its physical limit
-   (:mod:`cryod.control.feedforward_limit`).
-6. **Guard** (:mod:`cryod.control.divergence_guard`): a learning that makes
-   T2's synchronous part grow, or stay above PI alone's, fades the waveform
-   out, resets the learned plant to the model, says why, and starts again
-   after ``retry_after_s`` (doubling at each divergence in a row, up to an hour).
-7. **Fade**: without lock (cooler stopped, T5 fault) or when switched off,
-   the waveform fades out over ``fade_time_s``; PI carries on. Switching on,
-   or closing the loop, fades it in. Readings after a gap (a fault, start-up)
-   are left out of the estimate.
-
-The limit (``ff_limit_K``, ``ff_authority``, the status) comes from the model
-until the plant is learned and T2 has settled at the setpoint, then from what
-was learned (:mod:`cryod.control.limit_follower`); ``ff_limit_from`` says
-which. What the learning finds (the plant learned, a plant that differs from
-the model, a divergence) goes to the journal and the data log as events
-(:mod:`cryod.control.learning_report`).
+1. tracks the cooler's phase from T5 (:mod:`cryod.cooler.phase`);
+2. estimates T2's part synchronous with the cooler, split into the line and
+   the waveform's effect (:class:`SynchronousEstimator`, fed on a worker
+   thread: :mod:`cryod.control.feedforward.learning_worker`), and gives the
+   feedback terms T2 without it, so PI does not chase the line;
+3. plays the waveform ``Re(sum_n u_n exp(j n phase))`` (no mean, harmonics 1
+   to N) at the phase of the middle of the coming hold, its effect measured in
+   the plant as the loop samples it
+   (:mod:`cryod.control.feedforward.harmonic_plant`) and as learned
+   (:mod:`cryod.control.feedforward.plant_learner`, with a small probe where
+   the waveform's own changes do not tell it:
+   :mod:`cryod.control.feedforward.plant_probe`);
+4. every ``update_interval_s``, steps the waveform toward cancelling the line
+   and projects it onto what the heater can play
+   (:mod:`cryod.control.feedforward.learned_projection`), under a guard that
+   steps back from a learning that makes T2 worse
+   (:mod:`cryod.control.feedforward.divergence_guard`);
+5. fades the waveform out without lock or when switched off, and in again.
 
 The term rides on the feedback (``rides_on_feedback``): the regulator adds it
 after PI's sum has been held within the heater's range, so a clipped waveform
-never stops PI integrating.
+never stops PI integrating; what the heater could not play is followed by
+:mod:`cryod.control.feedforward.unplayed_power`. The physical limit at the
+setpoint in use comes from :mod:`cryod.control.feedforward.limit_follower`;
+what the learning finds goes to the journal and the record through
+:mod:`cryod.control.feedforward.learning_report`.
 
 Configuration, section ``control.feedforward`` (optional; reloadable, bumpless)::
 
@@ -93,20 +60,20 @@ from pathlib import Path
 
 import numpy as np
 
-from cryod.control.bounded_waveform import waveform_values
-from cryod.control.divergence_guard import DivergenceGuard
-from cryod.control.feedforward_learning import LearningWorker
-from cryod.control.feedforward_limit import REPORTED_HARMONICS
-from cryod.control.harmonic_plant import plant_at_harmonics
-from cryod.control.learned_limit import LearnedLimitInputs
-from cryod.control.learned_projection import learning_step
-from cryod.control.learning_report import LearningReport
+from cryod.control.feedforward.bounded_waveform import waveform_values
+from cryod.control.feedforward.divergence_guard import DivergenceGuard
+from cryod.control.feedforward.learning_worker import LearningWorker
+from cryod.control.feedforward.limit import REPORTED_HARMONICS
+from cryod.control.feedforward.harmonic_plant import plant_at_harmonics
+from cryod.control.feedforward.learned_limit import LearnedLimitInputs
+from cryod.control.feedforward.learned_projection import learning_step
+from cryod.control.feedforward.learning_report import LearningReport
 from cryod.control.limit_binding import limit_binding, measured_against_limit
-from cryod.control.limit_follower import LimitFollower
-from cryod.control.plant_learner import PRIOR_SPREAD, LearnedPlant
-from cryod.control.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
-from cryod.control.terms import TickInputs
-from cryod.control.unplayed_power import UnplayedPower
+from cryod.control.feedforward.limit_follower import LimitFollower
+from cryod.control.feedforward.plant_learner import PRIOR_SPREAD, LearnedPlant
+from cryod.control.feedforward.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
+from cryod.control.terms import ControlTerm, TickInputs
+from cryod.control.feedforward.unplayed_power import UnplayedPower
 from cryod.cooler.phase import CoolerPhaseTracker
 from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
 from cryod.records.columns import Column
@@ -132,7 +99,7 @@ BATCH = 4
 BOUND_POINTS = 48
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
 SETTING_DELAY_TOLERANCE_S = 0.002
-#: Learning steps in a row that make a divergence (:class:`~cryod.control.divergence_guard.DivergenceGuard`).
+#: Learning steps in a row that make a divergence (:class:`~cryod.control.feedforward.divergence_guard.DivergenceGuard`).
 DIVERGENCE_STEPS = 5
 #: The wait before learning again after a divergence doubles with each one in a row, up to this (s).
 LONGEST_RETRY_S = 3600.0
@@ -231,7 +198,7 @@ class SynchronousEstimator:
     and learning, the probe) and is kept between them; it starts at 1 with a
     spread of ``correction_spread`` on each part, so any phase is possible.
     What is learned, with its covariance, is read as a
-    :class:`~cryod.control.plant_learner.LearnedPlant`, which decides where it
+    :class:`~cryod.control.feedforward.plant_learner.LearnedPlant`, which decides where it
     is known well enough to be used.
 
     Parameters
@@ -332,7 +299,7 @@ class SynchronousEstimator:
     @property
     def correction(self) -> np.ndarray:
         """The plant correction at each harmonic where the readings tell it better than the model's
-        assumed error (:data:`~cryod.control.plant_learner.MODEL_ERROR`), else 1: the model's."""
+        assumed error (:data:`~cryod.control.feedforward.plant_learner.MODEL_ERROR`), else 1: the model's."""
         return np.where(self.learned_plant(np.ones(self.harmonics)).learned, self.raw_correction, 1.0)
 
     def reset_correction(self) -> None:
@@ -412,7 +379,7 @@ class SynchronousEstimator:
             self._update_batch()
 
 
-class FeedforwardTerm:
+class FeedforwardTerm(ControlTerm):
     """The ``feedforward`` control term (module notes)."""
 
     name = "feedforward"
@@ -769,7 +736,7 @@ class FeedforwardTerm:
 
     @property
     def physical_limit(self):
-        """The physical limit at the setpoint in use (:mod:`cryod.control.feedforward_limit`): from what was
+        """The physical limit at the setpoint in use (:mod:`cryod.control.feedforward.limit`): from what was
         learned once it is, else from the model; None until the setpoint has been steady a few seconds."""
         return self.limits.limit
 

@@ -1,0 +1,24 @@
+"""The feedforward: a heater waveform locked to the cooler that cancels its line on the flange.
+
+* the ``feedforward`` control term, its estimator and its waveform: :mod:`~cryod.control.feedforward.term`;
+  the estimator and the learning steps on a worker thread: :mod:`~cryod.control.feedforward.learning_worker`;
+* the plant at the cooler's harmonics: from the model (:mod:`~cryod.control.feedforward.harmonic_plant`),
+  as learned (:mod:`~cryod.control.feedforward.plant_learner`, :mod:`~cryod.control.feedforward.plant_probe`),
+  the learning step in its metric (:mod:`~cryod.control.feedforward.learned_projection`), the guard against
+  a learning that diverges (:mod:`~cryod.control.feedforward.divergence_guard`), the power the heater could
+  not play (:mod:`~cryod.control.feedforward.unplayed_power`), what the learning says
+  (:mod:`~cryod.control.feedforward.learning_report`);
+* the physical limit: the best waveform within the heater's bounds
+  (:mod:`~cryod.control.feedforward.bounded_waveform`), the limit, its sweeps and what would change it
+  (:mod:`~cryod.control.feedforward.limit`), its range for an uncertain model
+  (:mod:`~cryod.control.feedforward.limit_range`), from what was learned
+  (:mod:`~cryod.control.feedforward.learned_limit`), followed at the setpoint in use
+  (:mod:`~cryod.control.feedforward.limit_follower`).
+
+How it works and why, with the results: docs/feedforward.md. The term's names are also here, where the
+control terms' table (:data:`cryod.control.terms.TERM_TYPES`) and users import them from.
+"""
+
+from cryod.control.feedforward.term import FeedforwardSettings, FeedforwardTerm, SynchronousEstimator
+
+__all__ = ["FeedforwardSettings", "FeedforwardTerm", "SynchronousEstimator"]

@@ -1,6 +1,7 @@
 """Records that last: meaningful precision, finished days compressed, and the readers users have."""
 
 import gzip
+import threading
 
 import numpy as np
 import pandas
@@ -38,6 +39,33 @@ def test_a_finished_day_is_compressed_when_the_next_day_starts_and_reads_back_th
         again.put(row)
     again.stop()
     assert again.paths[0].name == "cryod-2026-11-18.2.csv"
+
+
+def test_a_day_that_ends_while_the_day_before_is_still_compressing_is_compressed_too(tmp_path, monkeypatch):
+    """Two midnights in one run, the first day's compression held until after the second: both
+    finished days end compressed, in turn, none left for the next start."""
+    release = threading.Event()
+    original = compression.compress_finished
+    days_compressed = []
+
+    def slow_at_first(directory, today):
+        if not days_compressed:
+            release.wait(10.0)
+        days_compressed.append(today)
+        original(directory, today)
+
+    monkeypatch.setattr(compression, "compress_finished", slow_at_first)
+    datalog = DataLog(tmp_path, SCHEMA, {}, lambda t: MIDNIGHT - 43200.0 + t * 86400.0 / 4.0, 0.08, 0.5,
+                      compress_finished=True)
+    datalog.start()
+    for row in rows(0.08, 100):        # 8 s of rows, each second of them a quarter day: two midnights
+        datalog.put(row)
+    datalog.drain()
+    release.set()
+    datalog.stop()
+    names = sorted(path.name for path in tmp_path.iterdir())
+    assert names == ["cryod-2026-11-18.csv.gz", "cryod-2026-11-19.csv.gz", "cryod-2026-11-20.csv"]
+    assert days_compressed == ["2026-11-18", "2026-11-19", "2026-11-20"]
 
 
 def test_compression_never_loses_the_text_and_redoes_an_interrupted_one(tmp_path, monkeypatch):

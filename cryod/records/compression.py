@@ -83,9 +83,18 @@ def compress_finished(directory: Path, today: str) -> list[Path]:
     return written
 
 
-def compress_in_background(directory: Path, today: str) -> threading.Thread:
-    """Run :func:`compress_finished` on a daemon thread; returns the thread."""
-    thread = threading.Thread(target=compress_finished, args=(directory, today), name="cryod-compress",
-                              daemon=True)
+def compress_in_background(directory: Path, today: str, after: threading.Thread | None = None) -> threading.Thread:
+    """Run :func:`compress_finished` on a daemon thread; returns the thread.
+
+    ``after``, a compression still running (a day that ended while the one before was being
+    compressed), is waited for first, so that every finished day is compressed in turn and none is
+    left for the next start.
+    """
+    def compress_in_turn() -> None:
+        if after is not None:
+            after.join()
+        compress_finished(directory, today)
+
+    thread = threading.Thread(target=compress_in_turn, name="cryod-compress", daemon=True)
     thread.start()
     return thread

@@ -351,8 +351,9 @@ class DataLog:
         if self._file is None:
             return
         self._start_file(origin_s, start_wall_s)
-        if self.compress_finished and (self._compressing is None or not self._compressing.is_alive()):
-            self._compressing = compress_in_background(self.directory, day)
+        if self.compress_finished:
+            running = self._compressing if self._compressing is not None and self._compressing.is_alive() else None
+            self._compressing = compress_in_background(self.directory, day, after=running)
 
     def _new_file(self, day: str) -> RecordFile | None:
         """A file of a free name for ``day``; None (and the failure reported) when none can be made."""

@@ -57,15 +57,29 @@ print(json.dumps(measured))
 """
 
 
+def without_section(text: str, heading: str) -> str:
+    """The YAML ``text`` without the block that starts at the line ``heading`` (and its more indented lines)."""
+    lines = text.splitlines(keepends=True)
+    start = next(index for index, line in enumerate(lines) if line.startswith(heading))
+    indent = len(heading) - len(heading.lstrip())
+    end = start + 1
+    while end < len(lines) and (not lines[end].strip() or len(lines[end]) - len(lines[end].lstrip()) > indent):
+        end += 1
+    return "".join(lines[:start] + lines[end:])
+
+
 def measure(tree: Path, mode: str, duration_s: float, normal_autozero: bool = False,
             arguments: tuple[str, ...] = ()) -> float:
     """Loop-thread CPU per tick (s) of one run (``arguments``: more of cryod's, e.g. the setpoint)."""
     with tempfile.TemporaryDirectory() as folder:
         config = []
-        if normal_autozero:            # the DMMs' NORMal autozero (every third reading), for a baseline that uses it
-            text = (REPOSITORY / "config" / "cryod.yaml").read_text()
-            text = text.replace("autozero_type: synchronous", "autozero_type: normal").replace(
+        if normal_autozero or mode == "pi":
+            text = (REPOSITORY / "config" / "cryod.yaml").read_text().replace(
                 "calibration: calibration/", f"calibration: {REPOSITORY}/config/calibration/")
+            if normal_autozero:        # the DMMs' NORMal autozero (every third reading), for a baseline that uses it
+                text = text.replace("autozero_type: synchronous", "autozero_type: normal")
+            if mode == "pi":           # without the term, its section would be an unknown key
+                text = without_section(text, "  feedforward:")
             Path(folder, "cryod.yaml").write_text(text)
             config = ["--config", str(Path(folder, "cryod.yaml"))]
         code = (PROBE.replace("TREE", repr(str(tree))).replace("MODE", repr(mode))

@@ -1,4 +1,4 @@
-"""The feedforward's goals (issue: feedforward locked to the cryocooler), measured through the daemon's own command line.
+"""The feedforward's goals (docs/feedforward.md), measured through the daemon's own command line.
 
 Run: PYTHONPATH=. python3 benchmarks/feedforward.py [--repeat 3] [--figures docs/figures]
 

@@ -10,7 +10,7 @@ costs, without the data log's writer, the feedforward's learning worker or start
 * ``pi``: the regulator with the PI term only (the feedforward term taken out of the factory);
 * ``ff-off``: the feedforward term present but switched off (`--no-feedforward`);
 * ``ff``: the default, PI and the feedforward;
-* ``other``: ``--tree``'s checkout (an earlier commit) as it is.
+* ``other``: ``--tree``'s checkout (the baseline to compare with) as it is.
 
 The modes run in turn, ``--repeat`` rounds, and the best of each is reported with its ratio to the
 best ``pi`` (the machine's speed varies from run to run, so the best is the fairest figure).
@@ -62,7 +62,7 @@ def measure(tree: Path, mode: str, duration_s: float, normal_autozero: bool = Fa
     """Loop-thread CPU per tick (s) of one run (``arguments``: more of cryod's, e.g. the setpoint)."""
     with tempfile.TemporaryDirectory() as folder:
         config = []
-        if normal_autozero:            # the earlier commit's DMM setting: autozero every 200 ms
+        if normal_autozero:            # the DMMs' NORMal autozero (every third reading), for a baseline that uses it
             text = (REPOSITORY / "config" / "cryod.yaml").read_text()
             text = text.replace("autozero_type: synchronous", "autozero_type: normal").replace(
                 "calibration: calibration/", f"calibration: {REPOSITORY}/config/calibration/")

@@ -109,6 +109,24 @@ def whole_number(text: str) -> int:
     return int(stripped)
 
 
+def setpoint_list(text: str) -> tuple[float, ...]:
+    """Setpoints in K separated by commas, increasing, each above 0 K (command-line type: ``--setpoints 5,8,12``).
+
+    Examples
+    --------
+    >>> setpoint_list("5, 8,12")
+    (5.0, 8.0, 12.0)
+    """
+    try:
+        values = tuple(number(part) for part in text.split(","))
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"give setpoints in K separated by commas, e.g. 5,8,12; got {shown(text)}") \
+            from None
+    if not all(value > 0.0 for value in values) or any(b <= a for a, b in zip(values, values[1:])):
+        raise argparse.ArgumentTypeError(f"give increasing setpoints above 0 K, got {shown(text)}")
+    return values
+
+
 def speed(text: str) -> float | str:
     """Simulated seconds per real second (a number > 0), or ``"max"``: virtual time, as fast as the CPU allows."""
     if text == "max":

@@ -129,6 +129,24 @@ class DaemonClient:
         """
         return self.command("reload")["status"]
 
+    def alarms(self) -> list[dict]:
+        """Every alarm that is on (``alarms`` section), each a dict: ``name``, ``state`` (``clear``, ``pending``,
+        ``raised`` or ``latched``), ``acknowledged``, ``since_s`` (the daemon's clock), ``value``, ``message`` (its
+        figure now) and ``raised_message`` (its figure when raised). The status' ``alarms`` holds those raised
+        or latched."""
+        return self.command("alarms")["alarms"]
+
+    def acknowledge_alarm(self, name: str = "all") -> list[dict]:
+        """Acknowledge the alarm ``name`` (or every one standing, ``all``): a latched alarm clears, a raised one
+        clears when its condition is over; the alarms after it.
+
+        Raises
+        ------
+        CommandRefused
+            No such alarm is on, or it is not raised (the message says which).
+        """
+        return self.command(f"alarms ack {name}")["alarms"]
+
     def wait(self, seconds: float, poll_s: float = 0.5, sleep=time.sleep) -> dict:
         """Wait ``seconds`` of the daemon's clock; the status that ended the wait.
 

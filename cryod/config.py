@@ -26,9 +26,11 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from cryod.alarms.settings import AlarmsConfig, alarms_from_section
 from cryod.control.ramp import MIN_RATE_K_PER_MIN, rate_refusal
 from cryod.control.regulator import ControlConfig
 from cryod.control.terms import term_settings_from
+from cryod.control.zones import zone_table_from
 from cryod.instrument_waits import InstrumentWaits
 from cryod.listen_address import parse_address
 from cryod.thermometry import CalibrationCurve, load_calibration
@@ -216,19 +218,20 @@ class DaemonConfig:
     metrics: MetricsConfig = MetricsConfig()
     web: WebConfig | None = None
     lakeshore336: Lakeshore336Config | None = None
+    alarms: AlarmsConfig = AlarmsConfig()
     source: str = ""
     text: str = ""
 
     def restart_needed_for(self, new: "DaemonConfig") -> list[str]:
         """Keys that differ in ``new`` but cannot be changed on a running daemon.
 
-        The sections ``control`` and ``safety`` and ``loop.overrun_streak_limit`` change on
-        reload (SIGHUP); everything else needs a restart.
+        The sections ``control``, ``safety`` and ``alarms`` and ``loop.overrun_streak_limit`` change
+        on reload (SIGHUP); everything else needs a restart.
         """
         changed = []
         for field in dataclasses.fields(self):
             name = field.name
-            if name in ("source", "text", "control", "safety"):
+            if name in ("source", "text", "control", "safety", "alarms"):
                 continue
             old_value, new_value = getattr(self, name), getattr(new, name)
             if name == "loop":
@@ -541,7 +544,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     section.finish()
 
     control_section = top.section("control")
-    control = _control(control_section, safety)
+    control = _control(control_section, safety, heater)
     _check_limits_against_calibrations(control, control_section, safety, safety_section,
                                        (flange_curve, flange), (stage_curve, stage))
 
@@ -583,10 +586,11 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     metrics = _metrics(top.section("metrics", None))
     web = _web(top.section("web", None), base)
     lakeshore336 = _lakeshore336(top.section("lakeshore336", None))
+    alarms = alarms_from_section(top.section("alarms", None), safety.ptc_stage_max_K)
     top.finish()
     return DaemonConfig(loop=loop, instruments=instruments, sensors=sensors, heater=heater, control=control,
                         safety=safety, data=data, control_socket=socket_config, simulation=simulation,
-                        metrics=metrics, web=web, lakeshore336=lakeshore336)
+                        metrics=metrics, web=web, lakeshore336=lakeshore336, alarms=alarms)
 
 
 def _check_waits_against_watchdog(waits: InstrumentWaits, instruments_section: Section,
@@ -652,7 +656,7 @@ def _lakeshore336(section: Section | None) -> Lakeshore336Config | None:
     return lakeshore
 
 
-def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
+def _control(section: Section, safety: SafetyConfig, heater: HeaterConfig) -> ControlConfig:
     setpoint_min = section.number("setpoint_min_K", 1.0, minimum=0.0, exclusive_minimum=True)
     setpoint_max = section.number("setpoint_max_K", minimum=0.0, exclusive_minimum=True)
     if setpoint_max <= setpoint_min:
@@ -686,6 +690,7 @@ def _control(section: Section, safety: SafetyConfig) -> ControlConfig:
         setpoint_max_K=setpoint_max,
         max_ramp_K_per_min=max_ramp,
         terms=term_settings_from(section),
+        zones=zone_table_from(section, setpoint_min, setpoint_max, heater.max_power_w),
     )
     section.finish()
     return control

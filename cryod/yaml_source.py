@@ -517,6 +517,15 @@ class Section:
             raise self.error(key, f"must be one of {', '.join(sorted(choices))}; got {shown(value)}")
         return value
 
+    def texts(self, key: str, default: Any = _MISSING) -> list[str]:
+        """A list of strings (at least one)."""
+        value = self._get(key, default)
+        if value is default and default is not _MISSING:
+            return value
+        if not isinstance(value, list) or not value or not all(isinstance(item, str) for item in value):
+            raise self.error(key, f"must be a list of text, got {shown(value)}")
+        return list(value)
+
     def flag(self, key: str, default: Any = _MISSING) -> bool:
         """A boolean (true/false)."""
         value = self._get(key, default)

@@ -1,6 +1,6 @@
 """The simulated cryostat on a clock: what the simulated instruments measure and heat.
 
-:class:`SimulatedCryostat` wraps :class:`cryod.model.dynamics.CryostatPlant` with
+:class:`SimulatedCryostat` wraps the model's stepping plant (:func:`cryod.model.cryostat_plant`) with
 an injected clock, seeded sensor noise and a lock (instrument emulators may
 serve from several threads). It advances the plant to "now" whenever a reading
 is taken or the heater is written.
@@ -23,7 +23,7 @@ import threading
 
 import numpy as np
 
-from cryod.model import CryostatModel, CryostatPlant
+from cryod.model import CryostatModel, cryostat_plant
 from drivers.clock import Clock
 
 
@@ -51,7 +51,7 @@ class SimulatedCryostat:
         self.noise = noise
         self._random = np.random.default_rng(seed)
         self._lock = threading.Lock()
-        self.plant = CryostatPlant(model, clock.now(), initial_heater_power_w)
+        self.plant = cryostat_plant(model, clock.now(), initial_heater_power_w)
         self._last_window: tuple | None = None
         self._last_window_temperatures = (0.0, 0.0)
 

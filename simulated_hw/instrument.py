@@ -9,8 +9,8 @@ model of :mod:`simulated_hw.status` with its SCPI commands
 ``:ENABle``, ``:STATus:PRESet``, ``:STATus:QUEue[:NEXT]?``,
 ``:STATus:QUEue:CLEar``, ``:SYSTem:ERRor[:NEXT]?``, ``:SYSTem:CLEar``,
 ``:SYSTem:PRESet``), the bus actions a controller performs without a command
-(group execute trigger, selected device clear) and the faults of section 6
-of issue 3 (no reply, garbage reply, dropped connection). A subclass drives
+(group execute trigger, selected device clear) and the faults a real
+instrument shows (no reply, garbage reply, dropped connection). A subclass drives
 the condition registers by overriding :attr:`EmulatedInstrument.operation_condition`,
 :attr:`~EmulatedInstrument.questionable_condition` and
 :attr:`~EmulatedInstrument.measurement_condition`.

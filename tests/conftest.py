@@ -1,5 +1,6 @@
 """Shared fixtures: the shipped and printed models, and a sine fitter."""
 
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -25,6 +26,14 @@ def reference_model():
 def printed_model():
     """The paper's equations exactly as printed."""
     return load_model(CONFIG / "model-paper-printed.yaml")
+
+
+@pytest.fixture
+def runtime_dir():
+    """A private per-user runtime folder (for ``XDG_RUNTIME_DIR``) on a short path: a dry run's control
+    socket goes in it, and a Unix socket's path holds at most 107 bytes however deep pytest's folders are."""
+    with tempfile.TemporaryDirectory(prefix="cryod-run-") as folder:        # mode 0700
+        yield Path(folder)
 
 
 @pytest.fixture(scope="session")

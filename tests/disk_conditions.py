@@ -30,7 +30,7 @@ from cryod.records.record import RecordFormatError, read_record
 from drivers.clock import VirtualClock
 from cryod.service.daemon import Daemon
 from cryod.service.notify import SystemdNotifier
-from tests.test_daemon_faults import FaultDrill
+from tests.fault_drills import FaultDrill
 
 ACTION_ROW = 1500
 DURATION_S = 300.0

@@ -1,4 +1,8 @@
-"""The daemon in real time against the simulated instruments over TCP, a fault injected, the heater timed.
+"""Fault drills: the daemon on the simulated instruments, a fault injected, on virtual time or over TCP.
+
+:class:`FaultDrill` runs the whole daemon in process on the virtual clock against the simulated
+bench, and a row tap fires actions (faults injected into the bench) after given rows;
+:class:`FlakyOpener` keeps the instruments out of reach for a number of attempts to open them.
 
 :class:`TcpFaultDrill` runs the whole daemon in process on the monotonic clock, its
 real drivers reaching the simulated bench through pyvisa-py over TCP on 127.0.0.1
@@ -20,16 +24,21 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
+import numpy as np
+
 from cryod.config import load_config
 from cryod.instrument_waits import InstrumentWaits
 from cryod.model import load_model
 from cryod.records.columns import Event, Row
-from drivers.clock import MonotonicClock
+from cryod.records.record import read_record
+from drivers.clock import MonotonicClock, VirtualClock
 from cryod.service.commands import Command, wait_for
 from cryod.service.daemon import Daemon
 from cryod.service.notify import SystemdNotifier
 from cryod.service.simulation import SimulatedInstrumentsOpener
+from drivers.errors import ConnectionLost
 from tests.conftest import CONFIG
+from tests.example_config import simulated_config
 
 
 def reading_delay_s(loop) -> float:
@@ -209,3 +218,64 @@ def never_claims_zero_early(result: DrillResult, supply_power_at: Callable[[floa
             problems.append(f"row at {row.time_s:.6f} s ({row.state}) says 0 W; the supply delivered "
                             f"{supply_power_at(row.time_s):.4g} W then")
     return problems
+
+
+class FaultDrill:
+    """Runs the daemon on the simulated bench; ``actions[tick](bench)`` fires after that row."""
+
+    def __init__(self, tmp_path, actions, config=None, before_start=None, datalog_options=None):
+        self.config = config or simulated_config(tmp_path)
+        self.datalog_options = datalog_options
+        self.opener = SimulatedInstrumentsOpener(load_model(), seed=4)
+        self.actions = dict(actions)
+        self.before_start = before_start
+        self.rows = []
+        self.heater_at_fault = []
+        self.install_signal_handlers = False        # the daemon's own signal handling (the test's main thread)
+
+    def tap(self, item):
+        if not isinstance(item, Row):
+            return
+        self.rows.append(item)
+        action = self.actions.pop(len(self.rows) - 1, None)
+        if action is not None:
+            action(self.opener.bench)
+
+    def open_instruments(self, config, clock):
+        opened = self.opener(config, clock)
+        if self.before_start is not None:
+            self.before_start(self.opener.bench)
+        return opened
+
+    def run(self, duration_s):
+        self.daemon = Daemon(self.config, self.open_instruments, VirtualClock(), notifier=SystemdNotifier({}),
+                             row_taps=[self.tap], install_signal_handlers=self.install_signal_handlers,
+                             datalog_options=self.datalog_options)
+        self.result = self.daemon.run(duration_s)
+        self.record = self.daemon_record()
+        self.states = [str(state) for state in self.record.columns["state"]]
+        #: The rows that stand for a tick (a heater-off's own row has no lateness).
+        self.ticks = np.isfinite(self.record.columns["lateness_ms"])
+        return self.result
+
+    def daemon_record(self):
+        """The record the daemon wrote last (also after its run raised)."""
+        return read_record(self.daemon.datalog.paths[-1])
+
+    def supply_current_a(self):
+        return self.opener.bench.heater_supply.output_current_a
+
+
+class FlakyOpener:
+    """Instruments out of reach for the first ``failures`` attempts (the bus is down), then the bench."""
+
+    def __init__(self, failures):
+        self.inner = SimulatedInstrumentsOpener(load_model(), seed=4)
+        self.failures = failures
+        self.attempts = []
+
+    def __call__(self, config, clock):
+        self.attempts.append(clock.now())
+        if len(self.attempts) <= self.failures:
+            raise ConnectionLost("flange DMM (T2)", "cannot open TCPIP0::10.0.0.7::1234::SOCKET: no route to host")
+        return self.inner(config, clock)

@@ -43,8 +43,8 @@ from cryod.config import SOCKET_PATH_MAX_BYTES
 from cryod.control.regulator import RegulatorMode
 from tests.conftest import CONFIG, REPOSITORY
 from tests.service_bench import BenchOverTcp
-from tests.test_config import EXAMPLE
-from tests.test_reload_limits import ReloadDrill
+from tests.example_config import EXAMPLE
+from tests.reload_drills import ReloadDrill
 
 pytestmark = pytest.mark.slow
 

@@ -97,8 +97,9 @@ def test_the_command_refuses_them_with_exit_2_and_writes_nothing(case, good, ref
 
 
 def test_a_wandering_cooler_on_jittered_instants_is_a_line_not_noise():
-    """One frequency over the whole record smeared a wandering cooler into the residual: a 10 Hz record
-    with 20 ms of trigger jitter and a +-1 % wander was refused as 'T5 shows no line' (6.7 times the noise)."""
+    """A 10 Hz record with 20 ms of trigger jitter and a cooler wandering +-1 %: one frequency over the whole
+    record would smear the line into the residual (6.7 times the noise, 'T5 shows no line'); its tracked
+    phase keeps it a line."""
     generator = np.random.default_rng(3)
     time_s = np.cumsum(0.1 + generator.uniform(0.0, 0.02, 24000))
     phase = 10.83 * time_s + 0.01 * 10.83 * 900.0 / (2 * np.pi) * (1 - np.cos(2 * np.pi * time_s / 900.0))

@@ -102,7 +102,7 @@ def test_wander_phase_is_part_of_the_drift_form_and_its_file(tmp_path, reference
 
 
 @pytest.mark.parametrize("protocol, duration_s, wander_phase_rad, perturbation", [
-    ("pi_only", 1800.0, 0.0, None),          # the record: the exact shipped model, +-0.8 % over 900 s
+    ("pi_only", 1800.0, 0.0, None),          # the exact shipped model, the cooler's frequency +-0.8 % over 900 s
     ("identification", 1200.0, 2.0, 4),      # another phase of the wander, base parameters off
 ])
 def test_wandering_cooler_is_named_with_its_parameters(protocol, duration_s, wander_phase_rad, perturbation):

@@ -11,7 +11,7 @@ import pytest
 from cryod.cli import main
 from cryod.records.record import read_record
 from tests.conftest import CONFIG, REPOSITORY
-from tests.test_config import line_of
+from tests.example_config import line_of, simulate_args
 
 CONTRACT_KEYS = {"duration_s", "ticks", "overruns", "lateness_ms_p50", "lateness_ms_p99", "lateness_ms_max",
                  "wall_s", "ptc_line_amplitude_K", "rms_K", "mean_error_K", "lowfreq_rms_K", "log_path"}
@@ -20,11 +20,6 @@ CONTRACT_KEYS = {"duration_s", "ticks", "overruns", "lateness_ms_p50", "lateness
 def cryod(*arguments, timeout=120):
     return subprocess.run([sys.executable, "-m", "cryod.cli", *arguments], capture_output=True, text=True,
                           cwd=REPOSITORY, timeout=timeout)
-
-
-def simulate_args(tmp_path, *extra):
-    return ["--simulate", "--speed", "max", "--data-dir", str(tmp_path / "data"),
-            "--socket", str(tmp_path / "c.sock"), *extra]
 
 
 @pytest.mark.parametrize("arguments, words", [
@@ -69,9 +64,8 @@ def test_ctl_without_daemon(tmp_path):
     assert result.returncode == 3 and "top.sock" in result.stderr
 
 
-def test_ctl_finds_a_dry_run_without_options_and_says_where_it_looked(tmp_path, monkeypatch, capsys):
-    runtime = tmp_path / "runtime"
-    runtime.mkdir(mode=0o700)
+def test_ctl_finds_a_dry_run_without_options_and_says_where_it_looked(tmp_path, monkeypatch, capsys, runtime_dir):
+    runtime = runtime_dir
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
     monkeypatch.setattr("cryod.service.discovery.SERVICE_CONFIG", tmp_path / "absent.yaml")
     assert main(["ctl", "status"]) == 3

@@ -18,7 +18,7 @@ from cryod.records.columns import Row
 from cryod.records.record import read_record
 from drivers.clock import VirtualClock
 from cryod.service.simulation import SimulatedInstrumentsOpener
-from tests.test_daemon_faults import simulated_config
+from tests.example_config import simulated_config
 
 
 class RowCounter:

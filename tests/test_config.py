@@ -12,20 +12,7 @@ from cryod.config import load_config
 from cryod.control.pi import PiGains
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG, REPOSITORY
-
-EXAMPLE = (CONFIG / "cryod.yaml").read_text()
-
-
-def written(tmp_path, old, new):
-    assert old in EXAMPLE, old
-    text = EXAMPLE.replace(old, new, 1).replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/")
-    path = tmp_path / "cryod.yaml"
-    path.write_text(text)
-    return path, text
-
-
-def line_of(text, fragment):
-    return next(number for number, line in enumerate(text.splitlines(), 1) if fragment in line)
+from tests.example_config import EXAMPLE, line_of, written
 
 
 def test_example_config_is_valid_and_complete():

@@ -1,8 +1,9 @@
 """Hostile and inconsistent configurations: a clear error naming file, line and key, never a traceback.
 
-Each case is what an adversarial run found (issue 15, items 6, 7 and 9): values Python cannot
-convert, keys that are lists, anchors that expand exponentially, modes that open the heater to
-every user, limits that contradict each other or the sensors' calibration curves.
+The cases: values Python cannot convert, keys that are lists, anchors that expand exponentially,
+modes that open the heater to every user, values that must not pass silently, limits that
+contradict each other or the sensors' calibration curves, and messages that must name the right
+key.
 """
 
 import time
@@ -12,7 +13,7 @@ import pytest
 from cryod.config import MAX_RAMP_K_PER_MIN, load_config
 from cryod.yaml_source import ALIAS_NODE_BUDGET, MAX_REASON_CHARS, FileFormatError
 from tests.conftest import CALIBRATION_DATA, CONFIG
-from tests.test_config import EXAMPLE, line_of, written
+from tests.example_config import line_of, written
 
 #: No error message quotes more than this of what the file holds (reason plus location).
 MESSAGE_CHARS = MAX_REASON_CHARS + 500
@@ -35,7 +36,7 @@ def laughs(levels, name="lol"):
 
 
 # ---------------------------------------------------------------------------
-# item 6: values and keys Python cannot take as they are
+# values and keys Python cannot take as they are
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("old, new, key, reason", [
     ("  resistance_ohm: 50.0", "  resistance_ohm: " + "9" * 400, "heater.resistance_ohm",
@@ -105,7 +106,7 @@ def test_a_file_too_large_for_a_configuration_is_refused(tmp_path):
 
 
 # ---------------------------------------------------------------------------
-# item 7: merge keys are YAML, a key given twice is not
+# merge keys are YAML, a key given twice is not
 # ---------------------------------------------------------------------------
 SHARED_ADAPTER = """  flange_dmm:                     # Keithley 2002 on the flange Cernox (T2)
     resource: GPIB0::16::INSTR
@@ -141,7 +142,7 @@ def test_a_key_given_twice_after_a_merge_is_still_refused_with_its_path(tmp_path
 
 
 # ---------------------------------------------------------------------------
-# item 7: values accepted silently before
+# values that would otherwise pass silently and do harm later
 # ---------------------------------------------------------------------------
 def test_a_control_socket_mode_open_to_others_is_refused_and_owner_and_group_modes_are_not(tmp_path):
     for mode in ['"0777"', '"0666"', '"0664"', '"0662"', '"0661"', "0777", '"0o606"']:
@@ -176,7 +177,7 @@ def test_an_empty_path_is_refused(tmp_path, old, new, key):
 
 
 # ---------------------------------------------------------------------------
-# item 7: limits against each other and the calibration curves
+# limits against each other and the calibration curves
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("old, new, key, reason", [
     # T5 can never read below 1.2 K: every reading would be above the limit
@@ -221,7 +222,7 @@ def test_the_limits_are_checked_on_reload_too(tmp_path):
 
 
 # ---------------------------------------------------------------------------
-# item 9: messages that name the right thing
+# messages that name the right thing
 # ---------------------------------------------------------------------------
 def test_a_calibration_path_that_is_a_directory_says_so(tmp_path):
     path, text = written(tmp_path, "    calibration: calibration/X186279.340", f"    calibration: {tmp_path}")
@@ -248,7 +249,7 @@ def test_a_data_directory_that_is_a_file_is_refused_at_load_naming_its_key(tmp_p
 
 
 def test_a_sensor_without_its_calibration_is_refused(tmp_path):
-    """Before, ``flange: {}`` was taken as no calibration, and the daemon failed later with a TypeError."""
+    """``flange: {}`` is a sensor without its calibration, refused at load (not a TypeError when the daemon starts)."""
     path, text = written(tmp_path, "    calibration: calibration/X186279.340       # .340, .cof, or a raw R-T table",
                          "    {}")
     path.write_text(text.replace("  flange:\n    {}", "  flange: {}"))

@@ -12,7 +12,7 @@ from cryod.config import load_config
 from cryod.model import load_model
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG
-from tests.test_config import line_of, written
+from tests.example_config import line_of, written
 
 
 @pytest.mark.parametrize("written_as, reason", [
@@ -57,8 +57,8 @@ def test_a_socket_mode_keeps_its_octal_digits_however_it_is_written(tmp_path, wr
 
 @pytest.mark.parametrize("written_as", ["0680", "1_0", "0x1B0", "432"])
 def test_a_socket_mode_that_is_not_octal_digits_is_refused(tmp_path, written_as):
-    """``432`` is 0o660 as a decimal integer; it was taken as mode 0432 (r---wx-w-), and is now the octal
-    digits 4, 3, 2 of a mode that opens the socket to others: refused either way, never read as 0o660."""
+    """``432`` is 0o660 as a decimal integer, and as octal digits 4, 3, 2 a mode that opens the socket to
+    others (r---wx-w-): refused either way, never read as 0o660."""
     path, _ = written(tmp_path, '  mode: "0660"', f"  mode: {written_as}")
     with pytest.raises(FileFormatError) as caught:
         load_config(path)

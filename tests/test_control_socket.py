@@ -96,7 +96,8 @@ def well_formed(reply) -> bool:
 
 # -- many clients -----------------------------------------------------------------------------------
 def test_a_hundred_clients_at_once_on_the_running_daemon_all_get_their_reply(tmp_path):
-    """Before: 26 of 100 got a raw BlockingIOError (listen backlog 5), each client had a thread of its own."""
+    """A hundred connects at once overflow a small listen backlog (with 5, a quarter get a raw BlockingIOError);
+    every client gets its reply, and no client costs the daemon a thread of its own."""
     lines = {"status": 25, "setpoint 5.5": 25, "ramp 1_5": 25, "manual 0.6": 25}
     with GatedDaemon(tmp_path) as daemon:
         before = set(threading.enumerate())
@@ -208,8 +209,8 @@ def test_with_every_connection_waiting_for_the_loop_only_heater_off_is_taken_and
 
 
 def test_idle_connections_however_many_cannot_keep_heater_off_out(served, capsys):
-    """Before: 256 idle connections got every cryod ctl heater-off "busy: 256 connections open" for as long as
-    they stayed. Now a connection beyond the limit closes the one that has waited longest without a line."""
+    """Idle connections must not hold every place (a heater-off answered "busy: 256 connections open" for as long
+    as they stay): a connection beyond the limit closes the one that has waited longest without a line."""
     path, loop, server = served(max_clients=40)
     idle = []
     try:
@@ -232,7 +233,7 @@ def test_idle_connections_however_many_cannot_keep_heater_off_out(served, capsys
 
 
 def test_cryod_ctl_waits_while_the_backlog_is_full(tmp_path):
-    """Before: the connect of a client with a timeout failed at once with a raw BlockingIOError."""
+    """A full backlog is a wait for the client, not a raw BlockingIOError at once from a connect with a timeout."""
     path = tmp_path / "full.sock"
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     listener.bind(str(path))
@@ -264,7 +265,8 @@ def test_cryod_ctl_waits_while_the_backlog_is_full(tmp_path):
 
 
 def test_a_client_waiting_for_the_loop_is_told_when_the_daemon_stops(tmp_path, capfd):
-    """Before: it waited for the reply timeout; an asyncio server also printed the cancelled task's traceback."""
+    """The client is answered at once (not after its reply timeout), and the server prints no cancelled task's
+    traceback."""
     with_the_loop = threading.Event()                  # a loop that never answers
 
     def submit(command):
@@ -287,7 +289,7 @@ def test_a_client_waiting_for_the_loop_is_told_when_the_daemon_stops(tmp_path, c
 
 # -- lines ------------------------------------------------------------------------------------------------
 def test_a_one_megabyte_line_is_refused_and_cryod_ctl_shows_the_refusal(served, capsys):
-    """Before: cryod ctl died with 'Broken pipe' (exit 3) instead of showing the daemon's refusal."""
+    """The daemon refuses the line, and cryod ctl shows that refusal rather than dying with 'Broken pipe' (exit 3)."""
     path, loop, _ = served()
     assert send_command(path, "setpoint " + "1" * 1_000_000) == {
         "ok": False, "message": f"command longer than {MAX_LINE} bytes refused"}
@@ -315,7 +317,7 @@ def test_partial_undecodable_and_extra_lines_each_get_one_reply(served):
 
 
 def test_cryod_ctl_ends_quietly_when_its_reader_goes_away(served):
-    """``cryod ctl status | head -2``: before, a BrokenPipeError traceback."""
+    """``cryod ctl status | head -2``: no BrokenPipeError traceback."""
     path, _, _ = served()
     for extra in ([], ["--json"]):
         reader, writer = os.pipe()
@@ -339,8 +341,8 @@ REFUSED_NUMBERS = ["1_5", "nan", "inf", "-inf", "infinity", "\u0665", "\uff15", 
 
 @pytest.mark.parametrize("text", REFUSED_NUMBERS)
 def test_the_socket_and_the_command_line_refuse_the_same_numbers(text):
-    """Before: 'setpoint\\u00a05' was setpoint 5, the command line took '1\\u00a0' and the message did not name
-    the argument."""
+    """Neither takes a number with a character that is not ASCII ('setpoint\\u00a05', '1\\u00a0'), and the
+    message names the argument."""
     with pytest.raises(ValueError, match=r"^'setpoint' argument K: .* is not a (finite )?number") as refused:
         parse_command(f"setpoint {text}")
     assert repr(text) in str(refused.value)
@@ -354,7 +356,7 @@ def test_the_socket_and_the_command_line_refuse_the_same_numbers(text):
 @given(st.text(alphabet=st.sampled_from("0123456789+-.eE_ xn\u0665\uff15\u00a0\t"), max_size=12))
 @example("1\u00a0")
 def test_one_number_rule_for_the_socket_and_the_command_line(text):
-    """Both take the same numbers, with the same value, and nothing that is not ASCII (before: '1\u00a0' was 1)."""
+    """Both take the same numbers, with the same value, and nothing that is not ASCII (not even '1\u00a0')."""
     assert COMMANDS["setpoint"].parse is plain_decimal
     try:
         expected = number(text)
@@ -371,7 +373,7 @@ def test_one_number_rule_for_the_socket_and_the_command_line(text):
 
 
 def test_cryod_simulate_refuses_setpoint_and_seed_that_float_and_int_take(tmp_path, capsys):
-    """Before: --setpoint 1_5 ran a simulation at 15 K, --seed \\u0663 at seed 3."""
+    """What float and int take is not a lab's number: --setpoint 1_5 is not 15 K, --seed \\u0663 is not seed 3."""
     for option, text in (("--setpoint", "1_5"), ("--seed", "\u0663"), ("--seed", "1_0")):
         with pytest.raises(SystemExit) as stopped:
             main(["--simulate", "--speed", "max", "--duration", "0.2", "--data-dir", str(tmp_path / "data"),
@@ -415,8 +417,8 @@ def test_the_loop_carries_out_at_most_a_few_commands_a_tick_in_order(reference_m
 
 
 def test_a_heater_off_never_waits_behind_a_flood_and_what_was_sent_before_it_is_superseded(reference_model):
-    """Before: a heater-off queued behind 256 commands waited 32 ticks (2.6 s), and setpoints sent before it
-    ran first."""
+    """A heater-off is applied at the next tick, not behind the queue (256 commands would hold it 32 ticks, 2.6 s);
+    the setpoints sent before it are refused as superseded, what comes after it runs in order."""
     instruments, loop, items = direct_loop(reference_model)
     before = [Command("setpoint", 5.0 + 0.001 * index) for index in range(40)]
     off = Command("heater-off")

@@ -23,15 +23,9 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from cryod.service import control_socket
 from cryod.service.commands import COMMANDS
 from cryod.service.control_socket import MAX_LINE
+from tests.fuzz_inputs import NUMBER_TEXTS, limits_kept
 from tests.gated_daemon import GatedDaemon
 
-NUMBER_TEXTS = st.one_of(
-    st.floats(allow_nan=True, allow_infinity=True).map(repr),
-    st.floats(min_value=-1.0, max_value=25.0).map(lambda value: f"{value:.6g}"),
-    st.integers(min_value=-10**30, max_value=10**30).map(str),
-    st.sampled_from(["1_5", "nan", "inf", "-inf", "Infinity", "\u0665", "\uff15", "1e999", "-0", ".5", "5.",
-                     "0x10", "1,5", "+", "", "on", "off", "status", "\u00a05", "5\u2003"]),
-)
 ARGUMENTS = st.one_of(NUMBER_TEXTS, st.text(max_size=20))
 SEPARATORS = st.sampled_from([" ", "\t", "  ", " \t ", "\u00a0", "\u2003", ""])
 COMMAND_WORDS = st.one_of(st.sampled_from(sorted(COMMANDS) + ["reload", "STATUS", "set", "heater_off", ""]),
@@ -83,13 +77,6 @@ def exchange(path, data: bytes, ending: str, result: dict) -> None:
         except ConnectionResetError:                        # closed with our bytes unread: the reply came first
             pass
         result["received"] = received
-
-
-def limits_kept(daemon) -> bool:
-    control, regulator = daemon.loop.config.control, daemon.loop.regulator
-    return (control.setpoint_min_K <= regulator.ramp.target_K <= control.setpoint_max_K
-            and 0.0 <= regulator.ramp.rate_K_per_min <= control.max_ramp_K_per_min
-            and 0.0 <= regulator.manual_power_w <= daemon.config.heater.max_power_w)
 
 
 @pytest.mark.slow

@@ -1,4 +1,4 @@
-"""Configurations the running daemon refuses, and why it says so in the record (issue 15, items 7 and 9).
+"""Configurations the running daemon refuses, and why it says so in the record.
 
 The daemon runs in process on virtual time against the simulated bench (as in
 tests/test_daemon_faults.py): a reload of a file that cannot be read is refused,
@@ -10,49 +10,15 @@ with the heater off.
 
 import dataclasses
 import os
-import threading
-import time
 
 import numpy as np
 import pytest
 
 from cryod.cli import main
-from cryod.config import load_config
-from cryod.records.columns import Row
 from cryod.records.record import read_record
-from drivers.clock import VirtualClock
-from cryod.service.control_socket import send_command
-from cryod.service.daemon import Daemon
-from cryod.service.notify import SystemdNotifier
-from tests.conftest import CONFIG
-from tests.test_config import EXAMPLE, line_of
-from tests.test_cli import simulate_args
-from tests.test_daemon_faults import FaultDrill, in_tmp, simulated_config
-
-
-def config_file(tmp_path, text=None):
-    path = tmp_path / "cryod.yaml"
-    path.write_text((text or EXAMPLE).replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/"))
-    return path
-
-
-def daemon_from_file(tmp_path, path, row_actions, reload_config=None):
-    """The daemon on the configuration read from ``path`` (data and socket moved into tmp_path);
-    ``row_actions[n](daemon)`` runs after the n-th row, on the loop's thread."""
-    config = in_tmp(load_config(path), tmp_path)
-    drill = FaultDrill(tmp_path, {}, config=config)
-    rows = []
-    answers = []
-
-    def tap(item):
-        if isinstance(item, Row):
-            rows.append(item)
-            action = row_actions.get(len(rows))
-            if action is not None:
-                answers.append(action(daemon))
-    daemon = Daemon(config, drill.open_instruments, VirtualClock(), notifier=SystemdNotifier({}), row_taps=[tap],
-                    install_signal_handlers=False, reload_config=reload_config)
-    return daemon, answers
+from tests.example_config import EXAMPLE, config_file, line_of, simulate_args, simulated_config
+from tests.fault_drills import FaultDrill
+from tests.reload_drills import daemon_from_file, reloads_over_the_socket
 
 
 def rewrite_then_reload(path, old, new):
@@ -140,38 +106,6 @@ def test_simulate_refuses_a_limit_the_cryostat_is_above_with_the_heater_off(tmp_
     assert f"nothing was started: {path}:{line_of(text, new.strip())}: {key}: " in error
     assert "the heater would never regulate: held off" in error
     assert not (tmp_path / "data").exists()
-
-
-def reloads_over_the_socket(tmp_path, path, first, second):
-    """The daemon on the file at ``path``: ``first()`` changes the file after row 100 and ``second()`` after row
-    400, each followed by ``cryod ctl reload`` from a client thread; the loop ticks slowly until the client has
-    its answer. Returns the daemon, its result and the two replies."""
-    replies = {}
-    asking = []
-
-    def reload_over_the_socket(name, change):
-        def action(daemon):
-            change()
-            asking.append(threading.Thread(target=lambda: replies.update(
-                {name: send_command(tmp_path / "control.sock", "reload", timeout_s=20.0)})))
-            asking[-1].start()
-        return action
-
-    def until_answered(name):
-        def action(daemon):          # the loop keeps ticking, slowly, until the client has its answer
-            if name not in replies:
-                time.sleep(0.002)
-        return action
-
-    actions = {row: until_answered("first") for row in range(101, 390)}
-    actions.update({row: until_answered("second") for row in range(401, 740)})
-    actions[100] = reload_over_the_socket("first", first)
-    actions[400] = reload_over_the_socket("second", second)
-    daemon, _ = daemon_from_file(tmp_path, path, actions, reload_config=lambda: in_tmp(load_config(path), tmp_path))
-    result = daemon.run(60.0)
-    for thread in asking:
-        thread.join(20.0)
-    return daemon, result, (replies.get("first"), replies.get("second"))
 
 
 def replacing(path, old, new):

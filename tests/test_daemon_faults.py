@@ -14,79 +14,14 @@ import numpy as np
 import pytest
 
 from drivers.clock import VirtualClock
-from cryod.config import load_config
 from cryod.instrument_waits import InstrumentWaits
 from cryod.service.daemon import Daemon
-from cryod.model import load_model
 from cryod.records.record import read_record
 from cryod.records.columns import Row
 from cryod.service.instance_lock import InstanceLock
-from drivers.errors import ConnectionLost
 from cryod.service.notify import SystemdNotifier
-from cryod.service.simulation import SimulatedInstrumentsOpener
-from tests.conftest import CONFIG
-from tests.fault_drills import reading_delay_s
-
-
-def in_tmp(config, tmp_path, **control):
-    """``config`` with its data and socket in tmp_path, on the in-process simulated bench (control changed)."""
-    return dataclasses.replace(
-        config,
-        data=dataclasses.replace(config.data, directory=tmp_path / "data"),
-        control_socket=dataclasses.replace(config.control_socket, path=tmp_path / "control.sock"),
-        simulation=dataclasses.replace(config.simulation, transport="in-process"),
-        control=dataclasses.replace(config.control, **control),
-    )
-
-
-def simulated_config(tmp_path, **control):
-    return in_tmp(load_config(CONFIG / "cryod.yaml"), tmp_path, **control)
-
-
-class FaultDrill:
-    """Runs the daemon on the simulated bench; ``actions[tick](bench)`` fires after that row."""
-
-    def __init__(self, tmp_path, actions, config=None, before_start=None, datalog_options=None):
-        self.config = config or simulated_config(tmp_path)
-        self.datalog_options = datalog_options
-        self.opener = SimulatedInstrumentsOpener(load_model(), seed=4)
-        self.actions = dict(actions)
-        self.before_start = before_start
-        self.rows = []
-        self.heater_at_fault = []
-        self.install_signal_handlers = False        # the daemon's own signal handling (the test's main thread)
-
-    def tap(self, item):
-        if not isinstance(item, Row):
-            return
-        self.rows.append(item)
-        action = self.actions.pop(len(self.rows) - 1, None)
-        if action is not None:
-            action(self.opener.bench)
-
-    def open_instruments(self, config, clock):
-        opened = self.opener(config, clock)
-        if self.before_start is not None:
-            self.before_start(self.opener.bench)
-        return opened
-
-    def run(self, duration_s):
-        self.daemon = Daemon(self.config, self.open_instruments, VirtualClock(), notifier=SystemdNotifier({}),
-                             row_taps=[self.tap], install_signal_handlers=self.install_signal_handlers,
-                             datalog_options=self.datalog_options)
-        self.result = self.daemon.run(duration_s)
-        self.record = self.daemon_record()
-        self.states = [str(state) for state in self.record.columns["state"]]
-        #: The rows that stand for a tick (a heater-off's own row has no lateness).
-        self.ticks = np.isfinite(self.record.columns["lateness_ms"])
-        return self.result
-
-    def daemon_record(self):
-        """The record the daemon wrote last (also after its run raised)."""
-        return read_record(self.daemon.datalog.paths[-1])
-
-    def supply_current_a(self):
-        return self.opener.bench.heater_supply.output_current_a
+from tests.example_config import simulated_config
+from tests.fault_drills import FaultDrill, FlakyOpener, reading_delay_s
 
 
 def first_fault(drill, cause):
@@ -197,21 +132,6 @@ def test_recovery_timeout_exits_4(tmp_path):
     assert drill.run(120.0).exit_code == 4
     assert "not recovered within 10 s" in drill.result.loop.last_fault.message
     assert drill.supply_current_a() == 0.0
-
-
-class FlakyOpener:
-    """Instruments out of reach for the first ``failures`` attempts (the bus is down), then the bench."""
-
-    def __init__(self, failures):
-        self.inner = SimulatedInstrumentsOpener(load_model(), seed=4)
-        self.failures = failures
-        self.attempts = []
-
-    def __call__(self, config, clock):
-        self.attempts.append(clock.now())
-        if len(self.attempts) <= self.failures:
-            raise ConnectionLost("flange DMM (T2)", "cannot open TCPIP0::10.0.0.7::1234::SOCKET: no route to host")
-        return self.inner(config, clock)
 
 
 def test_instruments_out_of_reach_at_start_are_waited_for_then_the_loop_runs(tmp_path, caplog):

@@ -17,7 +17,7 @@ from cryod.records.columns import Event
 from cryod.records.datalog import DataLog
 from cryod.records.record import read_record
 from tests.conftest import REPOSITORY
-from tests.test_service import SCHEMA, rows
+from tests.record_rows import SCHEMA, rows
 
 WALL_START = 1_795_000_000.0          # 2026-11-18 UTC, mid-day
 DAY = "cryod-2026-11-18"
@@ -146,7 +146,7 @@ import resource, sys
 from pathlib import Path
 from cryod.records.datalog import DataLog
 from tests.conftest import REPOSITORY
-from tests.test_service import SCHEMA, rows
+from tests.record_rows import SCHEMA, rows
 resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, 20_000))
 failures = []
 datalog = DataLog(Path(sys.argv[1]), SCHEMA, {}, lambda t: 1_795_000_000.0 + t, 0.08, 0.5,

@@ -11,7 +11,7 @@ from cryod.records import compression
 from cryod.records.columns import REQUIRED, STATE, Row, RowSchema
 from cryod.records.datalog import DataLog
 from cryod.records.record import RecordFormatError, read_record
-from tests.test_service import rows
+from tests.record_rows import rows
 
 SCHEMA = RowSchema(REQUIRED + (STATE,))
 MIDNIGHT = 1_795_046_400.0         # 2026-11-19 00:00:00 UTC

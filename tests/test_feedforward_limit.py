@@ -1,5 +1,5 @@
-"""The feedforward's physical limit: independent checks of the optimum, the issue's physics
-figures, the certificate, convergence, and the command line."""
+"""The feedforward's physical limit: independent checks of the optimum, the physics figures
+at 5 K (docs/feedforward.md), the certificate, convergence, and the command line."""
 
 import itertools
 import json
@@ -210,9 +210,9 @@ def test_bounded_waveform_bound_holds_for_random_waveforms():
 
 
 # ---------------------------------------------------------------------------
-# (b) the issue's physics figures, from the model
+# (b) the physics figures at 5 K, from the model
 # ---------------------------------------------------------------------------
-def test_issue_figures(reference_model, at_5K):
+def test_physics_figures_at_5K(reference_model, at_5K):
     assert at_5K.thermometer_gain_at_line_K_per_W == pytest.approx(7.1e-3, abs=0.1e-3)
     assert at_5K.thermometer_phase_at_line_deg == pytest.approx(-90.0, abs=3.0)
     assert at_5K.open_line_K == pytest.approx(1.73e-3, abs=0.05e-3)

@@ -27,7 +27,7 @@ def served_metric_names() -> set[str]:
                           "ff_scale": 1.0, "ff_limit_K": 4.9e-4}))
     view(Event("fault", "instrument_timeout: no reply"))
     registry = CollectorRegistry(auto_describe=False)
-    registry.register(CryodCollector(view, "test"))
+    registry.register(CryodCollector(view, "test", alarms=lambda: {"deviation": 1.0, "cooler_line_lost": 0.0}))
     text = generate_latest(registry).decode()
     return {line.split("{")[0].split(" ")[0] for line in text.splitlines() if line and not line.startswith("#")}
 
@@ -57,12 +57,12 @@ def test_every_metric_the_dashboard_queries_exists_and_the_page_panels_are_there
         used |= names
     missing = used - served
     assert not missing, f"queried but not served: {sorted(missing)}"
-    # the web page's panels: state and faults, T2 and its error, T5, heater with PI's part and the
-    # feedforward's band, the cooler line against its limit
+    # the web page's panels: state, faults and alarms, T2 and its error, T5, heater with PI's part and the
+    # feedforward's band, the cooler line against its limit; the alarms over time
     for name in ("cryod_state", "cryod_faults_total", "cryod_flange_temperature_kelvin", "cryod_setpoint_kelvin",
                  "cryod_flange_error_kelvin", "cryod_ptc_stage_temperature_kelvin", "cryod_heater_power_watts",
                  "cryod_heater_pi_watts", "cryod_heater_feedforward_watts", "cryod_ptc_line_amplitude_kelvin",
-                 "cryod_ptc_line_limit_kelvin"):
+                 "cryod_ptc_line_limit_kelvin", "cryod_alarm"):
         assert name in used, name
     assert not PROMQL & used
     titles = [panel["title"] for panel in dashboard["panels"]]

@@ -13,7 +13,8 @@ from drivers.heater_limits import current_for_power_a, largest_power_w
 from drivers.keithley2400 import Keithley2400
 from drivers.keithley6221 import Keithley6221
 from simulated_hw.bench import SimulatedBench
-from tests.test_daemon_faults import FaultDrill, simulated_config
+from tests.example_config import simulated_config
+from tests.fault_drills import FaultDrill
 
 #: E24 resistances over six decades (1 ohm to 910 kohm: heaters are 10 ohm to some kohm) and currents of
 #: 0.5 to 105 mA in 0.5 mA steps.

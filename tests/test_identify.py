@@ -85,3 +85,21 @@ def test_identify_needs_the_heater_to_move(reference_model, tmp_path, capsys):
     assert cli.main(["identify", str(path), "--out", str(tmp_path / "m.yaml")]) == 1
     assert "heater never changes" in capsys.readouterr().err
     assert not (tmp_path / "m.yaml").exists()
+
+
+def test_the_line_panel_shows_a_settled_stretch_of_a_closed_loop_record_or_of_a_step_record():
+    from cryod.identification.figures import settled_window
+
+    t = np.arange(0.0, 1800.0, 0.08)
+    line = 1.7e-3 * np.sin(10.83 * t)
+    # regulating from the start: the heater changes at every tick, T2 climbs 0.77 K to the setpoint
+    regulated = 5.0 - 0.77 * np.exp(-t / 165.0) + line
+    window = settled_window(t, regulated, 7, 3.5)
+    slow = 5.0 - 0.77 * np.exp(-t[window] / 165.0)
+    assert t[window][0] > 1500.0 and np.ptp(slow) < 1e-6          # T2's drift there under a microkelvin
+    # heater steps every 600 s: late in a hold, where T2 has settled after its step
+    steps = 4.23 + 0.06 * np.where(t >= 600.0, 1.0 - np.exp(-(t - 600.0) / 100.0), 0.0) \
+        - 0.06 * np.where(t >= 1200.0, 1.0 - np.exp(-(t - 1200.0) / 100.0), 0.0) + line
+    window = settled_window(t, steps, 7, 3.5)
+    start = t[window][0]
+    assert 500.0 < start < 600.0 or 1100.0 < start < 1200.0 or start > 1700.0

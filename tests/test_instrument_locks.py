@@ -21,7 +21,8 @@ from cryod.service.notify import SystemdNotifier
 from drivers.transports.addresses import canonical_prologix, canonical_resource
 from tests.conftest import CONFIG
 from tests.service_bench import BenchOverTcp, RunProcess
-from tests.test_daemon_faults import FlakyOpener, simulated_config
+from tests.example_config import simulated_config
+from tests.fault_drills import FlakyOpener
 
 
 @pytest.mark.parametrize("one, other", [

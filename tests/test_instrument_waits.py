@@ -9,8 +9,8 @@ from cryod.instrument_waits import (LOOP_REPLY_PERIODS, UNIT_WATCHDOG_S, WATCHDO
 from cryod.service.notify import SystemdNotifier
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG
-from tests.test_config import line_of, written
-from tests.test_systemd_unit import TEMPLATE, UNIT, unit_sections
+from tests.example_config import line_of, written
+from tests.systemd_units import TEMPLATE, UNIT, unit_sections
 
 
 @pytest.mark.parametrize("unit", [UNIT, TEMPLATE])
@@ -66,7 +66,8 @@ def test_the_watchdog_is_pinged_at_the_spacing_the_check_assumes():
 def test_a_shorter_watchdog_than_the_units_is_a_warning_at_start(tmp_path, caplog):
     from drivers.clock import VirtualClock
     from cryod.service.daemon import Daemon
-    from tests.test_daemon_faults import FlakyOpener, simulated_config
+    from tests.example_config import simulated_config
+    from tests.fault_drills import FlakyOpener
 
     notifier = SystemdNotifier(environ={"WATCHDOG_USEC": "2000000"})
     daemon = Daemon(simulated_config(tmp_path), FlakyOpener(failures=0), VirtualClock(), notifier=notifier,

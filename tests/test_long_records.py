@@ -1,5 +1,5 @@
 """Long records: read in memory proportional to their numbers, analysed on a bounded stretch,
-bad lines named wherever they are (issue 15 item 10, issue 12 item 5)."""
+bad lines named wherever they are."""
 
 from __future__ import annotations
 
@@ -224,12 +224,12 @@ def test_a_six_hour_record_with_a_hidden_effect_is_analysed_and_identified_in_bo
     assert status == 0, stderr
     assert json.loads(stdout)["cause"] == "dead_time"
     assert "analysed 2.00 h of the record's 6.00 h: t = 0.0 s to 7200.0 s" in stderr
-    # two hours of it, with figures: about 265 MB and 20 s of CPU; the whole record took 620 MB and 53 s
+    # two hours of it, with figures: about 265 MB and 20 s of CPU (the whole record would take 620 MB and 53 s)
     assert peak_MB < 400.0 and cpu_s < 40.0, (peak_MB, cpu_s)
 
     status, stdout, stderr, cpu_s, peak_MB = measured("identify", str(path), "--json", "--out", "identified.yaml")
     assert status == 0, stderr
     assert json.loads(stdout)["heater_to_ptc_stage_time_constant_s"] == pytest.approx(135.0, rel=0.01)
-    # all six hours, with 30 bootstrap refits: about 285 MB and 115 s of CPU; 445 MB when the whole text was
-    # read and every evaluation kept its design and a scaled copy
+    # all six hours, with 30 bootstrap refits: about 285 MB and 115 s of CPU (reading the whole text and keeping
+    # every evaluation's design and a scaled copy would take 445 MB)
     assert peak_MB < 350.0 and cpu_s < 240.0, (peak_MB, cpu_s)

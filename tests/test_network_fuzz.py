@@ -20,7 +20,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from cryod.config import Lakeshore336Config, WebConfig
 from cryod.service import lakeshore336_server, web
 from tests.gated_daemon import GatedDaemon
-from tests.test_control_socket_fuzz import NUMBER_TEXTS, limits_kept
+from tests.fuzz_inputs import NUMBER_TEXTS, limits_kept
 
 TOKEN = "0123456789abcdef0123456789abcdef"
 WORDS = st.sampled_from(["*IDN?", "*OPC?", "*ESR?", "*CLS", "*RST", "KRDG?", "SRDG?", "RDGST?", "SETP", "SETP?",

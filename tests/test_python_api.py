@@ -12,7 +12,7 @@ import pytest
 
 import cryod
 from tests.conftest import CONFIG, REPOSITORY
-from tests.test_config import line_of
+from tests.example_config import line_of
 
 
 def test_import_cryod_exposes_the_documented_api_and_stays_light():
@@ -26,10 +26,9 @@ def test_import_cryod_exposes_the_documented_api_and_stays_light():
 
 
 @pytest.fixture
-def running_dry_run(tmp_path, monkeypatch):
+def running_dry_run(tmp_path, monkeypatch, runtime_dir):
     """``cryod --simulate`` at 50 times real time in its own process, found by the client without a path."""
-    runtime = tmp_path / "runtime"
-    runtime.mkdir(mode=0o700)
+    runtime = runtime_dir
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
     monkeypatch.setattr("cryod.service.discovery.SERVICE_CONFIG", tmp_path / "no-service.yaml")
     env = dict(os.environ, PYTHONPATH=str(REPOSITORY), XDG_RUNTIME_DIR=str(runtime))

@@ -10,85 +10,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from cryod.config import load_config
 from cryod.control.ramp import MIN_RATE_K_PER_MIN, SetpointRamp
-from cryod.model import load_model
-from cryod.records.columns import Row
-from cryod.records.record import read_record
-from drivers.clock import VirtualClock
-from cryod.service.commands import Command
-from cryod.service.daemon import Daemon
-from cryod.service.notify import SystemdNotifier
-from cryod.service.simulation import SimulatedInstrumentsOpener
-from tests.test_config import EXAMPLE, line_of
-from tests.test_daemon_config_refusals import config_file
-from tests.test_daemon_faults import in_tmp
+from tests.reload_drills import ReloadDrill
 
 #: The limits of the reload in the adversarial run: below a setpoint of 12 K in use.
 LOWER_LIMITS = (("  setpoint_max_K: 20.0", "  setpoint_max_K: 8.0"), ("  flange_max_K: 25.0", "  flange_max_K: 10.0"))
-
-
-def edited(replacements) -> str:
-    text = EXAMPLE
-    for old, new in replacements:
-        assert old in text, old
-        text = text.replace(old, new)
-    return text
-
-
-class ReloadDrill:
-    """The daemon on the example configuration at ``path``; ``actions[n](drill)`` runs after row n, on the loop's
-    thread, and may hand commands to the loop (:meth:`command`, :meth:`reload`); their answers are kept."""
-
-    def __init__(self, tmp_path, actions, start=()):
-        self.tmp_path = tmp_path
-        self.path = config_file(tmp_path, edited(start))
-        self.actions = dict(actions)
-        self.opener = SimulatedInstrumentsOpener(load_model(), seed=4)
-        self.rows = []
-        self.sent: dict[str, Command] = {}
-        self.daemon = Daemon(in_tmp(load_config(self.path), tmp_path), self.opener, VirtualClock(),
-                             notifier=SystemdNotifier({}), row_taps=[self.tap], install_signal_handlers=False)
-
-    def tap(self, item):
-        if isinstance(item, Row):
-            self.rows.append(item)
-            action = self.actions.pop(len(self.rows), None)
-            if action is not None:
-                action(self)
-
-    @property
-    def loop(self):
-        return self.daemon.loop
-
-    def command(self, label, name, value=None):
-        self.sent[label] = self.loop.submit(Command(name, value))
-
-    def reload(self, label, replacements):
-        """Write the file with ``replacements`` and hand the configuration read from it to the loop."""
-        text = edited(replacements)
-        config_file(self.tmp_path, text)
-        self.sent[label] = self.loop.submit(Command("reload", in_tmp(load_config(self.path), self.tmp_path)))
-        self.text = text
-
-    def run(self, duration_s):
-        self.result = self.daemon.run(duration_s)
-        self.record = read_record(self.result.log_paths[0])
-        return self.result
-
-    def answer(self, label):
-        command = self.sent[label]
-        assert command.done.is_set(), label
-        return command
-
-    def refusal_at(self, label, key, fragment):
-        """The reload ``label`` was refused at ``key``, with file and line, and ``fragment`` in its reason."""
-        answer = self.answer(label)
-        assert not answer.ok, answer.message
-        located = f"kept the running configuration: {self.path}:{line_of(self.text, key.split('.')[-1] + ':')}: {key}: "
-        assert answer.message.startswith(located), answer.message
-        assert fragment in answer.message, answer.message
-        return answer.message
 
 
 def test_a_reload_below_the_setpoint_in_use_during_a_ramp_is_refused_and_the_ramp_goes_on(tmp_path):

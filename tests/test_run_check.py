@@ -16,9 +16,9 @@ from cryod.cli import main
 from cryod.config import SOCKET_PATH_MAX_BYTES
 from cryod.service.faults import ExitCode
 from tests.conftest import CONFIG, REPOSITORY
-from tests.test_config import EXAMPLE
-from tests.test_daemon_config_refusals import config_file, reloads_over_the_socket
-from tests.test_systemd_unit import TEMPLATE, UNIT, unit_sections
+from tests.example_config import EXAMPLE, config_file
+from tests.reload_drills import reloads_over_the_socket
+from tests.systemd_units import TEMPLATE, UNIT, unit_sections
 
 #: The example's instruments behind a LAN-to-GPIB gateway, triggered one after the other.
 LAN = {"GPIB0::16::INSTR": "TCPIP0::10.0.0.2::1234::SOCKET", "GPIB0::17::INSTR": "TCPIP0::10.0.0.3::1234::SOCKET",
@@ -136,14 +136,14 @@ def test_the_lan_configuration_itself_passes(tmp_path, capsys):
     assert "valid" in capsys.readouterr().out
 
 
-def test_check_and_run_exit_2_as_processes_and_run_no_longer_waits_on_a_garbage_visa_library(tmp_path):
+def test_check_and_run_as_processes_refuse_with_exit_2_before_starting_anything(tmp_path):
     """As processes: --check refuses with exit 2 and one line; ``cryod run`` itself refuses the same
-    configurations before it starts anything (it waited for ever on a VISA library it could not load,
-    and died with exit 1, which systemd restarts, on a socket path too long)."""
+    configurations before it starts anything: a VISA library it cannot load must not keep it waiting for
+    ever, and a socket path too long is exit 2, which systemd does not restart (exit 1 it would)."""
     cases = {case[0]: case for case in REFUSALS}
-    for what in ("garbage VISA library", "socket path too long", "octal-looking setpoint"):
+    for number, what in enumerate(("garbage VISA library", "socket path too long", "octal-looking setpoint")):
         _, replacements, key, _ = cases[what]
-        folder = tmp_path / what.replace(" ", "-")
+        folder = tmp_path / str(number)            # short: the other cases' socket paths stay below the limit
         folder.mkdir()
         path, _, line = refused_case(folder, replacements)
         located = f"{path}:{line}: {key}: "
@@ -167,7 +167,7 @@ def test_systemd_does_not_restart_a_configuration_error(unit):
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("kind", ["fifo", "device", "directory"])
 def test_a_configuration_that_is_not_a_regular_file_is_refused_at_once(tmp_path, kind):
-    """A named pipe made --check wait for a writer for ever; a device never ends."""
+    """A named pipe would keep --check waiting for a writer for ever; a device never ends."""
     if kind == "fifo":
         path = tmp_path / "cryod.yaml"
         os.mkfifo(path)

@@ -19,14 +19,7 @@ from cryod.service.control_socket import ControlSocketServer, send_command
 from cryod.service.logs import JournalFormatter
 from cryod.service.notify import SystemdNotifier
 from tests.conftest import CONFIG
-
-
-SCHEMA = RowSchema(REQUIRED + (STATE,))
-
-
-def rows(start, count, period=0.08):
-    return [Row(time_s=start + k * period, lateness_ms=0.0, T2_K=4.23 + 1e-6 * k, T5_K=3.34, heater_W=0.01,
-                setpoint_K=5.0 if k % 2 else float("nan"), state="closed") for k in range(count)]
+from tests.record_rows import SCHEMA, rows
 
 
 def test_data_log_writes_contract_files_and_never_overwrites(tmp_path):

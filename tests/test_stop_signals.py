@@ -21,7 +21,7 @@ from cryod.service.stop_signals import CRASH_SIGNALS, exit_code_for, terminating
 from cryod.config import load_config
 from tests.conftest import REPOSITORY
 from tests.service_bench import BenchOverTcp, RunProcess, delay_to_zero_s
-from tests.test_daemon_faults import FaultDrill
+from tests.fault_drills import FaultDrill
 
 #: Each kind: systemd's watchdog, the user signals, the terminal's quit, a timer, power failure, a real-time
 #: signal, and the two usual stops.

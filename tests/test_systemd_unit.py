@@ -1,6 +1,5 @@
 """The unit file: systemd-analyze verify passes, and it asks for what the daemon relies on."""
 
-import configparser
 import os
 import shutil
 import subprocess
@@ -9,18 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPOSITORY
-
-UNIT = REPOSITORY / "systemd" / "cryod.service"
-#: One instance per cryostat: ``cryod@<name>`` reads /etc/cryod/<name>.yaml.
-TEMPLATE = REPOSITORY / "systemd" / "cryod@.service"
-
-
-def unit_sections(unit: Path = UNIT) -> configparser.ConfigParser:
-    parser = configparser.ConfigParser(strict=False, interpolation=None)
-    parser.optionxform = str
-    parser.read_string(unit.read_text())
-    return parser
+from tests.systemd_units import TEMPLATE, UNIT, unit_sections
 
 
 @pytest.mark.parametrize("unit, directory", [(UNIT, "cryod"), (TEMPLATE, "cryod/%i")])

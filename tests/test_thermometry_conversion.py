@@ -1,6 +1,7 @@
 """Conversions: round trips, agreement with the calibration data, ranges refused, scalar and array calls."""
 
 import importlib.util
+import time
 
 import numpy as np
 import pytest
@@ -184,11 +185,13 @@ def test_repr_says_what_the_curve_is(curves):
 
 
 def test_scalar_calls_are_fast_enough_for_every_reading():
-    """The benchmark's own measurement; its numbers are in docs/thermometry.md."""
+    """The benchmark's own measurement (its numbers are in docs/thermometry.md), in this thread's CPU time: a
+    busy machine delays the calls, it does not make them cost more."""
     specification = importlib.util.spec_from_file_location("thermometry_speed",
                                                            REPOSITORY / "benchmarks" / "thermometry_speed.py")
     benchmark = importlib.util.module_from_spec(specification)
     specification.loader.exec_module(benchmark)
     for name in ("X186279.340", "X162690.cof", "X162690.dat"):
-        times_us = benchmark.scalar_call_times_us(load_calibration(CALIBRATION_DATA / name), calls=300, repeats=3)
+        times_us = benchmark.scalar_call_times_us(load_calibration(CALIBRATION_DATA / name), calls=300, repeats=5,
+                                                     timer=time.thread_time)
         assert max(times_us.values()) < 50.0, (name, times_us)

@@ -17,7 +17,7 @@ from tests.conftest import CONFIG
 
 @pytest.fixture(scope="module")
 def record(tmp_path_factory):
-    return write_record(tmp_path_factory.mktemp("paper") / "table1.csv", regenerated_record(duration_s=1200.0, seed=3),
+    return write_record(tmp_path_factory.mktemp("paper") / "table1.csv", regenerated_record(duration_s=600.0, seed=3),
                         {"source": "Pan et al. Part 1, Table 1, regenerated"})
 
 

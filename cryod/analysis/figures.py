@@ -111,8 +111,7 @@ def overview(analysis: Analysis, segments, path: Path) -> Path:
 def residual_spectrum(analysis: Analysis, path: Path) -> Path:
     data = analysis.data
     sampling = 1.0 / data.sample_interval_s
-    modulation_hz = heater_modulation_hz(data.heater_w[data.valid], sampling,
-                                         analysis.base_line.angular_frequency_rad_s / (2.0 * math.pi))
+    modulation_hz = record_heater_modulation_hz(data, analysis.base_line.angular_frequency_rad_s / (2.0 * math.pi))
     figure, axes = plt.subplots(2, 1, figsize=(10, 7.5), sharex=True)
     for axis, name, noise, base_values, extended_values in (
             (axes[0], "T2", analysis.noise_rms_K[0], analysis.base_replay.flange_residual_K,
@@ -137,6 +136,17 @@ def residual_spectrum(analysis: Analysis, path: Path) -> Path:
         axis.legend(loc="best", fontsize=8)
     axes[1].set_xlabel("frequency (Hz); dashed: the cooler's harmonics (purple: folded by the sampling)")
     return save_figure(figure, path)
+
+
+def record_heater_modulation_hz(data, cooler_hz: float) -> float | None:
+    """The frequency of a modulation imposed on the heater while the loop was open (Hz), or None.
+
+    Only the open-loop rows (no setpoint) are looked at: regulating, the heater follows the
+    controller (PI's answer to the cooler's line and the noise, the feedforward's waveform), and
+    a peak of its spectrum there is no modulation anyone imposed.
+    """
+    open_loop = data.valid & ~np.isfinite(data.setpoint_K)
+    return heater_modulation_hz(data.heater_w[open_loop], 1.0 / data.sample_interval_s, cooler_hz)
 
 
 def heater_modulation_hz(heater_w: np.ndarray, sample_hz: float, cooler_hz: float) -> float | None:

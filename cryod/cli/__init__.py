@@ -310,9 +310,16 @@ def _ctl(args) -> int:
     elif reply.get("message") == "status" and reply.get("ok"):
         from cryod.service.readable import readable
 
+        from cryod.service.alarms import alarm_line
+
         for key, value in reply["status"].items():
             if key == "time_s":
                 key = "daemon_clock_s"          # the daemon's monotonic clock, not a date
+            if key == "alarms":
+                print("alarms: none raised" if not value else "alarms:")
+                for alarm in value or []:
+                    print(f"  {alarm_line(alarm)}")
+                continue
             print(f"{key}: {readable(key, value)}")
     else:
         print(reply.get("message", ""), file=sys.stdout if reply.get("ok") else sys.stderr)

@@ -5,6 +5,11 @@ for one setpoint and heater, and how it changes with the setpoint, the heater re
 current limit: a table for a user choosing a heater before buying one. Defaults come from the
 example configuration (heater, setpoint, loop period) and the shipped model.
 
+``--setpoints K,K,...`` gives the limit across a range instead, each setpoint with the model that holds
+there: a temperature-dependent model's linear model about it, or with ``--zones TABLE`` the feedforward's
+model of the zone holding it (:func:`cryod.control.zone_commissioning.limits_across_range`). A
+temperature-dependent model at one setpoint is taken about that setpoint too.
+
 Exit status: 0 done; 2 unusable input (a bad number, a setpoint the heater cannot hold, a model
 or configuration file that cannot be read).
 """
@@ -15,17 +20,24 @@ import argparse
 import json
 import math
 import sys
+import textwrap
+from pathlib import Path
 
 from cryod.cli.lab_inputs import InputsNotUsable, lab_inputs
-from cryod.argument_types import not_negative, number, positive
+from cryod.argument_types import not_negative, number, positive, setpoint_list
 
 from cryod.config import EXAMPLE_CONFIG_PATH
 from cryod.control.feedforward_limit import (
     DEFAULT_AVERAGING_TIME_S, MEASURES, REPORTED_HARMONICS, SWEEP_MAX_CURRENTS_A, SWEEP_RESISTANCES_OHM,
-    SWEEP_SETPOINTS_K, FeedforwardLimit, FeedforwardLimitError, SweepPoint, feedforward_limit, limit_sweep,
+    SWEEP_SETPOINTS_K, FeedforwardLimit, FeedforwardLimitError, SweepPoint, feedforward_limit, limit_changes,
+    limit_sweep,
 )
+from cryod.control.limit_binding import LimitBinding, limit_binding
 from cryod.control.feedforward_limit_range import LimitRange, limit_range
-from cryod.model import DEFAULT_MODEL_PATH
+from cryod.control.zone_commissioning import limits_across_range, model_at_temperature, model_of_zone
+from cryod.control.zones import zone_table_from
+from cryod.model import DEFAULT_MODEL_PATH, linearised_at
+from cryod.yaml_source import FileFormatError, Section
 
 PROGRAM = "cryod feedforward-limit"
 
@@ -56,6 +68,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     parser.add_argument("--measure", choices=MEASURES, default="sampled",
                         help="harmonics of the readings at the loop's instants, as the daemon measures (default), "
                              "or of the thermometer's continuous temperature")
+    parser.add_argument("--setpoints", type=setpoint_list, default=None, metavar="K,K,...",
+                        help="the limit at each of these setpoints, with the model that holds there (a "
+                             "temperature-dependent --model's, or --zones' models)")
+    parser.add_argument("--zones", type=Path, default=None, metavar="TABLE",
+                        help="with --setpoints: a zone table (cryod tune --zones): each setpoint with its zone's "
+                             "feedforward model, --model where the zone has none")
     parser.add_argument("--config", default=str(EXAMPLE_CONFIG_PATH), metavar="PATH",
                         help="configuration giving the defaults (default: the example config/cryod.yaml)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -69,7 +87,15 @@ def run(args: argparse.Namespace) -> int:
     except InputsNotUsable as error:
         print(f"{PROGRAM}: {error}", file=sys.stderr)
         return 2
+    if getattr(args, "setpoints", None) is not None or getattr(args, "zones", None) is not None:
+        return run_range(args, inputs)
     config, model, setpoint = inputs.config, inputs.model, inputs.setpoint_K
+    if model.temperature_dependence is not None:
+        try:
+            model = linearised_at(model, setpoint)
+        except ValueError as error:
+            print(f"{PROGRAM}: {args.model} at {setpoint:g} K: {error}", file=sys.stderr)
+            return 2
     resistance, current = inputs.heater_ohm, inputs.max_current_A
     period = args.period if args.period is not None else config.loop.period_s
     options = {"period_s": period, "heater_delay_s": args.heater_delay, "measure": args.measure,
@@ -87,25 +113,96 @@ def run(args: argparse.Namespace) -> int:
         "heater_resistance": limit_sweep(model, "heater_resistance", SWEEP_RESISTANCES_OHM, **held, **options),
         "max_current": limit_sweep(model, "max_current", SWEEP_MAX_CURRENTS_A, **held, **options),
     }
+    binding = limit_binding(limit, limit_changes(model, setpoint, limit.max_heater_power_W, **options))
     if args.json:
         summary = limit.summary()
         summary["model"] = str(args.model)
         summary["ptc_periodic_limit_range"] = spread.summary() if spread is not None else None
-        summary["sweeps"] = {name: [_sweep_row(row) for row in rows] for name, rows in sweeps.items()}
+        summary["sweeps"] = {name: [_sweep_row(row, row_binding(model, row, **options)) for row in rows]
+                             for name, rows in sweeps.items()}
+        summary["binding"] = binding.summary()
         print(json.dumps(summary))
     else:
-        print(report(limit, sweeps, model_path=str(args.model), spread=spread))
+        bindings = {name: [row_binding(model, row, **options) for row in rows] for name, rows in sweeps.items()}
+        print(report(limit, sweeps, model_path=str(args.model), spread=spread, binding=binding, bindings=bindings))
     return 0
 
 
-def _sweep_row(row: SweepPoint) -> dict:
+def run_range(args: argparse.Namespace, inputs) -> int:
+    """``--setpoints``: the limit at each setpoint with the model that holds there; returns the exit status."""
+    if args.setpoints is None:
+        print(f"{PROGRAM}: --zones gives the models of a range: give the range with --setpoints", file=sys.stderr)
+        return 2
+    config, model = inputs.config, inputs.model
+    resistance, current = inputs.heater_ohm, inputs.max_current_A
+    if args.zones is not None:
+        try:
+            table = zone_table_file(args.zones, resistance * current ** 2)
+        except FileFormatError as error:
+            print(f"{PROGRAM}: {error}", file=sys.stderr)
+            return 2
+        if model.temperature_dependence is not None:
+            print(f"{PROGRAM}: --model {args.model} is a temperature-dependent cryostat: with --zones give the "
+                  f"controller's model for zones without one (default: the shipped model)", file=sys.stderr)
+            return 2
+        model_at, source = model_of_zone(table, model), f"the zones of {args.zones}"
+    else:
+        model_at, source = model_at_temperature(model), str(args.model)
+    period = args.period if args.period is not None else config.loop.period_s
+    rows = limits_across_range(args.setpoints, model_at, resistance, current, period,
+                               heater_delay_s=args.heater_delay, measure=args.measure,
+                               averaging_time_s=args.averaging_time)
+    if args.json:
+        print(json.dumps({"models": source, "heater_resistance_ohm": resistance, "max_current_A": current,
+                          "period_s": period, "setpoints": [row.to_dict() for row in rows]}))
+        return 0
+    print(f"the feedforward's limit with {resistance:g} ohm at up to {current * 1e3:g} mA "
+          f"({resistance * current ** 2:.4g} W), models: {source}")
+    print("setpoint   model                                 mean heater   open line    limit        reachable    authority  "
+          "limited by")
+    for row in rows:
+        if row.problem:
+            print(f"{row.setpoint_K:8g} K  {row.model_name[:36]:36s}  {row.problem}")
+            continue
+        print(f"{row.setpoint_K:8g} K  {row.model_name[:36]:36s}  {_mw(row.mean_heater_power_W):>11s}  "
+              f"{_mk(row.open_line_K):>11s}  {_mk(row.ptc_periodic_limit_K):>11s}  "
+              f"{_mk(row.predicted_best_residual_K):>11s}  {row.authority:9.3g}  {row.limited_by}")
+    return 0
+
+
+def zone_table_file(path: Path, heater_max_power_w: float):
+    """The zone table in a file holding ``zones:`` (as ``cryod tune --zones`` writes it), checked."""
+    holder = Section.from_file(path)
+    table = zone_table_from(holder, 0.0, 0.0, heater_max_power_w)
+    holder.finish()
+    return table
+
+
+def row_binding(model, row: SweepPoint, period_s: float, **options) -> LimitBinding | None:
+    """What binds one row's limit: a top its waveform touches is checked against a heater twice as large."""
+    limit = row.limit
+    if limit is None:
+        return None
+    changes = ()
+    if limit_binding(limit).bound == "floor and top":
+        changes = limit_changes(model, limit.setpoint_K, limit.max_heater_power_W, period_s, **options)[2:]
+    return limit_binding(limit, changes)
+
+
+def _sweep_row(row: SweepPoint, binding: LimitBinding | None) -> dict:
     summary = {"value": row.value, "mean_heater_power_W": row.mean_heater_power_W,
                "max_heater_power_W": row.max_heater_power_W}
     if row.limit is None:
         return {**summary, "problem": row.problem}
     limit = row.limit
     return {**summary, "authority": limit.authority, "best_sinusoid_K": limit.best_sinusoid_K,
-            "ptc_periodic_limit_K": limit.ptc_periodic_limit_K, "limited_by": limit.limited_by}
+            "ptc_periodic_limit_K": limit.ptc_periodic_limit_K, "limited_by": limit.limited_by,
+            "bound": binding.bound}
+
+
+#: What binds, as the table says it.
+_BOUND_WORDS = {"floor": "the 0 W floor", "top": "the top R I_max^2", "floor and top": "the 0 W floor and the top",
+                "none": "noise (no bound binds)"}
 
 
 def _mk(value_K: float) -> str:
@@ -116,8 +213,11 @@ def _mw(value_W: float) -> str:
     return f"{value_W * 1e3:.1f} mW"
 
 
-def report(limit: FeedforwardLimit, sweeps: dict, model_path: str = "", spread: LimitRange | None = None) -> str:
-    """The table printed by the command (with the limit's range over the model's uncertainty when it states one)."""
+def report(limit: FeedforwardLimit, sweeps: dict, model_path: str = "", spread: LimitRange | None = None,
+           binding: LimitBinding | None = None, bindings: dict | None = None) -> str:
+    """The table printed by the command (with the limit's range over the model's uncertainty when it states one,
+    and what binds it and each row of the sweeps, ``bindings``: a list per sweep, as ``sweeps``)."""
+    binding = binding or limit_binding(limit)
     ratio = limit.open_line_K / limit.ptc_periodic_limit_K if limit.ptc_periodic_limit_K > 0 else math.inf
     lines = [
         f"Physical limit of the cooler-locked feedforward ({limit.measure} measure: harmonics 1-{REPORTED_HARMONICS} "
@@ -147,17 +247,20 @@ def report(limit: FeedforwardLimit, sweeps: dict, model_path: str = "", spread: 
            else ""),
         f"  noise floor ({limit.averaging_time_s:g} s averaging)   {limit.noise_floor_K * 1e6:.1f} uK",
         f"  predicted best residual       {_mk(limit.predicted_best_residual_K)}",
-        f"  limited by                    {limit.limited_by}"
-        + (" (the heater's bounds bind)" if limit.authority_limited else " (the heater could cancel the line)"),
+        f"  limited by                    {limit.limited_by}: {_BOUND_WORDS[binding.bound]}",
         "",
-        "What would change it (mean power / max power / authority / best sinusoid / limit):",
+        *textwrap.wrap("What binds: " + binding.explanation, 110, initial_indent="", subsequent_indent="  "),
+        "",
+        "What would change it (mean power / max power / authority / best sinusoid / limit / what binds):",
+        "  (0 W floor: a bigger heater does not help, a higher setpoint does; top R I_max^2: a bigger heater helps)",
     ]
     titles = {"setpoint": ("setpoint", "K"), "heater_resistance": ("heater resistance", "ohm"),
               "max_current": ("current limit", "A")}
     for name, rows in sweeps.items():
         title, unit = titles[name]
         lines.append(f"  {title}:")
-        for row in rows:
+        row_bindings = (bindings or {}).get(name) or [limit_binding(row.limit) if row.limit else None for row in rows]
+        for row, row_bound in zip(rows, row_bindings):
             start = f"    {f'{row.value:g} {unit}':>10}  {_mw(row.mean_heater_power_W):>9} {_mw(row.max_heater_power_W):>10}"
             if row.limit is None:
                 reason = "the heater cannot cool" if row.mean_heater_power_W < 0.0 else "more than the heater gives"
@@ -165,5 +268,5 @@ def report(limit: FeedforwardLimit, sweeps: dict, model_path: str = "", spread: 
                 continue
             item = row.limit
             lines.append(f"{start}  {item.authority:5.2f}  {_mk(item.best_sinusoid_K):>10}"
-                         f"  {_mk(item.ptc_periodic_limit_K):>10}  {item.limited_by}")
+                         f"  {_mk(item.ptc_periodic_limit_K):>10}  {_BOUND_WORDS[row_bound.bound]}")
     return "\n".join(lines)

@@ -35,7 +35,7 @@ from pathlib import Path
 
 from cryod.analysis.record_data import analysed_stretch, read_record_data
 from cryod.analysis.summary import plain
-from cryod.argument_types import not_negative, number, positive, speed
+from cryod.argument_types import not_negative, number, positive, setpoint_list, speed
 from cryod.identification.experiment import ExperimentPlan
 from cryod.identification.fit import IdentificationError
 from cryod.identification.model_fit import ModelIdentification, identify_model
@@ -95,6 +95,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
                          help="control socket while the experiment runs (default: the configuration's; with "
                               "--simulate ./cryod-identify/control.sock)")
     defaults = ExperimentPlan()
+    acquire.add_argument("--setpoints", type=setpoint_list, default=None, metavar="K,K,...",
+                         help="identify about each of these setpoints in turn, in closed loop (regulate, hold, a "
+                              "setpoint step), one model each, a zone each: --out is then a folder, given "
+                              "model-<K>K.yaml per setpoint (docs/control.md, Zones)")
+    acquire.add_argument("--setpoint-step", type=number, default=defaults.setpoint_step_K, metavar="K",
+                         help=f"with --setpoints: the setpoint step about each (default {defaults.setpoint_step_K:g} K)")
     acquire.add_argument("--step-power", type=positive, default=defaults.step_power_w, metavar="W",
                          help=f"size of the heater step (default {defaults.step_power_w:g} W)")
     acquire.add_argument("--base-power", type=not_negative, default=defaults.base_power_w, metavar="W",
@@ -157,7 +163,8 @@ def _plan(args) -> ExperimentPlan:
                           settle_fraction=args.settle_fraction, settle_window_s=args.settle_window,
                           min_settle_s=args.min_settle, max_settle_s=args.max_settle,
                           modulation_amplitude_w=args.modulation_amplitude,
-                          modulation_rad_s=args.modulation_frequency, modulation_s=args.modulation_time)
+                          modulation_rad_s=args.modulation_frequency, modulation_s=args.modulation_time,
+                          setpoint_step_K=getattr(args, "setpoint_step", ExperimentPlan.setpoint_step_K))
 
 
 def _config_path(args) -> Path:
@@ -169,13 +176,13 @@ def _config_path(args) -> Path:
     return DEFAULT_CONFIG if args.acquire and not args.simulate else EXAMPLE_CONFIG_PATH
 
 
-def _acquire(args, config, base) -> tuple[int, object]:
-    """Run the experiment; (exit status, Acquisition or None)."""
+def _acquire(args, config, base, plan: ExperimentPlan | None = None) -> tuple[int, object]:
+    """Run the experiment (``plan``, or the command line's); (exit status, Acquisition or None)."""
     from cryod.cli.acquire import acquire
     from cryod.service.logs import ServiceLogging
     from drivers.clock import MonotonicClock, clock_for_speed
 
-    plan = _plan(args)
+    plan = plan or _plan(args)
     try:
         plan.check(config.heater.max_power_w)
     except ValueError as error:
@@ -257,9 +264,12 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     inputs = [Path(path) for path in args.records] + [Path(args.base)]
-    refusal = output_file_refusal(PROGRAM, out, force=args.force, inputs=inputs)
-    report_dir = args.report or (f"{out.with_suffix('')}-report" if args.acquire else None)
+    series = getattr(args, "setpoints", None) is not None       # --out is a folder of models: checked per model
+    refusal = None if series else output_file_refusal(PROGRAM, out, force=args.force, inputs=inputs)
+    report_dir = args.report or (f"{out.with_suffix('')}-report" if args.acquire and not series else None)
     report_files = None
+    if series and args.report:
+        refusal = "--report is for one model; with --setpoints each model's fit is summarised on the terminal"
     if refusal is None and report_dir is not None:
         report_files = _report_files(args, Path(report_dir), max(len(args.records), 1), inputs)
         refusal = report_files.refusal(force=args.force)
@@ -288,6 +298,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     acquisition = None
     record_paths = [Path(p) for p in args.records]
+    if getattr(args, "setpoints", None) is not None:
+        return _run_series(args, config, base, out)
     if args.acquire:
         status, acquisition = _acquire(args, config, base)
         if status != 0:
@@ -371,6 +383,69 @@ def run(args: argparse.Namespace) -> int:
                 print(f"{key}: {text[key]}")
         for name, item in text["parameters"].items():
             print(f"  {name}: {item['value']:.6g} +- {item['standard_uncertainty']:.2g}")
+    return 0
+
+
+def _run_series(args, config, base, out: Path) -> int:
+    """``--acquire --setpoints``: the experiment about each setpoint in turn and its model, into the folder ``out``."""
+    from cryod.identification.setpoint_series import identify_at_setpoint, model_file_name, plans_at
+
+    if not args.acquire:
+        print(f"{PROGRAM}: --setpoints runs the experiment about each setpoint: it needs --acquire", file=sys.stderr)
+        return 2
+    try:
+        plans = plans_at(args.setpoints, _plan(args))
+    except ValueError as error:
+        print(f"{PROGRAM}: {error}", file=sys.stderr)
+        return 2
+    top = config.control.setpoint_max_K
+    outside = [plan.setpoint_K for plan in plans if not config.control.setpoint_min_K <= plan.setpoint_K <= top]
+    if outside:
+        print(f"{PROGRAM}: --setpoints {', '.join(map(str, outside))} K outside control.setpoint_min_K.."
+              f"setpoint_max_K = {config.control.setpoint_min_K:g}..{top:g} K of {config.source}", file=sys.stderr)
+        return 2
+    targets = [out / model_file_name(plan.setpoint_K) for plan in plans]
+    for target in targets:
+        refusal = output_file_refusal(PROGRAM, target, force=args.force, inputs=[Path(args.base)])
+        if refusal is not None:
+            print(f"{PROGRAM}: {refusal}", file=sys.stderr)
+            return 2
+    written = []
+    for plan, target in zip(plans, targets):
+        print(f"{PROGRAM}: about {plan.setpoint_K:g} K ({len(written) + 1} of {len(plans)})", file=sys.stderr)
+        status, acquisition = _acquire(args, config, base, plan)
+        if status != 0:
+            return status
+        try:
+            records = [read_record_data(path) for path in acquisition.record_paths]
+            result = identify_at_setpoint(plan.setpoint_K, records, acquisition.record_paths, base, plan.line_hold_s,
+                                          harmonics=not args.no_harmonics, max_terms=args.max_terms,
+                                          replicates=args.bootstrap)
+        except (RecordFormatError, FileFormatError, IdentificationError, ValueError, ArithmeticError) as error:
+            print(f"{PROGRAM}: about {plan.setpoint_K:g} K: {error}; the records are kept: "
+                  f"{' '.join(map(str, acquisition.record_paths))}", file=sys.stderr)
+            return 1
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            save_model(result.model, target, header=f"Written by cryod identify --acquire --setpoints: about "
+                                                    f"{plan.setpoint_K:g} K, from "
+                                                    f"{', '.join(map(str, acquisition.record_paths))}\n"
+                                                    f"Base model: {args.base}")
+        except OSError as error:
+            print(f"{PROGRAM}: cannot write {target}: {error}", file=sys.stderr)
+            return 2
+        model = result.model
+        written.append({"setpoint_K": plan.setpoint_K, "model": str(target),
+                        "records": [str(path) for path in acquisition.record_paths],
+                        "heater_to_thermometer_dc_gain_K_per_W": model.heater_to_thermometer.dc_gain,
+                        "heater_to_thermometer_time_constants_s": model.heater_to_thermometer.time_constants_s,
+                        "residual_rms_in_noise": result.identification.residual_rms_in_noise})
+        print(f"{PROGRAM}: {target}: heater to T2 {model.heater_to_thermometer.dc_gain:.4g} K/W, time constants "
+              f"{', '.join(f'{tau:.4g}' for tau in model.heater_to_thermometer.time_constants_s)} s", file=sys.stderr)
+    zones = " ".join(f"{item['setpoint_K']:g}={item['model']}" for item in written)
+    print(f"{PROGRAM}: next, the zones' gains: cryod tune --zones {zones} --zones-out zones.yaml", file=sys.stderr)
+    if args.json:
+        print(json.dumps(plain({"setpoints": written})))
     return 0
 
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from cryod.control.pi import PiGains
 from cryod.control.regulator import ControlConfig, HeaterCurrentOutput, HeaterPowerOutput, Regulator, RegulatorMode
-from cryod.model import CryostatModel, CryostatPlant
+from cryod.model import CryostatModel, cryostat_plant
 from cryod.records.columns import REQUIRED
 
 
@@ -71,7 +71,7 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
                 initial_heater_power_w: float = 0.0,
                 current_output_resistance_ohm: float | None = None,
                 unrecorded_heat_w: Callable[[float], float] | None = None,
-                timing_jitter_s: float = 0.0, more_terms: tuple = ()) -> ClosedLoopRun:
+                timing_jitter_s: float = 0.0, more_terms: tuple = (), zones=None) -> ClosedLoopRun:
     """Run a program of segments on the simulated cryostat.
 
     Parameters
@@ -108,6 +108,9 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
         Largest lateness of a reading after its period's start (s, uniform).
     more_terms : tuple of (name, settings)
         Control terms besides ``pi`` (names of :data:`cryod.control.terms.TERM_TYPES`).
+    zones : cryod.control.zones.ZoneTable, optional
+        A zone table (``control.zones``): each zone's settings replace ``gains`` and the terms' own
+        while the setpoint in use is in it.
 
     Returns
     -------
@@ -115,11 +118,12 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
     """
     segments = sorted(segments, key=lambda s: s.start_s)
     ticks = int(round(duration_s / period_s))
-    plant = CryostatPlant(model, 0.0, initial_heater_power_w)
+    plant = cryostat_plant(model, 0.0, initial_heater_power_w)
     output = HeaterPowerOutput(heater_max_w) if current_output_resistance_ohm is None \
         else HeaterCurrentOutput(current_output_resistance_ohm, heater_max_w)
     control = ControlConfig(setpoint_K=None, ramp_K_per_min=ramp_K_per_min, setpoint_min_K=0.0,
-                            setpoint_max_K=np.inf, max_ramp_K_per_min=np.inf, terms=(("pi", gains), *more_terms))
+                            setpoint_max_K=np.inf, max_ramp_K_per_min=np.inf, terms=(("pi", gains), *more_terms),
+                            zones=zones)
     regulator = Regulator(control, output)
     power = min(initial_heater_power_w, heater_max_w)
     generator = np.random.default_rng(seed)

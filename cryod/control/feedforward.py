@@ -96,10 +96,12 @@ import numpy as np
 from cryod.control.bounded_waveform import waveform_values
 from cryod.control.divergence_guard import DivergenceGuard
 from cryod.control.feedforward_learning import LearningWorker
+from cryod.control.feedforward_limit import REPORTED_HARMONICS
 from cryod.control.harmonic_plant import plant_at_harmonics
 from cryod.control.learned_limit import LearnedLimitInputs
 from cryod.control.learned_projection import learning_step
 from cryod.control.learning_report import LearningReport
+from cryod.control.limit_binding import limit_binding, measured_against_limit
 from cryod.control.limit_follower import LimitFollower
 from cryod.control.plant_learner import PRIOR_SPREAD, LearnedPlant
 from cryod.control.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
@@ -829,9 +831,16 @@ class FeedforwardTerm:
                          f"line of the {1e3 * limit.line_power_needed_W:.0f} mW needed around "
                          f"{1e3 * limit.mean_heater_power_W:.0f} mW); predicted best "
                          f"{1e6 * limit.predicted_best_residual_K:.1f} µK")
+            lines.append("what binds it: " + limit_binding(limit, self.limit_changes).explanation)
             if self.limit_changes:
                 lines.append("what would change it: " + "; ".join(change.describe() for change in self.limit_changes)
                              + " (R I_max^2 x 2: R x 2 or I_max x 1.41; more: cryod feedforward-limit)")
+            synchronous = self._synchronous_list()[:REPORTED_HARMONICS]
+            if synchronous and math.isfinite(line):
+                measured = float(np.sqrt(np.sum(np.abs(synchronous) ** 2)))
+                lines.append("T2 now against the limit: " + measured_against_limit(
+                    measured, limit.ptc_periodic_limit_K, limit.noise_floor_K,
+                    "the learned plant" if self.limits.source == "learned" else "the model"))
         return "\n".join(lines)
 
     def _describe_probe(self) -> str:

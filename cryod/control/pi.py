@@ -36,6 +36,10 @@ from cryod.records.columns import Column
 from cryod.yaml_source import Section
 
 
+#: Largest Kp (W/K) and Ki (W/(K s)) a configuration takes.
+MAX_GAIN = 1000.0
+
+
 @dataclass(frozen=True)
 class PiGains:
     """PI gains in SI units.
@@ -188,8 +192,8 @@ class PiTerm:
     @staticmethod
     def settings_from(section: Section) -> PiGains:
         """The gains from ``control.pi``."""
-        gains = PiGains(section.number("proportional_W_per_K", minimum=0.0, maximum=1000.0),
-                        section.number("integral_W_per_K_s", minimum=0.0, maximum=1000.0))
+        gains = PiGains(section.number("proportional_W_per_K", minimum=0.0, maximum=MAX_GAIN),
+                        section.number("integral_W_per_K_s", minimum=0.0, maximum=MAX_GAIN))
         section.finish()
         return gains
 

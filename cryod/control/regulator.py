@@ -40,10 +40,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 from cryod.control.ramp import SetpointRamp
 from cryod.control.terms import ControlTerm, TickInputs, build_terms, term_columns
+
+if TYPE_CHECKING:
+    from cryod.control.zones import ZoneTable
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,8 @@ class ControlConfig:
     setpoint_max_K: float
     max_ramp_K_per_min: float
     terms: tuple = ()
+    #: The zones (``control.zones``), or None: the terms' own settings at every temperature.
+    zones: ZoneTable | None = None
 
     def term(self, name: str):
         """The settings of the control term ``name``."""
@@ -211,6 +216,13 @@ class Regulator:
         self.manual_power_w = 0.0
         self.modulation: HeaterModulation | None = None      # manual mode: a sinusoid instead of a constant
         self._feedback_offset_K = 0.0       # T2 less what the feedback terms saw of it, last tick
+        #: The range the terms' sum is held within: R * I_max**2, or the zone's heater limit.
+        self.maximum = output.maximum
+        #: The zone in use (index into ``control.zones``), None without zones.
+        self.zone_index: int | None = None
+        self._zone_events: list[str] = []
+        if control.zones is not None:
+            self._enter_zone(control.zones.index_for(self.ramp.setpoint_K), "start")
 
     # -- the cycle ---------------------------------------------------------------
     def step(self, time_s: float, dt_s: float, flange_K: float, ptc_stage_K: float, *,
@@ -244,12 +256,15 @@ class Regulator:
             return RegulatorStep(0.0, math.nan, False, {})
         tick = tick.with_setpoint(self.ramp.advance(dt_s))
         setpoint = tick.setpoint_K
+        zones = self.control.zones
+        if zones is not None and zones.index_for(setpoint) != self.zone_index:
+            self._enter_zone(zones.index_for(setpoint), f"setpoint in use {setpoint:.6g} K")
         # feedback terms first, held within the heater's range and told so (their anti-windup);
         # then the terms that ride on them (the feedforward's waveform), held again
         requested = 0.0
         for term in self._feedback:
             requested += term.update(tick)
-        applied = min(max(requested, 0.0), self.output.maximum)
+        applied = min(max(requested, 0.0), self.maximum)
         for term in self._feedback:
             term.limit(requested, applied)
         limited = applied != requested
@@ -257,7 +272,7 @@ class Regulator:
             requested = applied
             for term in self._riding:
                 requested += term.update(tick)
-            applied = min(max(requested, 0.0), self.output.maximum)
+            applied = min(max(requested, 0.0), self.maximum)
             for term in self._riding:
                 term.limit(requested, applied)
             limited = limited or applied != requested
@@ -280,6 +295,9 @@ class Regulator:
         """
         feedback_K = flange_K - self._feedback_offset_K      # T2 as the feedback terms see it
         self.ramp.setpoint_K = feedback_K if self.ramp.rate_K_per_min > 0.0 else self.ramp.target_K
+        zones = self.control.zones
+        if zones is not None and zones.index_for(self.ramp.setpoint_K) != self.zone_index:
+            self._enter_zone(zones.index_for(self.ramp.setpoint_K), f"loop closed at {self.ramp.setpoint_K:.6g} K")
         tick = TickInputs.at(time_s, 0.0, flange_K, ptc_stage_K, self.ramp.setpoint_K).with_feedback(feedback_K)
         present = self.output.output_for(present_power_w)
         for term in self.terms:
@@ -371,10 +389,47 @@ class Regulator:
         one it left as it was keeps what commands set since.
         """
         self.ramp.rate_K_per_min, self.ramp.target_K = self._rate_and_target(control)
-        settings = dict(control.terms)
+        previous, self.control = self.control.zones, control
+        if control.zones is None:
+            self.maximum = self.output.maximum
+            if self.zone_index is not None:
+                self._zone_events.append("no zones (reload): control.pi and control.feedforward at every temperature")
+            self.zone_index = None
+            settings = dict(control.terms)
+            for term in self.terms:
+                term.reconfigure(settings[term.name], self.maximum)
+            return
+        index = control.zones.index_for(self.ramp.setpoint_K)
+        changed = previous is None or self.zone_index is None or previous.zones[self.zone_index] \
+            != control.zones.zones[index] or index != self.zone_index
+        self._enter_zone(index, f"reload of {control.zones.source or 'the zone table'}" if changed else "")
+
+    # -- zones ---------------------------------------------------------------------------
+    def _enter_zone(self, index: int, reason: str) -> None:
+        """Run on zone ``index`` of ``control.zones`` from now on, bumplessly: every term takes the zone's
+        settings through its ``reconfigure`` (the PI keeps its output, its integral taking the difference of
+        the gains), and the terms' sum is held within the zone's heater limit. ``reason`` ('' for none) goes
+        into the zone's event."""
+        zone = self.control.zones.zones[index]
+        limit = zone.max_heater_power_W
+        self.maximum = self.output.maximum if limit is None else min(self.output.maximum,
+                                                                     self.output.output_for(limit))
+        settings = dict(self.control.terms)
         for term in self.terms:
-            term.reconfigure(settings[term.name], self.output.maximum)
-        self.control = control
+            term.reconfigure(zone.settings_for(term.name, settings[term.name]), self.maximum)
+        self.zone_index = index
+        if reason:
+            self._zone_events.append(f"{zone.describe(index)}; {reason}")
+
+    def zone_events(self) -> list[str]:
+        """What changed of the zone in use since the last call (one text each; the loop records them)."""
+        events, self._zone_events = self._zone_events, []
+        return events
+
+    @property
+    def zone(self):
+        """The zone in use (:class:`cryod.control.zones.Zone`), None without zones."""
+        return None if self.zone_index is None else self.control.zones.zones[self.zone_index]
 
     def _rate_and_target(self, control: ControlConfig) -> tuple[float, float]:
         previous = self.control

@@ -29,7 +29,7 @@ bounds within stated tolerances and keep 45 degrees of phase margin and a gain m
 Examples
 --------
 >>> from cryod.model import load_model
->>> from cryod.control.pi import PiGains
+>>> from cryod.control.pi import MAX_GAIN, PiGains
 >>> step = step_performance(load_model(), PiGains(10.0, 0.2), setpoint_K=5.0, heater_max_w=0.5)
 >>> round(step.rise_s), round(step.settle_s), round(step.line_ratio, 2)
 (84, 103, 1.03)
@@ -47,7 +47,7 @@ from scipy import optimize
 
 from cryod.control.closed_loop import Segment, run_program
 from cryod.control.harmonic_plant import line_at_harmonics
-from cryod.control.pi import PiGains
+from cryod.control.pi import MAX_GAIN, PiGains
 from cryod.model import CryostatModel
 from cryod.model.dynamics import flange_transfer_functions
 from cryod.cooler.periodic import periodic_amplitudes
@@ -183,7 +183,8 @@ def loop_margins(model: CryostatModel, gains: PiGains, period_s: float = 0.08,
 
 def step_performance(model: CryostatModel, gains: PiGains, setpoint_K: float, heater_max_w: float, *,
                      start_heater_w: float = 0.0, duration_s: float = 900.0,
-                     period_s: float = 0.08, setting_delay_s: float = SETTING_DELAY_S) -> StepPerformance:
+                     period_s: float = 0.08, setting_delay_s: float = SETTING_DELAY_S,
+                     ramp_K_per_min: float = 0.0) -> StepPerformance:
     """Run a setpoint step on the model and measure it.
 
     Parameters
@@ -205,6 +206,8 @@ def step_performance(model: CryostatModel, gains: PiGains, setpoint_K: float, he
     setting_delay_s : float
         From a reading to the heater setting (s), for the margins (the step itself is run with the
         heater set at the reading).
+    ramp_K_per_min : float
+        The setpoint ramps to ``setpoint_K`` at this rate (0: a step); times still count from t = 0.
 
     Returns
     -------
@@ -214,7 +217,7 @@ def step_performance(model: CryostatModel, gains: PiGains, setpoint_K: float, he
         raise TuningError(f"a step of {duration_s:g} s is too short: at least {2 * SETTLED_WINDOW_S:g} s")
     run = run_program(model, [Segment(0.0, setpoint_K=setpoint_K)], duration_s, gains=gains,
                       heater_max_w=heater_max_w, period_s=period_s, noise=False,
-                      initial_heater_power_w=start_heater_w)
+                      initial_heater_power_w=start_heater_w, ramp_K_per_min=ramp_K_per_min)
     t, flange = run.time_s, run.flange_K
     start_K = float(flange[0])
     direction = 1.0 if setpoint_K >= start_K else -1.0
@@ -249,7 +252,7 @@ def suggest_gains(model: CryostatModel, setpoint_K: float, heater_max_w: float, 
                   period_s: float = 0.08, setting_delay_s: float = SETTING_DELAY_S,
                   proportional_range_w_per_K: tuple[float, float] = (0.5, 80.0),
                   integral_time_range_s: tuple[float, float] = (10.0, 500.0), grid: tuple[int, int] = (8, 6),
-                  refine_evaluations: int = 24) -> Tuning:
+                  refine_evaluations: int = 24, ramp_K_per_min: float = 0.0) -> Tuning:
     """The PI gains that settle a setpoint step fastest within ``tolerances``.
 
     A logarithmic grid over Kp and the integral time Kp / Ki, then Nelder-Mead
@@ -270,6 +273,8 @@ def suggest_gains(model: CryostatModel, setpoint_K: float, heater_max_w: float, 
         Grid points over Kp and over the integral time.
     refine_evaluations : int
         Steps the refinement may run (0: the grid's best).
+    ramp_K_per_min : float
+        As for :func:`step_performance`.
 
     Returns
     -------
@@ -284,11 +289,14 @@ def suggest_gains(model: CryostatModel, setpoint_K: float, heater_max_w: float, 
 
     def evaluate(log_kp: float, log_ti: float) -> StepPerformance | None:
         kp, ti = math.exp(log_kp), math.exp(log_ti)
+        if kp > MAX_GAIN or kp / ti > MAX_GAIN:
+            return None                  # beyond what a configuration takes
         gains = PiGains(kp, kp / ti)
         if tolerances.margin_violations(*loop_margins(model, gains, period_s, setting_delay_s)):
             return None                  # too close to oscillating: not worth a run
         step = step_performance(model, gains, setpoint_K, heater_max_w, start_heater_w=start_heater_w,
-                                duration_s=duration_s, period_s=period_s, setting_delay_s=setting_delay_s)
+                                duration_s=duration_s, period_s=period_s, setting_delay_s=setting_delay_s,
+                                ramp_K_per_min=ramp_K_per_min)
         runs.append(step)
         return step
 

@@ -1,11 +1,10 @@
-"""T2's part synchronous with the pulse-tube cooler, and the cooler's line frequency in T5.
+"""T2's part synchronous with the pulse-tube cooler.
 
-* :func:`periodic_amplitudes`: T2's harmonics 1 to 6 against the cooler's phase
-  tracked from T5 sample by sample (:mod:`cryod.cooler.phase`); their root sum
-  of squares is the ``ptc_periodic_amplitude_K`` of the records' metrics. Unlike
-  the line at one frequency it stays true when the cooler's frequency wanders.
-* :func:`line_frequency`: the frequency that maximises the line on T5 near the
-  nominal one.
+:func:`periodic_amplitudes`: T2's harmonics 1 to 6 against the cooler's phase
+tracked from T5 sample by sample (:mod:`cryod.cooler.phase`); their root sum
+of squares is the ``ptc_periodic_amplitude_K`` of the records' metrics. Unlike
+the line at one frequency it stays true when the cooler's frequency wanders.
+The cooler's frequency itself, as the daemon tracks it: :func:`cryod.cooler.phase.cooler_frequency_rad_s`.
 
 Examples
 --------
@@ -15,16 +14,12 @@ Examples
 >>> amplitudes = periodic_amplitudes(t, 5.0 + 0.0015 * np.sin(10.83 * t), t, stage, 10.83, window_start_s=60.0)
 >>> round(float(amplitudes[0]), 5), bool(amplitudes[1:].max() < 1e-6)
 (0.0015, True)
->>> round(line_frequency(t, stage, 10.8), 3)
-10.83
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy import optimize
 
-from cryod.cooler.line_fit import fit_line
 from cryod.cooler.phase import track_cooler_phase
 
 #: Harmonics of the cooler in the periodic amplitude.
@@ -55,13 +50,3 @@ def periodic_amplitudes(flange_time_s, flange_K, stage_time_s, ptc_stage_K, nomi
     cosines = solution[SLOW_DEGREE + 1:SLOW_DEGREE + 1 + harmonics]
     sines = solution[SLOW_DEGREE + 1 + harmonics:]
     return np.hypot(cosines, sines)
-
-
-def line_frequency(time_s: np.ndarray, ptc_stage_K: np.ndarray, nominal_rad_s: float,
-                   search_rad_s: float = 0.2) -> float:
-    """The PTC angular frequency (rad/s) that maximises the line on T5 near ``nominal_rad_s``."""
-    result = optimize.minimize_scalar(
-        lambda omega: -fit_line(time_s, ptc_stage_K, omega, trend_order=0).amplitude[0],
-        bounds=(nominal_rad_s - search_rad_s, nominal_rad_s + search_rad_s), method="bounded",
-        options={"xatol": 1e-6})
-    return float(result.x)

@@ -214,3 +214,40 @@ def track_cooler_phase(time_s, ptc_stage_K, nominal_rad_s: float, **options) -> 
             "frequency_rad_s": np.array([s.frequency_rad_s for s in states]),
             "amplitude_K": np.array([s.amplitude_K for s in states]),
             "locked": np.array([s.locked for s in states])}
+
+
+def cooler_frequency_rad_s(time_s, ptc_stage_K, nominal_rad_s: float, **options) -> float:
+    """The cooler's angular frequency over a stretch of T5 (rad/s), as the daemon follows it.
+
+    The tracker the feedforward locks with (:class:`CoolerPhaseTracker`) runs over the readings;
+    the frequency is the slope of the phase it tracked over the readings where it was locked (a
+    straight line fitted to the unwrapped phase: the mean frequency, to a few 1e-5 rad/s over
+    minutes). Every tool that names the cooler's frequency in a record uses this one estimate.
+
+    Parameters
+    ----------
+    time_s, ptc_stage_K : array_like
+        T5 readings and their instants (s).
+    nominal_rad_s : float
+        Expected angular frequency (rad/s), where the tracker starts.
+    **options
+        Passed to :class:`CoolerPhaseTracker`.
+
+    Returns
+    -------
+    float
+        The frequency, or NaN when the tracker never locked (no cooler line on T5).
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 120.0, 0.08)
+    >>> round(cooler_frequency_rad_s(t, 3.4 + 0.12 * np.sin(10.9 * t + 0.2), 10.83), 4)
+    10.9
+    """
+    time_s = np.asarray(time_s, dtype=float)
+    track = track_cooler_phase(time_s, ptc_stage_K, nominal_rad_s, **options)
+    locked = track["locked"]
+    if locked.sum() < 2:
+        return math.nan
+    times = time_s[locked]
+    return float(np.polyfit(times - times.mean(), track["phase_rad"][locked], 1)[0])

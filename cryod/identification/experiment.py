@@ -15,6 +15,13 @@ manual mode), phase after phase:
 
 then the heater goes to 0 W and the daemon stops.
 
+About a setpoint (``setpoint_K``, one zone's identification) the same phases run in closed loop:
+``regulate``, the daemon regulating at the setpoint until the heater power has settled (the
+criterion below, on the heater power; its time counts from when a configured ramp has reached the
+setpoint); ``line``, held there; ``step``, the setpoint stepped by
+``setpoint_step_K``, until the heater power has settled again. The fit takes the heater as the input
+and T2 as the output, as in open loop; the approach across the range stays out of it.
+
 Settled, the stated criterion: over the last ``settle_window_s`` the
 straight line fitted to T2 changes by less than ``settle_fraction`` of T2's
 change since the phase began (the mean of that window less the mean of the
@@ -44,6 +51,7 @@ ValueError: the step to 0.6 W (base 0 W + step 0.6 W) is above the heater's R * 
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import threading
 from dataclasses import asdict, dataclass
@@ -84,6 +92,13 @@ class ExperimentPlan:
         Angular frequency of the modulation.
     modulation_s : float
         Length of the modulation phase.
+    setpoint_K : float, optional
+        Identify about this flange temperature, in closed loop: a first phase, ``regulate``, holds T2
+        there under the daemon's control until the heater power has settled; ``line`` holds it on;
+        ``step`` steps the setpoint by ``setpoint_step_K`` (the heater's answer is what is fitted).
+        Instead of ``base_power_w`` and ``step_power_w``.
+    setpoint_step_K : float
+        The setpoint step about ``setpoint_K`` (K).
     """
 
     step_power_w: float = 0.010
@@ -97,6 +112,8 @@ class ExperimentPlan:
     modulation_amplitude_w: float = 0.0
     modulation_rad_s: float = 2.5
     modulation_s: float = 240.0
+    setpoint_K: float | None = None
+    setpoint_step_K: float = 0.05
 
     @property
     def stepped_power_w(self) -> float:
@@ -105,7 +122,7 @@ class ExperimentPlan:
     @property
     def phases(self) -> tuple[str, ...]:
         """The phases this plan runs, in order."""
-        names = ["approach"] if self.base_power_w > 0.0 else []
+        names = ["regulate"] if self.setpoint_K is not None else ["approach"] if self.base_power_w > 0.0 else []
         names += ["line", "step"]
         if self.modulation_amplitude_w > 0.0:
             names.append("modulation")
@@ -113,13 +130,19 @@ class ExperimentPlan:
 
     def check(self, heater_max_power_w: float) -> None:
         """Raise ValueError, naming the option, when the plan cannot run on this heater."""
-        finite = {name: value for name, value in asdict(self).items() if not math.isfinite(value)}
+        finite = {name: value for name, value in asdict(self).items() if value is not None and not math.isfinite(value)}
         if finite:
             raise ValueError(f"not finite: {', '.join(finite)}")
         if not self.step_power_w > 0.0:
             raise ValueError(f"the heater step must be above 0 W, got {self.step_power_w:g} W (--step-power)")
         if self.base_power_w < 0.0:
             raise ValueError(f"the base power cannot be negative, got {self.base_power_w:g} W (--base-power)")
+        if self.setpoint_K is not None:
+            if self.base_power_w > 0.0 or self.modulation_amplitude_w > 0.0:
+                raise ValueError("about a setpoint the experiment runs in closed loop, with a setpoint step: give "
+                                 "no --base-power or --modulation-amplitude with --setpoints")
+            if not (math.isfinite(self.setpoint_step_K) and self.setpoint_step_K != 0.0):
+                raise ValueError(f"the setpoint step must be a number other than 0 K, got {self.setpoint_step_K!r}")
         if self.stepped_power_w > heater_max_power_w:
             raise ValueError(f"the step to {self.stepped_power_w:g} W (base {self.base_power_w:g} W + step "
                              f"{self.step_power_w:g} W) is above the heater's R * I_max^2 = {heater_max_power_w:g} W: "
@@ -154,7 +177,8 @@ class ExperimentPlan:
 
     def metadata(self) -> dict:
         """Header lines of the record."""
-        return {"identify_plan": ", ".join(f"{key} {value:g}" for key, value in asdict(self).items()),
+        return {"identify_plan": ", ".join(f"{key} {value:g}" for key, value in asdict(self).items()
+                                          if value is not None),
                 "identify_phases": " -> ".join(self.phases),
                 "identify_settle_criterion": self.criterion()}
 
@@ -272,6 +296,8 @@ class ExperimentRunner:
     def __init__(self, plan: ExperimentPlan, submit: Callable[[str, object], None], stop: Callable[[str], None],
                  note: Callable[[str], None], expected_settle_s: float = 900.0):
         self.plan = plan
+        self.closed_loop = plan.setpoint_K is not None
+        self._at_setpoint = False       # the regulate phase's ramp has reached the setpoint
         self.submit = submit
         self.stop = stop
         self.note = note
@@ -321,8 +347,17 @@ class ExperimentRunner:
             self.started_s = time_s
             self._start_phase(0, time_s)
         flange = float(item.T2_K) if item.T2_K is not None else math.nan
-        if self.judge is not None:
-            self.judge.add(time_s, flange)
+        if self.phase == "regulate" and not self._at_setpoint:
+            setpoint = getattr(item, "setpoint_K", None)
+            if setpoint is None or setpoint != self.plan.setpoint_K:
+                self._update_progress(time_s, flange, float(item.heater_W or 0.0))
+                return                  # still ramping there: the phase's time counts from the ramp's end
+            self._at_setpoint = True
+            self.phase_start_s = time_s
+            self.note(f"the setpoint reached {self.plan.setpoint_K:g} K: the regulation settles from here")
+        if self.judge is not None:       # about a setpoint, the heater settles (T2 is held)
+            self.judge.add(time_s, float(item.heater_W if item.heater_W is not None else math.nan)
+                           if self.closed_loop else flange)
         if math.isfinite(flange):
             self._recent.append((time_s, flange))
             while self._recent[0][0] < time_s - self.plan.settle_window_s:
@@ -344,8 +379,14 @@ class ExperimentRunner:
             return False
         self._next_judgement_s = time_s + 1.0
         if self.judge.judge(time_s):
-            self.note(f"phase {phase} settled after {elapsed:.0f} s: T2 moved {self.judge.drift_K * 1e6:.1f} uK over "
-                      f"the last {plan.settle_window_s:g} s, change in the phase {self.judge.change_K * 1e3:.3f} mK")
+            if self.closed_loop:
+                self.note(f"phase {phase} settled after {elapsed:.0f} s: the heater moved "
+                          f"{self.judge.drift_K * 1e3:.3f} mW over the last {plan.settle_window_s:g} s, change in "
+                          f"the phase {self.judge.change_K * 1e3:.3f} mW")
+            else:
+                self.note(f"phase {phase} settled after {elapsed:.0f} s: T2 moved {self.judge.drift_K * 1e6:.1f} uK "
+                          f"over the last {plan.settle_window_s:g} s, change in the phase "
+                          f"{self.judge.change_K * 1e3:.3f} mK")
             return True
         if elapsed >= plan.max_settle_s:
             self.unsettled.append(phase)
@@ -375,8 +416,19 @@ class ExperimentRunner:
         phase, plan = self.phases[index], self.plan
         reference = float(np.mean([v for _, v in self._recent])) if self._recent and index > 0 else None
         self.judge = SettleJudge(plan, self.expected_settle_s, reference) if phase in ("approach", "step") else None
+        if self.closed_loop:             # the heater power settles: within 1 uW a window at least
+            self.judge = SettleJudge(dataclasses.replace(plan, settle_floor_K=1e-6), self.expected_settle_s) \
+                if phase in ("regulate", "step") else None
         self._next_judgement_s = -math.inf
-        if phase in ("approach", "line"):
+        if phase == "regulate":
+            self.submit("setpoint", plan.setpoint_K)
+            power = f"regulating at {plan.setpoint_K:g} K"
+        elif phase == "line" and self.closed_loop:
+            power = f"held at {plan.setpoint_K:g} K"
+        elif phase == "step" and self.closed_loop:
+            self.submit("setpoint", plan.setpoint_K + plan.setpoint_step_K)
+            power = f"setpoint {plan.setpoint_K + plan.setpoint_step_K:g} K (step of {plan.setpoint_step_K * 1e3:g} mK)"
+        elif phase in ("approach", "line"):
             self.submit("manual", plan.base_power_w)
             power = f"heater {plan.base_power_w * 1e3:g} mW"
         elif phase == "step":

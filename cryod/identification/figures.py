@@ -5,8 +5,9 @@
   residual; T2 and the residual are averaged over one cooler period so the
   step's shape shows (the line itself is fitted, and drawn in ``fit_line.png``).
 * ``fit_T5.png``: the heater-to-PTC-stage fit, the same way (T5 with its line removed).
-* ``fit_line.png``: a few cooler periods of T5 and T2 late in the longest hold,
-  measured and fitted (the line gain from T5 to T2), with the residual.
+* ``fit_line.png``: a few cooler periods of T5 and T2 on the record's most settled
+  stretch (:func:`settled_window`), measured and fitted (the line gain from T5 to T2),
+  with the residual.
 * ``terms.png``: the residual rms of each number of terms tried, against the
   noise, and the BIC (the count chosen marked).
 """
@@ -72,16 +73,42 @@ def _channel_figure(result: ModelIdentification, channel: ChannelResult, index: 
     return save_figure(figure, path)
 
 
+def settled_window(elapsed_s: np.ndarray, flange_K: np.ndarray, period_samples: int, span_s: float) -> np.ndarray:
+    """Where T2 has settled most: the ``span_s`` of the record over which T2's slow part (averaged over one
+    cooler period) moves least, the latest of those within a tenth of the least; a boolean mask of the samples.
+
+    A record that starts with T2 on its way to a setpoint, or whose heater changes at every tick (closed loop),
+    still shows its line on a stretch where it is not hidden under T2's drift.
+
+    Examples
+    --------
+    >>> t = np.arange(0.0, 600.0, 0.08)
+    >>> flange = 5.0 - 0.04 * np.exp(-t / 60.0) + 0.001 * np.sin(10.83 * t)
+    >>> window = settled_window(t, flange, 7, 3.5)
+    >>> bool(t[window][0] > 500.0), round(float(np.ptp(t[window])), 1)
+    (True, 3.4)
+    """
+    slow = _period_average(flange_K, period_samples)
+    interval_s = float(np.median(np.diff(elapsed_s))) if elapsed_s.size > 1 else 0.0
+    step = max(int(round(span_s / interval_s)), 1) if interval_s > 0.0 else slow.size
+    if slow.size <= step:
+        return np.ones(slow.size, dtype=bool)
+    starts = np.arange(0, slow.size - step + 1, max(step // 2, 1))
+    windows = np.lib.stride_tricks.sliding_window_view(slow, step)[starts]
+    drift = np.ptp(windows, axis=1)
+    best = starts[np.flatnonzero(drift <= 1.1 * np.nanmin(drift) + 1e-12)[-1]]
+    window = np.zeros(slow.size, dtype=bool)
+    window[best:best + step] = True
+    return window
+
+
 def line_figure(result: ModelIdentification, path: Path, periods: float = 6.0) -> Path:
-    """A few cooler periods of T5 and T2 near the end of the first record's longest heater hold."""
+    """A few cooler periods of T5 and T2 where T2 has settled most in the first record (:func:`settled_window`)."""
     data = result.records[0]
     elapsed = data.elapsed_s
-    changes = np.flatnonzero(np.diff(data.heater_w) != 0.0)
-    edges = np.concatenate(([0], changes + 1, [data.time_s.size]))
-    longest = int(np.argmax(np.diff(edges)))
-    end = elapsed[edges[longest + 1] - 1]           # the end of the longest hold: T2 has settled there
     span = periods * 2.0 * math.pi / result.line.angular_frequency_rad_s
-    window = (elapsed >= end - 1.5 * span) & (elapsed < end - 0.5 * span)
+    samples = int(round(2.0 * math.pi / result.line.angular_frequency_rad_s / data.sample_interval_s))
+    window = settled_window(elapsed, data.flange_K, samples, span)
     flange, stage = result.flange, result.stage
     stage_line = data.ptc_stage_K - stage.channel.records[0].target_K          # the fitted line in T5
     flange_measured = flange.channel.records[0].target_K

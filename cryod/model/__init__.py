@@ -18,7 +18,9 @@ Modules:
 * :mod:`~cryod.model.transfer_function`: G(s), its frequency response and modal form;
 * :mod:`~cryod.model.ptc_cycle`: the cooler's phase and frequency over time;
 * :mod:`~cryod.model.heater_path`, :mod:`~cryod.model.ptc_path`: the two kinds of path;
-* :mod:`~cryod.model.dynamics`: how they and the effects combine into T2 and T5.
+* :mod:`~cryod.model.dynamics`: how they and the effects combine into T2 and T5;
+* :mod:`~cryod.model.temperature_laws`, :mod:`~cryod.model.temperature_plant`: the cryostat
+  across temperature (copper's heat capacity, the conductances' law, the cooler's line).
 
 Examples
 --------
@@ -40,6 +42,10 @@ from cryod.model.parameters import (
     PtcFrequencyDrift, PtcHarmonic, PtcSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
 )
 from cryod.model.ptc_cycle import PtcCycle
+from cryod.model.temperature_laws import TemperatureDependence
+from cryod.model.temperature_plant import (
+    TEMPERATURE_MODEL_PATH, TemperatureDependentPlant, cryostat_plant, linearised_at, steady_state,
+)
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
 from cryod.yaml_source import FileFormatError
 
@@ -48,6 +54,8 @@ __all__ = [
     "GENERIC_EFFECT_NAMES", "HeatCapacityTemperature", "HeaterNonlinearity", "HeaterPathCorrection", "LinkDynamics",
     "OperatingPoint", "Pickup", "PtcAmplitudeModulation", "PtcCycle", "PtcFrequencyDrift", "PtcHarmonic",
     "PtcStageDrift", "PtcSource", "SensorLag", "SensorNoise", "SimulatedRecord", "SlowProcess",
+    "TemperatureDependence", "TemperatureDependentPlant", "TEMPERATURE_MODEL_PATH", "cryostat_plant",
+    "linearised_at", "steady_state",
     "TransferFunction", "TransferFunctionError", "DEFAULT_MODEL_PATH", "MODEL_FORMAT", "TRANSFER_FUNCTION_UNITS",
     "load_model", "load_model_text", "model_from_section", "model_to_dict", "save_model", "simulate",
 ]

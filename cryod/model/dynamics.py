@@ -316,8 +316,13 @@ def simulate(model: CryostatModel, time_s, heater_power_w, *, initial_heater_pow
         if heater_change_s.shape != time_s.shape or np.any(heater_change_s < time_s) \
                 or np.any(heater_change_s[:-1] >= time_s[1:]):
             raise ValueError("heater_change_s must have one instant per sample, each between its sample and the next")
-    plant = CryostatPlant(model, float(time_s[0]) if time_s.size else 0.0, initial_heater_power_w, ptc_cycle)
-    flange, stage = _simulate_whole(plant, time_s, heater_power_w, heater_change_s)
+    if model.temperature_dependence is not None:      # no whole-array form: instant by instant
+        from cryod.model.temperature_plant import simulate_stepping
+        record = simulate_stepping(model, time_s, heater_power_w, initial_heater_power_w, heater_change_s, ptc_cycle)
+        flange, stage = record.flange_K, record.ptc_stage_K
+    else:
+        plant = CryostatPlant(model, float(time_s[0]) if time_s.size else 0.0, initial_heater_power_w, ptc_cycle)
+        flange, stage = _simulate_whole(plant, time_s, heater_power_w, heater_change_s)
     if noise:
         generator = np.random.default_rng(seed)
         flange = flange + generator.normal(0.0, model.sensor_noise.flange_thermometer_rms_K, flange.size)

@@ -27,6 +27,7 @@ from cryod.model.parameters import (
     HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, PtcAmplitudeModulation, PtcFrequencyDrift,
     PtcHarmonic, PtcSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
 )
+from cryod.model.temperature_laws import TemperatureDependence
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
 from cryod.model.uncertainty import ModelUncertainty, UncertaintyError, check_consistent, inconsistencies
 from cryod.yaml_source import Section
@@ -104,6 +105,13 @@ def model_from_section(top: Section) -> CryostatModel:
         )
         noise_section.finish()
     uncertainty_section = top.section("uncertainty", None)
+    temperature_section = top.section("temperature_dependence", None)
+    temperature_dependence = None
+    if temperature_section is not None:
+        temperature_dependence = _temperature_dependence(temperature_section)
+        if effects.present():
+            raise top.error("temperature_dependence", f"the temperature-dependent cryostat takes no effects: remove "
+                                                      f"effects ({', '.join(effects.present())}) or this section")
     top.finish()
     model = CryostatModel(
         operating_point=operating_point,
@@ -113,6 +121,7 @@ def model_from_section(top: Section) -> CryostatModel:
         name=name,
         description=description,
         source=top.source,
+        temperature_dependence=temperature_dependence,
         **loaded,
     )
     if uncertainty_section is not None:
@@ -142,6 +151,24 @@ def _uncertainty(section: Section, model: CryostatModel) -> ModelUncertainty:
     except UncertaintyError as error:
         raise section.error("parameters", str(error)) from None
     return uncertainty
+
+
+def _temperature_dependence(section: Section) -> TemperatureDependence:
+    """The optional ``temperature_dependence`` section (the laws of :mod:`cryod.model.temperature_laws`)."""
+    defaults = TemperatureDependence()
+    values = {
+        "gamma_J_per_mol_K2": section.number("gamma_J_per_mol_K2", defaults.gamma_J_per_mol_K2, minimum=0.0),
+        "beta_J_per_mol_K4": section.number("beta_J_per_mol_K4", defaults.beta_J_per_mol_K4, minimum=0.0),
+        "conductance_exponent": section.number("conductance_exponent", defaults.conductance_exponent,
+                                               minimum=0.0, maximum=4.0),
+        "stage_line_exponent": section.number("stage_line_exponent", defaults.stage_line_exponent,
+                                              minimum=-4.0, maximum=4.0),
+    }
+    section.finish()
+    try:
+        return TemperatureDependence(**values)
+    except ValueError as error:
+        raise section.error("gamma_J_per_mol_K2", str(error)) from None
 
 
 def _transfer_function(functions: Section, key: str, units: str) -> TransferFunction:
@@ -334,6 +361,8 @@ def model_to_dict(model: CryostatModel) -> dict:
     if effects:
         data["effects"] = effects
     data["sensor_noise"] = dataclasses.asdict(model.sensor_noise)
+    if model.temperature_dependence is not None:
+        data["temperature_dependence"] = dataclasses.asdict(model.temperature_dependence)
     if model.uncertainty is not None and not inconsistencies(model, model.uncertainty):
         # (a model changed after identification keeps no uncertainty: the stated one was of other values)
         stated = model.uncertainty

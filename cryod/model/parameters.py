@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cryod.model.temperature_laws import TemperatureDependence
 from cryod.model.transfer_function import TransferFunction
 from cryod.model.uncertainty import ModelUncertainty
 
@@ -379,6 +380,8 @@ class CryostatModel:
     source: str = ""
     #: The identified parameters' values, standard uncertainties and correlation (None: not stated).
     uncertainty: ModelUncertainty | None = None
+    #: How the cryostat changes with temperature (None: the linear model holds at every temperature).
+    temperature_dependence: TemperatureDependence | None = None
 
     # -- derived paths (the observable products) ----------------------------
     @property

@@ -171,6 +171,10 @@ class TransferFunction:
             tuple(np.polymul(self.denominator, other.denominator)),
         )
 
+    def __sub__(self, other: "TransferFunction") -> "TransferFunction":
+        """``self - other``: the parallel connection with ``other`` negated."""
+        return self + (-1.0) * other
+
     def time_scaled(self, factor: float) -> "TransferFunction":
         """The same path with every time constant multiplied by ``factor``.
 

@@ -1,7 +1,9 @@
 """Regulation figures of merit over a window of rows (``cryod --simulate --json``).
 
 * ``ptc_line_amplitude_K``: amplitude of T2 at the PTC frequency (least-squares
-  fit at one frequency, refined on T5, where the line is 70 times larger);
+  fit at one frequency: ``ptc_line_rad_s``, the cooler's frequency as the daemon
+  tracks it on T5, where the line is 70 times larger,
+  :func:`cryod.cooler.phase.cooler_frequency_rad_s`);
 * ``ptc_periodic_amplitude_K``: T2's whole part synchronous with the cooler,
   harmonics 1 to 6 against the cooler's phase tracked from T5 sample by sample
   (:mod:`cryod.cooler.periodic`), as sqrt(2) times its rms (the square
@@ -31,7 +33,8 @@ import numpy as np
 from scipy import signal
 
 from cryod.cooler.line_fit import fit_line
-from cryod.cooler.periodic import PERIODIC_HARMONICS, line_frequency, periodic_amplitudes
+from cryod.cooler.periodic import PERIODIC_HARMONICS, periodic_amplitudes
+from cryod.cooler.phase import cooler_frequency_rad_s
 
 LOW_FREQUENCY_HZ = 0.1
 #: The low-pass's start and end transients are left out of ``lowfreq_rms_K`` this long (s) ...
@@ -89,7 +92,8 @@ def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_r
     result["window_s"] = float(time_s[-1] - time_s[0]) if time_s.size else 0.0
     if time_s.size < 50:
         return result
-    omega = line_frequency(stage_time_s, ptc_stage_K, nominal_line_rad_s)
+    omega = cooler_frequency_rad_s(stage_time_s, ptc_stage_K, nominal_line_rad_s)    # as the daemon tracks it
+    omega = omega if np.isfinite(omega) else nominal_line_rad_s
     result["ptc_line_rad_s"] = omega
     result["ptc_line_amplitude_K"] = fit_line(time_s, flange_K, omega).amplitude[0]
     regulated = np.isfinite(setpoint_K)

@@ -57,6 +57,8 @@ class Command:
     on_answer: Callable[[], None] | None = field(default=None, repr=False, compare=False)
     #: Who asked: ``uid 1000 (alice), pid 4242`` for the control socket, ``SIGHUP`` for a reload signal.
     sender: str = ""
+    #: More of the answer, as keys of the control socket's reply (``alarms`` for ``cryod ctl alarms``).
+    reply: dict | None = None
 
     def answer(self, ok: bool, message: str) -> None:
         self.ok, self.message = ok, message
@@ -166,6 +168,18 @@ def _choice(*choices: str) -> Callable[[str], str]:
     return parse
 
 
+def _alarm_request(text: str) -> tuple[str, str]:
+    """``ack NAME`` or ``ack all``: ("ack", NAME)."""
+    from cryod.alarms.settings import ALARM_NAMES
+
+    words = text.split()
+    if words[0] != "ack":
+        raise ValueError("not 'ack NAME' or 'ack all'")
+    if words[1] not in (*ALARM_NAMES, "all"):
+        raise ValueError(f"names no alarm: give one of {', '.join(ALARM_NAMES)}, or all")
+    return "ack", words[1]
+
+
 def _reload(loop: "ControlLoop", value) -> str:
     if value is None:          # the socket's "reload": the daemon reads the file and hands the result here
         raise CommandRefused("reload needs the configuration the daemon has read and checked; "
@@ -185,12 +199,17 @@ class CommandSpec:
     help : str
     apply : callable or None
         ``apply(loop, value) -> message``, run on the loop thread; raises
-        :class:`CommandRefused`. None: answered by the socket itself (``status``).
+        :class:`CommandRefused`. None: answered by the socket itself (``status``) or the daemon
+        (``alarms``: :class:`cryod.service.alarms.AlarmMonitor`).
     from_socket : bool
         Offered on the control socket (``modulate`` is for ``cryod identify --acquire`` only).
     parse : callable
         Argument text to value (ValueError when malformed); numbers follow the command line's
         rule, :func:`cryod.argument_types.plain_decimal`.
+    word_counts : tuple of int, optional
+        How many words the argument may have (given, it takes the words joined by a space;
+        0 among them: the argument may be left out, and the value is None). Default: one
+        word when there is an argument, none otherwise.
     rest_of_line : bool
         The argument is the rest of the line, spaces included (a note's text).
     """
@@ -201,7 +220,13 @@ class CommandSpec:
     apply: Callable[["ControlLoop", object], str] | None
     from_socket: bool = True
     parse: Callable[[str], object] = plain_decimal
+    word_counts: tuple[int, ...] | None = None
     rest_of_line: bool = False
+
+    @property
+    def counts(self) -> tuple[int, ...]:
+        """How many words the argument may have."""
+        return self.word_counts if self.word_counts is not None else ((1,) if self.argument else (0,))
 
     @property
     def usage(self) -> str:
@@ -218,6 +243,9 @@ COMMANDS: dict[str, CommandSpec] = {spec.name: spec for spec in (
     CommandSpec("manual", "W", "open loop at W (at most R * I_max^2)", _manual),
     CommandSpec("feedforward", "on|off|status", "switch the feedforward locked to the cooler (fades in or out), "
                 "or show its state", _feedforward, parse=_choice("on", "off", "status")),
+    CommandSpec("alarms", "[ack NAME|all]", "the alarms that are on and what stands; ack NAME (or all) acknowledges: "
+                "a latched alarm clears, a raised one clears when its condition is over", None,
+                parse=_alarm_request, word_counts=(0, 2)),
     CommandSpec("reload", None, "read the configuration file again and apply it if it is valid and needs no "
                 "restart (as systemctl reload)", _reload),
     CommandSpec("note", "TEXT", "write TEXT into the record being written (# event: note: TEXT, with who sent it) "
@@ -259,15 +287,16 @@ def parse_command(line: str) -> Command:
     arguments = words[1:]
     if spec.rest_of_line and arguments:
         arguments = [_WORD_SEPARATORS.split(line.strip(" \t\n\r\v\f"), maxsplit=1)[1]]
-    count = 1 if spec.argument else 0
-    if len(arguments) != count:
-        raise ValueError(f"'{spec.name}' takes {count} argument(s): {spec.usage}")
-    if not count:
+    if len(arguments) not in spec.counts:
+        counts = " or ".join(str(count) for count in spec.counts)
+        raise ValueError(f"'{spec.name}' takes {counts} argument(s): {spec.usage}")
+    if not arguments:
         return Command(spec.name)
+    text = " ".join(arguments)
     try:
-        value = spec.parse(arguments[0])
+        value = spec.parse(text)
     except ValueError as error:
-        raise ValueError(f"'{spec.name}' argument {spec.argument}: {shown(arguments[0])} is {error}; "
+        raise ValueError(f"'{spec.name}' argument {spec.argument}: {shown(text)} is {error}; "
                          f"usage: {spec.usage}") from None
     return Command(spec.name, value)
 

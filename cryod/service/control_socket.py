@@ -121,7 +121,7 @@ class ControlSocketServer:
         if command.name == "status":
             return {"ok": True, "message": "status", "status": self.status()}
         answered = wait_for(self.submit(command), self.reply_timeout_s)
-        return {"ok": answered.ok, "message": answered.message, "status": self.status()}
+        return reply_to(answered, self.status())
 
     async def _reply_to_line(self, raw: bytes, sender: str = "") -> dict:
         if len(raw) > MAX_LINE:
@@ -136,7 +136,7 @@ class ControlSocketServer:
             return {"ok": True, "message": "status", "status": self.status()}
         command.sender = sender
         answered = await loop_answer(command, self.submit, self.reply_timeout_s)
-        return {"ok": answered.ok, "message": answered.message, "status": self.status()}
+        return reply_to(answered, self.status())
 
     @property
     def clients(self) -> int:
@@ -261,6 +261,11 @@ def peer(writer: asyncio.StreamWriter) -> str:
     except KeyError:
         name = "no user name"
     return f"uid {uid} ({name}), pid {pid}"
+
+
+def reply_to(command: Command, status: dict) -> dict:
+    """The reply line's object for an answered command: ``ok``, ``message``, what else it answers, ``status``."""
+    return {"ok": command.ok, "message": command.message, **(command.reply or {}), "status": status}
 
 
 def finite_or_none(value):

@@ -38,6 +38,8 @@ from cryod.control.setpoint_reach import controller_model
 from cryod.instrument_waits import InstrumentWaits
 from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
+from cryod.service.alarm_hook import AlarmHookRunner
+from cryod.service.alarms import AlarmMonitor
 from cryod.service.commands import Command, wait_for
 from cryod.service.faults import ExitCode, Fault, FaultCause
 from cryod.service.heater_guard import HeaterGuard
@@ -154,6 +156,11 @@ class Daemon:
         self.live_view = LiveView(config.loop.period_s, cooler_rad_s(config))
         #: The latest rows and events for the web page's history (a row tap only when the page is on).
         self.recent_rows = RecentRows()
+        #: The alarms (``alarms``): the last row tap; their hook's thread.
+        self.alarm_hook = AlarmHookRunner(clock, config.metrics.cryostat, config.alarms.hook)
+        self.alarms = AlarmMonitor(config.alarms, config.heater.max_power_w, cooler_rad_s(config),
+                                   config.loop.period_s, self.alarm_hook)
+        self.live_view.attach_alarms(self.alarms.raised_names)
         self._instrument_status: tuple[object, dict] = (None, {})
         self._lakeshore_setup: tuple[object, Lakeshore336Setup | None] = (None, None)
         #: The web page and Lake Shore 336 interfaces serving now (their ports, for tests and tools).
@@ -305,6 +312,7 @@ class Daemon:
                 command = wait_for(self.loop.submit(Command("reload", new, sender=sender)), 10.0)
         if command.ok:
             self.config = new
+            self.alarms.reconfigure(new.alarms)
             log.info("%s (by %s)", command.message, sender)
         else:
             log.error("%s (by %s)", command.message, sender)
@@ -328,6 +336,8 @@ class Daemon:
             self._socket_reloads.append(command)
             self._service_wake.set()
             return command
+        if command.name == "alarms":
+            return self.alarms.submit(command)
         if self.loop is None:
             command.answer(False, f"not running yet: {self._waiting}; commands are taken once the loop runs")
             return command
@@ -347,6 +357,7 @@ class Daemon:
         # figures over the recent past, computed on this (the socket's) thread
         status["T2_average_K"] = self.live_view.flange_average_K()
         status["line_amplitude_K"] = self.live_view.line_amplitude_K()
+        status["alarms"] = self.alarms.raised()
         return status
 
     def _status_for_instruments(self) -> dict:
@@ -446,7 +457,8 @@ class Daemon:
             if config.metrics.address is not None:
                 from cryod.service.metrics_export import MetricsEndpoint
 
-                metrics = MetricsEndpoint(self.live_view, config.metrics.address, config.metrics.cryostat)
+                metrics = MetricsEndpoint(self.live_view, config.metrics.address, config.metrics.cryostat,
+                                          alarms=self.alarms.states)
                 try:
                     metrics.start()
                 except OSError as error:      # monitoring is not worth a cryostat: say so and regulate
@@ -456,6 +468,7 @@ class Daemon:
                     log.info("Prometheus metrics on http://%s:%d/metrics", metrics.host, metrics.port)
             interfaces = self.network_interfaces = self._start_network_interfaces(config)
             service.start()
+            self.alarm_hook.start()
             self.notifier.ready("started: opening the instruments")
             opened = self._open_instruments_waiting(config) if self.datalog.failure is None \
                 else self._data_log_stop()
@@ -467,8 +480,10 @@ class Daemon:
                 taps = [self.datalog.put, self.live_view, *self.row_taps]
                 if config.web is not None:
                     taps.append(self.recent_rows)
+                emit = _fan_out([*taps, self.alarms])      # the alarms last: their events follow the row
+                self.alarms.attach(emit)
                 self.loop = ControlLoop(config, instruments, flange_curve, stage_curve, self.clock,
-                                        emit=_fan_out(taps), watchdog=self.notifier.watchdog)
+                                        emit=emit, watchdog=self.notifier.watchdog)
                 self.live_view.attach_timing(self.loop.timing.summary)
                 if self._stop_reason:
                     self.loop.request_stop(self._stop_reason, *self._stop_as)
@@ -510,6 +525,7 @@ class Daemon:
                 metrics.stop()
             for interface in interfaces:
                 interface.stop()
+            self.alarm_hook.stop()
             if self.datalog is not None:
                 self.datalog.stop()
             if signals is not None:

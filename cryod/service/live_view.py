@@ -60,6 +60,7 @@ class LiveView:
         self.period_s = float(period_s)
         self.line_rad_s = float(line_rad_s)
         self._timing = timing
+        self._alarms = None
         size = max(int(LINE_WINDOW_S / self.period_s), 16)
         self._times = np.full(size, np.nan)
         self._flange = np.full(size, np.nan)
@@ -74,6 +75,10 @@ class LiveView:
     def attach_timing(self, timing) -> None:
         """Give the loop's timing summary (a callable returning a dict)."""
         self._timing = timing
+
+    def attach_alarms(self, raised) -> None:
+        """Give the alarms raised now (a callable returning their names), for the snapshot's ``alarms``."""
+        self._alarms = raised
 
     # -- the tap (loop thread) ------------------------------------------------------
     def __call__(self, item: Row | Event) -> None:
@@ -138,8 +143,13 @@ class LiveView:
         ``line_amplitude_K``, ``lateness_ms``, ``faults`` (count by cause), ``last_fault``,
         ``ticks``, ``overruns``, ``T2_ohm``, ``T5_ohm`` (the thermometers' resistances), ``pi_W``
         (PI's part of the heater power), ``ff_W`` (the feedforward's), ``line_limit_K`` (the least line
-        any heater waveform can leave at this setpoint).
+        any heater waveform can leave at this setpoint), ``alarms`` (the names of the alarms raised or latched).
         """
+        snapshot = self._figures()
+        snapshot["alarms"] = self._alarms() if self._alarms is not None else []
+        return snapshot
+
+    def _figures(self) -> dict:
         row = self._row
         nan = math.nan
         if row is None:

@@ -122,6 +122,9 @@ class Status:
     last_target_K: float | None = None
     loop_timing: object = None      # LoopTiming, summarised when asked, not every tick
     control: dict | None = None     # the control terms' columns of the last tick
+    #: The zone in use (counted from 1) and its upper temperature (K); None without ``control.zones``.
+    zone: int | None = None
+    zone_upper_K: float | None = None
 
     @property
     def timing(self) -> dict:
@@ -133,6 +136,7 @@ class Status:
             "heater_W": self.heater_w, "setpoint_K": self.setpoint_K, "target_K": self.target_K,
             "ramp_K_per_min": self.ramp_K_per_min, "last_target_K": self.last_target_K,
             "last_fault": self.last_fault, **(self.control or {}),
+            **({"zone": self.zone, "zone_upper_K": self.zone_upper_K} if self.zone is not None else {}),
             **self.timing,
         }
 
@@ -140,7 +144,8 @@ class Status:
         """Short text for systemd STATUS=."""
         setpoint = f"{self.setpoint_K:.4f} K" if self.setpoint_K is not None else "none"
         heater = f"{self.heater_w * 1e3:.2f} mW" if math.isfinite(self.heater_w) else "UNKNOWN"
-        text = (f"{self.state}: T2 {self.flange_K:.5f} K, setpoint {setpoint}, heater {heater}, "
+        zone = f" (zone {self.zone})" if self.zone is not None else ""
+        text = (f"{self.state}: T2 {self.flange_K:.5f} K, setpoint {setpoint}{zone}, heater {heater}, "
                 f"overruns {self.timing.get('overruns', 0)}")
         if self.last_fault:
             text += f"; last fault: {self.last_fault}"
@@ -397,6 +402,8 @@ class ControlLoop:
 
     def _finish_row(self, row: Row) -> None:
         row.cycle_ms = (self.clock.now() - self._tick_start_s) * 1e3
+        for message in self.regulator.zone_events():     # before the first row the zone's settings made
+            self._event("zone", message)
         self._emit_row(row)
         closed = self.state is LoopState.CLOSED
         ramp = self.regulator.ramp
@@ -406,20 +413,26 @@ class ControlLoop:
         # one tuple per tick, assigned at once: readers in other threads see a consistent snapshot
         self._latest = (row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
                         ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
-                        ramp.rate_K_per_min, self.last_fault, row.control, _given(ramp.target_K))
+                        ramp.rate_K_per_min, self.last_fault, row.control, _given(ramp.target_K), self._zone())
         self._status = None
+
+    def _zone(self) -> tuple[int, float] | None:
+        """(the zone in use counted from 1, its upper temperature in K), None without zones."""
+        zone = self.regulator.zone
+        return None if zone is None else (self.regulator.zone_index + 1, zone.upper_K)
 
     @property
     def status(self) -> Status:
         """The loop as of its last tick (built when asked, from the tick's snapshot)."""
         status = self._status
         if status is None:
-            time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control, last_target_K = \
-                self._latest
+            (time_s, state, flange_K, stage_K, heater_w, setpoint_K, target_K, rate, fault, control, last_target_K,
+             zone) = self._latest
             status = Status(time_s=time_s, state=state, flange_K=flange_K, ptc_stage_K=stage_K, heater_w=heater_w,
                             setpoint_K=setpoint_K, target_K=target_K, ramp_K_per_min=rate,
                             last_fault=str(fault) if fault else None, loop_timing=self.timing, control=control,
-                            last_target_K=last_target_K)
+                            last_target_K=last_target_K, zone=zone[0] if zone else None,
+                            zone_upper_K=zone[1] if zone else None)
             self._status = status
         return status
 
@@ -429,7 +442,7 @@ class ControlLoop:
         self._latest = (status.time_s, status.state, status.flange_K, status.ptc_stage_K, status.heater_w,
                         status.setpoint_K, status.target_K, status.ramp_K_per_min, self.last_fault, status.control,
                         status.last_target_K if status.last_target_K is not None
-                        else _given(self.regulator.ramp.target_K))
+                        else _given(self.regulator.ramp.target_K), self._zone())
 
     # -- start-up and recovery ----------------------------------------------------
     def _count_valid(self, in_range: bool, reading: PairReading, row: Row) -> None:

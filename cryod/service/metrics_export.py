@@ -24,6 +24,7 @@ once the one that has waited longest without sending it is closed to make room
     cryod_loop_ticks_total, cryod_loop_overruns_total
     cryod_faults_total{cause}              faults since start, by cause
     cryod_state{state}                     1 for the loop's state, 0 for the others
+    cryod_alarm{name}                      1 for each alarm raised or latched, 0 for the others that are on
     cryod_info{version, cryostat}          1, with the version and the configured cryostat name
 
 Examples
@@ -79,11 +80,15 @@ class CryodCollector:
     view : LiveView
     cryostat : str
         The name the lab gives this cryostat (the ``cryostat`` label of ``cryod_info``).
+    alarms : callable, optional
+        Returns ``{name: 1.0 or 0.0}`` for each alarm that is on
+        (:meth:`cryod.service.alarms.AlarmMonitor.states`).
     """
 
-    def __init__(self, view: LiveView, cryostat: str = ""):
+    def __init__(self, view: LiveView, cryostat: str = "", alarms=None):
         self.view = view
         self.cryostat = cryostat
+        self.alarms = alarms
 
     def collect(self):
         snapshot = self.view.snapshot()
@@ -120,6 +125,11 @@ class CryodCollector:
         for name in STATES + ((current,) if current not in STATES else ()):
             state.add_metric([name], 1.0 if name == current else 0.0)
         yield state
+        if self.alarms is not None:
+            alarms = GaugeMetricFamily("cryod_alarm", "1 while the alarm is raised or latched", labels=["name"])
+            for name, value in self.alarms().items():
+                alarms.add_metric([name], value)
+            yield alarms
 
 
 class MetricsEndpoint:
@@ -132,6 +142,8 @@ class MetricsEndpoint:
         ``host:port`` to listen on (port 0: any free port; see :attr:`port`).
     cryostat : str
         Label of ``cryod_info``.
+    alarms : callable, optional
+        The alarms' states for ``cryod_alarm`` (:class:`CryodCollector`).
     max_connections : int, optional
         Connections open at once (default :data:`MAX_CONNECTIONS`).
     request_timeout_s : float, optional
@@ -139,11 +151,11 @@ class MetricsEndpoint:
     """
 
     def __init__(self, view: LiveView, address: str, cryostat: str = "", max_connections: int = MAX_CONNECTIONS,
-                 request_timeout_s: float = REQUEST_TIMEOUT_S):
+                 request_timeout_s: float = REQUEST_TIMEOUT_S, alarms=None):
         self.host, self.port = metrics_address(address) if not str(address).endswith(":0") \
             else (str(address).rpartition(":")[0], 0)
         self.registry = CollectorRegistry(auto_describe=False)
-        self.registry.register(CryodCollector(view, cryostat))
+        self.registry.register(CryodCollector(view, cryostat, alarms))
         self.request_timeout_s = request_timeout_s
         #: The connections open now, the most at once, those closed to make room.
         self.connections = ConnectionBook(max_connections)

@@ -42,9 +42,10 @@ from cryod.service.discovery import simulation_socket
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
 from cryod.control.feedforward_limit import FeedforwardLimitError, feedforward_limit, limit_changes
+from cryod.control.limit_binding import limit_binding
 from cryod.records.columns import Event, Row
 from cryod.records.metrics import regulation_metrics
-from cryod.model import DEFAULT_MODEL_PATH, load_model
+from cryod.model import DEFAULT_MODEL_PATH, linearised_at, load_model
 from cryod.service.control_socket import finite_or_none
 from cryod.service.logs import ServiceLogging
 from cryod.service.readable import readable, rounded
@@ -427,22 +428,27 @@ def _cpu_seconds() -> float:
 
 
 def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None) -> dict:
-    """The physical limit of the feedforward on the simulated cryostat (its model, not the controller's)
-    at the run's last setpoint, with the heater set as late after T2's reading as the loop set it."""
+    """The physical limit of the feedforward on the simulated cryostat (its model, not the controller's;
+    a temperature-dependent one linearised about the setpoint) at the run's last setpoint, with the heater
+    set as late after T2's reading as the loop set it."""
     term = loop.regulator.term("feedforward") if loop is not None else None
     delay = term.setting_delay_s if term is not None else 0.0
     empty = {"ptc_periodic_limit_K": None, "feedforward_authority": None, "feedforward_limited_by": None,
-             "feedforward_limit_changes": []}
+             "feedforward_limit_bound": None, "feedforward_limit_explained": None, "feedforward_limit_changes": []}
     if setpoint_K is None:
         return empty
     try:
+        if model.temperature_dependence is not None:     # the cryostat's linear model about the setpoint
+            model = linearised_at(model, setpoint_K)
         limit = feedforward_limit(model, setpoint_K, config.heater.resistance_ohm, config.heater.max_current_A,
                                   config.loop.period_s, heater_delay_s=delay, certify=False)
-    except FeedforwardLimitError:
+    except (FeedforwardLimitError, ValueError):
         return empty
     changes = limit_changes(model, setpoint_K, limit.max_heater_power_W, config.loop.period_s, heater_delay_s=delay)
+    binding = limit_binding(limit, changes)
     return {"ptc_periodic_limit_K": limit.ptc_periodic_limit_K, "feedforward_authority": round(limit.authority, 4),
-            "feedforward_limited_by": limit.limited_by,
+            "feedforward_limited_by": limit.limited_by, "feedforward_limit_bound": binding.bound,
+            "feedforward_limit_explained": binding.explanation,
             "feedforward_limit_changes": [change.to_dict() for change in changes]}
 
 
@@ -490,6 +496,7 @@ def summarize(result, collector: WindowCollector, line_rad_s: float, cpu_s: floa
         "lowfreq_rms_K": metrics["lowfreq_rms_K"],
         "setpoint_K": float(setpoint[-1]) if setpoint.size and np.isfinite(setpoint[-1]) else None,
         "state": loop.status.state if loop else None,
+        "zone": loop.status.zone if loop else None,
         "last_fault": str(loop.last_fault) if loop and loop.last_fault else None,
         "setpoint_warning": loop.setpoint_warning if loop else None,
         "exit_code": result.exit_code,

@@ -1,7 +1,7 @@
 """A live status line on the terminal while the daemon runs.
 
 One line, redrawn twice a second by tqdm on its own thread: state, T2 and its
-error, T5, heater power, the cooler line's amplitude on T2, faults; for a run
+error, T5, heater power, the cooler line's amplitude on T2, faults, alarms raised; for a run
 of known length (``--duration``) a progress bar with the simulated time done
 and the time left. It is on only when the stream is a terminal: under systemd,
 in a pipe or a file, nothing is written.
@@ -72,6 +72,8 @@ def format_status(snapshot: dict) -> str:
     faults = sum(snapshot.get("faults", {}).values())
     if faults:
         parts.append(f"faults {faults} (last: {snapshot.get('last_fault')})")
+    if snapshot.get("alarms"):
+        parts.append(f"ALARM {', '.join(snapshot['alarms'])} (cryod ctl alarms)")
     return " | ".join(parts)
 
 

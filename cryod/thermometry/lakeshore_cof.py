@@ -1,8 +1,7 @@
 """Reading Lake Shore Chebyshev coefficient files (``.cof``).
 
 Layout (Lake Shore, "Model 8000 option: disk storage of sensor calibration
-data, file description", the coefficient file; the calibration README in
-``/work/shared/calibration`` describes the same)::
+data, file description", the coefficient file)::
 
     Number of fit ranges: 2
     FIT RANGE: 1

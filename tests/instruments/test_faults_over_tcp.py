@@ -1,4 +1,4 @@
-"""Issue 3, section 6, over TCP through pyvisa-py: each DMM fault gives its typed error.
+"""DMM faults over TCP through pyvisa-py: each fault gives its typed error (docs/instruments.md).
 
 The heater supplies' faults run both ways in test_heater_supplies.py.
 """

@@ -1,4 +1,4 @@
-"""Heater supply drivers against the simulated 6221 and 2400 (issue 3, sections 2, 5, 6), in process and over TCP."""
+"""Heater supply drivers against the simulated 6221 and 2400, in process and over TCP."""
 
 import contextlib
 import math

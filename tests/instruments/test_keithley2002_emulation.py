@@ -1,4 +1,4 @@
-"""The Keithley 2002 driver against the simulated 2002 (issue 3, sections 1 and 5), in process."""
+"""The Keithley 2002 driver against the simulated 2002, in process."""
 
 import pytest
 

@@ -1,4 +1,4 @@
-"""Issue 3, section 7: every driver method against its exact (command, reply) exchange."""
+"""Every driver method against its exact (command, reply) exchange."""
 
 import math
 

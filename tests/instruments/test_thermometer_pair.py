@@ -1,4 +1,4 @@
-"""Both thermometers triggered together (issue 3, section 1), every trigger strategy."""
+"""Both thermometers triggered together, every trigger strategy."""
 
 import pytest
 

@@ -1,4 +1,4 @@
-"""Transports (issue 3, section 3): in process, TCP sockets through pyvisa-py, a Prologix controller."""
+"""Transports: in process, TCP sockets through pyvisa-py, a Prologix controller."""
 
 import time
 
@@ -206,8 +206,8 @@ def test_prologix_gpib_usb_path_through_pyserial(real_time_bench):
 
 
 def test_a_reply_that_comes_after_its_timeout_is_not_taken_for_the_next_one():
-    """Before: the late '0,"No error"' of a timed-out query was read as the answer to the next query
-    (a heater-off's output state), and the daemon ended with the heater state UNKNOWN."""
+    """The late '0,"No error"' of a timed-out query must not be read as the answer to the next query (a
+    heater-off's output state), which would end the daemon with the heater state UNKNOWN."""
     import socket as socket_module
     import threading
     import time as time_module

@@ -63,8 +63,20 @@ function renderStatus(status) {
   const alarms = document.getElementById("alarms");
   const raised = Array.isArray(status.alarms) ? status.alarms : [];
   alarms.hidden = raised.length === 0;
-  alarms.replaceChildren(...raised.map((alarm) => listItem(typeof alarm === "string" ? alarm : JSON.stringify(alarm))));
+  alarms.replaceChildren(...raised.map((alarm) => {
+    const item = listItem(alarmText(alarm));
+    if (alarm.name) item.dataset.alarm = alarm.name;
+    return item;
+  }));
   if (status.record_path !== undefined) show("record_path", status.record_path);
+}
+
+// An alarm of the status (cryod ctl status): its name, raised or latched, acknowledged or not, and its figure
+// when it was raised.
+function alarmText(alarm) {
+  if (typeof alarm === "string") return alarm;
+  const acknowledged = alarm.acknowledged ? ", acknowledged" : "";
+  return `${alarm.name} ${alarm.state}${acknowledged}: ${alarm.raised_message || alarm.message}`;
 }
 
 function listItem(text) {

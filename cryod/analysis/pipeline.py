@@ -536,10 +536,13 @@ class CauseSearch:
         """Name ``choice`` (a refined candidate's score) first, then causes on top of it while one counts and
         removes at least 70 % of what is left (``most`` causes in all). A further cause that leaves a discrepancy
         must also add significantly to the generic extension on the model without it: a leftover of the causes
-        named (a drift's spline that is a little too stiff) is not taken for another cause."""
+        named (a drift's spline that is a little too stiff) is not taken for another cause. Every cause of the
+        search is tried on top of those named, also one that made the first round worse: with a much larger effect
+        unnamed, a small one's fit takes that effect's misfit (a thermometer's lag of 60 ms beside a heat capacity
+        that removes 99.8 %), and only once the larger one is named does it fit what it stands for."""
         context = self.analysis.context
         path = _Path([], context, recalibrated_base, [], context.recalibrated, [])
-        remaining = improving_causes(self.analysis.scores) if self.analysis.scores else list(self.causes)
+        remaining = list(self.causes)
         if choice.cause not in remaining:
             remaining.append(choice.cause)
         best = choice
@@ -674,10 +677,9 @@ class CauseSearch:
 
 
 def improving_causes(scores: dict) -> list[str]:
-    """The causes whose first fit improved the held-out residual at all: the only ones tried again on top of a
-    cause named, and on a base model widened beyond the recalibration. A cause the record holds improves it from
-    the first round on, whatever else the record holds; one that makes it worse only fits the fit blocks' noise
-    or another effect's misfit."""
+    """The causes whose first fit improved the held-out residual at all: the only ones tried on a base model
+    widened beyond the recalibration (one cause at most, on top of a change of the base model that stands for the
+    record's largest misfit); one that makes the first round worse fits the fit blocks' noise or that misfit."""
     return [cause for cause, score in scores.items() if score.improvement > 0.0]
 
 

@@ -9,6 +9,7 @@ import os
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -206,3 +207,23 @@ def test_a_disk_filled_by_another_program_still_takes_the_last_rows_and_the_stop
         if datalog is not None:
             datalog.stop()
         subprocess.run(["umount", "--lazy", str(disk)], check=False)
+
+
+def test_a_record_deleted_between_the_look_at_the_file_and_the_look_at_its_path_is_called_deleted(tmp_path,
+                                                                                                 monkeypatch):
+    """The open file is looked at first, then its path: a deletion that falls between the two is still a
+    deletion (the open file says so), not a move."""
+    from types import SimpleNamespace
+
+    from cryod.records import record_file as module
+    path = tmp_path / "cryod-2026-11-25.csv"
+    record = module.RecordFile(path)
+    record.write(b"# cryod-log v1\n")
+
+    def deleted_meanwhile(looked_at):     # the record's own file, and nothing else, goes just before the look
+        if Path(looked_at) == path:
+            path.unlink()
+        return os.stat(looked_at)
+
+    monkeypatch.setattr(module, "os", SimpleNamespace(fstat=os.fstat, stat=deleted_meanwhile))
+    assert record.check(at_path=True) == "deleted"

@@ -167,8 +167,8 @@ class RecordFile:
         if at_path:
             try:
                 here = os.stat(self.path)
-            except FileNotFoundError:
-                return "moved away from its path"
+            except FileNotFoundError:           # deleted between the two looks, or renamed: the open file tells
+                return "deleted" if os.fstat(self._descriptor).st_nlink == 0 else "moved away from its path"
             if (here.st_dev, here.st_ino) != self._identity:
                 return "replaced by another file at its path"
         return None

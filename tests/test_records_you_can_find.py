@@ -16,7 +16,11 @@ from tests.test_python_api import ScriptedDaemon, running_dry_run  # noqa: F401 
 
 
 def _closed(flange):
-    while flange.status()["state"] != "closed":
+    """Wait until the loop regulates and its record is open (the data log's thread opens the file at the first
+    row it writes, a moment after the loop's first tick: until then ``record_path`` is null)."""
+    deadline = time.monotonic() + 60.0
+    while flange.status()["state"] != "closed" or flange.record_path() is None:
+        assert time.monotonic() < deadline, "the dry run did not start regulating into a record within 60 s"
         time.sleep(0.05)
 
 

@@ -23,7 +23,7 @@ import sys
 import textwrap
 from pathlib import Path
 
-from cryod.cli.lab_inputs import InputsNotUsable, lab_inputs
+from cryod.cli.lab_inputs import InputsNotUsable, add_heater_arguments, lab_inputs
 from cryod.argument_types import not_negative, number, positive, setpoint_list
 
 from cryod.config import EXAMPLE_CONFIG_PATH
@@ -51,10 +51,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
         "limit. Defaults: the example configuration's heater, setpoint and loop period, and the shipped model.")
     parser.add_argument("--setpoint", type=number, default=None, metavar="K",
                         help="flange setpoint in K (default: the configuration's)")
-    parser.add_argument("--heater-ohm", type=positive, default=None, metavar="R",
-                        help="heater resistance in ohm (default: the configuration's)")
-    parser.add_argument("--max-current", type=positive, default=None, metavar="A",
-                        help="heater current limit in A (default: the configuration's)")
+    add_heater_arguments(parser)
     parser.add_argument("--model", default=str(DEFAULT_MODEL_PATH), metavar="M",
                         help="cryostat model file (default: the shipped model)")
     parser.add_argument("--period", type=positive, default=None, metavar="S",

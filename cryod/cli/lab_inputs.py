@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 
+from cryod.argument_types import positive
 from cryod.config import DaemonConfig, load_config
 from cryod.model import CryostatModel, load_model
 from cryod.yaml_source import FileFormatError
@@ -33,6 +34,14 @@ class LabInputs:
     def heater_max_w(self) -> float:
         """R·I_max², the most the heater can give (W)."""
         return self.heater_ohm * self.max_current_A ** 2
+
+
+def add_heater_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--heater-ohm`` and ``--max-current``, which :func:`lab_inputs` takes over the configuration's heater."""
+    parser.add_argument("--heater-ohm", type=positive, default=None, metavar="R",
+                        help="heater resistance in ohm (default: the configuration's)")
+    parser.add_argument("--max-current", type=positive, default=None, metavar="A",
+                        help="heater current limit in A (default: the configuration's)")
 
 
 def lab_inputs(args: argparse.Namespace) -> LabInputs:

@@ -23,7 +23,7 @@ import os
 import sys
 from pathlib import Path
 
-from cryod.cli.lab_inputs import InputsNotUsable, lab_inputs
+from cryod.cli.lab_inputs import InputsNotUsable, add_heater_arguments, lab_inputs
 from cryod.argument_types import not_negative, number, positive
 from cryod.config import EXAMPLE_CONFIG_PATH
 from cryod.control.pi import PiGains
@@ -49,10 +49,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     parser.add_argument("--from-power", type=not_negative, default=0.0, metavar="W",
                         help="heater power the cryostat has settled at before the step (default 0: the model's "
                              "operating point)")
-    parser.add_argument("--heater-ohm", type=positive, default=None, metavar="R",
-                        help="heater resistance in ohm (default: the configuration's)")
-    parser.add_argument("--max-current", type=positive, default=None, metavar="A",
-                        help="heater current limit in A (default: the configuration's)")
+    add_heater_arguments(parser)
     parser.add_argument("--duration", type=positive, default=None, metavar="S",
                         help="length of each step in s (default 900; with --zones the ramp's time plus two of "
                              "the zone model's longest time constants, at least 900; the last 200 s judge the "

@@ -1,12 +1,18 @@
-"""Shared fixtures: the shipped and printed models, and a sine fitter."""
+"""Shared fixtures: the shipped and printed models, a private runtime folder, a dry run to talk to, a headless browser."""
 
+import os
+import subprocess
+import sys
 import tempfile
+import time
+import types
 from pathlib import Path
 
 import pytest
 
 from cryod.cli import use_one_blas_thread
 from cryod.model import load_model
+from tests.headless_browser import headless_chromium
 
 use_one_blas_thread()          # as the command line does for the daemon and the model tools
 
@@ -36,7 +42,42 @@ def runtime_dir():
         yield Path(folder)
 
 
+@pytest.fixture
+def running_dry_run(tmp_path, monkeypatch, runtime_dir):
+    """``cryod simulate --speed max`` in its own process, found by the client without a path."""
+    runtime = runtime_dir
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
+    monkeypatch.setattr("cryod.service.discovery.SERVICE_CONFIG", tmp_path / "no-service.yaml")
+    env = dict(os.environ, PYTHONPATH=str(REPOSITORY), XDG_RUNTIME_DIR=str(runtime))
+    # virtual time, as fast as the CPU allows (several hundred times real time): deterministic regulation on a
+    # loaded test machine; the client measures the hold on the daemon's clock, as it should
+    config = tmp_path / "cryod.yaml"
+    config.write_text((CONFIG / "cryod.yaml").read_text()
+                      # the gains `cryod tune --setpoint 5` suggests for this heater (docs/control.md)
+                      .replace("proportional_W_per_K: 10.0", "proportional_W_per_K: 12.6")
+                      .replace("integral_W_per_K_s: 0.2 ", "integral_W_per_K_s: 4.13 ")
+                      .replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/"))
+    process = subprocess.Popen([sys.executable, "-m", "cryod.cli", "simulate", "--config", str(config), "--speed",
+                                "max", "--duration", "40000", "--data-dir", str(tmp_path / "data")],
+                               env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    socket_path = runtime / "cryod" / "simulate.sock"
+    deadline = time.monotonic() + 60
+    while not socket_path.exists():
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()[1][-2000:]
+        time.sleep(0.05)
+    yield types.SimpleNamespace(socket=socket_path, process=process)
+    process.terminate()
+    process.wait(timeout=30)
+
+
 @pytest.fixture(scope="session")
 def quiet_reference_model(reference_model):
     """Shipped model without the PTC oscillation (for step responses)."""
     return reference_model.with_ptc(ptc_stage_amplitude_K=0.0)
+
+
+@pytest.fixture
+def browser(tmp_path):
+    """A headless chromium driven by selenium (tests/headless_browser.py); the test is skipped without one."""
+    with headless_chromium(tmp_path) as session:
+        yield session

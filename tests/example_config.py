@@ -6,11 +6,13 @@ configuration moved into a test's folder on the in-process simulated bench.
 """
 
 import dataclasses
+import shutil
 
 from cryod.config import load_config
 from tests.conftest import CONFIG
 
 EXAMPLE = (CONFIG / "cryod.yaml").read_text()
+PI_SECTION = "  pi:                             # PI feedback on T2"      # a zone table goes right above it
 
 
 def usable_anywhere(text):
@@ -30,6 +32,19 @@ def written(tmp_path, old, new):
     assert old in EXAMPLE, old
     text = usable_anywhere(EXAMPLE.replace(old, new, 1))
     return config_file(tmp_path, text), text
+
+
+def with_zone_table(tmp_path, table, *replacements):
+    """The example with ``table`` under ``control:`` and each (old, new) of ``replacements`` made, written
+    as tmp_path/cryod.yaml beside a copy of the shipped model (zone-model.yaml): (path, text)."""
+    text = usable_anywhere(EXAMPLE).replace(PI_SECTION, table + PI_SECTION, 1)
+    for old, new in replacements:
+        assert old in text, old
+        text = text.replace(old, new, 1)
+    shutil.copy(CONFIG / "model.yaml", tmp_path / "zone-model.yaml")
+    path = tmp_path / "cryod.yaml"
+    path.write_text(text)
+    return path, text
 
 
 def line_of(text, fragment):

@@ -1,14 +1,41 @@
 """A direct instrument set on the simulated cryostat, for testing the loop's logic without SCPI.
 
 The fault tests through the real drivers and the simulated instruments are in
-test_daemon_faults.py; this double only lets loop tests script faults exactly.
+test_daemon_faults.py; this double only lets loop tests script faults exactly. ``make_loop`` builds
+the daemon's loop on it and a virtual clock, with the example configuration's sensor curves
+(``example_curves``).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
+from cryod.records.columns import Row
+from cryod.service.loop import ControlLoop
+from cryod.thermometry import load_calibration
+from drivers.clock import VirtualClock
 from drivers.thermometer_pair import PairReading
+from simulated_hw.cryostat import SimulatedCryostat
+from tests.conftest import CONFIG
+
+
+@functools.cache
+def example_curves():
+    """The flange's (T2) and the cooler stage's (T5) calibration curves of the example configuration."""
+    return (load_calibration(CONFIG / "calibration" / "X186279.340"),
+            load_calibration(CONFIG / "calibration" / "X207058.340"))
+
+
+def make_loop(reference_model, curves, config, **instrument_options):
+    """The loop on :class:`DirectInstruments` and a virtual clock: (loop, instruments, cryostat, rows, events)."""
+    clock = VirtualClock()
+    cryostat = SimulatedCryostat(reference_model, clock, seed=2)
+    instruments = DirectInstruments(cryostat, *curves, clock, **instrument_options)
+    rows, events = [], []
+    loop = ControlLoop(config, instruments, *curves, clock,
+                       emit=lambda item: (rows if isinstance(item, Row) else events).append(item))
+    return loop, instruments, cryostat, rows, events
 
 
 def tick_rows(rows):

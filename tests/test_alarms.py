@@ -24,7 +24,6 @@ from cryod.service.alarm_hook import AlarmHookRunner, HookSchedule, run_hook
 from drivers.clock import VirtualClock
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG
-from tests.test_web_page import browser  # noqa: F401  (the headless browser fixture)
 
 PERIOD_S = 0.08
 COOLER_RAD_S = 10.83
@@ -456,7 +455,7 @@ def test_an_alarm_in_the_daemon_is_said_everywhere_and_acknowledged_through_ever
 def test_the_web_page_shows_the_alarms_the_status_carries(tmp_path, browser):
     from cryod.config import WebConfig
     from tests.gated_daemon import GatedDaemon
-    from tests.test_web_page import port_of, wait_until
+    from tests.headless_browser import port_of, wait_until
 
     alarms = AlarmsConfig(ptc_stage_warm=PtcStageWarmAlarm(threshold_K=3.0, delay_s=0.0),
                           stability=StabilityAlarm(threshold_K=1e-3))

@@ -18,12 +18,12 @@ from cryod.control.feedforward.bounded_waveform import best_bounded_waveform, wa
 from cryod.control.feedforward import FeedforwardSettings, FeedforwardTerm, SynchronousEstimator
 from cryod.control.feedforward.harmonic_plant import line_at_harmonics, plant_at_harmonics
 from cryod.control.pi import PiGains
-from cryod.control.terms import TickInputs
 from cryod.model import CryostatPlant
 from cryod.model.dynamics import flange_transfer_functions
 from cryod.model.parameters import SensorLag
 from cryod.cooler.periodic import periodic_amplitudes
 from cryod.control.closed_loop import Segment, run_program
+from tests.feedforward_ticks import feed
 
 OMEGA = 10.83
 PERIOD = 0.08
@@ -123,25 +123,6 @@ def test_estimator_separates_the_line_from_the_plant_correction():
 # ---------------------------------------------------------------------------
 # the term on its own: fade, lock loss, switching
 # ---------------------------------------------------------------------------
-def feed(term, seconds, start_s=0.0, cooler=True, flange_K=5.0, plant=None):
-    """Ticks into the term as the regulator would give them, T2 answering what the heater played last tick
-    through ``plant`` (K/W per harmonic; the term's model by default); returns the outputs."""
-    outputs = []
-    answer = np.zeros(term.settings.harmonics, dtype=complex)
-    orders = np.arange(1, term.settings.harmonics + 1)
-    for k in range(int(seconds / PERIOD)):
-        t = start_s + k * PERIOD
-        stage = 3.34 + (0.12 * math.cos(OMEGA * t) if cooler else 0.0)
-        played = float(np.real(np.sum(answer * np.exp(1j * orders * OMEGA * t))))
-        tick = TickInputs.at(t, PERIOD, flange_K + 1.7e-3 * math.cos(OMEGA * t - 1.1) + played, stage, 5.0)
-        tick = term.condition(tick)
-        outputs.append(term.update(tick))
-        term.limit(0.113 + outputs[-1], 0.113 + outputs[-1])
-        response = term.plant if plant is None else plant
-        answer = response * (term.coefficients + term.probe) * (term.scale if outputs[-1] else 0.0)
-    return np.array(outputs)
-
-
 def test_the_waveform_fades_in_and_out_with_the_lock_and_on_command(reference_model):
     term = FeedforwardTerm(FeedforwardSettings(model=reference_model, fade_time_s=5.0), 0.5)
     term.start(None, 0.113)

@@ -27,7 +27,7 @@ from cryod.control.feedforward.plant_learner import MODEL_ERROR, LearnedPlant
 from cryod.control.feedforward.plant_probe import ProbeSettings, ProbeState, next_probe
 from cryod.model.parameters import DeadTime, PtcFrequencyDrift, SensorLag
 from cryod.records.metrics import periodic_amplitudes
-from test_feedforward import feed
+from tests.feedforward_ticks import feed
 
 OMEGA = 10.83
 PERIOD = 0.08

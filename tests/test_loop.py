@@ -12,32 +12,20 @@ from cryod.control.pi import PiGains
 from cryod.records.columns import Row
 from cryod.service.commands import Command
 from cryod.service.loop import HEATER_OFF_ROW_SPACING_S, ControlLoop
-from cryod.thermometry import load_calibration
 from drivers.errors import BadReply, ConnectionLost, HeaterCompliance, InstrumentTimeout, OverflowReading
 from simulated_hw.cryostat import SimulatedCryostat
 from tests.conftest import CONFIG
-from tests.loop_doubles import DirectInstruments, heater_off_rows, tick_rows
+from tests.loop_doubles import DirectInstruments, example_curves, heater_off_rows, make_loop, tick_rows
 
 
 @pytest.fixture(scope="module")
 def curves():
-    return (load_calibration(CONFIG / "calibration" / "X186279.340"),
-            load_calibration(CONFIG / "calibration" / "X207058.340"))
+    return example_curves()
 
 
 @pytest.fixture(scope="module")
 def base_config():
     return load_config(CONFIG / "cryod.yaml")
-
-
-def make_loop(reference_model, curves, config, **instrument_options):
-    clock = VirtualClock()
-    cryostat = SimulatedCryostat(reference_model, clock, seed=2)
-    instruments = DirectInstruments(cryostat, *curves, clock, **instrument_options)
-    rows, events = [], []
-    loop = ControlLoop(config, instruments, *curves, clock,
-                       emit=lambda item: (rows if isinstance(item, Row) else events).append(item))
-    return loop, instruments, cryostat, rows, events
 
 
 def test_regulates_to_setpoint_with_contract_columns(reference_model, curves, base_config):

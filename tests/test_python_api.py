@@ -5,14 +5,13 @@ import os
 import subprocess
 import sys
 import time
-import types
 
 import numpy as np
 import pytest
 
 import cryod
-from tests.conftest import CONFIG, REPOSITORY
 from tests.example_config import line_of
+from tests.scripted_daemon import ScriptedDaemon
 
 
 def test_import_cryod_exposes_the_documented_api_and_stays_light():
@@ -23,34 +22,6 @@ def test_import_cryod_exposes_the_documented_api_and_stays_light():
         assert f"'{name}'" in names
     with pytest.raises(AttributeError, match="no attribute 'regulate'"):
         cryod.regulate
-
-
-@pytest.fixture
-def running_dry_run(tmp_path, monkeypatch, runtime_dir):
-    """``cryod --simulate`` at 50 times real time in its own process, found by the client without a path."""
-    runtime = runtime_dir
-    monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
-    monkeypatch.setattr("cryod.service.discovery.SERVICE_CONFIG", tmp_path / "no-service.yaml")
-    env = dict(os.environ, PYTHONPATH=str(REPOSITORY), XDG_RUNTIME_DIR=str(runtime))
-    # virtual time, as fast as the CPU allows (several hundred times real time): deterministic regulation on a
-    # loaded test machine; the client measures the hold on the daemon's clock, as it should
-    config = tmp_path / "cryod.yaml"
-    config.write_text((CONFIG / "cryod.yaml").read_text()
-                      # the gains `cryod tune --setpoint 5` suggests for this heater (docs/control.md)
-                      .replace("proportional_W_per_K: 10.0", "proportional_W_per_K: 12.6")
-                      .replace("integral_W_per_K_s: 0.2 ", "integral_W_per_K_s: 4.13 ")
-                      .replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/"))
-    process = subprocess.Popen([sys.executable, "-m", "cryod.cli", "simulate", "--config", str(config), "--speed",
-                                "max", "--duration", "40000", "--data-dir", str(tmp_path / "data")],
-                               env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    socket_path = runtime / "cryod" / "simulate.sock"
-    deadline = time.monotonic() + 60
-    while not socket_path.exists():
-        assert process.poll() is None and time.monotonic() < deadline, process.communicate()[1][-2000:]
-        time.sleep(0.05)
-    yield types.SimpleNamespace(socket=socket_path, process=process)
-    process.terminate()
-    process.wait(timeout=30)
 
 
 def test_a_script_steps_the_setpoint_and_waits_until_stable(running_dry_run):
@@ -77,18 +48,6 @@ def test_a_script_steps_the_setpoint_and_waits_until_stable(running_dry_run):
     flange.heater_off()
     with pytest.raises(cryod.NotStable, match="the loop is off"):
         flange.wait_until_stable(timeout_s=60.0, poll_s=0.05)
-
-
-class ScriptedDaemon(cryod.DaemonClient):
-    """A client whose status comes from a list (the daemon's clock in time_s)."""
-
-    def __init__(self, statuses):
-        self.statuses = iter(statuses)
-        self.socket = "scripted"
-        self.timeout_s = 1.0
-
-    def status(self):
-        return next(self.statuses)
 
 
 def test_waiting_asks_the_average_to_stay_within_tolerance_for_the_hold_and_says_how_far_it_got():

@@ -12,7 +12,7 @@ import pytest
 import cryod
 from cryod.service.commands import parse_command
 from tests.conftest import REPOSITORY
-from tests.test_python_api import ScriptedDaemon, running_dry_run  # noqa: F401 - the fixture
+from tests.scripted_daemon import ScriptedDaemon
 
 
 def _closed(flange):

@@ -4,27 +4,7 @@ import numpy as np
 import pytest
 
 from cryod.analysis import paper_table1 as table1
-from cryod.cooler.line_fit import fit_line, wrap_phase
-from cryod.model import simulate
-
-PERIOD = 0.08
-
-
-def step_responses(model, duration_s=2500.0):
-    """Response to the 8.8 mW step: difference of runs with and without it (the PTC line cancels)."""
-    times = np.arange(0.0, duration_s, PERIOD)
-    step = simulate(model, times, np.full(times.size, table1.STEP_POWER_W), initial_heater_power_w=0.0)
-    still = simulate(model, times, np.zeros(times.size))
-    return times, step.flange_K - still.flange_K, step.ptc_stage_K - still.ptc_stage_K
-
-
-def open_loop_line(model):
-    times = np.arange(0.0, 600.0, PERIOD)
-    record = simulate(model, times, np.zeros(times.size))
-    omega = table1.LINE_ANGULAR_FREQUENCY_RAD_S
-    flange = fit_line(times, record.flange_K, omega)
-    stage = fit_line(times, record.ptc_stage_K, omega)
-    return flange.amplitude[0], stage.amplitude[0], wrap_phase(stage.phase_rad[0] - flange.phase_rad[0])
+from tests.table1_experiments import open_loop_line, step_responses
 
 
 @pytest.mark.parametrize("model_name", ["reference_model", "printed_model"])

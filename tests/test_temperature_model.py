@@ -14,7 +14,7 @@ from cryod.model.temperature_plant import flange_temperature_at
 from drivers.clock import VirtualClock
 from cryod.yaml_source import FileFormatError
 from simulated_hw.cryostat import SimulatedCryostat
-from tests.test_reference_model import open_loop_line, step_responses
+from tests.table1_experiments import open_loop_line, step_responses
 
 
 @pytest.fixture(scope="module")

@@ -8,10 +8,7 @@ screenshot is kept under the test's temporary folder (its path is printed).
 
 import http.client
 import json
-import os
-import shutil
 import socket
-import tempfile
 import threading
 import time
 
@@ -21,6 +18,7 @@ from cryod.config import WebConfig
 from cryod.service import web
 from cryod.service.control_socket import send_command
 from tests.gated_daemon import GatedDaemon
+from tests.headless_browser import port_of, wait_until
 
 TOKEN = "f3a9c1d27b4e8a6f0c5d9e2b1a7f4c3d"
 
@@ -32,10 +30,6 @@ def web_daemon(tmp_path, writable=False):
         token_file.write_text(TOKEN + "\n")
         token_file.chmod(0o640)
     return GatedDaemon(tmp_path, sections={"web": WebConfig("127.0.0.1:0", writable, token_file)})
-
-
-def port_of(daemon) -> int:
-    return next(interface.port for interface in daemon.daemon.network_interfaces if "web" in interface.what)
 
 
 def request(daemon, method, path, body=None, headers=None, run_ticks=False):
@@ -165,43 +159,8 @@ def test_open_pages_receive_the_status_at_each_new_tick(tmp_path):
 
 
 # -- a real browser ---------------------------------------------------------------------------------
-def chromium():
-    """(chromium, chromedriver) of this machine, or the reason there are none."""
-    browser = shutil.which("chromium") or shutil.which("chromium-browser")
-    driver = shutil.which("chromedriver")
-    if browser and driver:
-        return browser, driver
-    if os.environ.get("CI") or os.environ.get("CRYOD_REQUIRE_BROWSER"):
-        pytest.fail("the browser test needs Debian's chromium and chromium-driver (.ci/run installs them)")
-    pytest.skip("no chromium and chromedriver on this machine: apt-get install chromium chromium-driver")
-
-
-@pytest.fixture
-def browser(tmp_path):
-    selenium = pytest.importorskip("selenium.webdriver")
-    binary, driver = chromium()
-    options = selenium.ChromeOptions()
-    options.binary_location = binary
-    for argument in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                     "--disable-component-update", "--disable-sync", "--no-first-run", "--window-size=1300,1500",
-                     f"--user-data-dir={tempfile.mkdtemp(dir=tmp_path)}"):
-        options.add_argument(argument)
-    from selenium.webdriver.chrome.service import Service
-
-    session = selenium.Chrome(options=options, service=Service(driver))
-    yield session
-    session.quit()
-
-
 def shown(browser, element_id) -> str:
     return browser.find_element("id", element_id).get_attribute("data-value")
-
-
-def wait_until(condition, what: str, timeout_s: float = 20.0):
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        assert time.monotonic() < deadline, f"the page did not {what} within {timeout_s:g} s"
-        time.sleep(0.05)
 
 
 def test_the_page_in_a_browser_shows_ctl_status_and_follows_the_loop(tmp_path, browser):

@@ -19,7 +19,7 @@ from cryod.identification.experiment import ExperimentPlan, ExperimentRunner
 from cryod.identification.setpoint_series import part_about_setpoint, plans_at
 from cryod.model import TEMPERATURE_MODEL_PATH, linearised_at, load_model, save_model, steady_state
 from tests.conftest import CONFIG
-from tests.test_zones import PI_SECTION, configured
+from tests.example_config import PI_SECTION, with_zone_table
 
 
 def test_zone_boundaries_lie_half_way_and_the_last_covers_the_setpoints_allowed():
@@ -36,10 +36,10 @@ def test_a_written_table_is_read_back_pasted_or_included(tmp_path):
     text = zone_table_text(table, header="commissioned\non the simulated cryostat")
     assert text.startswith("# commissioned\n# on the simulated cryostat\nzones:\n")
     (tmp_path / "zones.yaml").write_text(text)
-    path, _ = configured(tmp_path, "  zones: zones.yaml\n")
+    path, _ = with_zone_table(tmp_path, "  zones: zones.yaml\n")
     included = load_config(path).control.zones
     pasted_text = "".join(f"  {line}\n" for line in text.splitlines())
-    pasted, _ = configured(tmp_path, pasted_text)
+    pasted, _ = with_zone_table(tmp_path, pasted_text)
     for read in (included, load_config(pasted).control.zones):
         assert [zone.upper_K for zone in read.zones] == [6.5, 20.0]
         assert read.zones[0].gains == PiGains(12.6, 4.13) and read.zones[1].max_heater_power_W == 0.4
@@ -156,7 +156,7 @@ def test_tune_zones_writes_a_table_the_configuration_reads(tmp_path, capsys):
     result = json.loads(capsys.readouterr().out)
     assert [zone["upper_K"] for zone in result["zones"]] == [5.5, 25.0]
     assert all(zone["overshoot_mK"] <= 1.0 for zone in result["zones"])
-    path, _ = configured(tmp_path, "  zones: zones.yaml\n", ("  setpoint_max_K: 20.0", "  setpoint_max_K: 25.0"),
+    path, _ = with_zone_table(tmp_path, "  zones: zones.yaml\n", ("  setpoint_max_K: 20.0", "  setpoint_max_K: 25.0"),
                          ("  flange_max_K: 25.0", "  flange_max_K: 28.0"))
     table = load_config(path).control.zones
     assert table.zones[0].feedforward_model.heater_to_thermometer.dc_gain == pytest.approx(

@@ -3,7 +3,6 @@ each zone's heater limit, and the daemon's status and record (virtual time)."""
 
 import dataclasses
 import re
-import shutil
 
 import numpy as np
 import pytest
@@ -16,10 +15,9 @@ from cryod.control.zones import Zone, ZoneTable
 from cryod.model import TEMPERATURE_MODEL_PATH
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG
-from tests.test_loop import curves, make_loop  # noqa: F401  (curves: the module's fixture)
+from tests.example_config import with_zone_table
+from tests.loop_doubles import example_curves, make_loop
 
-EXAMPLE = (CONFIG / "cryod.yaml").read_text().replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/")
-PI_SECTION = "  pi:                             # PI feedback on T2"
 TABLE = """  zones:
     - upper_K: 4.6
       pi: {proportional_W_per_K: 5.0, integral_W_per_K_s: 0.1}
@@ -32,14 +30,7 @@ TABLE = """  zones:
 
 def configured(tmp_path, table=TABLE, *replacements):
     """The example configuration with ``table`` under control: (path, text)."""
-    text = EXAMPLE.replace(PI_SECTION, table + PI_SECTION, 1)
-    for old, new in replacements:
-        assert old in text, old
-        text = text.replace(old, new, 1)
-    shutil.copy(CONFIG / "model.yaml", tmp_path / "zone-model.yaml")
-    path = tmp_path / "cryod.yaml"
-    path.write_text(text)
-    return path, text
+    return with_zone_table(tmp_path, table, *replacements)
 
 
 def line_of(text, fragment, after=0):
@@ -187,10 +178,10 @@ def test_each_zone_holds_the_heater_within_its_own_limit(tmp_path):
 
 
 # -- the daemon: status and record ----------------------------------------------------------
-def test_the_daemon_shows_the_zone_in_its_status_and_records_each_change(tmp_path, reference_model, curves):  # noqa: F811
+def test_the_daemon_shows_the_zone_in_its_status_and_records_each_change(tmp_path, reference_model):
     path, _ = configured(tmp_path, TABLE, ("  ramp_K_per_min: 0.0 ", "  ramp_K_per_min: 1.0 "))
     config = load_config(path)
-    loop, _, _, rows, events = make_loop(reference_model, curves, config)
+    loop, _, _, rows, events = make_loop(reference_model, example_curves(), config)
     assert loop.run(duration_s=60.0, manage_gc=False) == 0
     zone_events = [event.message for event in events if event.kind == "zone"]
     assert zone_events[0].startswith("zone 2 (up to 20 K)") and zone_events[0].endswith("; start")   # setpoint 5 K
@@ -201,6 +192,6 @@ def test_the_daemon_shows_the_zone_in_its_status_and_records_each_change(tmp_pat
     assert "(zone 2)" in loop.status.one_line()
     crossing = next(index for index, row in enumerate(rows) if row.setpoint_K > 4.6)
     assert max(row.heater_W for row in rows[:crossing]) <= 0.2 + 1e-12      # zone 1's limit
-    plain, _, _, _, plain_events = make_loop(reference_model, curves, load_config(CONFIG / "cryod.yaml"))
+    plain, _, _, _, plain_events = make_loop(reference_model, example_curves(), load_config(CONFIG / "cryod.yaml"))
     plain.run(duration_s=5.0, manage_gc=False)
     assert "zone" not in plain.status.as_dict() and not [event for event in plain_events if event.kind == "zone"]

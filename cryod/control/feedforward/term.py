@@ -411,6 +411,9 @@ class FeedforwardTerm(ControlTerm):
         self._coefficients = np.zeros(settings.harmonics, dtype=complex)
         self._probe = np.zeros(settings.harmonics, dtype=complex)
         self._set_played()
+        self._heard_coefficients = self._played_coefficients    # what the readings answer: nothing played yet
+        #: The plant at each harmonic as the loop samples it (K/W), from the controller's model.
+        self.plant: np.ndarray | None = None
         self.tracker: CoolerPhaseTracker | None = None
         self.worker: LearningWorker | None = None         # the estimator and the learning steps
         self._estimate: StepResult | None = None           # what the last learning step returned
@@ -495,7 +498,7 @@ class FeedforwardTerm(ControlTerm):
         self.limits.use_model(model)
         self._orders = np.arange(1, harmonics + 1)
         self.unplayed = UnplayedPower(model)
-        previous_plant = getattr(self, "plant", None)
+        previous_plant = self.plant
         self.plant = plant_at_harmonics(model, self._orders, settings.period_s, self.setting_delay_s)
         self._effect_cache = None
         if self._coefficients.size != harmonics:                    # keep what was learned, as far as it goes
@@ -687,8 +690,6 @@ class FeedforwardTerm(ControlTerm):
         """What the heater plays from the next output on: the waveform and the probe."""
         self._played_coefficients = self._coefficients + self._probe
         self._coefficient_list = [complex(value) for value in self._played_coefficients]
-        if not hasattr(self, "_heard_coefficients"):
-            self._heard_coefficients = self._played_coefficients
 
     def _effect(self) -> np.ndarray:
         """What the heater played last tick through the model, its effect on T2 (K per harmonic): a new waveform

@@ -34,6 +34,18 @@ setpoint in use comes from :mod:`cryod.control.feedforward.limit_follower`;
 what the learning finds goes to the journal and the record through
 :mod:`cryod.control.feedforward.learning_report`.
 
+The estimator is a Kalman filter written out here rather than taken from a
+library (filterpy, statsmodels' state-space models). Its update is a few lines
+of numpy; what makes it this estimator is around the update: the regressors
+built at each reading from the cooler's phase and the waveform's modelled
+effect, the second differences that remove T2's slow part, a batch of them per
+update, a plant correction that drifts in proportion to its own size, the
+learned plant kept when the controller's model changes and forgotten on
+demand, and its covariance read back per harmonic as the readings give it. A
+general filter would hold the state and the matrices and leave all of that
+here; statsmodels fits a record afterwards, while this one takes the readings
+one at a time as the loop makes them.
+
 Configuration, section ``control.feedforward`` (optional; reloadable, bumpless)::
 
     feedforward:

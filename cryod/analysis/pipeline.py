@@ -259,6 +259,30 @@ class _Path:
     reasons: list
 
 
+@dataclass(frozen=True)
+class SearchScope:
+    """Which causes a :class:`CauseSearch` tries and how far it goes.
+
+    Attributes
+    ----------
+    causes : tuple of str
+        Candidate causes to try.
+    screen_when_fitting : bool
+        Fit the candidates (for the report's table) even when the base model as given shows no discrepancy.
+    widen : bool
+        When the recalibration leaves a parameter at its tolerance, recalibrate with the wider tolerances of
+        :mod:`cryod.analysis.base_model_off`; if that alone explains the record, only the first cause is looked
+        for within the tolerance (what a catalogue cause alone would say), not a path of several.
+    most_causes : int
+        Causes named at most (with 1, no second path is followed either).
+    """
+
+    causes: tuple = tuple(CANDIDATE_CAUSES)
+    screen_when_fitting: bool = True
+    widen: bool = True
+    most_causes: int = MOST_CAUSES
+
+
 class CauseSearch:
     """The search for the causes of one record's discrepancy (see the module doc).
 
@@ -269,30 +293,21 @@ class CauseSearch:
     ----------
     data : RecordData
     base_model : CryostatModel
-    causes : sequence of str
-        Candidate causes to try.
-    screen_when_fitting : bool
-        Fit the candidates (for the report's table) even when the base model as given shows no discrepancy.
-    widen : bool
-        When the recalibration leaves a parameter at its tolerance, recalibrate with the wider tolerances of
-        :mod:`cryod.analysis.base_model_off`; if that alone explains the record, only the first cause is looked
-        for within the tolerance (what a catalogue cause alone would say), not a path of several.
+    scope : SearchScope
+        The causes tried and how far the search goes (default: every cause, the whole search).
     cycle_from : Replayer, optional
         A replayer of the same record whose cooler's phase, measured sample by sample in T5, is reused (the
         phase hardly depends on the model's heater part taken out of T5).
-    most_causes : int
-        Causes named at most (with 1, no second path is followed either).
     """
 
-    def __init__(self, data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES,
-                 screen_when_fitting: bool = True, widen: bool = True, cycle_from: Replayer | None = None,
-                 most_causes: int = MOST_CAUSES):
+    def __init__(self, data: RecordData, base_model: CryostatModel, scope: SearchScope = SearchScope(),
+                 cycle_from: Replayer | None = None):
         self.data = data
-        self.most_causes = most_causes
-        self.screen_when_fitting = screen_when_fitting
-        self.widen = widen
+        self.most_causes = scope.most_causes
+        self.screen_when_fitting = scope.screen_when_fitting
+        self.widen = scope.widen
         self.base_model = base_model
-        self.causes = tuple(causes)
+        self.causes = tuple(scope.causes)
         self.fit_mask = fit_block_mask(data.time_s) & data.valid
         self.held_out_mask = ~fit_block_mask(data.time_s) & data.valid
         self.replayer = Replayer(data, self.fit_mask)
@@ -317,12 +332,10 @@ class CauseSearch:
             key = id(replayed_line)
             if key not in cache:
                 if effect is None:
-                    made = linear_basis(replayer, base.shipped, replayed_line, base.parameters, base.log_factors,
-                                        state=point.state, apply=carry)
+                    made = linear_basis(replayer, base, replayed_line, state=point.state, apply=carry)
                 else:
                     wrapped = dataclasses.replace(effect, apply=lambda m, v: effect.apply(carry(m), v))
-                    made = joint_basis(replayer, base, replayed_line, wrapped, np.asarray(effect.values),
-                                       point.state)
+                    made = joint_basis(replayer, base, replayed_line, wrapped, point.state)
                 cache[key] = (replayed_line, made.without(excluded) if excluded else made)
             return cache[key][1]
 
@@ -702,11 +715,12 @@ def analyze(data: RecordData, base_model: CryostatModel, causes=CANDIDATE_CAUSES
     cryod.analysis.usability.UnusableRecordError
         When the record cannot be analysed, saying what it is missing.
     """
-    search = CauseSearch(data, base_model, causes)
+    search = CauseSearch(data, base_model, SearchScope(tuple(causes)))
     analysis = judged_beyond_recalibration(
         search, search.run(), lambda model: CauseSearch(
-            data, model, improving_causes(search.analysis.scores) or causes, screen_when_fitting=False,
-            widen=False, cycle_from=search.replayer, most_causes=1).run())
+            data, model, SearchScope(tuple(improving_causes(search.analysis.scores) or causes),
+                                     screen_when_fitting=False, widen=False, most_causes=1),
+            cycle_from=search.replayer).run())
     started = time.perf_counter()
     described_and_extended(analysis)
     analysis.timings_s["residual and generic extension"] = time.perf_counter() - started

@@ -309,9 +309,9 @@ def fitted_value(parameter: StructureParameter, model: CryostatModel, log_factor
     return parameter.shipped * math.exp(log_factor)
 
 
-def linear_basis(replayer: Replayer, model: CryostatModel, line: PtcLine | None, parameters,
-                 log_factors: np.ndarray, state: Replay | None = None, apply=None) -> LinearBasis:
-    """Columns of the change of T2 and T5 per unit log factor, at ``log_factors``.
+def linear_basis(replayer: Replayer, base: RecalibratedBase, line: PtcLine | None, state: Replay | None = None,
+                 apply=None) -> LinearBasis:
+    """Columns of the change of T2 and T5 per unit log factor, at ``base``'s log factors.
 
     The prediction differentiated is the simulation plus the record's state at
     the first sample as ``state`` fitted it (each T2 mode's free decay and
@@ -323,20 +323,18 @@ def linear_basis(replayer: Replayer, model: CryostatModel, line: PtcLine | None,
     Parameters
     ----------
     replayer : Replayer
-    model : CryostatModel
-        The base model (factors 0).
+    base : RecalibratedBase
+        The base model (factors 0), the structure's parameters and the log factors where the columns are taken.
     line : PtcLine or None
         The measured line the replays use.
-    parameters : sequence of StructureParameter
-    log_factors : numpy.ndarray
-        Where the columns are taken.
     state : Replay, optional
-        A replay at ``log_factors`` whose fitted initial state is held (default: none).
+        A replay at the log factors whose fitted initial state is held (default: none).
     apply : callable, optional
         ``apply(model)``: what to add to the recalibrated model before
         simulating (a cause's effect), default nothing.
     """
-    log_factors = np.asarray(log_factors, dtype=float)
+    model, parameters = base.shipped, base.parameters
+    log_factors = np.asarray(base.log_factors, dtype=float)
     data = replayer.data
     cycle = line.cycle if line is not None else None
 
@@ -518,14 +516,14 @@ def recalibrate(replayer: Replayer, model: CryostatModel, line: PtcLine | None,
     steps = 0
     state = replayer.replay(model, line, basis=None)
     for steps in range(1, MOST_STEPS + 1):
-        basis = linear_basis(replayer, model, line, parameters, x, state)
+        basis = linear_basis(replayer, RecalibratedBase(model, parameters, x), line, state)
         replay = replayer.replay(with_factors(model, parameters, x), line, basis=basis)
         change = replay.basis_change
         x = np.clip(x + change, -tolerances, tolerances)
         state = replayer.replay(with_factors(model, parameters, x), line, basis=None)
         if np.max(np.abs(change)) <= CONVERGED_STEP:
             break
-    basis = linear_basis(replayer, model, line, parameters, x, state)
+    basis = linear_basis(replayer, RecalibratedBase(model, parameters, x), line, state)
     recalibrated = with_factors(model, parameters, x)
     replay = replayer.replay(recalibrated, line, basis=basis)
     count = len(parameters)

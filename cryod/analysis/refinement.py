@@ -47,14 +47,14 @@ def _state_added(replayer: Replayer, aligned: CryostatModel, flange, stage, stat
 
 
 def joint_basis(replayer: Replayer, base: RecalibratedBase, line: PtcLine, effect: EffectForm,
-                values: np.ndarray, state: Replay | None, excluded=()) -> LinearBasis:
-    """The recalibration's columns and the effect's, at the present log factors and effect values."""
-    values = np.asarray(values, dtype=float)
+                state: Replay | None, excluded=()) -> LinearBasis:
+    """The recalibration's columns and the effect's, at ``base``'s log factors and ``effect``'s values."""
+    values = np.asarray(effect.values, dtype=float)
 
     def apply(model):
         return effect.apply(model, tuple(values))
 
-    recalibration = linear_basis(replayer, base.shipped, line, base.parameters, base.log_factors, state, apply)
+    recalibration = linear_basis(replayer, base, line, state, apply)
     model = apply(base.model())
     cycle = line.cycle if line is not None else None
     aligned = line.applied_to(model) if line is not None else model
@@ -180,7 +180,8 @@ def refine(replayer: Replayer, base: RecalibratedBase, fit: CandidateFit, others
     state = fit.replay
     for _ in range(MOST_STEPS):
         current = dataclasses.replace(base, log_factors=x)
-        basis = joint_basis(replayer, current, line, wrapped, values, state, excluded)
+        basis = joint_basis(replayer, current, line, dataclasses.replace(wrapped, values=tuple(values)), state,
+                            excluded)
         model = wrapped.apply(current.model(), tuple(values))
         replay = replayer.replay(model, line, basis=basis)
         change = replay.basis_change
@@ -193,8 +194,7 @@ def refine(replayer: Replayer, base: RecalibratedBase, fit: CandidateFit, others
             break
     refined_base = dataclasses.replace(base, log_factors=x)
     model = wrapped.apply(refined_base.model(), tuple(values))
-    basis = linear_basis(replayer, base.shipped, line, base.parameters, x, state,
-                         lambda m: wrapped.apply(m, tuple(values)))
+    basis = linear_basis(replayer, refined_base, line, state, lambda m: wrapped.apply(m, tuple(values)))
     basis = basis.without(excluded) if excluded else basis
     replay = replayer.replay(model, line, basis=basis)
     split = _split(forms, values)

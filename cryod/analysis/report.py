@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -163,9 +164,19 @@ def _causes_section(analysis: Analysis) -> list[str]:
     return lines
 
 
+@dataclass(frozen=True)
+class ReportFiles:
+    """Where the report goes and the files it names: its folder, the extended model's file, the figures made."""
+
+    directory: Path
+    model_path: Path
+    figures: dict[str, Path] = field(default_factory=dict)
+
+
 def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_discrepancies: list[Discrepancy],
-                 segments, figures: dict[str, Path], model_path: Path, directory: Path) -> Path:
-    """Write ``report.md`` into ``directory``; figure links are relative to it."""
+                 segments, files: ReportFiles) -> Path:
+    """Write ``report.md`` into ``files.directory``; figure links are relative to it."""
+    figures, model_path, directory = files.figures, files.model_path, files.directory
     data, decision = analysis.data, analysis.decision
     line = analysis.base_line
     point = analysis.extended_replay.operating_point

@@ -27,7 +27,7 @@ from cryod.analysis.model_uncertainty import model_uncertainty_check, report_sec
 from cryod.analysis.pipeline import analyze
 from cryod.analysis.record_data import analysed_stretch, read_record_data
 from cryod.analysis.record_window import ANALYSIS_WINDOW_S
-from cryod.analysis.report import REPORT_NAME, write_report
+from cryod.analysis.report import REPORT_NAME, ReportFiles, write_report
 from cryod.analysis.segments import find_segments
 from cryod.analysis.slow_series import in_file_form
 from cryod.analysis.summary import json_summary, model_header
@@ -157,7 +157,7 @@ def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Pat
         made = make_figures(analysis, segments, out)
         analysis.timings_s["figures"] = time.perf_counter() - moment
     analysis.timings_s["total"] = time.perf_counter() - started
-    report_path = write_report(analysis, discrepancies, extended, segments, made, model_path_out, out)
+    report_path = write_report(analysis, discrepancies, extended, segments, ReportFiles(out, model_path_out, made))
     summary = json_summary(analysis, discrepancies, model_path_out)
     check = model_uncertainty_check(analysis)      # only for a model that states its uncertainty
     if check is not None:

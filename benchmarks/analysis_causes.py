@@ -74,8 +74,8 @@ def _either(generator, negative, positive):
 def draw_effect(cause: str, generator):
     """(changes for the model, {fitted parameter: true value}) of one effect of random size in its range."""
     from cryod.model import (
-        DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, PtcAmplitudeModulation,
-        PtcFrequencyDrift, PtcHarmonic, PtcStageDrift, SensorLag,
+        DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, CoolerAmplitudeModulation,
+        CoolerFrequencyDrift, CoolerHarmonic, PtcStageDrift, SensorLag,
     )
 
     if cause == "sensor_lag":
@@ -98,21 +98,21 @@ def draw_effect(cause: str, generator):
         order = int(generator.choice([2, 3]))
         amplitude = _log_uniform(generator, *RANGES[cause]["amplitude_K"])
         phase = float(generator.uniform(-math.pi, math.pi))
-        return ({"harmonics": (PtcHarmonic(order, amplitude, phase),)},
+        return ({"harmonics": (CoolerHarmonic(order, amplitude, phase),)},
                 {f"order_{order}_amplitude_K": amplitude})
     if cause == "ptc_frequency_drift":
         if generator.random() < 0.5:
             rate = _log_uniform(generator, *RANGES[cause]["rate_rad_s_per_hour"]) * float(generator.choice([-1, 1]))
-            return {"ptc_frequency_drift": PtcFrequencyDrift(rate)}, {"rate_rad_s_per_hour": rate}
+            return {"ptc_frequency_drift": CoolerFrequencyDrift(rate)}, {"rate_rad_s_per_hour": rate}
         amplitude = float(generator.uniform(*RANGES[cause]["wander_fraction"])) * 10.83
         period = float(generator.uniform(*RANGES[cause]["wander_period_s"]))
         phase = float(generator.uniform(-math.pi, math.pi))
-        return ({"ptc_frequency_drift": PtcFrequencyDrift(0.0, amplitude, period, phase)},
+        return ({"ptc_frequency_drift": CoolerFrequencyDrift(0.0, amplitude, period, phase)},
                 {"wander_amplitude_rad_s": amplitude, "wander_period_s": period})
     if cause == "ptc_amplitude_modulation":
         depth = float(generator.uniform(*RANGES[cause]["depth"]))
         period = float(generator.uniform(*RANGES[cause]["period_s"]))
-        return ({"ptc_amplitude_modulation": PtcAmplitudeModulation(depth, period, float(generator.uniform(-3, 3)))},
+        return ({"ptc_amplitude_modulation": CoolerAmplitudeModulation(depth, period, float(generator.uniform(-3, 3)))},
                 {"depth": depth, "period_s": period})
     if cause == "ptc_stage_drift":
         rms = _log_uniform(generator, *RANGES[cause]["rms_K"])

@@ -31,8 +31,8 @@ import time
 from pathlib import Path
 
 from cryod.model import (
-    DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, PtcAmplitudeModulation, PtcFrequencyDrift,
-    PtcHarmonic, PtcStageDrift, SensorLag, TransferFunction, load_model,
+    CoolerAmplitudeModulation, CoolerFrequencyDrift, CoolerHarmonic, DeadTime, HeatCapacityTemperature,
+    HeaterNonlinearity, LinkDynamics, PtcStageDrift, SensorLag, TransferFunction, load_model,
 )
 from cryod.records.record import write_record
 from simulated_hw.hidden_effects import perturbed_base
@@ -59,9 +59,9 @@ def _hidden(model):
         "dead_time": model.with_effects(dead_time=DeadTime(1.5)),
         "heat_capacity_temperature": model.with_effects(heat_capacity_temperature=HeatCapacityTemperature(1.0, 4.23)),
         "heater_nonlinearity": model.with_effects(heater_nonlinearity=HeaterNonlinearity(0.8)),
-        "ptc_harmonics": model.with_ptc(harmonics=(PtcHarmonic(2, 0.01, 0.4),)),
-        "ptc_frequency_drift": model.with_effects(ptc_frequency_drift=PtcFrequencyDrift(-0.03)),
-        "ptc_amplitude_modulation": model.with_effects(ptc_amplitude_modulation=PtcAmplitudeModulation(0.1, 600.0)),
+        "ptc_harmonics": model.with_ptc(harmonics=(CoolerHarmonic(2, 0.01, 0.4),)),
+        "ptc_frequency_drift": model.with_effects(ptc_frequency_drift=CoolerFrequencyDrift(-0.03)),
+        "ptc_amplitude_modulation": model.with_effects(ptc_amplitude_modulation=CoolerAmplitudeModulation(0.1, 600.0)),
         "ptc_stage_drift": model.with_effects(ptc_stage_drift=PtcStageDrift(1.5e-3, 600.0, 0.6, 150.0, 4)),
     }
 

@@ -153,7 +153,7 @@ def figures(cases: list[dict], folder: Path) -> None:
         axis.plot(phase, 1e3 * record.heater_w[late], ".", ms=1.5, alpha=0.4, label="heater at each tick (daemon)")
         delay = float(np.nanmedian(record.columns["heater_set_s"][late] - record.columns["T2_sample_s"][late]))
         limit = feedforward_limit(model, setpoint, 50.0, 0.1, 0.08, heater_delay_s=delay)
-        axis.plot(limit.waveform_phase_rad, 1e3 * limit.waveform_power_W, "k-", lw=1.2,
+        axis.plot(limit.waveform_phase_rad, 1e3 * limit.waveform_power_w, "k-", lw=1.2,
                   label="best waveform (feedforward-limit)")
         axis.axhline(500.0, color="grey", lw=0.8, ls="--")
         axis.axhline(0.0, color="grey", lw=0.8, ls="--")

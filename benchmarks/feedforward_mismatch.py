@@ -57,7 +57,7 @@ from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_l
 from cryod.control.feedforward.harmonic_plant import plant_at_harmonics
 from cryod.model import load_model
 from cryod.model.model_file import save_model
-from cryod.model.parameters import DeadTime, PtcFrequencyDrift, SensorLag
+from cryod.model.parameters import DeadTime, CoolerFrequencyDrift, SensorLag
 from cryod.records.record import read_record
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -119,7 +119,7 @@ class Cryostat:
         if self.dead_time_s:
             effects["dead_time"] = DeadTime(self.dead_time_s)
         if self.wander:
-            effects["ptc_frequency_drift"] = PtcFrequencyDrift(
+            effects["ptc_frequency_drift"] = CoolerFrequencyDrift(
                 0.0, self.wander * shipped.ptc.angular_frequency_rad_s, WANDER_PERIOD_S)
         return model.with_effects(**effects)
 

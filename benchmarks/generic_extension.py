@@ -54,11 +54,11 @@ KINDS = (
 
 def made(kind: str, model, seed: int):
     """(model, make_record keyword arguments) of a cryostat showing ``kind``."""
-    from cryod.model import PtcAmplitudeModulation, PtcStageDrift, TransferFunction
+    from cryod.model import CoolerAmplitudeModulation, PtcStageDrift, TransferFunction
 
     generator = np.random.default_rng(seed)
     if kind == "breathing stroke":
-        return model.with_effects(ptc_amplitude_modulation=PtcAmplitudeModulation(
+        return model.with_effects(ptc_amplitude_modulation=CoolerAmplitudeModulation(
             0.15, 600.0, float(generator.uniform(-3.0, 3.0)))), {}
     if kind == "wandering cold end":
         return model.with_effects(ptc_stage_drift=PtcStageDrift(1.5e-3, 600.0, 0.6, 150.0,

@@ -19,7 +19,7 @@ import numpy as np
 from scipy import linalg, signal
 
 from cryod.model import CryostatPlant, load_model, simulate
-from cryod.model.ptc_path import PtcDrive
+from cryod.model.cooler_path import CoolerDrive
 
 PERIOD_S = 0.08
 STEPS = 45_000
@@ -52,7 +52,7 @@ def lsim_system(model):
 
 
 def run_lsim(system, model, times, powers):
-    drive = PtcDrive(model)
+    drive = CoolerDrive(model)
     phase, frequency = drive.cycle.phase_and_frequency(times)
     heat = sum(np.real(c.heat_phasor * frequency * np.exp(1j * (c.order * phase + c.phase_rad)))
                for c in drive.components)

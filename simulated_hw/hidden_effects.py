@@ -23,7 +23,7 @@ import numpy as np
 
 from cryod.model import (
     CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, OperatingPoint,
-    PtcFrequencyDrift, PtcHarmonic, SensorLag,
+    CoolerFrequencyDrift, CoolerHarmonic, SensorLag,
 )
 
 #: Per cause: (what to put in the model, {fitted parameter: true value}) for three magnitudes.
@@ -55,15 +55,15 @@ MAGNITUDES = {
         ({"heater_nonlinearity": HeaterNonlinearity(3.0)}, {"quadratic_coefficient_per_W": 3.0}),
     ],
     "ptc_harmonics": [
-        ({"harmonics": (PtcHarmonic(2, 0.002, 1.0),)}, {"order_2_amplitude_K": 0.002}),
-        ({"harmonics": (PtcHarmonic(2, 0.010, 0.4), PtcHarmonic(3, 0.005, -1.0))},
+        ({"harmonics": (CoolerHarmonic(2, 0.002, 1.0),)}, {"order_2_amplitude_K": 0.002}),
+        ({"harmonics": (CoolerHarmonic(2, 0.010, 0.4), CoolerHarmonic(3, 0.005, -1.0))},
          {"order_2_amplitude_K": 0.010, "order_3_amplitude_K": 0.005}),
-        ({"harmonics": (PtcHarmonic(3, 0.025, 2.5),)}, {"order_3_amplitude_K": 0.025}),
+        ({"harmonics": (CoolerHarmonic(3, 0.025, 2.5),)}, {"order_3_amplitude_K": 0.025}),
     ],
     "ptc_frequency_drift": [
-        ({"ptc_frequency_drift": PtcFrequencyDrift(0.003)}, {"rate_rad_s_per_hour": 0.003}),
-        ({"ptc_frequency_drift": PtcFrequencyDrift(-0.03)}, {"rate_rad_s_per_hour": -0.03}),
-        ({"ptc_frequency_drift": PtcFrequencyDrift(0.0, 0.002, 700.0)},
+        ({"ptc_frequency_drift": CoolerFrequencyDrift(0.003)}, {"rate_rad_s_per_hour": 0.003}),
+        ({"ptc_frequency_drift": CoolerFrequencyDrift(-0.03)}, {"rate_rad_s_per_hour": -0.03}),
+        ({"ptc_frequency_drift": CoolerFrequencyDrift(0.0, 0.002, 700.0)},
          {"wander_amplitude_rad_s": 0.002, "wander_period_s": 700.0}),
     ],
 }

@@ -21,7 +21,7 @@ from cryod.analysis.residual_signature import (
 )
 from cryod.analysis.slow_series import correlation_time_s, in_file_form
 from cryod.model import (
-    CryostatPlant, DeadTime, Disturbance, FileFormatError, HeaterPathCorrection, Pickup, PtcAmplitudeModulation,
+    CryostatPlant, DeadTime, Disturbance, FileFormatError, HeaterPathCorrection, Pickup, CoolerAmplitudeModulation,
     PtcStageDrift, SlowProcess, load_model, load_model_text, model_to_dict, save_model, simulate,
 )
 from cryod.records.record import write_record
@@ -30,7 +30,7 @@ from simulated_hw.hidden_effects import perturbed_base
 from simulated_hw.measurement_programs import make_record
 from tests.hidden_effects import analysed, base_model, other_day
 
-MODULATION = PtcAmplitudeModulation(0.15, 600.0, 0.4)
+MODULATION = CoolerAmplitudeModulation(0.15, 600.0, 0.4)
 DRIFT = PtcStageDrift(1.5e-3, 600.0, 0.6, 150.0, 4)
 CORRECTION = HeaterPathCorrection((3.0, 30.0), (0.2, -0.1), (0.0, 0.05))
 DISTURBANCE = Disturbance(SlowProcess(1e-3, 300.0, 3), SlowProcess(2e-4, 600.0, 4), None,
@@ -218,7 +218,8 @@ def test_a_parameter_is_beyond_the_recalibration_when_past_its_tolerance_by_thre
 
 
 def test_a_stroke_breathing_every_five_minutes_is_named_on_a_quarter_hour_of_regulation():
-    model = other_day(base_model(), 1).with_effects(ptc_amplitude_modulation=PtcAmplitudeModulation(0.15, 300.0, 0.4))
+    model = other_day(base_model(), 1).with_effects(
+        ptc_amplitude_modulation=CoolerAmplitudeModulation(0.15, 300.0, 0.4))
     analysis = analysed(model, "pi_only", 900.0, 3)
     assert analysis.cause_names == ["ptc_amplitude_modulation"], analysis.decision.reason
     parameters = analysis.causes[0].fit.parameters

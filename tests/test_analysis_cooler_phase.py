@@ -12,15 +12,15 @@ import pytest
 
 from cryod.cooler.line import estimate_ptc_line, fit_drift_to_phase, measured_cycle
 from cryod.cooler.phase import CoolerPhaseTracker
-from cryod.model import PtcFrequencyDrift, load_model, save_model
-from cryod.model.ptc_cycle import MeasuredPtcCycle
+from cryod.model import CoolerFrequencyDrift, load_model, save_model
+from cryod.model.cooler_cycle import MeasuredCoolerCycle
 
 from tests.hidden_effects import analysed, base_model, named_parameters, other_day, within
 from simulated_hw.hidden_effects import perturbed_base
 
 OMEGA = 10.83
-WANDERS = [PtcFrequencyDrift(0.0, 0.01 * OMEGA, 600.0, 0.7), PtcFrequencyDrift(0.02, 0.008 * OMEGA, 1800.0, -2.0),
-           PtcFrequencyDrift(-0.03)]
+WANDERS = [CoolerFrequencyDrift(0.0, 0.01 * OMEGA, 600.0, 0.7), CoolerFrequencyDrift(0.02, 0.008 * OMEGA, 1800.0, -2.0),
+           CoolerFrequencyDrift(-0.03)]
 
 
 def _stage(drift, seed=1, duration_s=3600.0):
@@ -79,15 +79,15 @@ def test_drift_form_fitted_to_the_measured_phase(drift):
 
 
 def test_measured_cycle_interpolates_and_continues_at_its_ends():
-    cycle = MeasuredPtcCycle([0.0, 1.0, 2.0], [0.0, 10.0, 20.5], [10.0, 10.25, 10.5])
+    cycle = MeasuredCoolerCycle([0.0, 1.0, 2.0], [0.0, 10.0, 20.5], [10.0, 10.25, 10.5])
     assert cycle.phase_rad(1.5) == pytest.approx(15.25)
     assert cycle.phase_rad(-1.0) == pytest.approx(-10.0) and cycle.phase_rad(3.0) == pytest.approx(31.0)
     with pytest.raises(ValueError, match="increase"):
-        MeasuredPtcCycle([0.0, 0.0], [0.0, 1.0], [1.0, 1.0])
+        MeasuredCoolerCycle([0.0, 0.0], [0.0, 1.0], [1.0, 1.0])
 
 
 def test_wander_phase_is_part_of_the_drift_form_and_its_file(tmp_path, reference_model):
-    drift = PtcFrequencyDrift(0.01, 0.05, 900.0, 1.2)
+    drift = CoolerFrequencyDrift(0.01, 0.05, 900.0, 1.2)
     t = np.linspace(0.0, 1800.0, 7)
     phase = drift.phase_offset(t)
     assert phase[0] == 0.0
@@ -106,7 +106,7 @@ def test_wander_phase_is_part_of_the_drift_form_and_its_file(tmp_path, reference
     ("identification", 1200.0, 2.0, 4),      # another phase of the wander, base parameters off
 ])
 def test_wandering_cooler_is_named_with_its_parameters(protocol, duration_s, wander_phase_rad, perturbation):
-    drift = PtcFrequencyDrift(0.0, 0.008 * OMEGA, 900.0, wander_phase_rad)
+    drift = CoolerFrequencyDrift(0.0, 0.008 * OMEGA, 900.0, wander_phase_rad)
     model = other_day(base_model(), 1).with_effects(ptc_frequency_drift=drift)
     if perturbation is not None:
         model, _ = perturbed_base(model, perturbation)

@@ -12,7 +12,7 @@ from cryod.analysis.record_data import RecordData, fit_block_mask, heater_limit_
 from cryod.analysis.replay import Replayer
 from cryod.analysis.segments import find_segments, find_steps
 from cryod.model.transfer_function import first_order_link
-from cryod.model import PtcFrequencyDrift, simulate
+from cryod.model import CoolerFrequencyDrift, simulate
 from cryod.records.record import Record, RecordFormatError
 from simulated_hw.measurement_programs import make_record
 
@@ -36,7 +36,7 @@ def test_line_frequency_amplitude_phase_and_harmonics_with_jitter():
     assert line.components[1].amplitude_K == pytest.approx(0.006, rel=0.02)
 
 
-@pytest.mark.parametrize("drift", [PtcFrequencyDrift(0.02), PtcFrequencyDrift(0.0, 0.003, 900.0)])
+@pytest.mark.parametrize("drift", [CoolerFrequencyDrift(0.02), CoolerFrequencyDrift(0.0, 0.003, 900.0)])
 def test_frequency_drift_recovered_from_the_phase(drift):
     t = np.arange(0.0, 3600.0, 0.08)
     phase = 10.83 * t + drift.phase_offset(t)

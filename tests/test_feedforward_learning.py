@@ -25,7 +25,7 @@ from cryod.control.feedforward.learned_projection import learning_step
 from cryod.control.pi import PiGains
 from cryod.control.feedforward.plant_learner import MODEL_ERROR, LearnedPlant
 from cryod.control.feedforward.plant_probe import ProbeSettings, ProbeState, next_probe
-from cryod.model.parameters import DeadTime, PtcFrequencyDrift, SensorLag
+from cryod.model.parameters import DeadTime, CoolerFrequencyDrift, SensorLag
 from cryod.records.metrics import periodic_amplitudes
 from tests.feedforward_ticks import feed
 
@@ -45,7 +45,7 @@ def cryostat(reference, gain=1.0, lag_s=0.0, dead_time_s=0.0, wander=0.0):
     if dead_time_s:
         effects["dead_time"] = DeadTime(dead_time_s)
     if wander:
-        effects["ptc_frequency_drift"] = PtcFrequencyDrift(0.0, wander * OMEGA, 900.0)
+        effects["ptc_frequency_drift"] = CoolerFrequencyDrift(0.0, wander * OMEGA, 900.0)
     return model.with_effects(**effects)
 
 

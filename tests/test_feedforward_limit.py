@@ -14,7 +14,7 @@ from cryod.control.feedforward.bounded_waveform import best_bounded_waveform, la
 from cryod.control.feedforward.limit import (
     FeedforwardLimitError, feedforward_limit, limit_sweep, mean_heater_power_w, noise_floor_K,
 )
-from cryod.model import DeadTime, HeaterNonlinearity, PtcHarmonic, SensorLag
+from cryod.model import DeadTime, HeaterNonlinearity, CoolerHarmonic, SensorLag
 from cryod.model import simulate
 
 PERIOD_S = 0.08
@@ -67,8 +67,8 @@ def run_waveform(model, limit, duration_s=1500.0, settle_s=700.0, orders=range(1
     time_s = np.arange(0.0, duration_s, limit.period_s)
     phase = cooler_phase(model, time_s)
     orders_w = np.arange(1, limit.harmonics + 1)
-    delivered = limit.mean_heater_power_W + (np.exp(1j * np.outer(phase, orders_w)) @ limit.waveform_harmonics_W).real
-    commanded = np.interp(np.mod(phase, 2.0 * math.pi), limit.waveform_phase_rad, limit.waveform_power_W,
+    delivered = limit.mean_heater_power_W + (np.exp(1j * np.outer(phase, orders_w)) @ limit.waveform_harmonics_w).real
+    commanded = np.interp(np.mod(phase, 2.0 * math.pi), limit.waveform_phase_rad, limit.waveform_power_w,
                           period=2.0 * math.pi) if model.effects.heater_nonlinearity else delivered
     record = simulate(model, time_s, commanded, initial_heater_power_w=float(np.mean(commanded)))
     kept = time_s > settle_s
@@ -146,7 +146,7 @@ def test_simulated_loop_leaves_exactly_the_predicted_harmonics(reference_model, 
     if effects != "none":
         model = model.with_effects(dead_time=DeadTime(0.03), sensor_lag=SensorLag(0.1, 0.05),
                                    heater_nonlinearity=HeaterNonlinearity(0.4))
-        model = model.with_ptc(harmonics=(PtcHarmonic(order=2, ptc_stage_amplitude_K=0.012, phase_rad=0.4),))
+        model = model.with_ptc(harmonics=(CoolerHarmonic(order=2, ptc_stage_amplitude_K=0.012, phase_rad=0.4),))
     limit = feedforward_limit(model, 5.0, 50.0, 0.1, certify=False)
     measured = run_waveform(model, limit)
     tolerance = 0.5e-6 if effects == "none" else 3e-6       # commanded waveform interpolated on the grid
@@ -281,10 +281,10 @@ def test_a_delay_only_rotates_the_waveform_in_continuous_time(reference_model):
 def test_waveform_stays_within_the_heater_and_keeps_the_mean(reference_model, at_5K):
     for limit in (at_5K, feedforward_limit(reference_model.with_effects(heater_nonlinearity=HeaterNonlinearity(0.4)),
                                            5.0, 17.0, 0.1, certify=False)):
-        assert limit.waveform_power_W.min() >= 0.0
-        assert limit.waveform_power_W.max() <= limit.max_heater_power_W
-    assert at_5K.waveform_power_W.mean() == pytest.approx(at_5K.mean_heater_power_W, rel=1e-9)
-    assert at_5K.waveform_power_W.min() == pytest.approx(0.0, abs=1e-4)      # P >= 0 binds at 5 K
+        assert limit.waveform_power_w.min() >= 0.0
+        assert limit.waveform_power_w.max() <= limit.max_heater_power_W
+    assert at_5K.waveform_power_w.mean() == pytest.approx(at_5K.mean_heater_power_W, rel=1e-9)
+    assert at_5K.waveform_power_w.min() == pytest.approx(0.0, abs=1e-4)      # P >= 0 binds at 5 K
     assert at_5K.largest_line_power_W == pytest.approx(largest_fundamental(0.113, 0.0, 0.5), rel=1e-2)
 
 

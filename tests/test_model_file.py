@@ -3,7 +3,7 @@ import dataclasses
 import pytest
 
 from cryod.model import (
-    HeaterNonlinearity, LinkDynamics, PtcHarmonic, SensorLag, load_model, load_model_text, save_model,
+    HeaterNonlinearity, LinkDynamics, CoolerHarmonic, SensorLag, load_model, load_model_text, save_model,
 )
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG
@@ -108,7 +108,7 @@ def test_save_and_load_round_trip(tmp_path, reference_model):
     extended = reference_model.with_effects(
         sensor_lag=SensorLag(0.25, 0.01), link_dynamics=LinkDynamics(0.05, 1.1),
         heater_nonlinearity=HeaterNonlinearity(0.3),
-    ).with_ptc(harmonics=(PtcHarmonic(2, 0.01, 0.5), PtcHarmonic(3, 0.004, -1.0)))
+    ).with_ptc(harmonics=(CoolerHarmonic(2, 0.01, 0.5), CoolerHarmonic(3, 0.004, -1.0)))
     path = save_model(extended, tmp_path / "extended.yaml", header="fitted by a test")
     assert path.read_text().startswith("# fitted by a test\n")
     again = load_model(path)

@@ -10,8 +10,8 @@ from scipy.integrate import simpson
 from drivers.clock import VirtualClock
 from cryod.cooler.line_fit import fit_line, wrap_phase
 from cryod.model import (
-    CryostatPlant, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, PtcFrequencyDrift, PtcHarmonic,
-    SensorLag, simulate,
+    CoolerFrequencyDrift, CoolerHarmonic, CryostatPlant, DeadTime, HeatCapacityTemperature, HeaterNonlinearity,
+    LinkDynamics, SensorLag, simulate,
 )
 from simulated_hw.cryostat import SimulatedCryostat
 
@@ -56,7 +56,7 @@ def test_heater_writes_at_any_instant_are_exact(quiet_reference_model):
 
 def test_ptc_response_is_the_exact_steady_state_at_any_instant(reference_model):
     """No aliasing: the line and a third harmonic (5.2 Hz, near the 6.25 Hz Nyquist of 80 ms) are exact."""
-    model = reference_model.with_ptc(harmonics=(PtcHarmonic(3, 0.01, 0.7),))
+    model = reference_model.with_ptc(harmonics=(CoolerHarmonic(3, 0.01, 0.7),))
     instants = np.concatenate(([0.0], np.sort(np.random.default_rng(5).uniform(0.0, 100.0, 49))))
     path = model.ptc_heat_to_thermometer
     expected_flange = 4.23 + sum(
@@ -92,7 +92,7 @@ EFFECTS = {
     "dead_time": {"dead_time": DeadTime(1.37)},
     "heat_capacity_temperature": {"heat_capacity_temperature": HeatCapacityTemperature(1.5, 4.23)},
     "heater_nonlinearity": {"heater_nonlinearity": HeaterNonlinearity(0.5)},
-    "ptc_frequency_drift": {"ptc_frequency_drift": PtcFrequencyDrift(0.05, 0.002, 300.0)},
+    "ptc_frequency_drift": {"ptc_frequency_drift": CoolerFrequencyDrift(0.05, 0.002, 300.0)},
     "heat capacity with dead time and sensor lag": {
         "heat_capacity_temperature": HeatCapacityTemperature(-2.0, 4.5), "dead_time": DeadTime(0.53),
         "sensor_lag": SensorLag(0.2), "heater_nonlinearity": HeaterNonlinearity(-0.4)},
@@ -176,7 +176,7 @@ def test_heater_nonlinearity_changes_delivered_power(quiet_reference_model):
 
 
 def test_harmonics_reach_both_thermometers(reference_model):
-    model = reference_model.with_ptc(harmonics=(PtcHarmonic(2, 0.015, 0.4),))
+    model = reference_model.with_ptc(harmonics=(CoolerHarmonic(2, 0.015, 0.4),))
     times = np.arange(0.0, 200.0, 0.01)
     record = simulate(model, times, np.zeros(times.size))
     stage = fit_line(times, record.ptc_stage_K, OMEGA, orders=2)
@@ -189,7 +189,7 @@ def test_harmonics_reach_both_thermometers(reference_model):
 
 def test_frequency_drift_moves_the_phase(reference_model):
     rate = 0.036   # rad/s per hour
-    model = reference_model.with_effects(ptc_frequency_drift=PtcFrequencyDrift(rate_rad_s_per_hour=rate))
+    model = reference_model.with_effects(ptc_frequency_drift=CoolerFrequencyDrift(rate_rad_s_per_hour=rate))
     times = np.arange(3000.0, 3060.0, 0.02)
     record = simulate(model, np.concatenate(([0.0], times)), np.zeros(times.size + 1))
     local = fit_line(times, record.ptc_stage_K[1:], OMEGA + rate * 3030.0 / 3600.0)
@@ -271,8 +271,8 @@ def test_a_heat_capacity_replay_asked_again_is_the_same_and_a_changed_one_is_not
 
 def test_a_model_built_with_a_list_still_simulates(reference_model):
     """The plant's transfer functions are kept per model; a model with unhashable parts is simply not kept."""
-    listed = reference_model.with_ptc(harmonics=[PtcHarmonic(2, 0.002, 0.3)])
-    kept = reference_model.with_ptc(harmonics=(PtcHarmonic(2, 0.002, 0.3),))
+    listed = reference_model.with_ptc(harmonics=[CoolerHarmonic(2, 0.002, 0.3)])
+    kept = reference_model.with_ptc(harmonics=(CoolerHarmonic(2, 0.002, 0.3),))
     times = np.arange(0.0, 50.0, 0.08)
     np.testing.assert_array_equal(simulate(listed, times, np.full(times.size, 0.1)).flange_K,
                                   simulate(kept, times, np.full(times.size, 0.1)).flange_K)

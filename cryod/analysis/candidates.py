@@ -59,7 +59,7 @@ from cryod.model import (
     EFFECT_NAMES, CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, SensorLag,
 )
 from cryod.model.dynamics import flange_transfer_functions
-from cryod.model.ptc_path import PtcDrive, PtcPath
+from cryod.model.cooler_path import CoolerDrive, CoolerPath
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError, first_order_link
 
 #: A PTC-stage thermometer lag shifting the line by less than this (rad) is taken as none: 1e-4 rad of a
@@ -357,8 +357,8 @@ def fit_heater_nonlinearity(context: FitContext) -> CandidateFit:
 
 def _ptc_fundamental_on_flange(model: CryostatModel, elapsed_s: np.ndarray, cycle=None) -> np.ndarray:
     """Complex T2 response to the PTC fundamental, Z(t): T2's line is Re(Z) (K); ``cycle``: the measured one."""
-    drive = PtcDrive(model, cycle)
-    path = PtcPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
+    drive = CoolerDrive(model, cycle)
+    path = CoolerPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
     phase, frequency = drive.cycle.phase_and_frequency(elapsed_s)
     component = drive.components[0]
     phasor = path.output_phasors(frequency)[0]

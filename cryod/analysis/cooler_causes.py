@@ -36,7 +36,7 @@ from scipy import signal
 
 from cryod.analysis.candidates import CandidateFit, EffectForm, FitContext, scalar_search
 from cryod.analysis.slow_series import correlation_time_s, slow_splines
-from cryod.model import CryostatModel, PtcAmplitudeModulation, PtcStageDrift
+from cryod.model import CryostatModel, CoolerAmplitudeModulation, PtcStageDrift
 
 #: Periods of the amplitude modulation searched: from this many seconds to this many record durations.
 SHORTEST_MODULATION_PERIOD_S = 60.0
@@ -92,7 +92,7 @@ def fit_ptc_amplitude_modulation(context: FitContext) -> CandidateFit:
     period = float(math.exp(log_period))
 
     def apply(model, values):
-        return model.with_effects(ptc_amplitude_modulation=PtcAmplitudeModulation(
+        return model.with_effects(ptc_amplitude_modulation=CoolerAmplitudeModulation(
             float(np.clip(values[0], 0.0, LARGEST_DEPTH)), max(float(values[1]), 1.0), float(values[2])))
 
     model = apply(base, (depth, period, phase))

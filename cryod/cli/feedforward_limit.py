@@ -206,8 +206,8 @@ def _mk(value_K: float) -> str:
     return f"{value_K * 1e3:.3f} mK"
 
 
-def _mw(value_W: float) -> str:
-    return f"{value_W * 1e3:.1f} mW"
+def _mw(value_w: float) -> str:
+    return f"{value_w * 1e3:.1f} mW"
 
 
 def report(limit: FeedforwardLimit, sweeps: dict, model_path: str = "", spread: LimitRange | None = None,

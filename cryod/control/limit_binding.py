@@ -77,8 +77,8 @@ def _microkelvin(value_K: float) -> str:
     return f"{value_K * 1e6:.1f} µK"
 
 
-def _milliwatt(value_W: float) -> str:
-    return f"{value_W * 1e3:.1f} mW"
+def _milliwatt(value_w: float) -> str:
+    return f"{value_w * 1e3:.1f} mW"
 
 
 def _said(change: LimitChange | None) -> str:
@@ -126,7 +126,7 @@ def limit_binding(limit: FeedforwardLimit, changes=()) -> LimitBinding:
     -------
     LimitBinding
     """
-    waveform = np.asarray(limit.waveform_power_W, dtype=float)
+    waveform = np.asarray(limit.waveform_power_w, dtype=float)
     top = limit.max_heater_power_W
     floor_fraction = float(np.mean(waveform <= AT_BOUND * top)) if waveform.size else 0.0
     top_fraction = float(np.mean(waveform >= (1.0 - AT_BOUND) * top)) if waveform.size else 0.0

@@ -15,7 +15,7 @@ The fit is linear least squares of
 
 with ``theta(t) = omega0 (t - t0) + drift phase``, ``t0`` the record's first
 instant (the simulator's phase reference), computed by the simulator's own
-:class:`cryod.model.ptc_cycle.PtcCycle`. The baseline columns (offset,
+:class:`cryod.model.cooler_cycle.CoolerCycle`. The baseline columns (offset,
 initial-state response) come from the caller. The frequency is found from the
 spectrum and refined by :func:`scipy.optimize.minimize_scalar`; a drift by
 following the phase in short windows, then :func:`scipy.optimize.least_squares`
@@ -44,8 +44,8 @@ from scipy import interpolate
 
 from cryod.cooler.line_fit import wrap_phase
 from cryod.cooler.phase import CoolerPhaseTracker
-from cryod.model import CryostatModel, PtcFrequencyDrift, PtcHarmonic
-from cryod.model.ptc_cycle import MeasuredPtcCycle, PtcCycle
+from cryod.model import CryostatModel, CoolerFrequencyDrift, CoolerHarmonic
+from cryod.model.cooler_cycle import MeasuredCoolerCycle, CoolerCycle
 
 #: Search band of the cooler's fundamental (rad/s): 0.3 Hz up to the Nyquist frequency.
 LOWEST_LINE_ANGULAR_FREQUENCY = 2.0 * math.pi * 0.3
@@ -81,11 +81,11 @@ class PtcLine:
     components : tuple of LineComponent
         Fundamental first, then harmonics by order; phases referenced to the
         record's first instant.
-    drift : PtcFrequencyDrift or None
+    drift : CoolerFrequencyDrift or None
         Frequency change over the record, in the model's form.
     frequency_uncertainty_rad_s : float
         Standard error of the fundamental's frequency.
-    cycle : MeasuredPtcCycle or None
+    cycle : MeasuredCoolerCycle or None
         The phase measured sample by sample in T5 (:func:`measured_cycle`),
         when the line is replayed with it; ``drift`` is then the model's form
         fitted to that phase (what an extended model keeps of it).
@@ -93,9 +93,9 @@ class PtcLine:
 
     angular_frequency_rad_s: float
     components: tuple[LineComponent, ...]
-    drift: PtcFrequencyDrift | None = None
+    drift: CoolerFrequencyDrift | None = None
     frequency_uncertainty_rad_s: float = 0.0
-    cycle: MeasuredPtcCycle | None = field(default=None, compare=False)
+    cycle: MeasuredCoolerCycle | None = field(default=None, compare=False)
 
     @property
     def fundamental(self) -> LineComponent:
@@ -112,7 +112,7 @@ class PtcLine:
     @property
     def ptc_cycle(self):
         """The cycle the line is replayed with: the measured one, else the model's form."""
-        return self.cycle if self.cycle is not None else PtcCycle(self.angular_frequency_rad_s, self.drift)
+        return self.cycle if self.cycle is not None else CoolerCycle(self.angular_frequency_rad_s, self.drift)
 
     def applied_to(self, model: CryostatModel) -> CryostatModel:
         """``model`` with its PTC source (and drift) replaced by this measured line.
@@ -130,7 +130,7 @@ class PtcLine:
         for c in self.components:
             before_lag = complex(1.0, c.order * self.angular_frequency_rad_s * tau)
             sources.append((c.order, c.amplitude_K * abs(before_lag), wrap_phase(c.phase_rad + cmath.phase(before_lag))))
-        harmonics = tuple(PtcHarmonic(order, amplitude, phase) for order, amplitude, phase in sources[1:])
+        harmonics = tuple(CoolerHarmonic(order, amplitude, phase) for order, amplitude, phase in sources[1:])
         changed = model.with_ptc(
             angular_frequency_rad_s=self.angular_frequency_rad_s,
             ptc_stage_amplitude_K=sources[0][1],
@@ -149,7 +149,7 @@ class PtcLine:
         scale = model.ptc.ptc_stage_amplitude_K / self.fundamental.amplitude_K if self.fundamental.amplitude_K else 0.0
         shift = model.ptc.phase_rad - self.fundamental.phase_rad
         harmonics = tuple(
-            PtcHarmonic(c.order, c.amplitude_K * scale, wrap_phase(c.phase_rad + c.order * shift))
+            CoolerHarmonic(c.order, c.amplitude_K * scale, wrap_phase(c.phase_rad + c.order * shift))
             for c in self.components[1:]
         )
         return model.with_ptc(harmonics=harmonics)
@@ -254,7 +254,7 @@ def coarse_line_frequency(elapsed_s: np.ndarray, values: np.ndarray) -> float:
 def estimate_ptc_line(elapsed_s, stage_signal_K, baseline_columns, *, mask=None, orders=(1,),
                       drift: bool = False, angular_frequency_rad_s: float | None = None,
                       significant_only: bool = False, significance_threshold: float = 5.0,
-                      cycle: MeasuredPtcCycle | None = None) -> PtcLine:
+                      cycle: MeasuredCoolerCycle | None = None) -> PtcLine:
     """Measure the line in T5.
 
     Parameters
@@ -275,7 +275,7 @@ def estimate_ptc_line(elapsed_s, stage_signal_K, baseline_columns, *, mask=None,
         Start from this frequency instead of searching the spectrum.
     significant_only : bool
         Keep only harmonics (order > 1) above ``significance_threshold`` standard errors.
-    cycle : MeasuredPtcCycle, optional
+    cycle : MeasuredCoolerCycle, optional
         The phase measured in T5 (:func:`measured_cycle`): the components are
         fitted at it, and ``drift`` is the model's form fitted to it
         (:func:`fit_drift_to_phase`).
@@ -313,7 +313,7 @@ def estimate_ptc_line(elapsed_s, stage_signal_K, baseline_columns, *, mask=None,
     drift_model = None
     if drift:
         omega, drift_model = _fit_drift(elapsed_s, values, baseline, mask, omega, orders)
-        fit = _fit_components(values, baseline, PtcCycle(omega, drift_model).phase_rad(elapsed_s), orders, mask)
+        fit = _fit_components(values, baseline, CoolerCycle(omega, drift_model).phase_rad(elapsed_s), orders, mask)
     components = fit.components
     if significant_only:
         components = tuple(c for c in components if c.order == 1 or c.significance >= significance_threshold)
@@ -393,7 +393,7 @@ class DriftTrackFit:
     ----------
     frequency_offset_rad_s : float
         Correction to the fixed frequency at the record's start.
-    drift : PtcFrequencyDrift or None
+    drift : CoolerFrequencyDrift or None
         Rate (and wander, when significant).
     rate_uncertainty_rad_s_per_hour : float
     chi_square_constant : float
@@ -403,7 +403,7 @@ class DriftTrackFit:
     """
 
     frequency_offset_rad_s: float
-    drift: PtcFrequencyDrift | None
+    drift: CoolerFrequencyDrift | None
     rate_uncertainty_rad_s_per_hour: float
     chi_square_constant: float
     chi_square: float
@@ -434,16 +434,16 @@ def fit_phase_track(track: PhaseTrack, duration_s: float) -> DriftTrackFit:
         rate_error = 2.0 * 3600.0 * math.sqrt(covariance[2, 2])
     except np.linalg.LinAlgError:
         rate_error = math.inf
-    best = (chi_quadratic, quadratic[1], PtcFrequencyDrift(rate_rad_s_per_hour=float(2.0 * 3600.0 * quadratic[2])))
+    best = (chi_quadratic, quadratic[1], CoolerFrequencyDrift(rate_rad_s_per_hour=float(2.0 * 3600.0 * quadratic[2])))
     for period in np.geomspace(duration_s / 10.0, 4.0 * duration_s, 40):
         wander_phase = period / (2.0 * math.pi) * (1.0 - np.cos(2.0 * math.pi * t / period))
         solution, chi, _ = solve([np.ones_like(t), t, t ** 2, wander_phase])
         if solution[3] > 0.0 and chi < best[0]:
-            best = (chi, solution[1], PtcFrequencyDrift(float(2.0 * 3600.0 * solution[2]), float(solution[3]),
+            best = (chi, solution[1], CoolerFrequencyDrift(float(2.0 * 3600.0 * solution[2]), float(solution[3]),
                                                         float(period)))
     chi, offset, drift = best
     if drift.wander_amplitude_rad_s > 0.0 and not (chi_quadratic - chi > max(25.0, 0.2 * chi_quadratic)):
-        chi, offset, drift = chi_quadratic, quadratic[1], PtcFrequencyDrift(float(2.0 * 3600.0 * quadratic[2]))
+        chi, offset, drift = chi_quadratic, quadratic[1], CoolerFrequencyDrift(float(2.0 * 3600.0 * quadratic[2]))
     return DriftTrackFit(float(offset), drift, rate_error, chi_constant, chi)
 
 
@@ -453,18 +453,18 @@ def _fit_drift(elapsed_s, values, baseline, mask, omega, orders):
     track = phase_track(elapsed_s, values, omega)
     start = fit_phase_track(track, duration)
     omega0 = omega + start.frequency_offset_rad_s
-    drift = start.drift or PtcFrequencyDrift()
+    drift = start.drift or CoolerFrequencyDrift()
     with_wander = drift.wander_amplitude_rad_s > 0.0
 
     def unpack(x):
         x = [float(value) for value in x]
         if with_wander:
-            return x[0], PtcFrequencyDrift(x[1], x[2], x[3])
-        return x[0], PtcFrequencyDrift(x[1])
+            return x[0], CoolerFrequencyDrift(x[1], x[2], x[3])
+        return x[0], CoolerFrequencyDrift(x[1])
 
     def residual(x):
         frequency, model = unpack(x)
-        return _fit_components(values, baseline, PtcCycle(frequency, model).phase_rad(elapsed_s), orders,
+        return _fit_components(values, baseline, CoolerCycle(frequency, model).phase_rad(elapsed_s), orders,
                                mask).residual
 
     x0 = [omega0, drift.rate_rad_s_per_hour]
@@ -491,7 +491,7 @@ PHASE_CORRECTION_WINDOW_S = 30.0
 PHASE_CORRECTION_ORDERS = (1, 2, 3)
 
 
-def measured_cycle(elapsed_s, stage_signal_K, nominal_rad_s: float) -> MeasuredPtcCycle:
+def measured_cycle(elapsed_s, stage_signal_K, nominal_rad_s: float) -> MeasuredCoolerCycle:
     """The cooler's phase followed sample by sample in T5: the feedforward's tracker, made zero-lag.
 
     1. :class:`cryod.cooler.phase.CoolerPhaseTracker` (the same
@@ -522,7 +522,7 @@ def measured_cycle(elapsed_s, stage_signal_K, nominal_rad_s: float) -> MeasuredP
 
     Returns
     -------
-    MeasuredPtcCycle
+    MeasuredCoolerCycle
 
     Examples
     --------
@@ -574,7 +574,7 @@ def measured_cycle(elapsed_s, stage_signal_K, nominal_rad_s: float) -> MeasuredP
     start_phase, start_frequency = smoothed[0], smoothed_frequency[0]
     if t[0] > 0.0:                       # the first readings were missing: the reference is still the record's start
         start_phase -= start_frequency * t[0]
-    return MeasuredPtcCycle(t, smoothed - start_phase, smoothed_frequency)
+    return MeasuredCoolerCycle(t, smoothed - start_phase, smoothed_frequency)
 
 
 #: A sinusoidal wander is kept in the drift form when its amplitude is above this many standard errors.
@@ -583,7 +583,7 @@ WANDER_SIGNIFICANCE = 5.0
 PHASE_CORRELATION_S = 15.0
 
 
-def fit_drift_to_phase(cycle: MeasuredPtcCycle) -> tuple[float, PtcFrequencyDrift]:
+def fit_drift_to_phase(cycle: MeasuredCoolerCycle) -> tuple[float, CoolerFrequencyDrift]:
     """The model's drift form fitted to a measured phase: (omega_0, drift).
 
     ``theta(t) = theta_0 + omega_0 t + r t^2 / 7200 + (w P / 2 pi)(cos psi - cos(2 pi t / P + psi))``:
@@ -632,6 +632,6 @@ def fit_drift_to_phase(cycle: MeasuredPtcCycle) -> tuple[float, PtcFrequencyDrif
         amplitude_error = math.inf
     if amplitude > WANDER_SIGNIFICANCE * amplitude_error and amplitude > 0.0:
         wander_phase = math.atan2(sin_part, -cos_part)
-        return float(solution[1]), PtcFrequencyDrift(float(solution[2]), float(amplitude), period,
+        return float(solution[1]), CoolerFrequencyDrift(float(solution[2]), float(amplitude), period,
                                                      float(wrap_phase(wander_phase)))
-    return float(quadratic[1]), PtcFrequencyDrift(float(quadratic[2]))
+    return float(quadratic[1]), CoolerFrequencyDrift(float(quadratic[2]))

@@ -16,8 +16,8 @@ Modules:
   transfer functions, PTC source, effects, sensor noise);
 * :mod:`~cryod.model.model_file`: reading and writing model files;
 * :mod:`~cryod.model.transfer_function`: G(s), its frequency response and modal form;
-* :mod:`~cryod.model.ptc_cycle`: the cooler's phase and frequency over time;
-* :mod:`~cryod.model.heater_path`, :mod:`~cryod.model.ptc_path`: the two kinds of path;
+* :mod:`~cryod.model.cooler_cycle`: the cooler's phase and frequency over time;
+* :mod:`~cryod.model.heater_path`, :mod:`~cryod.model.cooler_path`: the two kinds of path;
 * :mod:`~cryod.model.dynamics`: how they and the effects combine into T2 and T5;
 * :mod:`~cryod.model.temperature_laws`, :mod:`~cryod.model.temperature_plant`: the cryostat
   across temperature (copper's heat capacity, the conductances' law, the cooler's line).
@@ -38,10 +38,10 @@ from cryod.model.model_file import (
 )
 from cryod.model.parameters import (
     EFFECT_NAMES, GENERIC_EFFECT_NAMES, CryostatModel, DeadTime, Disturbance, Effects, HeatCapacityTemperature,
-    HeaterNonlinearity, HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, PtcAmplitudeModulation,
-    PtcFrequencyDrift, PtcHarmonic, PtcSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
+    HeaterNonlinearity, HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, CoolerAmplitudeModulation,
+    CoolerFrequencyDrift, CoolerHarmonic, CoolerSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
 )
-from cryod.model.ptc_cycle import PtcCycle
+from cryod.model.cooler_cycle import CoolerCycle
 from cryod.model.temperature_laws import TemperatureDependence
 from cryod.model.temperature_plant import (
     TEMPERATURE_MODEL_PATH, TemperatureDependentPlant, cryostat_plant, linearised_at, steady_state,
@@ -50,10 +50,10 @@ from cryod.model.transfer_function import TransferFunction, TransferFunctionErro
 from cryod.yaml_source import FileFormatError
 
 __all__ = [
+    "CoolerAmplitudeModulation", "CoolerCycle", "CoolerFrequencyDrift", "CoolerHarmonic", "CoolerSource",
     "CryostatModel", "CryostatPlant", "DeadTime", "Disturbance", "Effects", "EFFECT_NAMES", "FileFormatError",
     "GENERIC_EFFECT_NAMES", "HeatCapacityTemperature", "HeaterNonlinearity", "HeaterPathCorrection", "LinkDynamics",
-    "OperatingPoint", "Pickup", "PtcAmplitudeModulation", "PtcCycle", "PtcFrequencyDrift", "PtcHarmonic",
-    "PtcStageDrift", "PtcSource", "SensorLag", "SensorNoise", "SimulatedRecord", "SlowProcess",
+    "OperatingPoint", "Pickup", "PtcStageDrift", "SensorLag", "SensorNoise", "SimulatedRecord", "SlowProcess",
     "TemperatureDependence", "TemperatureDependentPlant", "TEMPERATURE_MODEL_PATH", "cryostat_plant",
     "linearised_at", "steady_state",
     "TransferFunction", "TransferFunctionError", "DEFAULT_MODEL_PATH", "MODEL_FORMAT", "TRANSFER_FUNCTION_UNITS",

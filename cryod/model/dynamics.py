@@ -6,7 +6,7 @@ How the parts combine (equations in ``docs/model.md``):
   each a :class:`~cryod.model.heater_path.HeaterPath`: exact for a heater
   power held between writes at any instants;
 * the PTC paths (G2*G_link to the flange thermometer, the T5 oscillation to
-  its thermometer), each a :class:`~cryod.model.ptc_path.PtcPath`: the
+  its thermometer), each a :class:`~cryod.model.cooler_path.CoolerPath`: the
   cooler's steady oscillation evaluated at the exact instant asked for.
 
 Effects of the model are applied as physics: delivered heater power
@@ -43,7 +43,7 @@ import numpy as np
 from cryod.model.heater_path import HeaterPath
 from cryod.model.kept_results import KeptResults, digest
 from cryod.model.parameters import CryostatModel
-from cryod.model.ptc_path import PtcDrive, PtcPath
+from cryod.model.cooler_path import CoolerDrive, CoolerPath
 from cryod.model.transfer_function import TransferFunction
 
 
@@ -120,7 +120,7 @@ class CryostatPlant:
         Heater power the plant is in steady state with at the start.
     ptc_cycle : optional
         The cooler's phase and frequency over time, instead of the model's own
-        (:class:`~cryod.model.ptc_cycle.MeasuredPtcCycle`: a record's).
+        (:class:`~cryod.model.cooler_cycle.MeasuredCoolerCycle`: a record's).
     """
 
     def __init__(self, model: CryostatModel, start_time_s: float = 0.0,
@@ -131,11 +131,11 @@ class CryostatPlant:
         effects = model.effects
         flange_heater, flange_ptc = flange_transfer_functions(model)
         stage_heater, stage_oscillation = stage_transfer_functions(model)
-        drive = self.drive = PtcDrive(model, ptc_cycle)
+        drive = self.drive = CoolerDrive(model, ptc_cycle)
         self.flange_heater = HeaterPath(flange_heater)
         self.stage_heater = HeaterPath(stage_heater)
-        self.flange_ptc = PtcPath(drive, flange_ptc, input_is_heat=True)
-        self.stage_ptc = PtcPath(drive, stage_oscillation, input_is_heat=False)
+        self.flange_ptc = CoolerPath(drive, flange_ptc, input_is_heat=True)
+        self.stage_ptc = CoolerPath(drive, stage_oscillation, input_is_heat=False)
         self.dead_time_s = effects.dead_time.heater_to_flange_s if effects.dead_time else 0.0
         self.nonlinearity = effects.heater_nonlinearity
         self.heat_capacity = effects.heat_capacity_temperature
@@ -287,7 +287,7 @@ def simulate(model: CryostatModel, time_s, heater_power_w, *, initial_heater_pow
         (the ``heater_set_s`` column). Each must lie between its sample and the next.
     ptc_cycle : optional
         The cooler's phase and frequency over time instead of the model's own
-        (:class:`~cryod.model.ptc_cycle.MeasuredPtcCycle`: the phase measured in a record).
+        (:class:`~cryod.model.cooler_cycle.MeasuredCoolerCycle`: the phase measured in a record).
 
     Returns
     -------

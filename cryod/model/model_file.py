@@ -24,8 +24,8 @@ import yaml
 
 from cryod.model.parameters import (
     PICKUP_THERMOMETERS, CryostatModel, DeadTime, Disturbance, Effects, HeatCapacityTemperature, HeaterNonlinearity,
-    HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, PtcAmplitudeModulation, PtcFrequencyDrift,
-    PtcHarmonic, PtcSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
+    HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, CoolerAmplitudeModulation, CoolerFrequencyDrift,
+    CoolerHarmonic, CoolerSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
 )
 from cryod.model.temperature_laws import TemperatureDependence
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
@@ -186,10 +186,10 @@ def _transfer_function(functions: Section, key: str, units: str) -> TransferFunc
         raise section.error("denominator", f"not a usable transfer function: {error}") from None
 
 
-def _ptc_source(section: Section) -> PtcSource:
+def _ptc_source(section: Section) -> CoolerSource:
     harmonics = []
     for item in section.sections("harmonics", []):
-        harmonics.append(PtcHarmonic(
+        harmonics.append(CoolerHarmonic(
             order=item.number("order", minimum=2, integer=True),
             ptc_stage_amplitude_K=item.number("ptc_stage_amplitude_K", minimum=0.0),
             phase_rad=item.number("phase_rad"),
@@ -198,7 +198,7 @@ def _ptc_source(section: Section) -> PtcSource:
     orders = [h.order for h in harmonics]
     if len(set(orders)) != len(orders):
         raise section.error("harmonics", f"each harmonic order may appear once, got {orders}")
-    source = PtcSource(
+    source = CoolerSource(
         angular_frequency_rad_s=section.number("angular_frequency_rad_s", minimum=0.0, exclusive_minimum=True),
         ptc_stage_amplitude_K=section.number("ptc_stage_amplitude_K", minimum=0.0),
         phase_rad=section.number("phase_rad"),
@@ -236,16 +236,16 @@ def _heater_nonlinearity(part: Section) -> HeaterNonlinearity:
         quadratic_coefficient_per_W=part.number("quadratic_coefficient_per_W", minimum=-1.0, maximum=10.0))
 
 
-def _ptc_frequency_drift(part: Section) -> PtcFrequencyDrift:
-    return PtcFrequencyDrift(
+def _ptc_frequency_drift(part: Section) -> CoolerFrequencyDrift:
+    return CoolerFrequencyDrift(
         rate_rad_s_per_hour=part.number("rate_rad_s_per_hour", 0.0),
         wander_amplitude_rad_s=part.number("wander_amplitude_rad_s", 0.0, minimum=0.0),
         wander_period_s=part.number("wander_period_s", 3600.0, minimum=0.0, exclusive_minimum=True),
         wander_phase_rad=part.number("wander_phase_rad", 0.0))
 
 
-def _ptc_amplitude_modulation(part: Section) -> PtcAmplitudeModulation:
-    return PtcAmplitudeModulation(
+def _ptc_amplitude_modulation(part: Section) -> CoolerAmplitudeModulation:
+    return CoolerAmplitudeModulation(
         depth=part.number("depth", minimum=0.0, maximum=0.9),
         period_s=part.number("period_s", minimum=0.0, exclusive_minimum=True),
         phase_rad=part.number("phase_rad", 0.0))

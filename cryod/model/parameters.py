@@ -1,14 +1,14 @@
 """What the model says about the cryostat: its parts, as frozen dataclasses.
 
 A :class:`CryostatModel` holds the operating point, the four transfer
-functions, the cooler's oscillation (:class:`PtcSource`), the optional
+functions, the cooler's oscillation (:class:`CoolerSource`), the optional
 physical effects and the sensor noise. Files are read and written by
 :mod:`cryod.model.model_file`; the equations behind every field are in
 ``docs/model.md``.
 
 Examples
 --------
->>> drift = PtcFrequencyDrift(rate_rad_s_per_hour=0.036)
+>>> drift = CoolerFrequencyDrift(rate_rad_s_per_hour=0.036)
 >>> round(float(drift.angular_frequency_offset(1800.0)), 4)     # rad/s, half an hour in
 0.018
 >>> round(HeaterNonlinearity(0.5).delivered_power_w(0.1), 6)      # W
@@ -54,7 +54,7 @@ class OperatingPoint:
 
 
 @dataclass(frozen=True)
-class PtcHarmonic:
+class CoolerHarmonic:
     """One harmonic of the PTC second-stage temperature oscillation.
 
     ``ptc_stage_amplitude_K * sin(order * phase(t) + phase_rad)``.
@@ -66,7 +66,7 @@ class PtcHarmonic:
 
 
 @dataclass(frozen=True)
-class PtcSource:
+class CoolerSource:
     """The pulse-tube cooler's temperature oscillation seen at its second stage (T5).
 
     The oscillation is ``ptc_stage_amplitude_K * sin(phase(t) + phase_rad)`` plus
@@ -79,7 +79,7 @@ class PtcSource:
     ptc_stage_amplitude_K: float
     phase_rad: float
     heat_capacity_J_per_K: float
-    harmonics: tuple[PtcHarmonic, ...] = ()
+    harmonics: tuple[CoolerHarmonic, ...] = ()
 
     def components(self) -> list[tuple[int, float, float]]:
         """(order, amplitude in K, phase in rad) of the fundamental and each harmonic."""
@@ -136,7 +136,7 @@ class HeaterNonlinearity:
 
 
 @dataclass(frozen=True)
-class PtcFrequencyDrift:
+class CoolerFrequencyDrift:
     """The cooler's angular frequency varies over time.
 
     ``omega(t) = omega_0 + rate * t / 3600 + wander_amplitude * sin(2 pi t / wander_period + wander_phase)``.
@@ -163,7 +163,7 @@ class PtcFrequencyDrift:
 
 
 @dataclass(frozen=True)
-class PtcAmplitudeModulation:
+class CoolerAmplitudeModulation:
     """The cooler's stroke breathing: the whole oscillation (T5's line and the heat it drives) scaled by
     ``1 + depth * sin(2 pi t / period_s + phase_rad)``, t from the phase reference."""
 
@@ -350,8 +350,8 @@ class Effects:
     dead_time: DeadTime | None = None
     heat_capacity_temperature: HeatCapacityTemperature | None = None
     heater_nonlinearity: HeaterNonlinearity | None = None
-    ptc_frequency_drift: PtcFrequencyDrift | None = None
-    ptc_amplitude_modulation: PtcAmplitudeModulation | None = None
+    ptc_frequency_drift: CoolerFrequencyDrift | None = None
+    ptc_amplitude_modulation: CoolerAmplitudeModulation | None = None
     #: A :class:`PtcStageDrift`, or any object with its ``offsets_K(time_s)`` (a drift measured in a record).
     ptc_stage_drift: PtcStageDrift | None = None
     heater_path_correction: HeaterPathCorrection | None = None
@@ -372,7 +372,7 @@ class CryostatModel:
     flange_to_thermometer: TransferFunction   # G2, K/K
     heater_to_ptc_stage: TransferFunction     # G3, K/W
     ptc_to_flange: TransferFunction           # G_link, K/W
-    ptc: PtcSource
+    ptc: CoolerSource
     effects: Effects = field(default_factory=Effects)
     sensor_noise: SensorNoise = field(default_factory=SensorNoise)
     name: str = ""

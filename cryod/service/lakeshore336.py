@@ -70,7 +70,7 @@ class Lakeshore336Setup:
 
     Attributes
     ----------
-    heater_max_W : float
+    heater_max_w : float
         R * I_max^2: 100 % of ``HTR?`` and of the heater range.
     heater_resistance_ohm, heater_max_current_A : float
     proportional_W_per_K, integral_W_per_K_s : float or None
@@ -83,7 +83,7 @@ class Lakeshore336Setup:
         The third field of ``*IDN?``: the lab's name for the cryostat.
     """
 
-    heater_max_W: float
+    heater_max_w: float
     heater_resistance_ohm: float
     heater_max_current_A: float
     proportional_W_per_K: float | None
@@ -97,7 +97,7 @@ class Lakeshore336Setup:
     def from_config(cls, config, flange_curve, ptc_stage_curve) -> "Lakeshore336Setup":
         """From a :class:`cryod.config.DaemonConfig` and the two calibration curves."""
         pi = dict(config.control.terms).get("pi")
-        return cls(heater_max_W=config.heater.max_power_w, heater_resistance_ohm=config.heater.resistance_ohm,
+        return cls(heater_max_w=config.heater.max_power_w, heater_resistance_ohm=config.heater.resistance_ohm,
                    heater_max_current_A=config.heater.max_current_A,
                    proportional_W_per_K=getattr(pi, "proportional_w_per_K", None),
                    integral_W_per_K_s=getattr(pi, "integral_w_per_K_s", None),
@@ -362,7 +362,7 @@ class Lakeshore336Session:
 
     def _heater_percent(self, status) -> float:
         heater = status.get("heater_W")
-        return 100.0 * heater / self._setup().heater_max_W if heater is not None and math.isfinite(heater) else 0.0
+        return 100.0 * heater / self._setup().heater_max_w if heater is not None and math.isfinite(heater) else 0.0
 
     def _heater_output(self, arguments, status) -> str:
         if self._output(arguments) != "1":            # (outputs 3 and 4 are off: 0 %, as AOUT? would say)
@@ -415,7 +415,7 @@ class Lakeshore336Session:
             p, i, d = DEFAULT_PID
         else:
             # output % of R*I_max^2 per kelvin; integral as the 336's reset, 1000 / (integral time in s)
-            p = 100.0 * setup.proportional_W_per_K / setup.heater_max_W
+            p = 100.0 * setup.proportional_W_per_K / setup.heater_max_w
             i = 1000.0 * (setup.integral_W_per_K_s or 0.0) / setup.proportional_W_per_K
             d = 0.0
         return f"{_number(p, 1)},{_number(i, 1)},{_number(d, 0)}"

@@ -28,7 +28,7 @@ def main() -> None:
     for setpoint, resistance, style in ((5.0, 50.0, "C0-"), (5.0, 17.0, "C1-"), (6.0, 50.0, "C2-")):
         limit = feedforward_limit(MODEL, setpoint, resistance, MAX_CURRENT_A, certify=False)
         phase = np.append(limit.waveform_phase_rad, 2 * np.pi)
-        power = np.append(limit.waveform_power_W, limit.waveform_power_W[0])
+        power = np.append(limit.waveform_power_w, limit.waveform_power_w[0])
         waveforms.plot(phase, power * 1e3, style,
                        label=f"{setpoint:g} K, {resistance:g} ohm: leaves {limit.ptc_periodic_limit_K * 1e3:.2f} mK")
         waveforms.axhline(limit.max_heater_power_W * 1e3, color=style[:2], lw=0.6, ls=":")

@@ -27,7 +27,7 @@ import numpy as np
 
 from cryod.model import CryostatModel
 from cryod.model.dynamics import flange_transfer_functions, stage_transfer_functions
-from cryod.model.ptc_path import PtcDrive, PtcPath
+from cryod.model.cooler_path import CoolerDrive, CoolerPath
 
 
 def plant_at_harmonics(model: CryostatModel, orders, period_s: float, setting_delay_s: float = 0.0) -> np.ndarray:
@@ -52,10 +52,10 @@ def line_at_harmonics(model: CryostatModel, harmonics: int, time_scale: float = 
 
     ``time_scale`` multiplies the flange's time constants (the heat-capacity effect at a setpoint).
     """
-    drive = PtcDrive(model)
+    drive = CoolerDrive(model)
     omega = model.ptc.angular_frequency_rad_s
-    flange = PtcPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
-    stage = PtcPath(drive, stage_transfer_functions(model)[1], input_is_heat=False)
+    flange = CoolerPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
+    stage = CoolerPath(drive, stage_transfer_functions(model)[1], input_is_heat=False)
     rotations = [cmath.exp(1j * component.phase_rad) for component in drive.components]
     flange_phasors = [p * r for p, r in zip(flange.output_phasors(omega, time_scale), rotations)]
     stage_fundamental = next(p * r for p, r, c in zip(stage.output_phasors(omega), rotations, drive.components)

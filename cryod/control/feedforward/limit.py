@@ -134,9 +134,9 @@ class FeedforwardLimit:
         ``A cos(phi)`` (the phase the feedforward tracks). The loop sets ``P(phi_k)`` at reading k.
         A loop that evaluates the waveform at another instant (the middle of the coming hold,
         say, s later) plays the same sequence with ``a_n exp(-j n w0 s)``.
-    waveform_power_W : numpy.ndarray
+    waveform_power_w : numpy.ndarray
         Commanded heater power of the best waveform at those phases.
-    waveform_harmonics_W : numpy.ndarray
+    waveform_harmonics_w : numpy.ndarray
         Complex amplitudes a_n (n = 1..N) of the delivered power against that phase:
         ``P(phi) = P_mean + Re sum_n a_n exp(j n phi)``.
     """
@@ -172,8 +172,8 @@ class FeedforwardLimit:
     predicted_best_residual_K: float
     authority_limited: bool
     waveform_phase_rad: np.ndarray
-    waveform_power_W: np.ndarray
-    waveform_harmonics_W: np.ndarray
+    waveform_power_w: np.ndarray
+    waveform_harmonics_w: np.ndarray
 
     @property
     def limited_by(self) -> str:
@@ -210,8 +210,8 @@ class FeedforwardLimit:
             "authority_limited": self.authority_limited, "limited_by": self.limited_by,
             "waveform": {
                 "phase_rad": [float(v) for v in self.waveform_phase_rad],
-                "heater_power_W": [float(v) for v in self.waveform_power_W],
-                "harmonics_W": [[float(a.real), float(a.imag)] for a in self.waveform_harmonics_W],
+                "heater_power_W": [float(v) for v in self.waveform_power_w],
+                "harmonics_W": [[float(a.real), float(a.imag)] for a in self.waveform_harmonics_w],
             },
         }
 
@@ -507,8 +507,8 @@ def _solved(problem: "_Problem", thermometer_at_line: complex, floor_gain: float
         noise_floor_K=noise, predicted_best_residual_K=math.hypot(limit, noise),
         authority_limited=limit > AUTHORITY_FRACTION * open_line,
         waveform_phase_rad=_read_only(waveform_phase),
-        waveform_power_W=_read_only(commanded(waveform_delivered)),
-        waveform_harmonics_W=_read_only(waveform_harmonics),
+        waveform_power_w=_read_only(commanded(waveform_delivered)),
+        waveform_harmonics_w=_read_only(waveform_harmonics),
     )
 
 

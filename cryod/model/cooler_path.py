@@ -7,7 +7,7 @@ never aliases. Each harmonic k of the T5 oscillation,
 the flange (paper eq. 4); a path H (heat to flange thermometer, or the T5
 thermometer's own lag) answers with
 ``Re(H(j k omega) Q_k exp(j (k theta(t) + alpha_k))``, with theta and omega
-the cooler's cycle (:class:`~cryod.model.ptc_cycle.PtcCycle`) and
+the cooler's cycle (:class:`~cryod.model.cooler_cycle.CoolerCycle`) and
 ``H(j k omega)`` from :meth:`~cryod.model.transfer_function.TransferFunction.frequency_response`.
 
 Examples
@@ -15,8 +15,8 @@ Examples
 >>> from cryod.model import load_model
 >>> from cryod.model.dynamics import flange_transfer_functions
 >>> model = load_model()
->>> drive = PtcDrive(model)
->>> flange = PtcPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
+>>> drive = CoolerDrive(model)
+>>> flange = CoolerPath(drive, flange_transfer_functions(model)[1], input_is_heat=True)
 >>> round(abs(flange.output_phasors(model.ptc.angular_frequency_rad_s)[0]), 5)   # T2's line, K
 0.00173
 """
@@ -29,31 +29,31 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.model.parameters import CryostatModel
-from cryod.model.ptc_cycle import PtcCycle
+from cryod.model.cooler_cycle import CoolerCycle
 from cryod.model.transfer_function import TransferFunction
 
 
 @dataclass(frozen=True)
-class _PtcComponent:
+class _CoolerComponent:
     order: int
     heat_phasor: complex      # q_k = Re(heat_phasor * exp(j theta)) for omega = omega_0, in W per (rad/s)
     stage_phasor: complex     # T5 oscillation = Re(stage_phasor * exp(j theta)), K
     phase_rad: float
 
 
-class PtcDrive:
+class CoolerDrive:
     """The cooler's oscillation: its cycle, and the heat it drives into the flange.
 
-    ``cycle`` replaces the model's own (a :class:`~cryod.model.ptc_cycle.MeasuredPtcCycle`
+    ``cycle`` replaces the model's own (a :class:`~cryod.model.cooler_cycle.MeasuredCoolerCycle`
     when a record is replayed with the phase measured in it).
     """
 
     def __init__(self, model: CryostatModel, cycle=None):
         ptc = model.ptc
-        self.cycle = cycle if cycle is not None else PtcCycle(ptc.angular_frequency_rad_s,
+        self.cycle = cycle if cycle is not None else CoolerCycle(ptc.angular_frequency_rad_s,
                                                               model.effects.ptc_frequency_drift)
         self.components = [
-            _PtcComponent(
+            _CoolerComponent(
                 order=order,
                 # q = C d/dt [B sin(theta)] = Re(C k omega B exp(j theta)); omega applied later
                 heat_phasor=complex(ptc.heat_capacity_J_per_K * order * amplitude),
@@ -79,12 +79,12 @@ class PtcDrive:
         return self._terms
 
 
-class PtcPath:
+class CoolerPath:
     """Response of one thermometer to the PTC oscillation, evaluated as phasors.
 
     Parameters
     ----------
-    drive : PtcDrive
+    drive : CoolerDrive
     transfer_function : TransferFunction
         From the PTC heat q (W) to the thermometer (K), or from the T5
         oscillation (K) to the T5 thermometer (K).
@@ -92,7 +92,7 @@ class PtcPath:
         True for the heat path to the flange, False for the stage oscillation.
     """
 
-    def __init__(self, drive: PtcDrive, transfer_function: TransferFunction, input_is_heat: bool):
+    def __init__(self, drive: CoolerDrive, transfer_function: TransferFunction, input_is_heat: bool):
         self.drive = drive
         self.transfer_function = transfer_function
         self.input_is_heat = input_is_heat
@@ -107,7 +107,7 @@ class PtcPath:
         """
         return [self._output_phasor(component, frequency, time_scale) for component in self.drive.components]
 
-    def _output_phasor(self, component: _PtcComponent, frequency, time_scale):
+    def _output_phasor(self, component: _CoolerComponent, frequency, time_scale):
         gain = self.transfer_function.frequency_response(component.order * frequency * time_scale)
         return gain * (component.heat_phasor * frequency if self.input_is_heat else component.stage_phasor)
 

@@ -1,26 +1,26 @@
 """The pulse-tube cooler's cycle: its phase and angular frequency at any instant.
 
 The one place they are computed: the simulated cryostat drives its PTC paths
-with them (:mod:`cryod.model.ptc_path`), and the analysis fits the line it
+with them (:mod:`cryod.model.cooler_path`), and the analysis fits the line it
 measures in T5 at them (:mod:`cryod.cooler.line`). With ``t`` the time
 since the phase reference (the start of the simulation or of the record)::
 
     omega(t) = omega_0 + drift offset(t)
     theta(t) = integral of omega from 0 to t = omega_0 t + drift phase(t)
 
-The drift's form is :class:`~cryod.model.parameters.PtcFrequencyDrift`. A
-cycle measured in a record (:class:`MeasuredPtcCycle`: the phase the analysis
+The drift's form is :class:`~cryod.model.parameters.CoolerFrequencyDrift`. A
+cycle measured in a record (:class:`MeasuredCoolerCycle`: the phase the analysis
 tracks in T5, sample by sample) drives the same paths when a record is
 replayed with the cooler's own wander instead of a form.
 
 Examples
 --------
->>> from cryod.model.parameters import PtcFrequencyDrift
->>> cycle = PtcCycle(10.83, PtcFrequencyDrift(rate_rad_s_per_hour=0.036))
+>>> from cryod.model.parameters import CoolerFrequencyDrift
+>>> cycle = CoolerCycle(10.83, CoolerFrequencyDrift(rate_rad_s_per_hour=0.036))
 >>> phase, frequency = cycle.phase_and_frequency(3600.0)
 >>> round(float(phase), 1), round(float(frequency), 3)          # rad, rad/s an hour in
 (39052.8, 10.866)
->>> PtcCycle(10.83).phase_rad(np.array([0.0, 0.5]))
+>>> CoolerCycle(10.83).phase_rad(np.array([0.0, 0.5]))
 array([0.   , 5.415])
 """
 
@@ -31,23 +31,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cryod.model.parameters import PtcFrequencyDrift
+from cryod.model.parameters import CoolerFrequencyDrift
 
 
 @dataclass(frozen=True)
-class PtcCycle:
+class CoolerCycle:
     """Phase and angular frequency of the cooler's fundamental over time.
 
     Parameters
     ----------
     angular_frequency_rad_s : float
         omega_0, the angular frequency at the phase reference (rad/s).
-    drift : PtcFrequencyDrift, optional
+    drift : CoolerFrequencyDrift, optional
         How the frequency changes from there; ``None`` for a constant one.
     """
 
     angular_frequency_rad_s: float
-    drift: PtcFrequencyDrift | None = None
+    drift: CoolerFrequencyDrift | None = None
 
     def phase_and_frequency(self, elapsed_s):
         """Phase theta (rad, without any component's own phase) and angular frequency omega (rad/s).
@@ -82,7 +82,7 @@ class PtcCycle:
         return cmath.exp(1j * float(phase)), float(frequency)
 
 
-class MeasuredPtcCycle:
+class MeasuredCoolerCycle:
     """The cooler's phase and frequency as measured in a record, between its instants.
 
     Linear interpolation of the phase and the frequency given at increasing
@@ -100,7 +100,7 @@ class MeasuredPtcCycle:
 
     Examples
     --------
-    >>> cycle = MeasuredPtcCycle([0.0, 1.0, 2.0], [0.0, 10.0, 20.5], [10.0, 10.25, 10.5])
+    >>> cycle = MeasuredCoolerCycle([0.0, 1.0, 2.0], [0.0, 10.0, 20.5], [10.0, 10.25, 10.5])
     >>> phase, frequency = cycle.phase_and_frequency(np.array([0.5, 3.0]))
     >>> phase.tolist(), frequency.tolist()
     ([5.0, 31.0], [10.125, 10.5])

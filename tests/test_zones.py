@@ -204,3 +204,31 @@ def test_the_daemon_shows_the_zone_in_its_status_and_records_each_change(tmp_pat
     plain, _, _, _, plain_events = make_loop(reference_model, curves, load_config(CONFIG / "cryod.yaml"))
     plain.run(duration_s=5.0, manage_gc=False)
     assert "zone" not in plain.status.as_dict() and not [event for event in plain_events if event.kind == "zone"]
+
+
+# -- the setpoint the heater can hold, judged in its zone -------------------------------------
+def test_a_setpoints_warning_uses_the_model_and_heater_limit_of_the_zone_holding_it(tmp_path):
+    """Zone 1 (to 6.5 K) limits the heater to 0.2 W; zone 2's model has a heater path four times the shipped
+    model's. 6 K needs about 260 mW by the shipped model: holdable with R I_max^2 = 0.5 W, not within zone 1's
+    limit. 16 K needs 1726 mW by the shipped model and a quarter of that by zone 2's: holdable there. The
+    regulator runs on the zone's model and limit, so that is what the warning must judge by."""
+    from cryod.control.setpoint_reach import setpoint_warning
+
+    path, _ = configured(tmp_path, TABLE, ("    - upper_K: 4.6", "    - upper_K: 6.5"))
+    shipped = (CONFIG / "model.yaml").read_text()
+    assert "numerator: [338.42, 6.8182]" in shipped
+    (tmp_path / "zone-model.yaml").write_text(shipped.replace("numerator: [338.42, 6.8182]",
+                                                              "numerator: [1353.68, 27.2728]"))
+    config = load_config(path)
+    heater_w = config.heater.max_power_w
+    assert heater_w == pytest.approx(0.5)
+    plain = dataclasses.replace(config.control, zones=None)
+    assert setpoint_warning(plain, 6.0, heater_w) is None
+    assert setpoint_warning(plain, 16.0, heater_w).startswith("setpoint 16 K needs about 1726 mW")
+    in_zone_1 = setpoint_warning(config.control, 6.0, heater_w)
+    assert in_zone_1.startswith("setpoint 6 K needs about 260 mW of heater power in steady state (zone 1: ")
+    assert "above zone 1's heater limit, max_heater_power_W = 200 mW" in in_zone_1
+    assert setpoint_warning(config.control, 16.0, heater_w) is None
+    in_zone_2 = setpoint_warning(config.control, 20.0, heater_w)
+    assert in_zone_2.startswith("setpoint 20 K needs about 578 mW of heater power in steady state "
+                                "(zone 2: zone-model.yaml), above the heater's top, R I_max^2 = 500 mW"), in_zone_2

@@ -33,7 +33,7 @@ from cryod.control.feedforward.limit import (
     limit_sweep,
 )
 from cryod.control.feedforward.limit_range import LimitRange, limit_range
-from cryod.control.limit_binding import LimitBinding, limit_binding
+from cryod.control.feedforward.limit_binding import LimitBinding, limit_binding
 from cryod.control.zone_commissioning import limits_across_range, model_at_temperature, model_of_zone
 from cryod.control.zones import zone_table_from
 from cryod.model import DEFAULT_MODEL_PATH, linearised_at

@@ -68,7 +68,7 @@ from cryod.control.feedforward.harmonic_plant import plant_at_harmonics
 from cryod.control.feedforward.learned_limit import LearnedLimitInputs
 from cryod.control.feedforward.learned_projection import learning_step
 from cryod.control.feedforward.learning_report import LearningReport
-from cryod.control.limit_binding import limit_binding, measured_against_limit
+from cryod.control.feedforward.limit_binding import limit_binding, measured_against_limit
 from cryod.control.feedforward.limit_follower import LimitFollower
 from cryod.control.feedforward.plant_learner import PRIOR_SPREAD, LearnedPlant
 from cryod.control.feedforward.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K

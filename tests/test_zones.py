@@ -252,3 +252,22 @@ def test_once_the_power_holding_the_setpoint_is_measured_the_warning_uses_it_wit
     assert setpoint_warning(config.control, 7.0, 0.5, held).startswith("setpoint 7 K needs about 813 mW of heater "
                                                                          "power in steady state (zone 2: from the")
     assert setpoint_warning(config.control, 7.0, 0.5, (4.5, 0.04)) is None          # held in zone 1: zone 2's model
+
+
+def test_terms_are_told_of_a_zone_entered_by_the_setpoint_not_of_a_start_or_a_reload(tmp_path):
+    """What a term learned of the cryostat (the feedforward's plant) belongs to an operating point: the setpoint
+    moving into another zone moves it, a reload that redraws the zones around an unmoved setpoint does not."""
+    regulator, config = regulator_with(tmp_path)
+    told = []
+    regulator.term("feedforward").enter_zone = told.append
+    regulator.close_loop(0.0, flange_K=4.998, ptc_stage_K=3.3, present_power_w=0.1)      # 5 K: zone 2 from the start
+    regulator.step(0.08, 0.08, flange_K=4.998, ptc_stage_K=3.3)
+    assert regulator.zone_index == 1 and told == []
+    regulator.ramp.target_K = 4.4
+    regulator.step(0.16, 0.08, flange_K=4.998, ptc_stage_K=3.3)
+    assert regulator.zone_index == 0 and told == [0]
+    zones = config.control.zones
+    moved = dataclasses.replace(zones, zones=(dataclasses.replace(zones.zones[0], upper_K=4.3), zones.zones[1]))
+    regulator.reconfigure(dataclasses.replace(config.control, zones=moved))
+    assert regulator.zone_index == 1 and told == [0]
+    regulator.close()

@@ -20,7 +20,10 @@ About a setpoint (``setpoint_K``, one zone's identification) the same phases run
 criterion below, on the heater power; its time counts from when a configured ramp has reached the
 setpoint); ``line``, held there; ``step``, the setpoint stepped by
 ``setpoint_step_K``, until the heater power has settled again. The fit takes the heater as the input
-and T2 as the output, as in open loop; the approach across the range stays out of it.
+and T2 as the output, as in open loop; the approach across the range stays out of it. Under feedback
+the heater's answer to a setpoint step is a kick of seconds many times the change that lasts, then
+the plant's slow tail: the step's change counts from the hold's level, and the criterion must hold
+for a whole window without a break (the heater's slope passes through zero at each turn).
 
 Settled, the stated criterion: over the last ``settle_window_s`` the
 straight line fitted to T2 changes by less than ``settle_fraction`` of T2's
@@ -193,10 +196,15 @@ class SettleJudge:
         A first guess of the settling time (s), until the data give their own.
     """
 
-    def __init__(self, plan: ExperimentPlan, expected_s: float, reference_K: float | None = None):
+    def __init__(self, plan: ExperimentPlan, expected_s: float, reference_K: float | None = None,
+                 held_for_s: float = 0.0):
         self.plan = plan
         self.expected_s = expected_s
         self.reference_K = reference_K
+        #: The criterion must hold this long without a break (s): a response that is not monotonic (the
+        #: heater under feedback) passes through a slope of zero at each of its turns.
+        self.held_for_s = held_for_s
+        self._met_since_s: float | None = None
         self.recent: collections.deque[tuple[float, float]] = collections.deque()   # the last window
         self.start_s: float | None = None
         self._first_sum, self._first_count = 0.0, 0
@@ -233,7 +241,12 @@ class SettleJudge:
         allowed = max(plan.settle_fraction * self.change_K, plan.settle_floor_K)
         self.history.append((now_s, self.drift_K / allowed))
         del self.history[:-200]
-        return elapsed >= plan.min_settle_s and self.drift_K <= allowed
+        if self.drift_K > allowed:
+            self._met_since_s = None
+            return False
+        if self._met_since_s is None:
+            self._met_since_s = now_s
+        return elapsed >= plan.min_settle_s and now_s - self._met_since_s >= self.held_for_s
 
     def time_left_s(self, now_s: float) -> float:
         """Estimated time until settled (s): from the decay of the drift over the last two minutes (not less
@@ -312,7 +325,7 @@ class ExperimentRunner:
         self.phase_log: list[tuple[str, float, float]] = []     # (phase, start, end) in the loop's clock
         self.started_s: float | None = None
         self._next_judgement_s = -math.inf
-        self._recent: collections.deque[tuple[float, float]] = collections.deque()    # T2 over the last window
+        self._recent: collections.deque[tuple[float, float]] = collections.deque()    # what settles, last window
         self._lock = threading.Lock()
         self._progress = Progress(phase_count=len(self.phases))
 
@@ -355,11 +368,12 @@ class ExperimentRunner:
             self._at_setpoint = True
             self.phase_start_s = time_s
             self.note(f"the setpoint reached {self.plan.setpoint_K:g} K: the regulation settles from here")
-        if self.judge is not None:       # about a setpoint, the heater settles (T2 is held)
-            self.judge.add(time_s, float(item.heater_W if item.heater_W is not None else math.nan)
-                           if self.closed_loop else flange)
-        if math.isfinite(flange):
-            self._recent.append((time_s, flange))
+        # what settles: about a setpoint the heater power (T2 is held), else T2
+        settling = float(item.heater_W if item.heater_W is not None else math.nan) if self.closed_loop else flange
+        if self.judge is not None:
+            self.judge.add(time_s, settling)
+        if math.isfinite(settling):
+            self._recent.append((time_s, settling))
             while self._recent[0][0] < time_s - self.plan.settle_window_s:
                 self._recent.popleft()
         done = self._phase_done(time_s)
@@ -417,7 +431,10 @@ class ExperimentRunner:
         reference = float(np.mean([v for _, v in self._recent])) if self._recent and index > 0 else None
         self.judge = SettleJudge(plan, self.expected_settle_s, reference) if phase in ("approach", "step") else None
         if self.closed_loop:             # the heater power settles: within 1 uW a window at least
-            self.judge = SettleJudge(dataclasses.replace(plan, settle_floor_K=1e-6), self.expected_settle_s) \
+            # its change counts from the hold's level: the heater's first seconds after a setpoint step are
+            # the feedback's kick, many times the change that lasts
+            self.judge = SettleJudge(dataclasses.replace(plan, settle_floor_K=1e-6), self.expected_settle_s,
+                                     reference if phase == "step" else None, held_for_s=plan.settle_window_s) \
                 if phase in ("regulate", "step") else None
         self._next_judgement_s = -math.inf
         if phase == "regulate":

@@ -16,7 +16,8 @@ from cryod.control.zone_commissioning import (
 )
 from cryod.control.zones import Zone, ZoneTable
 from cryod.identification.experiment import ExperimentPlan, ExperimentRunner
-from cryod.identification.setpoint_series import part_about_setpoint, plans_at
+from cryod.identification.setpoint_series import part_about_setpoint, plans_at, records_about_setpoint
+from cryod.records.compression import record_path_now
 from cryod.model import TEMPERATURE_MODEL_PATH, linearised_at, load_model, save_model, steady_state
 from tests.conftest import CONFIG
 from tests.test_zones import PI_SECTION, configured
@@ -120,6 +121,33 @@ def test_the_setpoint_steps_heater_settles_against_its_lasting_change_not_its_fi
     # 84 uW (1 - e^(-t / 3000 s) / 2), from t = 4570 s; then held for a window (the kick's turn at 60 s,
     # where the slope passes zero, does not end the step)
     assert 4600.0 < step[2] - step[1] < 4800.0
+
+
+def test_an_experiment_across_midnight_is_fitted_from_the_record_with_the_step_on():
+    """The approach's day file (a ramp: its setpoint changes every tick) stays out; the step's file is cut to the
+    hold and the step, the file after it is taken whole."""
+    def record(time_s, setpoint):
+        return RecordData(time_s, np.asarray(setpoint, float), np.full(time_s.size, 8.0), np.full(time_s.size, 1.8),
+                          np.asarray(setpoint, float))
+
+    time_s = np.arange(0.0, 1000.0, 1.0)
+    ramp = record(time_s, 11.0 + time_s / 1000.0)
+    step = record(time_s, np.where(time_s < 600.0, 12.0, 12.05))
+    after = record(time_s, np.full(time_s.size, 12.05))
+    parts = records_about_setpoint([ramp, step, after], line_hold_s=120.0)
+    assert len(parts) == 2 and parts[0].time_s[0] == 480.0 and parts[1] is after
+    assert records_about_setpoint([step], 120.0)[0].time_s[0] == 480.0
+
+
+def test_a_record_compressed_at_the_days_end_is_found_where_it_is_now(tmp_path):
+    written = tmp_path / "cryod-2026-11-28.csv"
+    assert record_path_now(written) == written                       # neither: as written
+    written.write_text("x")
+    assert record_path_now(written) == written
+    compressed = tmp_path / "cryod-2026-11-28.csv.gz"
+    compressed.write_bytes(b"")
+    written.unlink()
+    assert record_path_now(written) == compressed
 
 
 def test_the_fit_takes_the_hold_and_the_step_about_the_setpoint():

@@ -45,6 +45,15 @@ def part_about_setpoint(data: RecordData, line_hold_s: float) -> RecordData:
     return data.stretch(start, data.time_s.size)
 
 
+def records_about_setpoint(records: Sequence[RecordData], line_hold_s: float) -> list[RecordData]:
+    """The hold and the step of an experiment's records (in time order, daily files): from the last record
+    whose setpoint changes (the step), cut by :func:`part_about_setpoint`, and the records after it whole; the
+    records before it held the approach (an experiment of hours crosses UTC midnight)."""
+    changes = [index for index, data in enumerate(records) if part_about_setpoint(data, line_hold_s) is not data]
+    first = changes[-1] if changes else 0
+    return [part_about_setpoint(records[first], line_hold_s), *records[first + 1:]]
+
+
 @dataclass
 class SetpointModel:
     """The model identified at one setpoint, and the records it came from."""
@@ -73,11 +82,12 @@ def identify_at_setpoint(setpoint_K: float, records: Sequence[RecordData], recor
                          base: CryostatModel, line_hold_s: float, **fit_options) -> SetpointModel:
     """Fit the model about ``setpoint_K`` to the hold and the step of its records (``fit_options`` go to
     :func:`cryod.identification.model_fit.identify_model`)."""
-    result = identify_model([part_about_setpoint(data, line_hold_s) for data in records], base, **fit_options)
+    parts = records_about_setpoint(records, line_hold_s)
+    result = identify_model(parts, base, **fit_options)
     off = result.model.operating_point.flange_temperature_K
     if not off > 0.0:
         slowest = max(result.model.heater_to_thermometer.time_constants_s, default=0.0)
-        fitted = part_about_setpoint(records[-1], line_hold_s).duration_s
+        fitted = sum(part.duration_s for part in parts)
         raise IdentificationError(
             f"about {setpoint_K:g} K the fit's static gain ({result.model.heater_to_thermometer.dc_gain:.4g} K/W) puts "
             f"the cryostat at {off:.4g} K with the heater off: the records do not fix it (the slowest time constant "

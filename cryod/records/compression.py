@@ -58,6 +58,13 @@ def compress_file(path: Path) -> Path:
     return target
 
 
+def record_path_now(path: Path) -> Path:
+    """Where a record written as ``path`` is now: its ``.csv.gz`` once its finished day was compressed."""
+    path = Path(path)
+    compressed = path.with_name(path.name + ".gz")
+    return compressed if not path.exists() and compressed.exists() else path
+
+
 def compress_finished(directory: Path, today: str) -> list[Path]:
     """Compress every finished daily record in ``directory`` (days before ``today``); the new files.
 

@@ -404,8 +404,10 @@ class ExperimentRunner:
             return True
         if elapsed >= plan.max_settle_s:
             self.unsettled.append(phase)
-            self.note(f"phase {phase} NOT settled after {plan.max_settle_s:g} s (--max-settle): T2 still moved "
-                      f"{self.judge.drift_K * 1e6:.1f} uK over the last {plan.settle_window_s:g} s")
+            moved = (f"the heater still moved {self.judge.drift_K * 1e3:.3f} mW" if self.closed_loop
+                     else f"T2 still moved {self.judge.drift_K * 1e6:.1f} uK")
+            self.note(f"phase {phase} NOT settled after {plan.max_settle_s:g} s (--max-settle): {moved} over the "
+                      f"last {plan.settle_window_s:g} s")
             return True
         return False
 

@@ -1,6 +1,7 @@
 """Commissioning across the range: identification about a setpoint, the zone table written and read
 back, the feedforward's limit at each setpoint."""
 
+import dataclasses
 import json
 import math
 from types import SimpleNamespace
@@ -148,6 +149,31 @@ def test_a_record_compressed_at_the_days_end_is_found_where_it_is_now(tmp_path):
     compressed.write_bytes(b"")
     written.unlink()
     assert record_path_now(written) == compressed
+
+
+def test_about_a_setpoint_the_experiment_runs_without_the_feedforward():
+    """Its waveform follows the cooler's phase as the line does: in the record the fit could not tell them apart."""
+    from cryod.cli.acquire import experiment_config
+
+    config = load_config(CONFIG / "cryod-4-25K.yaml")
+    closed = dict(experiment_config(config, ExperimentPlan(setpoint_K=24.0)).control.terms)
+    opened = dict(experiment_config(config, ExperimentPlan()).control.terms)
+    assert closed["feedforward"].enabled is False and opened["feedforward"].enabled is True
+    assert closed["pi"] == opened["pi"] and experiment_config(config).control.setpoint_K is None
+
+
+def test_a_fit_whose_heater_cools_the_flange_is_refused(monkeypatch):
+    import cryod.identification.setpoint_series as series
+    from cryod.identification.fit import IdentificationError
+    from cryod.model.transfer_function import TransferFunction
+
+    shipped = load_model(CONFIG / "model.yaml")
+    cooling = dataclasses.replace(shipped, heater_to_flange=TransferFunction((-0.03,), (52.0, 1.0)))
+    monkeypatch.setattr(series, "identify_model", lambda records, base, **options: SimpleNamespace(model=cooling))
+    time_s = np.arange(0.0, 100.0, 1.0)
+    data = RecordData(time_s, np.full(100, 24.0), np.full(100, 18.0), np.full(100, 5.5), np.full(100, 24.0))
+    with pytest.raises(IdentificationError, match="static gain is -0.03 K/W: more heater would cool the flange"):
+        series.identify_at_setpoint(24.0, [data], ["r.csv"], shipped, 120.0)
 
 
 def test_the_fit_takes_the_hold_and_the_step_about_the_setpoint():

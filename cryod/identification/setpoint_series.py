@@ -85,6 +85,11 @@ def identify_at_setpoint(setpoint_K: float, records: Sequence[RecordData], recor
     parts = records_about_setpoint(records, line_hold_s)
     result = identify_model(parts, base, **fit_options)
     off = result.model.operating_point.flange_temperature_K
+    gain = result.model.heater_to_thermometer.dc_gain
+    if not gain > 0.0:
+        raise IdentificationError(
+            f"about {setpoint_K:g} K the fit's static gain is {gain:.4g} K/W: more heater would cool the flange; the "
+            f"record does not identify the cryostat there (docs/commissioning.md, \"Across a range of temperatures\")")
     if not off > 0.0:
         slowest = max(result.model.heater_to_thermometer.time_constants_s, default=0.0)
         fitted = sum(part.duration_s for part in parts)

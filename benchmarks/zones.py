@@ -3,6 +3,8 @@
 Run: PYTHONPATH=. python3 benchmarks/zones.py commission    (identify at each setpoint, tune each zone:
                                                              writes config/zones-4-25K.yaml and its models)
      PYTHONPATH=. python3 benchmarks/zones.py run [--json OUT]
+     PYTHONPATH=. python3 benchmarks/zones.py hold [--setpoint 24] [--seeds 3,4] [--hold 4800]
+                                                   [--feedforward-model zone|linearised|FILE]
 
 Both on the simulated cryostat of config/model-4-25K.yaml, with the daemon's own code path (drivers,
 simulated instruments in process, the loop, the data log) on virtual time, the configuration
@@ -22,6 +24,13 @@ of that average; T2's periodic amplitude (harmonics 1-6 against the cooler's pha
 last 300 s against the feedforward's physical limit for the simulated cryostat there (its tangent
 model, the heater, the loop's timing; the noise floor of a 300 s estimate included); faults and
 overruns over the whole run.
+
+``hold`` takes one setpoint alone (from 4.23 K at the ramp) with the commissioned zones, holds it ``--hold``
+seconds after its ramp, once per seed, and judges T2's periodic amplitude in each 300 s window of the hold
+and over the hold from 1200 s after the ramp as one window, each against its noise floor: what one window's
+noise spreads, and what a longer window resolves. ``--feedforward-model`` gives the last zone, split at
+``--split-K``, another feedforward model above the split: ``linearised``, the simulated cryostat's own linear
+model at the setpoint.
 """
 
 from __future__ import annotations

@@ -162,17 +162,23 @@ def test_about_a_setpoint_the_experiment_runs_without_the_feedforward():
     assert closed["pi"] == opened["pi"] and experiment_config(config).control.setpoint_K is None
 
 
-def test_a_fit_whose_heater_cools_the_flange_is_refused(monkeypatch):
+def test_a_fit_whose_heater_cools_the_flange_or_that_misses_its_record_is_refused(monkeypatch):
     import cryod.identification.setpoint_series as series
     from cryod.identification.fit import IdentificationError
     from cryod.model.transfer_function import TransferFunction
 
     shipped = load_model(CONFIG / "model.yaml")
     cooling = dataclasses.replace(shipped, heater_to_flange=TransferFunction((-0.03,), (52.0, 1.0)))
-    monkeypatch.setattr(series, "identify_model", lambda records, base, **options: SimpleNamespace(model=cooling))
+    fitted = {"model": cooling, "residual_rms_in_noise": [(1.01, 1.0)]}
+    monkeypatch.setattr(series, "identify_model", lambda records, base, **options: SimpleNamespace(**fitted))
     time_s = np.arange(0.0, 100.0, 1.0)
     data = RecordData(time_s, np.full(100, 24.0), np.full(100, 18.0), np.full(100, 5.5), np.full(100, 24.0))
     with pytest.raises(IdentificationError, match="static gain is -0.03 K/W: more heater would cool the flange"):
+        series.identify_at_setpoint(24.0, [data], ["r.csv"], shipped, 120.0)
+    # a positive gain that leaves 77 times the noise: not a description of the record
+    fitted.update(model=dataclasses.replace(shipped, heater_to_flange=TransferFunction((0.015,), (91.0, 1.0))),
+                  residual_rms_in_noise=[(77.2, 1.04)])
+    with pytest.raises(IdentificationError, match="leaves 77 times T2's noise on T2"):
         series.identify_at_setpoint(24.0, [data], ["r.csv"], shipped, 120.0)
 
 

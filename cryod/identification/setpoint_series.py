@@ -29,6 +29,11 @@ from cryod.identification.model_fit import ModelIdentification, identify_model
 from cryod.model import CryostatModel
 
 
+#: A fit about a setpoint leaving more than this many times T2's noise on T2 is refused: a fit that describes
+#: its record leaves about 1; the closed-loop fits about 24 K that do not describe theirs left 71 to 83.
+MAX_RESIDUAL_IN_NOISE = 30.0
+
+
 def model_file_name(setpoint_K: float) -> str:
     """The model file of a setpoint: ``model-<K>K.yaml``."""
     return f"model-{setpoint_K:g}K.yaml"
@@ -86,6 +91,12 @@ def identify_at_setpoint(setpoint_K: float, records: Sequence[RecordData], recor
     result = identify_model(parts, base, **fit_options)
     off = result.model.operating_point.flange_temperature_K
     gain = result.model.heater_to_thermometer.dc_gain
+    left = max((flange for flange, _ in result.residual_rms_in_noise), default=0.0)
+    if left > MAX_RESIDUAL_IN_NOISE:
+        raise IdentificationError(
+            f"about {setpoint_K:g} K the fit leaves {left:.0f} times T2's noise on T2 (more than "
+            f"{MAX_RESIDUAL_IN_NOISE:g}): the model does not describe the record (its static gain "
+            f"{gain:.4g} K/W); see docs/commissioning.md, \"Across a range of temperatures\"")
     if not gain > 0.0:
         raise IdentificationError(
             f"about {setpoint_K:g} K the fit's static gain is {gain:.4g} K/W: more heater would cool the flange; the "

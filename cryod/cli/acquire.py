@@ -67,16 +67,9 @@ class Acquisition:
     wall_s: float = 0.0
 
 
-def experiment_config(config: DaemonConfig, plan: ExperimentPlan | None = None) -> DaemonConfig:
-    """The configuration the experiment runs with: the loop starts with the heater off (no setpoint); about a
-    setpoint (closed loop), without the feedforward: its waveform follows the cooler's phase, as the line does,
-    so the fit could not tell the heater's effect at the cooler's harmonics from the line's."""
-    control = dataclasses.replace(config.control, setpoint_K=None)
-    if plan is not None and plan.setpoint_K is not None:
-        control = dataclasses.replace(control, terms=tuple(
-            (name, dataclasses.replace(settings, enabled=False) if name == "feedforward" else settings)
-            for name, settings in control.terms))
-    return dataclasses.replace(config, control=control)
+def experiment_config(config: DaemonConfig) -> DaemonConfig:
+    """The configuration the experiment runs with: the loop starts with the heater off (no setpoint)."""
+    return dataclasses.replace(config, control=dataclasses.replace(config.control, setpoint_K=None))
 
 
 class ProgressDisplay:
@@ -181,7 +174,7 @@ def acquire(config: DaemonConfig, plan: ExperimentPlan, open_instruments: Callab
         The plan does not fit the configured heater (nothing was started).
     """
     plan.check(config.heater.max_power_w)
-    config = experiment_config(config, plan)
+    config = experiment_config(config)
     header = {"identify": "cryod identify --acquire", **plan.metadata(), **(metadata or {})}
     holder: dict = {}
 

@@ -20,17 +20,14 @@ About a setpoint (``setpoint_K``, one zone's identification) the same phases run
 criterion below, on the heater power; its time counts from when a configured ramp has reached the
 setpoint); ``line``, held there; ``step``, the setpoint stepped by
 ``setpoint_step_K``, until the heater power has settled again. The fit takes the heater as the input
-and T2 as the output, as in open loop; the approach across the range stays out of it. Under feedback
-the heater's answer to a setpoint step is a kick of seconds many times the change that lasts, then
-the plant's slow tail: the step's change counts from the hold's level, and the criterion must hold
-for a whole window without a break (the heater's slope passes through zero at each turn).
+and T2 as the output, as in open loop; the approach across the range stays out of it.
 
 Settled, the stated criterion: over the last ``settle_window_s`` the
 straight line fitted to T2 changes by less than ``settle_fraction`` of T2's
 change since the phase began (the mean of that window less the mean of the
 previous phase's last window; for the first phase, of its first 10 s), or by
 less than ``settle_floor_K`` (a flange that was already settled). A straight line over many cooler periods is blind to the
-cooler's line, and its slope is measured to about 2 uK per window at 20 uK
+cooler's line, and its slope is measured to about 2 µK per window at 20 µK
 noise. The line's slope is that at the window's middle, so for a single
 exponential of time constant tau the default (0.5 %, 120 s) is met at
 ``t = 60 s + tau ln(120 s / (0.005 tau))``: 880 s for the shipped model's 165 s,
@@ -176,7 +173,7 @@ class ExperimentPlan:
         """The settling criterion in words (for the record's header and the report)."""
         return (f"settled when the straight line fitted to T2 over the last {self.settle_window_s:g} s changes by "
                 f"less than {100 * self.settle_fraction:g} % of T2's change since the phase began, or by less than "
-                f"{self.settle_floor_K * 1e6:g} uK; at least {self.min_settle_s:g} s, at most {self.max_settle_s:g} s")
+                f"{self.settle_floor_K * 1e6:g} µK; at least {self.min_settle_s:g} s, at most {self.max_settle_s:g} s")
 
     def metadata(self) -> dict:
         """Header lines of the record."""
@@ -196,15 +193,10 @@ class SettleJudge:
         A first guess of the settling time (s), until the data give their own.
     """
 
-    def __init__(self, plan: ExperimentPlan, expected_s: float, reference_K: float | None = None,
-                 held_for_s: float = 0.0):
+    def __init__(self, plan: ExperimentPlan, expected_s: float, reference_K: float | None = None):
         self.plan = plan
         self.expected_s = expected_s
         self.reference_K = reference_K
-        #: The criterion must hold this long without a break (s): a response that is not monotonic (the
-        #: heater under feedback) passes through a slope of zero at each of its turns.
-        self.held_for_s = held_for_s
-        self._met_since_s: float | None = None
         self.recent: collections.deque[tuple[float, float]] = collections.deque()   # the last window
         self.start_s: float | None = None
         self._first_sum, self._first_count = 0.0, 0
@@ -241,12 +233,7 @@ class SettleJudge:
         allowed = max(plan.settle_fraction * self.change_K, plan.settle_floor_K)
         self.history.append((now_s, self.drift_K / allowed))
         del self.history[:-200]
-        if self.drift_K > allowed:
-            self._met_since_s = None
-            return False
-        if self._met_since_s is None:
-            self._met_since_s = now_s
-        return elapsed >= plan.min_settle_s and now_s - self._met_since_s >= self.held_for_s
+        return elapsed >= plan.min_settle_s and self.drift_K <= allowed
 
     def time_left_s(self, now_s: float) -> float:
         """Estimated time until settled (s): from the decay of the drift over the last two minutes (not less
@@ -325,7 +312,7 @@ class ExperimentRunner:
         self.phase_log: list[tuple[str, float, float]] = []     # (phase, start, end) in the loop's clock
         self.started_s: float | None = None
         self._next_judgement_s = -math.inf
-        self._recent: collections.deque[tuple[float, float]] = collections.deque()    # what settles, last window
+        self._recent: collections.deque[tuple[float, float]] = collections.deque()    # T2 over the last window
         self._lock = threading.Lock()
         self._progress = Progress(phase_count=len(self.phases))
 
@@ -368,12 +355,11 @@ class ExperimentRunner:
             self._at_setpoint = True
             self.phase_start_s = time_s
             self.note(f"the setpoint reached {self.plan.setpoint_K:g} K: the regulation settles from here")
-        # what settles: about a setpoint the heater power (T2 is held), else T2
-        settling = float(item.heater_W if item.heater_W is not None else math.nan) if self.closed_loop else flange
-        if self.judge is not None:
-            self.judge.add(time_s, settling)
-        if math.isfinite(settling):
-            self._recent.append((time_s, settling))
+        if self.judge is not None:       # about a setpoint, the heater settles (T2 is held)
+            self.judge.add(time_s, float(item.heater_W if item.heater_W is not None else math.nan)
+                           if self.closed_loop else flange)
+        if math.isfinite(flange):
+            self._recent.append((time_s, flange))
             while self._recent[0][0] < time_s - self.plan.settle_window_s:
                 self._recent.popleft()
         done = self._phase_done(time_s)
@@ -398,16 +384,14 @@ class ExperimentRunner:
                           f"{self.judge.drift_K * 1e3:.3f} mW over the last {plan.settle_window_s:g} s, change in "
                           f"the phase {self.judge.change_K * 1e3:.3f} mW")
             else:
-                self.note(f"phase {phase} settled after {elapsed:.0f} s: T2 moved {self.judge.drift_K * 1e6:.1f} uK "
+                self.note(f"phase {phase} settled after {elapsed:.0f} s: T2 moved {self.judge.drift_K * 1e6:.1f} µK "
                           f"over the last {plan.settle_window_s:g} s, change in the phase "
                           f"{self.judge.change_K * 1e3:.3f} mK")
             return True
         if elapsed >= plan.max_settle_s:
             self.unsettled.append(phase)
-            moved = (f"the heater still moved {self.judge.drift_K * 1e3:.3f} mW" if self.closed_loop
-                     else f"T2 still moved {self.judge.drift_K * 1e6:.1f} uK")
-            self.note(f"phase {phase} NOT settled after {plan.max_settle_s:g} s (--max-settle): {moved} over the "
-                      f"last {plan.settle_window_s:g} s")
+            self.note(f"phase {phase} NOT settled after {plan.max_settle_s:g} s (--max-settle): T2 still moved "
+                      f"{self.judge.drift_K * 1e6:.1f} µK over the last {plan.settle_window_s:g} s")
             return True
         return False
 
@@ -433,10 +417,7 @@ class ExperimentRunner:
         reference = float(np.mean([v for _, v in self._recent])) if self._recent and index > 0 else None
         self.judge = SettleJudge(plan, self.expected_settle_s, reference) if phase in ("approach", "step") else None
         if self.closed_loop:             # the heater power settles: within 1 uW a window at least
-            # its change counts from the hold's level: the heater's first seconds after a setpoint step are
-            # the feedback's kick, many times the change that lasts
-            self.judge = SettleJudge(dataclasses.replace(plan, settle_floor_K=1e-6), self.expected_settle_s,
-                                     reference if phase == "step" else None, held_for_s=plan.settle_window_s) \
+            self.judge = SettleJudge(dataclasses.replace(plan, settle_floor_K=1e-6), self.expected_settle_s) \
                 if phase in ("regulate", "step") else None
         self._next_judgement_s = -math.inf
         if phase == "regulate":

@@ -107,9 +107,8 @@ def identify_at_setpoint(setpoint_K: float, records: Sequence[RecordData], recor
         raise IdentificationError(
             f"about {setpoint_K:g} K the fit's static gain ({result.model.heater_to_thermometer.dc_gain:.4g} K/W) puts "
             f"the cryostat at {off:.4g} K with the heater off: the records do not fix it (the slowest time constant "
-            f"fitted, {slowest:.0f} s, against {fitted:.0f} s of hold and step); let the step run 3 times the "
-            f"cryostat's slowest time constant there (--max-settle; under a high gain the heater's noise hides the "
-            f"tail and the step runs to it)")
+            f"fitted, {slowest:.0f} s, against {fitted:.0f} s of hold and step); in closed loop a longer step does "
+            f"not help where the cryostat is slow (docs/commissioning.md, \"Across a range of temperatures\")")
     names = ", ".join(map(str, record_paths))
     result.model = dataclasses.replace(
         result.model, name=f"identified at {setpoint_K:g} K",

@@ -12,11 +12,13 @@ ptc_amplitude_modulation     depth m, period P and phase of ``1 + m sin(2 pi t /
                              (m cos phi, m sin phi) (columns: the model's line in T2 and in T5
                              times sin and cos of 2 pi t / P), so P is searched (grid, then
                              bounded Brent on log P) and the rest is linear least squares
-ptc_stage_drift              the drift d(t) of T5 as a cubic B-spline with knots two blocks apart
-                             (so each held-out block is predicted from the fit blocks around it),
-                             fitted on T5; its response on T2 ``g / (tau s + 1)`` applied to d:
-                             g linear within 0 to 1, tau searched (grid, then bounded Brent on
-                             log tau)
+ptc_stage_drift              the drift d(t) of T5, measured in T5 over the whole record as the
+                             cooler's line is: a cubic B-spline with knots two blocks apart fitted
+                             with the nuisance parameters on the fit blocks, plus what it leaves
+                             in T5 averaged over 30 s; its response on T2 ``g / (tau s + 1)``
+                             applied to d: g linear within 0 to 1, tau searched (grid, then
+                             bounded Brent on log tau), judged on T2's held-out blocks like
+                             every cause
 ===========================  ===================================================================
 
 The drift found in the record is the record's own (:class:`MeasuredStageDrift`);
@@ -32,7 +34,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal
+from scipy import ndimage, signal
 
 from cryod.analysis.candidates import CandidateFit, EffectForm, FitContext, scalar_search
 from cryod.analysis.slow_series import correlation_time_s, slow_splines
@@ -41,6 +43,10 @@ from cryod.model import CryostatModel, PtcAmplitudeModulation, PtcStageDrift
 #: Periods of the amplitude modulation searched: from this many seconds to this many record durations.
 SHORTEST_MODULATION_PERIOD_S = 60.0
 LONGEST_MODULATION_PERIOD_DURATIONS = 3.0
+#: The cold end's drift is measured in T5 over the whole record, as the cooler's line is: T5's residual averaged
+#: over about this long (s), a whole number of line periods. At T5's 0.3 mK of noise the mean carries 15 uK, which
+#: the flange's coupling (a lag of minutes) averages further.
+DRIFT_SMOOTHING_S = 30.0
 #: Time constants of the drift's path to the flange searched (s).
 COUPLING_TIME_CONSTANTS_S = (1.0, 1000.0)
 #: Largest depth of a modulation the model takes.
@@ -151,6 +157,23 @@ class MeasuredStageDrift:
         return PtcStageDrift(**self.parameters())
 
 
+def measured_remainder(residual_K: np.ndarray, valid: np.ndarray, sample_interval_s: float,
+                       line_angular_frequency_rad_s: float) -> np.ndarray:
+    """A T5 residual's slow part over the whole record: its means over :data:`DRIFT_SMOOTHING_S`, taken over a
+    whole number of the line's periods (which cancels the line and its harmonics), missing readings filled in
+    from their neighbours."""
+    values = np.asarray(residual_K, dtype=float)
+    good = np.asarray(valid, dtype=bool) & np.isfinite(values)
+    if not np.any(good):
+        return np.zeros_like(values)
+    indexes = np.arange(values.size)
+    filled = np.interp(indexes, indexes[good], values[good])
+    period_samples = 2.0 * math.pi / line_angular_frequency_rad_s / sample_interval_s
+    periods = max(1, round(DRIFT_SMOOTHING_S / (period_samples * sample_interval_s)))
+    samples = max(1, int(round(periods * period_samples)))
+    return ndimage.uniform_filter1d(filled, samples, mode="nearest")
+
+
 def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
     """T5 drifting slowly, reaching T2 through ``g / (tau s + 1)``: the drift from T5 on the fit blocks, then g, tau."""
     data, replayer, base, line = context.data, context.replayer, context.base_model, context.base_line
@@ -159,9 +182,11 @@ def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
     splines = slow_splines(data)
     zeros = np.zeros_like(splines)
     found = replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K, (zeros, splines), basis)
-    # the drift is what the splines change in T5's prediction, the offset and the state refitted with them
+    # the drift is what the splines change in T5's prediction, the offset and the state refitted with them, plus
+    # what the splines leave in T5, smoothed: the cold end's temperature measured wherever T5 is
     without = replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K, basis=basis)
-    drift = found.ptc_stage_K - without.ptc_stage_K
+    drift = found.ptc_stage_K - without.ptc_stage_K + measured_remainder(
+        found.ptc_stage_residual_K, data.valid, data.sample_interval_s, line.angular_frequency_rad_s)
     drift = drift - float(np.mean(drift[context.fit_mask]))
     stage = simulated.ptc_stage_K + drift
     interval = data.sample_interval_s

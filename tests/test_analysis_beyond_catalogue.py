@@ -14,6 +14,7 @@ import yaml
 from cryod import cli
 from cryod.analysis.candidates import CandidateFit, EffectForm
 from cryod.analysis.decision import BaseDiscrepancy, score_candidate
+from cryod.analysis import report
 from cryod.analysis.cooler_causes import measured_remainder
 from cryod.analysis.equivalence import equivalents, line_gain_stood_for
 from cryod.analysis.generic_extension import MeasuredDisturbance
@@ -412,6 +413,8 @@ def test_a_line_gain_20_percent_off_is_base_model_off_with_the_link_as_its_equiv
     assert off["within_tolerance_cause"] == "link_dynamics" and "line gain on T2" in off["at_tolerance"]
     assert [reading["cause"] for reading in off["equivalent_to"]] == ["link_dynamics"]
     assert not analysis.causes and not analysis.remaining.present
+    section = "\n".join(report._base_model_off_section(analysis))
+    assert "The same record reads as link_dynamics" in section and "cryod identify" in section
 
 
 def test_the_cold_ends_drift_is_measured_in_t5_wherever_it_is_and_the_line_cancels():

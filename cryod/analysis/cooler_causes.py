@@ -175,42 +175,54 @@ def measured_remainder(residual_K: np.ndarray, valid: np.ndarray, sample_interva
 
 
 def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
-    """T5 drifting slowly, reaching T2 through ``g / (tau s + 1)``: the drift from T5 on the fit blocks, then g, tau."""
+    """T5 drifting slowly, reaching T2 through ``g / (tau s + 1)``: the drift measured in T5, then g and tau; then
+    the drift measured again with T2 (through the coupling found) beside T5, then g and tau again."""
     data, replayer, base, line = context.data, context.replayer, context.base_model, context.base_line
     aligned, simulated, _, _ = _line_parts(context, base)
     basis = context.basis(line)
     splines = slow_splines(data)
-    zeros = np.zeros_like(splines)
-    found = replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K, (zeros, splines), basis)
-    # the drift is what the splines change in T5's prediction, the offset and the state refitted with them, plus
-    # what the splines leave in T5, smoothed: the cold end's temperature measured wherever T5 is
-    without = replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K, basis=basis)
-    drift = found.ptc_stage_K - without.ptc_stage_K + measured_remainder(
-        found.ptc_stage_residual_K, data.valid, data.sample_interval_s, line.angular_frequency_rad_s)
-    drift = drift - float(np.mean(drift[context.fit_mask]))
-    stage = simulated.ptc_stage_K + drift
     interval = data.sample_interval_s
-    gains = {}
-    replays = {}
 
-    def objective(log_tau):
-        log_tau = float(log_tau)
-        if log_tau not in replays:
-            response = first_order_response(drift, interval, math.exp(log_tau))
-            replay = replayer.replay_simulated(aligned, simulated.flange_K, stage,
-                                               (response[:, None], np.zeros((response.size, 1))), basis)
-            gain = float(replay.shared_coefficients[0])
-            bounded = float(np.clip(gain, *FLANGE_COUPLING_BOUNDS))
-            if bounded != gain:             # the gain at its bound, the rest refitted without it
-                replay = replayer.replay_simulated(aligned, simulated.flange_K + bounded * response, stage,
-                                                   basis=basis)
-            replays[log_tau], gains[log_tau] = replay, bounded
-        return context.fit_chi_square(replays[log_tau])
+    def measured(flange_columns):
+        # the splines fitted with the offset, the state and the recalibration, plus what they leave in T5,
+        # smoothed: the cold end's temperature measured wherever T5 is, against the model as refitted with it (a
+        # model refitted without the drift has taken part of it into the stage's gain and time constant)
+        found = replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K,
+                                          (flange_columns, splines), basis)
+        drift = splines @ np.asarray(found.shared_coefficients) + measured_remainder(
+            found.ptc_stage_residual_K, data.valid, interval, line.angular_frequency_rad_s)
+        return drift - float(np.mean(drift[context.fit_mask]))
 
-    low, high = (math.log(value) for value in COUPLING_TIME_CONSTANTS_S)
-    log_tau = scalar_search(objective, np.linspace(low, high, 10), (low, high), 1e-4)
-    objective(log_tau)
-    tau, gain = math.exp(log_tau), gains[float(log_tau)]
+    def coupling(drift):
+        stage = simulated.ptc_stage_K + drift
+        gains, replays = {}, {}
+
+        def objective(log_tau):
+            log_tau = float(log_tau)
+            if log_tau not in replays:
+                response = first_order_response(drift, interval, math.exp(log_tau))
+                replay = replayer.replay_simulated(aligned, simulated.flange_K, stage,
+                                                   (response[:, None], np.zeros((response.size, 1))), basis)
+                gain = float(replay.shared_coefficients[0])
+                bounded = float(np.clip(gain, *FLANGE_COUPLING_BOUNDS))
+                if bounded != gain:             # the gain at its bound, the rest refitted without it
+                    replay = replayer.replay_simulated(aligned, simulated.flange_K + bounded * response, stage,
+                                                       basis=basis)
+                replays[log_tau], gains[log_tau] = replay, bounded
+            return context.fit_chi_square(replays[log_tau])
+
+        low, high = (math.log(value) for value in COUPLING_TIME_CONSTANTS_S)
+        log_tau = scalar_search(objective, np.linspace(low, high, 10), (low, high), 1e-4)
+        objective(log_tau)
+        return gains[float(log_tau)], math.exp(log_tau)
+
+    drift = measured(np.zeros_like(splines))
+    gain, tau = coupling(drift)
+    # T5 alone cannot tell the drift's slow part from a slightly other stage gain when the heater moves slowly too
+    # (a PI warming the flange); T2, which the drift reaches through the coupling and the heater through G1, can
+    if gain > 0.0:
+        drift = measured(np.column_stack([gain * first_order_response(column, interval, tau) for column in splines.T]))
+        gain, tau = coupling(drift)
 
     def apply(model, values):
         return model.with_effects(ptc_stage_drift=MeasuredStageDrift(data.elapsed_s, drift, float(values[0]),
@@ -221,9 +233,15 @@ def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
     effect = EffectForm((gain, tau), (FLANGE_COUPLING_BOUNDS[0], 0.0),
                         (FLANGE_COUPLING_BOUNDS[1], 10.0 * COUPLING_TIME_CONSTANTS_S[1]), (1e-3, 1e-2 * tau),
                         apply, lambda extended: extended.effects.ptc_stage_drift.parameters(),
-                        lambda values: values[0] >= FLANGE_COUPLING_BOUNDS[1] * (1.0 - 1e-6))
-    note = ("the flange follows the drift at its physical limit (coupling 1): the record asks for more than a "
-            "passive link carries, so it does not count" if effect.at_limit(effect.values) else "")
+                        lambda values: not (FLANGE_COUPLING_BOUNDS[0] + 1e-6 < values[0]
+                                            < FLANGE_COUPLING_BOUNDS[1] * (1.0 - 1e-6)))
+    note = ""
+    if gain >= FLANGE_COUPLING_BOUNDS[1] * (1.0 - 1e-6):
+        note = ("the flange follows the drift at its physical limit (coupling 1): the record asks for more than a "
+                "passive link carries, so it does not count")
+    elif gain <= FLANGE_COUPLING_BOUNDS[0] + 1e-6:
+        note = ("the flange does not follow T5's slow change (coupling 0): that is T5's reading drifting, not the "
+                "cold end, so it does not count")
     return CandidateFit("ptc_stage_drift", measured.parameters(), model, context.replay(model, line), line, note,
                         parameter_count=2 + splines.shape[1], effect=effect)
 

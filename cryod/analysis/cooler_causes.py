@@ -174,6 +174,30 @@ def measured_remainder(residual_K: np.ndarray, valid: np.ndarray, sample_interva
     return ndimage.uniform_filter1d(filled, samples, mode="nearest")
 
 
+def _stage_path_columns(context: FitContext, model: CryostatModel) -> np.ndarray:
+    """What the stage's own path does to T5 on its own: a constant, its free decay from the state at the first
+    sample, its response to the record's heater, and that response's change with its time constant."""
+    replayer, elapsed = context.replayer, context.data.elapsed_s
+    quiet = model.with_ptc(ptc_stage_amplitude_K=0.0, harmonics=()).with_effects(
+        ptc_frequency_drift=None, ptc_amplitude_modulation=None, ptc_stage_drift=None, disturbance=None)
+    path = quiet.heater_to_ptc_stage
+    point = quiet.operating_point.ptc_stage_temperature_K
+    response = replayer.simulate(quiet).ptc_stage_K - point
+    slower = dataclasses.replace(quiet, heater_to_ptc_stage=path.time_scaled(1.01))
+    change = replayer.simulate(slower).ptc_stage_K - point - response
+    decays = [np.exp(-elapsed / tau) for tau in path.time_constants_s if tau > 0.0]
+    return np.column_stack([np.ones(elapsed.size), *decays, response, change])
+
+
+def _beside_stage_path(drift: np.ndarray, columns: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``drift`` less its least-squares part (on ``mask``) along ``columns``: a drift is what the stage's own path
+    (its state at the first sample, its gain and time constant to the heater) does not do. Where the heater moves
+    slowly, as a PI warming the flange does, T5 cannot tell a slow drift from a stage path a little off; the
+    recalibration and the replay's initial state take that part, and the drift is measured beside them."""
+    coefficients, *_ = np.linalg.lstsq(columns[mask], drift[mask], rcond=None)
+    return drift - columns @ coefficients
+
+
 def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
     """T5 drifting slowly, reaching T2 through ``g / (tau s + 1)``: the drift measured in T5, then g and tau; then
     the drift measured again with T2 (through the coupling found) beside T5, then g and tau again."""
@@ -191,7 +215,9 @@ def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
                                           (flange_columns, splines), basis)
         drift = splines @ np.asarray(found.shared_coefficients) + measured_remainder(
             found.ptc_stage_residual_K, data.valid, interval, line.angular_frequency_rad_s)
-        return drift - float(np.mean(drift[context.fit_mask]))
+        return _beside_stage_path(drift, stage_columns, context.fit_mask)
+
+    stage_columns = _stage_path_columns(context, aligned)
 
     def coupling(drift):
         stage = simulated.ptc_stage_K + drift

@@ -15,10 +15,11 @@ ptc_amplitude_modulation     depth m, period P and phase of ``1 + m sin(2 pi t /
 ptc_stage_drift              the drift d(t) of T5, measured in T5 over the whole record as the
                              cooler's line is: a cubic B-spline with knots two blocks apart fitted
                              with the nuisance parameters on the fit blocks, plus what it leaves
-                             in T5 averaged over 30 s; its response on T2 ``g / (tau s + 1)``
-                             applied to d: g linear within 0 to 1, tau searched (grid, then
-                             bounded Brent on log tau), judged on T2's held-out blocks like
-                             every cause
+                             in T5 averaged over 30 s, less what the stage's own path does (its
+                             free decay, its response to the heater); its response on T2
+                             ``g / (tau s + 1)`` applied to d: g linear within 0 to 1, tau
+                             searched (grid, then bounded Brent on log tau); d measured again
+                             with T2 through that coupling beside T5, and g, tau again
 ===========================  ===================================================================
 
 The drift found in the record is the record's own (:class:`MeasuredStageDrift`);

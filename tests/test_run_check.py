@@ -94,6 +94,10 @@ REFUSALS = [
      "instruments.flange_dmm.prologix.port", "/dev/ttyUSB-cryod-none: no such device"),
     ("Prologix port that is not a device", [(FLANGE, "    prologix: {{port: {tmp}/occupied, address: 16}}")],
      "instruments.flange_dmm.prologix.port", "is a regular file, not a serial device"),
+    ("a host the name service does not know", [(FLANGE, "    resource: TCPIP0::cryo-bench-none.invalid::1234::SOCKET")],
+     "instruments.flange_dmm.resource", "host 'cryo-bench-none.invalid' is not known to the name service"),
+    ("a Prologix adapter the name service does not know", [(FLANGE, "    prologix: {{host: gpib-lan.invalid, address: 16}}")],
+     "instruments.flange_dmm.prologix.host", "host 'gpib-lan.invalid' is not known to the name service"),
     ("garbage VISA library", [('  visa_library: "@py"', '  visa_library: "garbage"')], "instruments.visa_library",
      "'garbage' cannot be loaded as a VISA library"),
     ("GPIB group trigger without a GPIB card", [("  trigger: sequential", "  trigger: gpib-group")],
@@ -238,3 +242,26 @@ def test_a_folder_systemd_makes_for_the_service_is_a_note_before_the_first_start
     assert "systemd makes it when it starts the service" in out
     assert main(["run", "--config", str(path), "--duration", "1"]) == ExitCode.CONFIG
     assert f"{path}:{line}: control_socket.path: /proc/cryod-check does not exist" in capsys.readouterr().err
+
+
+def test_a_host_name_that_cannot_be_looked_up_now_is_a_note_not_a_refusal(tmp_path, capsys, monkeypatch):
+    """A name service that cannot answer (no network yet at boot) settles nothing about a host name: --check
+    passes with a note, and the start would wait for the instrument as for an outage. Names the service says do
+    not exist are refused (REFUSALS); IP addresses are never looked up."""
+    import socket
+
+    from cryod.service import startup_checks
+
+    looked_up = []
+
+    def no_answer(host, *arguments, **keywords):
+        looked_up.append(host)
+        raise socket.gaierror(socket.EAI_AGAIN, "Temporary failure in name resolution")
+
+    monkeypatch.setattr(startup_checks.socket, "getaddrinfo", no_answer)
+    path, _, _ = refused_case(tmp_path, [(FLANGE, "    resource: TCPIP0::cryo-bench.lab::1234::SOCKET")])
+    assert main(["run", "--config", str(path), "--check"]) == 0
+    out = capsys.readouterr().out
+    assert ("note: instruments.flange_dmm.resource: host cryo-bench.lab could not be looked up now (Temporary "
+            "failure in name resolution)") in out, out
+    assert looked_up == ["cryo-bench.lab"]

@@ -3,7 +3,8 @@
 The daemon runs with its loop held between two ticks (tests/gated_daemon.py), so what the page
 shows can be compared with ``cryod ctl status`` of the same tick, and the test decides when the
 values change. The browser is Debian's chromium driven through chromedriver by selenium; the
-screenshot is kept under the test's temporary folder (its path is printed).
+screenshot is kept as a test artifact: ``test-artifacts/web-page.png`` at the checkout's top (or in
+the folder ``CRYOD_TEST_ARTIFACTS`` names), where CI and a reader find it after the run.
 """
 
 import http.client
@@ -14,6 +15,7 @@ import socket
 import tempfile
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -193,6 +195,13 @@ def browser(tmp_path):
     session.quit()
 
 
+def test_artifacts() -> Path:
+    """The folder for files a reader looks at after the run: ``CRYOD_TEST_ARTIFACTS`` or test-artifacts/."""
+    folder = Path(os.environ.get("CRYOD_TEST_ARTIFACTS") or Path(__file__).resolve().parents[1] / "test-artifacts")
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
 def shown(browser, element_id) -> str:
     return browser.find_element("id", element_id).get_attribute("data-value")
 
@@ -223,7 +232,7 @@ def test_the_page_in_a_browser_shows_ctl_status_and_follows_the_loop(tmp_path, b
         assert browser.find_element("id", "control").get_attribute("hidden") is not None    # read-only page
         errors = [entry for entry in browser.get_log("browser") if entry["level"] == "SEVERE"]
         assert not errors, errors
-        screenshot = tmp_path / "web-page.png"
+        screenshot = test_artifacts() / "web-page.png"
         browser.save_screenshot(str(screenshot))
         print(f"screenshot of the page: {screenshot}")
         assert screenshot.stat().st_size > 10_000

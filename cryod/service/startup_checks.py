@@ -15,8 +15,10 @@ has no name (or a folder removed at once) and left as it was.
 from __future__ import annotations
 
 import grp
+import ipaddress
 import os
 import pwd
+import socket
 import stat
 import sys
 import tempfile
@@ -25,7 +27,7 @@ from pathlib import Path
 from cryod.config import INSTRUMENT_KEYS, DaemonConfig, located_error
 from cryod.regular_files import kind_of
 from cryod.yaml_source import FileFormatError, shown
-from drivers.transports.addresses import serial_device
+from drivers.transports.addresses import network_host, serial_device
 from drivers.transports.visa import missing_support, resource_manager
 
 #: Where systemd creates a system service's ``RuntimeDirectory=`` and ``StateDirectory=`` when it
@@ -57,7 +59,7 @@ def check_before_run(config: DaemonConfig, *, before_systemd_start: bool = False
     _check_interfaces(config)
     _check_serial_devices(config)
     _check_socket_owner_and_group(config)
-    notes = []
+    notes = _check_host_names(config)
     for key, directory in (("control_socket.path", config.control_socket.path.parent),
                            ("data.directory", config.data.directory),
                            ("instruments.lock_directory", config.instruments.lock_directory)):
@@ -124,6 +126,42 @@ def _check_serial_devices(config: DaemonConfig) -> None:
         problem = _serial_device_problem(device)
         if problem:
             raise located_error(config, key, problem)
+
+
+def _check_host_names(config: DaemonConfig) -> list[str]:
+    """Each instrument's host name known to the name service; the notes a lookup could not settle.
+
+    A name the name service says does not exist (a misspelt host) is refused at its key: left to
+    the start, it would be waited on as an instrument outage for ``safety.instruments_wait_s``,
+    without end by default. A name service that cannot answer now (no network yet at boot) settles
+    nothing: that is a note, and the start waits for the instruments as for any outage.
+    """
+    notes = []
+    for key, address in _instruments(config):
+        if address.prologix_host is not None:
+            host_key, host = f"instruments.{key}.prologix.host", address.prologix_host
+        else:
+            host_key, host = f"instruments.{key}.resource", network_host(address.resource or "")
+        if host is None or _is_ip_address(host):
+            continue
+        try:
+            socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+        except socket.gaierror as error:
+            if error.errno in (socket.EAI_NONAME, getattr(socket, "EAI_NODATA", socket.EAI_NONAME)):
+                raise located_error(config, host_key,
+                                    f"host {shown(host)} is not known to the name service ({error.strerror}): "
+                                    f"check its spelling, or give the instrument's IP address") from None
+            notes.append(f"{host_key}: host {host} could not be looked up now ({error.strerror}); the daemon "
+                         f"waits for the instrument at start as for an outage")
+    return notes
+
+
+def _is_ip_address(host: str) -> bool:
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
 
 
 def _serial_device_problem(device: str) -> str | None:

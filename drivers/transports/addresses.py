@@ -39,7 +39,7 @@ import ipaddress
 import os
 import re
 
-from pyvisa import rname
+from pyvisa import constants, rname
 
 #: Fields of a parsed resource that are whole numbers (written without leading zeros).
 _NUMBER_FIELDS = ("board", "primary_address", "secondary_address", "port", "usb_interface_number")
@@ -177,6 +177,21 @@ def prologix_instrument(*, port: str | None = None, host: str | None = None, gpi
     return canonical_prologix(port=port, host=host, gpib_address=gpib_address)
 
 
+def network_host(resource: str) -> str | None:
+    """The host of a ``TCPIP...`` resource (a name or an IP address), or None for other resources.
+
+    >>> network_host("TCPIP0::cryo-bench.lab::5025::SOCKET")
+    'cryo-bench.lab'
+    >>> network_host("GPIB0::16::INSTR") is None
+    True
+    """
+    try:
+        parsed = rname.parse_resource_name(resource)
+    except rname.InvalidResourceName:
+        return None
+    return parsed.host_address if parsed.interface_type_const == constants.InterfaceType.tcpip else None
+
+
 def serial_device(resource: str) -> str | None:
     """The serial device file of an ``ASRL/dev/...::INSTR`` resource, or None for other resources."""
     try:
@@ -189,4 +204,4 @@ def serial_device(resource: str) -> str | None:
 
 
 __all__ = ["canonical_resource", "canonical_serial_port", "canonical_prologix_adapter", "canonical_prologix",
-           "instrument_resource", "prologix_instrument", "serial_device", "GPIB_ADDRESSES"]
+           "instrument_resource", "prologix_instrument", "network_host", "serial_device", "GPIB_ADDRESSES"]

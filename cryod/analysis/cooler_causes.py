@@ -187,7 +187,7 @@ def _stage_path_columns(context: FitContext, model: CryostatModel) -> np.ndarray
     slower = dataclasses.replace(quiet, heater_to_ptc_stage=path.time_scaled(1.01))
     change = replayer.simulate(slower).ptc_stage_K - point - response
     decays = [np.exp(-elapsed / tau) for tau in path.time_constants_s if tau > 0.0]
-    return np.column_stack([np.ones(elapsed.size), *decays, response, change])
+    return np.column_stack([np.ones(elapsed.size), *decays])
 
 
 def _beside_stage_path(drift: np.ndarray, columns: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -38,6 +38,7 @@ import numpy as np
 from scipy import ndimage, signal
 
 from cryod.analysis.candidates import CandidateFit, EffectForm, FitContext, scalar_search
+from cryod.analysis.decision import CANDIDATE_MINIMUM_IMPROVEMENT
 from cryod.analysis.slow_series import correlation_time_s, slow_splines
 from cryod.model import CryostatModel, PtcAmplitudeModulation, PtcStageDrift
 
@@ -240,16 +241,16 @@ def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
 
         low, high = (math.log(value) for value in COUPLING_TIME_CONSTANTS_S)
         log_tau = scalar_search(objective, np.linspace(low, high, 10), (low, high), 1e-4)
-        objective(log_tau)
-        return gains[float(log_tau)], math.exp(log_tau)
+        return gains[float(log_tau)], math.exp(log_tau), objective(log_tau)
 
     drift = measured(np.zeros_like(splines))
-    gain, tau = coupling(drift)
-    # T5 alone cannot tell the drift's slow part from a slightly other stage gain when the heater moves slowly too
-    # (a PI warming the flange); T2, which the drift reaches through the coupling and the heater through G1, can
-    if gain > 0.0:
+    gain, tau, chi_square = coupling(drift)
+    # T5 alone cannot tell the drift's slow part from the stage's start when the record starts inside a transient;
+    # T2, which the drift reaches through the coupling and the heater through G1, can. Only for a drift that
+    # counts on the fit blocks: on a record without one the second measurement would change nothing.
+    if gain > 0.0 and context.fit_chi_square(context.base_replay) - chi_square >= CANDIDATE_MINIMUM_IMPROVEMENT:
         drift = measured(np.column_stack([gain * first_order_response(column, interval, tau) for column in splines.T]))
-        gain, tau = coupling(drift)
+        gain, tau, _ = coupling(drift)
 
     def apply(model, values):
         return model.with_effects(ptc_stage_drift=MeasuredStageDrift(data.elapsed_s, drift, float(values[0]),

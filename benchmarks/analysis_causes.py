@@ -252,6 +252,9 @@ def daemon_record(model, folder: Path, seed: int) -> Path:
                    socket=folder / "control.sock", log_stream=io.StringIO())
     if run.exit_code != 0:
         raise RuntimeError(f"the simulated daemon stopped with {run.exit_code}: {run.summary.get('last_fault')}")
+    if len(run.log_paths) > 1:          # the data log starts a file each day (and compresses the day before)
+        raise RuntimeError(f"the simulated daemon's record crossed midnight and was split into {len(run.log_paths)} "
+                           "day files; run the record again after midnight")
     return Path(run.log_paths[0])
 
 

@@ -116,7 +116,7 @@ def main() -> None:
     for event in cycle["overruns"]:
         print("  " + event)
     print(f"\nregulation over the last 300 s of the real-time run: line {real['ptc_line_amplitude_K'] * 1e3:.3f} mK, "
-          f"rms {real['rms_K'] * 1e3:.3f} mK, mean error {real['mean_error_K'] * 1e6:.1f} uK")
+          f"rms {real['rms_K'] * 1e3:.3f} mK, mean error {real['mean_error_K'] * 1e6:.1f} µK")
 
 
 if __name__ == "__main__":

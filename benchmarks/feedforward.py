@@ -122,8 +122,8 @@ def goals(case: dict) -> list[tuple[str, bool, str]]:
         limit = ff["ptc_periodic_limit_K"]
         noise_limited = ff["feedforward_limited_by"] == "noise"
         ok = case["over_limit"] <= 1.15 or (noise_limited and ff["ptc_periodic_amplitude_K"] < 20e-6)
-        rows.append(("within 15 % of the limit", ok, f"{case['over_limit']:.3f} x limit ({1e6 * limit:.1f} uK)"))
-    rows.append(("mean error <= 20 uK", abs(ff["mean_error_K"]) <= 20e-6, f"{1e6 * ff['mean_error_K']:.2f} uK"))
+        rows.append(("within 15 % of the limit", ok, f"{case['over_limit']:.3f} x limit ({1e6 * limit:.1f} µK)"))
+    rows.append(("mean error <= 20 µK", abs(ff["mean_error_K"]) <= 20e-6, f"{1e6 * ff['mean_error_K']:.2f} µK"))
     rows.append(("noise < 0.1 Hz <= 1.05x PI", case["lowfreq_ratio"] <= 1.05, f"{case['lowfreq_ratio']:.2f}x"))
     rows.append(("within 2x of final 60 s after the setpoint", ff["within_2x_after_reaching_s"] <= 60.0,
                  _after(ff["within_2x_after_reaching_s"])))
@@ -178,7 +178,7 @@ def figures(cases: list[dict], folder: Path) -> None:
             axis.semilogy(frequency, np.sqrt(density) * 1e6, lw=0.9, label=label)
         axis.set_title(f"{setpoint:g} K")
         axis.set_xlabel("frequency (Hz)")
-    axes[0].set_ylabel("T2 amplitude spectral density (uK/sqrt(Hz))")
+    axes[0].set_ylabel("T2 amplitude spectral density (µK/sqrt(Hz))")
     axes[0].legend(fontsize=8)
     figure.suptitle("T2 over the last 300 s (12.5 Hz readings: harmonics above 6.25 Hz appear folded)")
     figure.tight_layout()
@@ -195,7 +195,7 @@ def figures(cases: list[dict], folder: Path) -> None:
                      color=line.get_color(), ls=":", lw=0.8)
         axis.axvline(case["ff"]["reached_setpoint_s"], color=line.get_color(), ls="--", lw=0.6)
     axis.set_xlabel("time since start (s)")
-    axis.set_ylabel("T2 periodic amplitude, 20 s windows (uK)")
+    axis.set_ylabel("T2 periodic amplitude, 20 s windows (µK)")
     axis.set_title("Convergence (dotted: physical limit; dashed: T2 first at the setpoint)")
     axis.legend(fontsize=7)
     figure.tight_layout()
@@ -216,10 +216,10 @@ def main() -> int:
     for case in cases:
         ff, pi = case["ff"], case["pi"]
         limit = ff["ptc_periodic_limit_K"]
-        print(f"| {case['cryostat']} | {case['setpoint_K']:g} K | {1e6 * pi['ptc_periodic_amplitude_K']:.1f} uK | "
-              f"{1e6 * ff['ptc_periodic_amplitude_K']:.1f} uK | {1e6 * limit:.1f} uK ({ff['feedforward_limited_by']}) | "
-              f"{case['over_limit']:.3f} | {case['below_pi']:.0f} | {1e6 * ff['mean_error_K']:.2f} uK | "
-              f"{1e6 * ff['lowfreq_rms_K']:.2f} / {1e6 * pi['lowfreq_rms_K']:.2f} uK | "
+        print(f"| {case['cryostat']} | {case['setpoint_K']:g} K | {1e6 * pi['ptc_periodic_amplitude_K']:.1f} µK | "
+              f"{1e6 * ff['ptc_periodic_amplitude_K']:.1f} µK | {1e6 * limit:.1f} µK ({ff['feedforward_limited_by']}) | "
+              f"{case['over_limit']:.3f} | {case['below_pi']:.0f} | {1e6 * ff['mean_error_K']:.2f} µK | "
+              f"{1e6 * ff['lowfreq_rms_K']:.2f} / {1e6 * pi['lowfreq_rms_K']:.2f} µK | "
               f"{_after(ff['within_2x_after_reaching_s'])} | {1e3 * ff['cpu_ms_per_tick']:.0f} / {1e3 * pi['cpu_ms_per_tick']:.0f} us | "
               f"{1e3 * ff['process_cpu_ms_per_tick']:.0f} / {1e3 * pi['process_cpu_ms_per_tick']:.0f} us |")
     print()

@@ -18,14 +18,14 @@ Goals per case, each checked from the run's own output:
 * authority-limited (the limit computed for the simulated cryostat is limited by the heater's
   bounds): T2's periodic amplitude within 1.1x of that limit;
 * noise-limited (full cancellation possible): at least 100x below PI alone, or within 2x of the
-  noise floor (``noise_floor_K``: 3.6 uK for 60 s of readings);
+  noise floor (``noise_floor_K``: 3.6 µK for 60 s of readings);
 * the plant learned within 5 % and 5 degrees of the simulated cryostat's (as the loop samples it,
   with its dead time and lag) at harmonics 1-3;
 * the reported ``ff_limit_K`` within 10 % of the simulated cryostat's own limit (for a
   noise-limited case, within 10 % or within the noise floor);
 * within 2x of the final residual 300 s after T2 first reaches the setpoint (20 s windows, in which
-  noise alone shows 6.2 uK: within 2x of that where the final residual is smaller); mean error at most
-  20 uK; noise below 0.1 Hz at most 1.05x PI alone's; no overruns;
+  noise alone shows 6.2 µK: within 2x of that where the final residual is smaller); mean error at most
+  20 µK; noise below 0.1 Hz at most 1.05x PI alone's; no overruns;
 * the loop thread's CPU per tick at most 1.3x PI alone's: measured for a few cases
   (`benchmarks/loop_cpu.py`, best of 3 each; the cycle does not depend on the cryostat).
 
@@ -250,12 +250,12 @@ def goals(case: dict) -> dict[str, tuple[bool, str, float]]:
     else:
         error = abs(reported - case["limit_K"])
         allowed = max(REPORTED_LIMIT * case["limit_K"], floor if case["limited_by"] == "noise" else 0.0)
-        result["reported limit"] = (error <= allowed, f"{1e6 * reported:.1f} uK from the {case['reported_from']} "
-                                                      f"against {1e6 * case['limit_K']:.1f} uK", error / allowed)
+        result["reported limit"] = (error <= allowed, f"{1e6 * reported:.1f} µK from the {case['reported_from']} "
+                                                      f"against {1e6 * case['limit_K']:.1f} µK", error / allowed)
     after = case["within_2x_after_reaching_s"]
     result["settled"] = (after <= SETTLED_AFTER_S, f"{after:.0f} s" if after > 0 else "before the setpoint",
                          after / SETTLED_AFTER_S)
-    result["mean error"] = (abs(case["mean_error_K"]) <= MEAN_ERROR_K, f"{1e6 * case['mean_error_K']:.2f} uK",
+    result["mean error"] = (abs(case["mean_error_K"]) <= MEAN_ERROR_K, f"{1e6 * case['mean_error_K']:.2f} µK",
                             abs(case["mean_error_K"]) / MEAN_ERROR_K)
     ratio = case["lowfreq_ff_K"] / case["lowfreq_pi_K"]
     result["low frequency"] = (ratio <= LOW_FREQUENCY, f"{ratio:.2f}x PI alone", ratio / LOW_FREQUENCY)

@@ -11,7 +11,7 @@ point and line), with random noise:
 * a wandering cold end: T5's base temperature drifting (1.5 mK rms, 10 min
   correlation), reaching T2 through the flange (coupling 0.6; one hour of
   the identification protocol);
-* a 0.37 Hz pickup of 20 uK on the flange thermometer (30 min of PI);
+* a 0.37 Hz pickup of 20 µK on the flange thermometer (30 min of PI);
 * a heater path the model lacks: a 20 s mode of 0.4 K/W in parallel with G1
   (a stage hanging off the flange; one hour of identification).
 

@@ -215,7 +215,7 @@ def judge(arrays: dict, setpoint_K: float, start_s: float, end_s: float, limit, 
 
 def table(run: dict) -> str:
     lines = ["| setpoint | ramp (s) | within 1 mK after command (s) | after ramp end (s) | overshoot (mK) | "
-             "periodic (uK) | open line (uK) | limit / reachable (uK) | periodic / reachable | heater (W) |",
+             "periodic (µK) | open line (µK) | limit / reachable (µK) | periodic / reachable | heater (W) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     def seconds(value) -> str:
         return f"{value:.0f}" if value is not None and math.isfinite(value) else f"not by the end ({HOLD_AFTER_RAMP_S:.0f} s after the ramp)"

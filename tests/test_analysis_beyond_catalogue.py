@@ -3,7 +3,9 @@ extension, equivalences, and the daemon's own records of a cryostat the model do
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import json
 from types import SimpleNamespace
 
@@ -303,15 +305,28 @@ def test_the_heater_before_the_residual_is_a_path_error_the_residual_first_is_fe
     assert bartlett_band(rough, generator.normal(size=3000), 50) < 0.6 * unrelated.band
 
 
-def test_the_resid_figure_and_the_signature_of_a_pickup(tmp_path):
-    """The pickup's record analysed with figures: the residual's autocorrelation and its cross-correlation with
-    the heater with their 99 % bands (resid.png), per segment of the record."""
+@pytest.fixture(scope="module")
+def analysed_pickup(tmp_path_factory):
+    """A 0.37 Hz pickup on the flange thermometer of another day's cryostat (a 15 minute PI record), through
+    ``cryod analyze --json`` with its figures: (the printed JSON, the output folder). Analysed once; the tests
+    below read different parts of it."""
+    folder = tmp_path_factory.mktemp("pickup")
     model, _ = perturbed_base(other_day(base_model(), 2), 3)
     record = make_record(model, "pi_only", duration_s=900.0, seed=4,
                          flange_offset_K=lambda t: 20e-6 * np.sin(2.0 * np.pi * 0.37 * t))
-    path = write_record(tmp_path / "pickup.csv", record.columns, record.metadata)
-    assert cli.main(["analyze", str(path), "--out", str(tmp_path / "out")]) == 0
-    result = json.loads((tmp_path / "out" / "analysis.json").read_text())
+    path = write_record(folder / "pickup.csv", record.columns, record.metadata)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert cli.main(["analyze", str(path), "--out", str(folder / "out"), "--json"]) == 0
+    return json.loads(printed.getvalue()), folder / "out"
+
+
+def test_the_resid_figure_and_the_signature_of_a_pickup(analysed_pickup):
+    """The pickup's record analysed with figures: the residual's autocorrelation and its cross-correlation with
+    the heater with their 99 % bands (resid.png), per segment of the record."""
+    printed, out = analysed_pickup
+    result = json.loads((out / "analysis.json").read_text())
+    assert result["residual_signature"] == printed["residual_signature"]        # the file says what was printed
     resid = result["residual_signature"]["resid"]
     windows = len(resid["autocorrelation"])
     assert resid["autocorrelation"][0] == pytest.approx(1.0) and windows > 10
@@ -320,7 +335,7 @@ def test_the_resid_figure_and_the_signature_of_a_pickup(tmp_path):
     assert resid["autocorrelation_band"] == pytest.approx(2.58 / np.sqrt(int(means)), rel=0.02)
     segments = result["residual_signature"]["segments"]
     assert segments and all(segment["T2_rms_in_noise"] > 0.0 for segment in segments)
-    figure = tmp_path / "out" / "resid.png"
+    figure = out / "resid.png"
     assert figure.stat().st_size > 10_000
 
 
@@ -333,15 +348,10 @@ def test_a_breathing_stroke_is_named_with_its_depth_and_period():
     assert abs(parameters["depth"] - 0.15) < 0.01 and abs(parameters["period_s"] - 600.0) < 20.0
 
 
-def test_a_pickup_is_described_extended_and_simulated(tmp_path, capsys):
+def test_a_pickup_is_described_extended_and_simulated(analysed_pickup, tmp_path, capsys):
     """A 0.37 Hz pickup on the flange thermometer: `unexplained`, the residual's peak at 0.37 Hz in the report, the
     generic extension's pickup taking the held-out residual to the noise, and the simulator running it."""
-    model, _ = perturbed_base(other_day(base_model(), 2), 3)
-    record = make_record(model, "pi_only", duration_s=900.0, seed=4,
-                         flange_offset_K=lambda t: 20e-6 * np.sin(2.0 * np.pi * 0.37 * t))
-    path = write_record(tmp_path / "pickup.csv", record.columns, record.metadata)
-    assert cli.main(["analyze", str(path), "--out", str(tmp_path / "out"), "--json", "--no-figures"]) == 0
-    result = json.loads(capsys.readouterr().out)
+    result, out = analysed_pickup
     assert result["cause"] == "unexplained" and not result["causes"]
     generic = result["generic_extension"]
     assert generic["added"] and generic["families_used"] == ["pickups"]
@@ -349,7 +359,7 @@ def test_a_pickup_is_described_extended_and_simulated(tmp_path, capsys):
     pickup = load_model(result["extended_model"]).effects.disturbance.pickups[0]
     assert pickup.thermometer == "flange" and abs(pickup.frequency_hz - 0.37) < 2e-3
     assert pickup.amplitude_K == pytest.approx(20e-6, rel=0.1)
-    report = (tmp_path / "out" / "report.md").read_text()
+    report = (out / "report.md").read_text()
     first = report.splitlines()[2]
     assert "no physical cause is named" in first and "pickups" in first
     assert "T2 residual peak at 0.37" in report and "pickups (sinusoids on a reading" in report
@@ -418,8 +428,8 @@ def test_a_line_gain_20_percent_off_is_base_model_off_with_the_link_as_its_equiv
 
 
 def test_the_cold_ends_drift_is_measured_in_t5_wherever_it_is_and_the_line_cancels():
-    """T5's residual: a drift of 1 mK with a 300 s correlation time, a leftover of the line at 1.72 Hz (50 uK) and
-    0.3 mK of white noise; its 30 s means over whole line periods give the drift within 30 uK rms, the first and
+    """T5's residual: a drift of 1 mK with a 300 s correlation time, a leftover of the line at 1.72 Hz (50 µK) and
+    0.3 mK of white noise; its 30 s means over whole line periods give the drift within 30 µK rms, the first and
     last samples included, and a missing reading is filled from its neighbours."""
     t = np.arange(0.0, 1800.0, 0.08)
     omega = 10.83
@@ -456,13 +466,13 @@ def test_a_drifting_cold_end_is_named_with_its_coupling():
 
 def test_the_daemons_own_record_of_a_heater_25_percent_stronger_is_base_model_off(tmp_path, capsys):
     """`cryod --simulate --sim-model` on a cryostat whose heater paths are 25 % stronger than the shipped model's
-    (15 minutes of the daemon warming the flange to its setpoint and regulating it, with its feedforward), then
+    (10 minutes of the daemon warming the flange to its setpoint and regulating it, with its feedforward), then
     `cryod analyze` on the record it wrote, against the shipped model: the record asks for 25 % more gain."""
     model = load_model()
     model = dataclasses.replace(model, heater_to_flange=model.heater_to_flange * 1.25,
                                 heater_to_ptc_stage=model.heater_to_ptc_stage * 1.25)
     save_model(model, tmp_path / "cryostat.yaml")
-    assert cli.main(["--simulate", "--sim-model", str(tmp_path / "cryostat.yaml"), "--duration", "900",
+    assert cli.main(["--simulate", "--sim-model", str(tmp_path / "cryostat.yaml"), "--duration", "600",
                      "--speed", "max", "--data-dir", str(tmp_path / "data"), "--socket", str(tmp_path / "c.sock"),
                      "--json"]) == 0
     record_path = json.loads(capsys.readouterr().out)["log_path"]

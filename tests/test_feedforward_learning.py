@@ -139,6 +139,7 @@ def test_a_setpoint_the_model_says_is_out_of_reach_gets_its_limit_from_what_was_
     run, term = settled_run(model, reference_model, 6.0, heater_max_w=0.17)
     limit = feedforward_limit(model, 6.0, 0.17, 1.0, PERIOD, certify=False)
     assert term.limits.model_limit is None and run.control["ff_limit_from"][-1] == "learned"
+    assert term.held_power == (6.0, pytest.approx(mean_heater_power_w(model, 6.0), rel=0.02))   # for setpoint_warning
     assert term.physical_limit.ptc_periodic_limit_K == pytest.approx(limit.ptc_periodic_limit_K, rel=0.1)
     assert periodic(run, 400.0) < 1.1 * limit.ptc_periodic_limit_K
 
@@ -218,6 +219,31 @@ def test_a_reload_keeps_the_learned_plant_even_with_another_controller_model(ref
     assert again.learned[0] and abs(again.plant[0] / learned.plant[0] - 1.0) < 0.02
     assert abs(again.gain_ratio[0] * 1.5 - learned.gain_ratio[0]) < 0.02
     term.close()
+
+
+# ---------------------------------------------------------------------------
+# a zone change: the learned plant starts again from the zone's model
+# ---------------------------------------------------------------------------
+def test_entering_another_zone_starts_the_learned_plant_again_from_the_zones_model(reference_model):
+    """A cryostat whose heater reaches T2 0.8x as strongly as the shipped model says; zone 1 (to 5.2 K) has the
+    shipped model as the feedforward's, zone 2 this cryostat's own. Learned in zone 1 (0.8 x its model), the
+    plant is dropped when the setpoint moves into zone 2 (a plant learned at one operating point is not the
+    plant at another), said as an event, and learned again there against zone 2's model (1.0 x)."""
+    from cryod.control.zones import Zone, ZoneTable
+
+    model = cryostat(reference_model, gain=0.8)
+    zones = ZoneTable((Zone(5.2, GAINS), Zone(20.0, GAINS, feedforward_model=model, feedforward_model_source="zone-2.yaml")))
+    run = run_program(model, [Segment(0.0, setpoint_K=5.0), Segment(240.0, setpoint_K=5.4)], 480.0, gains=GAINS,
+                      heater_max_w=0.5, seed=1, initial_heater_power_w=mean_heater_power_w(model, 5.0), zones=zones,
+                      more_terms=(("feedforward", FeedforwardSettings(model=reference_model)),))
+    entered = events(run, "zone 2 entered")
+    assert len(entered) == 1 and 240.0 <= entered[0][0] < 241.0
+    assert "learning starts again from the zone's model (zone-2.yaml)" in entered[0][3]
+    assert [event[0] > 240.0 for event in events(run, "plant learned at the line")] == [False, True]
+    at_the_line = [(event[0], float(event[3].split("harmonic 1: ")[1].split(" ")[0]))
+                   for event in events(run, "learned plant: harmonic 1")]
+    assert [ratio for time_s, ratio in at_the_line if time_s < 240.0][-1] == pytest.approx(0.8, abs=0.03)
+    assert [ratio for time_s, ratio in at_the_line if time_s > 240.0][-1] == pytest.approx(1.0, abs=0.03)
 
 
 # ---------------------------------------------------------------------------

@@ -8,7 +8,7 @@ import pytest
 
 from cryod.cli import main
 from cryod.control.feedforward.limit import feedforward_limit, limit_changes
-from cryod.control.limit_binding import limit_binding, measured_against_limit
+from cryod.control.feedforward.limit_binding import limit_binding, measured_against_limit
 
 
 @pytest.fixture(scope="module")

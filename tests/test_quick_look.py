@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import cryod
-from cryod.cli import main
+from cryod.cli import main, running_record
 from cryod.cli.plot import cooler_frequency, periodic_line_amplitudes
 from cryod.records.record import write_record
 
@@ -30,7 +30,10 @@ def test_the_line_is_found_on_T5_and_measured_on_T2_block_by_block(tmp_path):
     assert np.allclose(noises, 2 * 2e-5 * np.sqrt(6 / 375), rtol=0.15)      # 20 µK readings, 375 a block
 
 
-def test_cryod_plot_draws_a_daemon_record_beside_it_and_keeps_an_existing_figure(tmp_path, capsys):
+def test_cryod_plot_draws_a_daemon_record_beside_it_and_keeps_an_existing_figure(tmp_path, capsys, monkeypatch):
+    """A record named on the command line: its figure is kept unless --force. Without a path, the record the
+    daemon is writing grows between looks: its own quick look is drawn again in place, anything else there is
+    still kept unless --force."""
     run = cryod.simulate(600.0, data_dir=tmp_path / "data", socket=tmp_path / "c.sock", log_stream=io.StringIO())
     record_path = run.log_paths[0]
     record = cryod.read_record(record_path)                  # one cooler frequency: the daemon's, the plot's, --json's
@@ -49,6 +52,14 @@ def test_cryod_plot_draws_a_daemon_record_beside_it_and_keeps_an_existing_figure
     assert main(["plot", str(record_path)]) == 2
     assert "exists; give --force" in capsys.readouterr().err and figure.stat().st_mtime_ns == before
     assert main(["plot", str(record_path), "--force"]) == 0
+    capsys.readouterr()
+    monkeypatch.setattr(running_record, "running_record_path", lambda socket: record_path)
+    drawn = figure.stat().st_mtime_ns
+    assert main(["plot"]) == 0 and capsys.readouterr().out.strip() == str(figure)
+    assert figure.stat().st_mtime_ns > drawn
+    figure.write_bytes(b"a figure of my own")
+    assert main(["plot"]) == 2
+    assert "exists; give --force" in capsys.readouterr().err and figure.read_bytes() == b"a figure of my own"
 
 
 @pytest.mark.parametrize("text, message", [

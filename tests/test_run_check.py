@@ -94,6 +94,9 @@ REFUSALS = [
      "instruments.flange_dmm.prologix.port", "/dev/ttyUSB-cryod-none: no such device"),
     ("Prologix port that is not a device", [(FLANGE, "    prologix: {{port: {tmp}/occupied, address: 16}}")],
      "instruments.flange_dmm.prologix.port", "is a regular file, not a serial device"),
+    ("Prologix port that is a device but not a serial port", [(FLANGE, "    prologix: {{port: /dev/null, address: 16}}")],
+     "instruments.flange_dmm.prologix.port", "/dev/null is a character device of the kernel's 'mem' class, not a "
+                                             "serial device (the 'tty' class)"),
     ("a host the name service does not know", [(FLANGE, "    resource: TCPIP0::cryo-bench-none.invalid::1234::SOCKET")],
      "instruments.flange_dmm.resource", "host 'cryo-bench-none.invalid' is not known to the name service"),
     ("a Prologix adapter the name service does not know", [(FLANGE, "    prologix: {{host: gpib-lan.invalid, address: 16}}")],
@@ -132,6 +135,18 @@ def test_check_refuses_what_run_would_fail_on_at_its_file_line_and_key(tmp_path,
     assert f"{path}:{line}: {key}: " in error, error
     assert reason in error, error
     assert error.count("\n") == 1 and "Traceback" not in error
+
+
+def test_a_pseudo_terminal_for_a_prologix_port_passes(tmp_path, capsys):
+    """A pseudo-terminal is a tty the kernel's sysfs does not list (where /dev/null is of class 'mem'): a serial
+    device as far as the check can tell without opening it, as a virtual serial port (socat) is."""
+    controller, terminal = os.openpty()
+    try:
+        path, _, _ = refused_case(tmp_path, [(FLANGE, f"    prologix: {{{{port: {os.ttyname(terminal)}, address: 16}}}}")])
+        assert main(["run", "--config", str(path), "--check"]) == 0, capsys.readouterr().err
+    finally:
+        os.close(controller)
+        os.close(terminal)
 
 
 def test_the_lan_configuration_itself_passes(tmp_path, capsys):

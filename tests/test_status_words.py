@@ -2,9 +2,11 @@
 
 import logging
 import math
+import re
 
 from cryod.service.logs import reply_for_log
 from cryod.service.readable import readable
+from tests.conftest import REPOSITORY
 
 
 def test_the_feedforward_status_reads_in_words():
@@ -23,3 +25,14 @@ def test_a_multi_line_reply_is_one_line_in_a_terminals_log_and_whole_in_the_jour
     assert reply_for_log("setpoint 5 K") == "setpoint 5 K"
     monkeypatch.setenv("JOURNAL_STREAM", "8:1")
     assert reply_for_log(reply) == reply
+
+
+def test_no_text_of_cryod_spells_micro_as_u():
+    """Reports, figures, replies and docstrings say µK (the micro sign), as the status does: one spelling of one
+    unit, so that a reader or a script looking for µK finds every one. Keys of JSON contracts have no unit
+    spelled this way (their units are suffixes: ``_K``)."""
+    spelled = [f"{path.relative_to(REPOSITORY)}:{number}: {line.strip()}"
+               for path in sorted((REPOSITORY / "cryod").rglob("*.py"))
+               for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+               if re.search(r"\buK\b", line)]
+    assert spelled == []

@@ -105,3 +105,25 @@ def test_analyze_never_writes_its_record_even_when_the_record_bears_an_output_na
     status, err = _run(capsys, "analyze", named, "--out", out, "--force")
     assert status == 2 and f"{named} is a file cryod analyze reads" in err
     assert _digest(named) == before
+
+
+@pytest.mark.parametrize("tool", ["cryod analyze", "cryod identify"])
+def test_a_list_of_the_files_written_that_cannot_be_saved_is_one_warning_also_when_the_tool_fails(tmp_path, capsys,
+                                                                                                  tool):
+    """The files stay written, and the user learns that a later --force will keep them: the same warning from
+    either tool, after a run that succeeded and after one that failed half-way."""
+    from cryod.cli.output_files import listed_when_written
+    from cryod.output_files import OutputFiles
+
+    outputs = OutputFiles(tool, tmp_path, ["report.md"])
+    with listed_when_written(outputs):
+        (tmp_path / "report.md").write_text("written")
+        (tmp_path / MANIFEST_NAME).mkdir()                     # the list cannot be replaced
+    warning = (f"{tool}: warning: the list of the files written could not be saved as {tmp_path / MANIFEST_NAME}: ")
+    assert capsys.readouterr().err.startswith(warning)
+    with pytest.raises(OSError):
+        with listed_when_written(outputs):
+            raise OSError("disk full")
+    err = capsys.readouterr().err
+    assert err.startswith(warning) and err.count("\n") == 1
+    assert (tmp_path / "report.md").read_text() == "written"

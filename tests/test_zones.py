@@ -204,3 +204,70 @@ def test_the_daemon_shows_the_zone_in_its_status_and_records_each_change(tmp_pat
     plain, _, _, _, plain_events = make_loop(reference_model, curves, load_config(CONFIG / "cryod.yaml"))
     plain.run(duration_s=5.0, manage_gc=False)
     assert "zone" not in plain.status.as_dict() and not [event for event in plain_events if event.kind == "zone"]
+
+
+# -- the setpoint the heater can hold, judged in its zone -------------------------------------
+def test_a_setpoints_warning_uses_the_model_and_heater_limit_of_the_zone_holding_it(tmp_path):
+    """Zone 1 (to 6.5 K) limits the heater to 0.2 W; zone 2's model has a heater path four times the shipped
+    model's. 6 K needs about 260 mW by the shipped model: holdable with R I_max^2 = 0.5 W, not within zone 1's
+    limit. 16 K needs 1726 mW by the shipped model and a quarter of that by zone 2's: holdable there. The
+    regulator runs on the zone's model and limit, so that is what the warning must judge by."""
+    from cryod.control.setpoint_reach import setpoint_warning
+
+    path, _ = configured(tmp_path, TABLE, ("    - upper_K: 4.6", "    - upper_K: 6.5"))
+    shipped = (CONFIG / "model.yaml").read_text()
+    assert "numerator: [338.42, 6.8182]" in shipped
+    (tmp_path / "zone-model.yaml").write_text(shipped.replace("numerator: [338.42, 6.8182]",
+                                                              "numerator: [1353.68, 27.2728]"))
+    config = load_config(path)
+    heater_w = config.heater.max_power_w
+    assert heater_w == pytest.approx(0.5)
+    plain = dataclasses.replace(config.control, zones=None)
+    assert setpoint_warning(plain, 6.0, heater_w) is None
+    assert setpoint_warning(plain, 16.0, heater_w).startswith("setpoint 16 K needs about 1726 mW")
+    in_zone_1 = setpoint_warning(config.control, 6.0, heater_w)
+    assert in_zone_1.startswith("setpoint 6 K needs about 260 mW of heater power in steady state (zone 1: ")
+    assert "above zone 1's heater limit, max_heater_power_W = 200 mW" in in_zone_1
+    assert setpoint_warning(config.control, 16.0, heater_w) is None
+    in_zone_2 = setpoint_warning(config.control, 20.0, heater_w)
+    assert in_zone_2.startswith("setpoint 20 K needs about 578 mW of heater power in steady state "
+                                "(zone 2: zone-model.yaml), above the heater's top, R I_max^2 = 500 mW"), in_zone_2
+
+
+def test_once_the_power_holding_the_setpoint_is_measured_the_warning_uses_it_within_its_zone(tmp_path):
+    """On a cryostat whose heater reaches T2 half as strongly as the model says, PI is found holding 5 K with
+    226 mW (the model: 113 mW). The feedforward's learned limit uses that power; the warning does too: 7 K
+    needs about 812 mW, beyond the 500 mW top, where the model says 406 mW. A power held in another zone
+    says nothing of this one: there the zone's model judges."""
+    from cryod.control.setpoint_reach import reach_at, setpoint_warning
+
+    config = load_config(configured(tmp_path)[0])
+    plain = dataclasses.replace(config.control, zones=None)
+    assert setpoint_warning(plain, 7.0, 0.5) is None
+    held = (5.0, 0.226)
+    warning = setpoint_warning(plain, 7.0, 0.5, held)
+    assert warning.startswith("setpoint 7 K needs about 813 mW of heater power in steady state (from the 226.0 mW "
+                              "found holding 5 K), above the heater's top"), warning
+    assert reach_at(plain, 5.0, 0.5, held).power_needed_W == pytest.approx(0.226)
+    assert setpoint_warning(config.control, 7.0, 0.5, held).startswith("setpoint 7 K needs about 813 mW of heater "
+                                                                         "power in steady state (zone 2: from the")
+    assert setpoint_warning(config.control, 7.0, 0.5, (4.5, 0.04)) is None          # held in zone 1: zone 2's model
+
+
+def test_terms_are_told_of_a_zone_entered_by_the_setpoint_not_of_a_start_or_a_reload(tmp_path):
+    """What a term learned of the cryostat (the feedforward's plant) belongs to an operating point: the setpoint
+    moving into another zone moves it, a reload that redraws the zones around an unmoved setpoint does not."""
+    regulator, config = regulator_with(tmp_path)
+    told = []
+    regulator.term("feedforward").enter_zone = told.append
+    regulator.close_loop(0.0, flange_K=4.998, ptc_stage_K=3.3, present_power_w=0.1)      # 5 K: zone 2 from the start
+    regulator.step(0.08, 0.08, flange_K=4.998, ptc_stage_K=3.3)
+    assert regulator.zone_index == 1 and told == []
+    regulator.ramp.target_K = 4.4
+    regulator.step(0.16, 0.08, flange_K=4.998, ptc_stage_K=3.3)
+    assert regulator.zone_index == 0 and told == [0]
+    zones = config.control.zones
+    moved = dataclasses.replace(zones, zones=(dataclasses.replace(zones.zones[0], upper_K=4.3), zones.zones[1]))
+    regulator.reconfigure(dataclasses.replace(config.control, zones=moved))
+    assert regulator.zone_index == 1 and told == [0]
+    regulator.close()

@@ -63,7 +63,7 @@ from cryod.model.ptc_path import PtcDrive, PtcPath
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError, first_order_link
 
 #: A PTC-stage thermometer lag shifting the line by less than this (rad) is taken as none: 1e-4 rad of a
-#: 1.7 mK line (0.17 uK) is below any record's resolution.
+#: 1.7 mK line (0.17 µK) is below any record's resolution.
 STAGE_LAG_SMALLEST_PHASE_RAD = 1e-4
 
 #: Causes in the order they are tried: the model file's optional effects.

@@ -46,7 +46,7 @@ from cryod.model import CryostatModel, PtcAmplitudeModulation, PtcStageDrift
 SHORTEST_MODULATION_PERIOD_S = 60.0
 LONGEST_MODULATION_PERIOD_DURATIONS = 3.0
 #: The cold end's drift is measured in T5 over the whole record, as the cooler's line is: T5's residual averaged
-#: over about this long (s), a whole number of line periods. At T5's 0.3 mK of noise the mean carries 15 uK, which
+#: over about this long (s), a whole number of line periods. At T5's 0.3 mK of noise the mean carries 15 µK, which
 #: the flange's coupling (a lag of minutes) averages further.
 DRIFT_SMOOTHING_S = 30.0
 #: Time constants of the drift's path to the flange searched (s).

@@ -8,7 +8,9 @@ errors they differ (standard errors from the *measured* noise):
   expected rms is the measured noise; significance ``(sum r^2/s^2 - n)/sqrt(2 n)``;
 * the PTC line per segment: T2's amplitude and its lag behind T5;
 * harmonics of the line in T5 and T2 (the whole record);
-* the line frequency's drift over the record (T5's phase track);
+* the line frequency's drift over the record (T5's phase track, less the model's heater-driven part:
+  a heater waveform locked to the cooler, the feedforward's, moves T5's phase at the line as it is
+  learned, which would read as a drift);
 * heater steps: T2's change per watt over the hold, time to 10 % and to 63 %
   of the change (line averaged out over one period);
 * heater modulation away from the line: T2's response (K/W) and phase;
@@ -31,6 +33,7 @@ from cryod.analysis.replay import Replay
 from cryod.analysis.segments import RecordSegment, find_segments, find_steps
 from cryod.cooler.line_fit import fit_line, wrap_phase
 from cryod.model import CryostatModel
+from cryod.model.dynamics import simulate
 
 #: Lags of the residual's autocorrelation (samples) and of its cross-correlation with the heater.
 WHITENESS_LAGS = tuple(range(1, 21))
@@ -134,9 +137,18 @@ def harmonic_discrepancies(data: RecordData, replay: Replay, angular_frequency: 
 
 
 def drift_discrepancy(data: RecordData, model: CryostatModel, angular_frequency: float) -> list[Discrepancy]:
-    """Rate of change of the line frequency over the record (T5 phase track) against the model's."""
+    """Rate of change of the line frequency over the record (T5 phase track) against the model's.
+
+    The phase is tracked in T5 less the model's heater-driven part (as the line itself is measured,
+    :meth:`cryod.analysis.replay.Replayer.stage_line`): the feedforward's waveform reaches T5 through the
+    heater's path at the cooler's harmonics, a fraction of a millikelvin against a line of about 0.1 K, and as
+    it fades in and is learned it turns T5's phase at the line by a milliradian or two, the curvature of a drift
+    of a few microradians per second per hour that the readings' noise would call significant.
+    """
     valid = data.valid
-    track = phase_track(data.elapsed_s[valid], data.ptc_stage_K[valid], angular_frequency)
+    quiet = model.with_ptc(ptc_stage_amplitude_K=0.0, harmonics=()).with_effects(ptc_frequency_drift=None)
+    heater_part = simulate(quiet, data.time_s, data.heater_w, heater_change_s=data.heater_change_s).ptc_stage_K
+    track = phase_track(data.elapsed_s[valid], (data.ptc_stage_K - heater_part)[valid], angular_frequency)
     fit = fit_phase_track(track, data.duration_s)
     drift = fit.drift
     measured = drift.rate_rad_s_per_hour if drift is not None else 0.0

@@ -123,7 +123,7 @@ class MeasuredDisturbance:
                 found[f"{name}_correlation_time_s"] = process.correlation_time_s
         for index, pickup in enumerate(form.pickups):
             found[f"pickup_{index + 1}"] = (f"{pickup.thermometer} {pickup.frequency_hz:.5g} Hz "
-                                            f"{pickup.amplitude_K * 1e6:.3g} uK")
+                                            f"{pickup.amplitude_K * 1e6:.3g} µK")
         return found
 
 

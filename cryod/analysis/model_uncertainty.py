@@ -91,7 +91,7 @@ def report_section(check: dict | None) -> str:
     return "\n".join([
         "", "## The base model's own uncertainty", "",
         f"Replayed through {check['draws']} models drawn from the uncertainty the model file states, the "
-        f"prediction moves by {spread[0] * 1e6:.2f} uK (T2) and {spread[1] * 1e6:.1f} uK (T5) rms; {check['verdict']}.",
+        f"prediction moves by {spread[0] * 1e6:.2f} µK (T2) and {spread[1] * 1e6:.1f} µK (T5) rms; {check['verdict']}.",
         "",
     ])
 

@@ -1,7 +1,7 @@
 """The measured noise of a thermometer, from the record itself.
 
 Every significance in ``cryod analyze`` is against this noise, not against the
-model's nominal 20 uK / 0.3 mK. It is the white floor of the residual's
+model's nominal 20 µK / 0.3 mK. It is the white floor of the residual's
 spectrum (Welch, Hann windows): the median power spectral density over the
 frequencies where neither the model's misfit nor the PTC line lives: above
 0.05 Hz, away from every harmonic of the line (and its alias). The median

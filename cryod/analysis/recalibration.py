@@ -2,7 +2,7 @@
 
 Real records never come from exactly the shipped model: its gains and time
 constants are known to a few percent (the paper's own numbers differ by that
-much among themselves), and at 20 uK of noise over an hour a 1 % error of a
+much among themselves), and at 20 µK of noise over an hour a 1 % error of a
 mode's gain is a discrepancy of thousands of standard errors. Before any cause
 is looked for, the analysis refits the parameters the model's structure
 already has, on the fit blocks, the way ``cryod identify`` does:

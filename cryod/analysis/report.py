@@ -198,7 +198,7 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
         f"| PTC line in T5 | {line.angular_frequency_rad_s:.5f} +- {line.frequency_uncertainty_rad_s:.1e} rad/s, "
         f"{1e3 * line.fundamental.amplitude_K:.3f} mK, "
         f"phase {line.fundamental.phase_rad:.3f} rad at the first sample |",
-        f"| measured noise | T2 {1e6 * analysis.noise_rms_K[0]:.2f} uK rms, T5 {1e6 * analysis.noise_rms_K[1]:.1f} uK rms |",
+        f"| measured noise | T2 {1e6 * analysis.noise_rms_K[0]:.2f} µK rms, T5 {1e6 * analysis.noise_rms_K[1]:.1f} µK rms |",
         f"| heater | limit {_number(data.heater_limit_w)} W; at 0 W {100 * at_zero:.1f} % of samples, "
         f"at the limit {100 * at_limit:.1f} % |",
     ]

@@ -153,7 +153,7 @@ class ResidualSignature:
         found = []
         for peak in self.peaks[:4]:
             found.append(f"{peak.thermometer} residual peak at {peak.frequency_hz:.4g} Hz, "
-                         f"{peak.amplitude_K * 1e6:.3g} uK ({peak.significance:.0f} sigma): {peak.relation}")
+                         f"{peak.amplitude_K * 1e6:.3g} µK ({peak.significance:.0f} sigma): {peak.relation}")
         for drift in self.drifts:
             if drift.significance >= PEAK_SIGMA:
                 found.append(f"{drift.thermometer} residual drifts: {drift.kind} (slope {drift.slope:.2f}, "

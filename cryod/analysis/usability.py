@@ -117,7 +117,7 @@ def _check_cooler_line(data: RecordData, source: str) -> None:
     raise UnusableRecordError(
         source, None, f"T5_K shows no line of the cooler: the strongest line above 0.3 Hz is "
         f"{1e3 * amplitude:.3g} mK at {frequency:.3f} rad/s, {amplitude / max(noise, 1e-300):.3g} times T5's noise "
-        f"({1e6 * noise:.3g} uK rms); the analysis replays the cooler's oscillation as T5 shows it and needs it at "
+        f"({1e6 * noise:.3g} µK rms); the analysis replays the cooler's oscillation as T5 shows it and needs it at "
         f"least {LEAST_LINE_OVER_NOISE:g} times the noise (was the cooler running? is T5 the second-stage "
         "thermometer?)")
 

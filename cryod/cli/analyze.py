@@ -34,6 +34,7 @@ from cryod.analysis.summary import json_summary, model_header
 from cryod.analysis.usability import check_usable
 from cryod.argument_types import not_negative
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
+from cryod.cli.output_files import listed_when_written
 from cryod.output_files import OutputFiles
 from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError
@@ -103,15 +104,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"cryod analyze: cannot create the output directory {out}: {error}", file=sys.stderr)
         return 2
     try:
-        summary = analyse_and_write(data, model, record_path, Path(args.model), out, figures=not args.no_figures,
-                                    started=started)
+        with listed_when_written(outputs):
+            summary = analyse_and_write(data, model, record_path, Path(args.model), out,
+                                        figures=not args.no_figures, started=started)
     except (ValueError, ArithmeticError, OSError) as error:
         print(f"cryod analyze: the analysis of {record_path} failed: {error}", file=sys.stderr)
         return 1
-    finally:
-        warning = outputs.note_written()
-        if warning is not None:
-            print(f"{PROGRAM}: warning: {warning}", file=sys.stderr)
     if args.json:
         print(json.dumps(summary))
     else:

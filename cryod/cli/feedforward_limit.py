@@ -33,7 +33,7 @@ from cryod.control.feedforward.limit import (
     limit_sweep,
 )
 from cryod.control.feedforward.limit_range import LimitRange, limit_range
-from cryod.control.limit_binding import LimitBinding, limit_binding
+from cryod.control.feedforward.limit_binding import LimitBinding, limit_binding
 from cryod.control.zone_commissioning import limits_across_range, model_at_temperature, model_of_zone
 from cryod.control.zones import zone_table_from
 from cryod.model import DEFAULT_MODEL_PATH, linearised_at
@@ -242,7 +242,7 @@ def report(limit: FeedforwardLimit, sweeps: dict, model_path: str = "", spread: 
         f"  whole waveform, harmonics 1-{limit.harmonics:<2d} {_mk(limit.whole_periodic_limit_K)}"
         + (f"; no waveform of any shape goes below {_mk(limit.lower_bound_K)}" if limit.lower_bound_K is not None
            else ""),
-        f"  noise floor ({limit.averaging_time_s:g} s averaging)   {limit.noise_floor_K * 1e6:.1f} uK",
+        f"  noise floor ({limit.averaging_time_s:g} s averaging)   {limit.noise_floor_K * 1e6:.1f} µK",
         f"  predicted best residual       {_mk(limit.predicted_best_residual_K)}",
         f"  limited by                    {limit.limited_by}: {_BOUND_WORDS[binding.bound]}",
         "",

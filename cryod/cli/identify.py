@@ -42,6 +42,7 @@ from cryod.identification.model_fit import ModelIdentification, identify_model
 from cryod.identification.record_check import describe, record_problems
 from cryod.identification.uncertainty import BOOTSTRAP_REPLICATES
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
+from cryod.cli.output_files import listed_when_written
 from cryod.output_files import OutputFiles, output_file_refusal
 from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError
@@ -365,13 +366,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{PROGRAM}: warning: {warning}", file=sys.stderr)
     text = summary(result, out)
     if report_files is not None:
-        try:
+        with listed_when_written(report_files):
             text["report"] = str(_write_report(args, result, report_files.directory, out, record_paths, acquisition,
                                                config, warnings))
-        finally:
-            warning = report_files.note_written()
-            if warning is not None:
-                print(f"{PROGRAM}: warning: {warning}", file=sys.stderr)
     if args.json:
         print(json.dumps(text))
     else:

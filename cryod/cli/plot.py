@@ -17,13 +17,18 @@ the start-up's transient nor an overrun's uneven sampling is in it.
 
 The figure goes beside the record (``RECORD.png``) unless ``--out`` says
 otherwise, and an existing file is kept unless ``--force`` (the record itself
-always: :mod:`cryod.output_files`).
+always: :mod:`cryod.output_files`). Without RECORD, the record the running
+daemon is writing grows between looks, and its quick look is drawn again in
+place without ``--force``, as long as the file there is one ``cryod plot`` drew
+of that record (the PNG says so in its text chunks, ``Software`` and ``Title``);
+any other file there is kept unless ``--force``.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import struct
 import sys
 from pathlib import Path
 
@@ -33,6 +38,7 @@ from cryod.figure_files import HARMONICS, mark_cooler_harmonics
 from cryod.output_files import output_file_refusal
 from cryod.records.record import RecordFormatError, read_record
 from cryod.records.stretches import settled, settled_stretches, startup_end_s
+from cryod.regular_files import open_regular_file
 
 #: Blocks over which the line's amplitude is fitted (s): about 50 cooler periods.
 LINE_BLOCK_S = 30.0
@@ -44,6 +50,10 @@ LIMIT_SOURCES = {"model": "controller's model", "learned": "learned plant"}
 SPECTRUM_BREAKS = ("overrun", "fault", "stop", "resumed")
 #: Pixel columns of the time axes; each gets T2's minimum and maximum.
 COLUMNS = 1500
+#: What a quick look's PNG names as the program that drew it (its ``Software`` text chunk).
+SOFTWARE = "cryod plot"
+#: The PNG's text chunks are looked for in its first this many bytes (they come before the image data).
+TEXT_CHUNKS_WITHIN_BYTES = 65536
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -55,14 +65,17 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
                         help="without RECORD: the control socket of the daemon whose record to plot")
     parser.add_argument("--out", type=Path, default=None, metavar="PNG",
                         help="where the figure goes (default: beside the record, RECORD.png)")
-    parser.add_argument("--force", action="store_true", help="replace an existing figure")
+    parser.add_argument("--force", action="store_true",
+                        help="replace an existing figure (without RECORD, the quick look cryod plot drew of the "
+                             "record being written is drawn again without it)")
     parser.add_argument("--line-rad-s", type=float, default=10.83, metavar="RAD_S",
                         help="the cooler's nominal angular frequency, refined on T5 (default 10.83)")
     return parser
 
 
 def run(args) -> int:
-    if args.record is None:
+    running = args.record is None
+    if running:
         from cryod.cli.running_record import running_record_path
 
         try:
@@ -71,7 +84,8 @@ def run(args) -> int:
             print(f"cryod plot: {error}", file=sys.stderr)
             return 2
     out = args.out or args.record.with_name(args.record.name.removesuffix(".gz").removesuffix(".csv") + ".png")
-    refusal = output_file_refusal("cryod plot", out, force=args.force, inputs=[args.record])
+    redraw = running and args.out is None and is_quick_look_of(out, args.record)
+    refusal = output_file_refusal("cryod plot", out, force=args.force or redraw, inputs=[args.record])
     if refusal is not None:
         print(f"cryod plot: {refusal} (--out: another file)", file=sys.stderr)
         return 2
@@ -213,9 +227,32 @@ def plot_record(record, out: Path, nominal_rad_s: float = 10.83) -> Path:
         axes[4].set_title("no spectrum: no stretch of settled readings without overruns long enough", fontsize=9)
     figure.suptitle(f"{Path(record.source).name}: {duration / 3600:.2f} h, {len(record)} rows", fontsize=11)
     figure.tight_layout()
-    figure.savefig(out, dpi=100)
+    figure.savefig(out, dpi=100, metadata={"Software": SOFTWARE, "Title": Path(record.source).name})
     plt.close(figure)
     return out
+
+
+def is_quick_look_of(path: Path, record_path: Path) -> bool:
+    """Whether ``path`` is a PNG that ``cryod plot`` drew of the record ``record_path`` (its text chunks
+    ``Software`` and ``Title``, in its first :data:`TEXT_CHUNKS_WITHIN_BYTES` bytes); False for anything
+    else, a file missing or unreadable included."""
+    try:
+        with open_regular_file(path) as file:
+            head = file.read(TEXT_CHUNKS_WITHIN_BYTES)
+    except (OSError, ValueError):
+        return False
+    if not head.startswith(b"\x89PNG\r\n\x1a\n"):
+        return False
+    text, position = {}, 8
+    while position + 8 <= len(head):
+        length, kind = struct.unpack(">I4s", head[position:position + 8])
+        if kind in (b"IDAT", b"IEND"):
+            break
+        if kind == b"tEXt":
+            key, _, value = head[position + 8:position + 8 + length].partition(b"\0")
+            text[key.decode("latin-1")] = value.decode("latin-1")
+        position += 12 + length
+    return text.get("Software") == SOFTWARE and text.get("Title") == Path(record_path).name
 
 
 def stretch_spectrum(values: np.ndarray, stretches: list[tuple[int, int]], sample_hz: float):

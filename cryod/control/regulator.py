@@ -399,14 +399,18 @@ class Regulator:
         index = control.zones.index_for(self.ramp.setpoint_K)
         changed = previous is None or self.zone_index is None or previous.zones[self.zone_index] \
             != control.zones.zones[index] or index != self.zone_index
-        self._enter_zone(index, f"reload of {control.zones.source or 'the zone table'}" if changed else "")
+        self._enter_zone(index, f"reload of {control.zones.source or 'the zone table'}" if changed else "",
+                         setpoint_moved=False)
 
     # -- zones ---------------------------------------------------------------------------
-    def _enter_zone(self, index: int, reason: str) -> None:
+    def _enter_zone(self, index: int, reason: str, setpoint_moved: bool = True) -> None:
         """Run on zone ``index`` of ``control.zones`` from now on, bumplessly: every term takes the zone's
         settings through its ``reconfigure`` (the PI keeps its output, its integral taking the difference of
         the gains), and the terms' sum is held within the zone's heater limit. ``reason`` ('' for none) goes
-        into the zone's event."""
+        into the zone's event. When the setpoint in use moved from another zone into this one (not at the
+        start, not on a reload), every term is then told (``enter_zone``): the cryostat is at another
+        operating point, and what a term learned of it at the previous one (the feedforward's plant) is
+        the term's to drop."""
         zone = self.control.zones.zones[index]
         limit = zone.max_heater_power_W
         self.maximum = self.output.maximum if limit is None else min(self.output.maximum,
@@ -414,6 +418,9 @@ class Regulator:
         settings = dict(self.control.terms)
         for term in self.terms:
             term.reconfigure(zone.settings_for(term.name, settings[term.name]), self.maximum)
+        if setpoint_moved and self.zone_index is not None and index != self.zone_index:
+            for term in self.terms:
+                term.enter_zone(index)
         self.zone_index = index
         if reason:
             self._zone_events.append(f"{zone.describe(index)}; {reason}")

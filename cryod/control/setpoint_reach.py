@@ -8,6 +8,17 @@ top, or less than 0 W, cannot be held: the loop would sit at the heater's top
 model can be wrong); the command's reply, the journal and the status say so,
 with the numbers.
 
+With zones (``control.zones``) the setpoint is judged in the zone that holds it:
+that zone's feedforward model (else ``control.feedforward``'s) and its heater
+limit when it has one (else R I_max^2), the model and the top the regulator
+will run on there.
+
+Once the feedforward's limit comes from what was learned, the mean power PI
+found holding the setpoint in use is what the limit uses, and so does the
+warning: the DC gain it shows, (T_held - T2_0) / P_held, replaces the model's
+for a setpoint in the same zone (as the learned limit's "what would change it"
+does for a setpoint 0.5 K away).
+
 Examples
 --------
 >>> from cryod.model import load_model
@@ -42,6 +53,8 @@ class SetpointReach:
         The flange's temperature with the heater at 0 W and at its top (K).
     model_source : str
         Which model says so.
+    top_source : str
+        What sets the top (R I_max^2, or a zone's heater limit).
     """
 
     setpoint_K: float
@@ -50,6 +63,7 @@ class SetpointReach:
     lowest_K: float
     highest_K: float
     model_source: str
+    top_source: str = "the heater's top, R I_max^2"
 
     @property
     def holdable(self) -> bool:
@@ -59,7 +73,7 @@ class SetpointReach:
         """Why the heater cannot hold the setpoint, with the numbers; None when it can."""
         if self.power_needed_W > self.max_power_W:
             return (f"setpoint {self.setpoint_K:g} K needs about {self.power_needed_W * 1e3:.0f} mW of heater power in "
-                    f"steady state ({self.model_source}), above the heater's top, R I_max^2 = "
+                    f"steady state ({self.model_source}), above {self.top_source} = "
                     f"{self.max_power_W * 1e3:.0f} mW: it holds the flange at about {self.highest_K:.2f} K at most, "
                     f"where the heater stays at its top")
         if self.power_needed_W < 0.0:
@@ -69,7 +83,8 @@ class SetpointReach:
         return None
 
 
-def setpoint_reach(model, setpoint_K: float, max_power_W: float, model_source: str = "shipped model") -> SetpointReach:
+def setpoint_reach(model, setpoint_K: float, max_power_W: float, model_source: str = "shipped model",
+                   top_source: str = "the heater's top, R I_max^2") -> SetpointReach:
     """The power ``setpoint_K`` needs in ``model`` against a heater whose top is ``max_power_W``.
 
     Parameters
@@ -77,16 +92,18 @@ def setpoint_reach(model, setpoint_K: float, max_power_W: float, model_source: s
     model : cryod.model.CryostatModel
     setpoint_K : float
     max_power_W : float
-        R I_max^2 (W).
+        The heater's top (W): R I_max^2, or a zone's heater limit.
     model_source : str
         Named in the warning.
+    top_source : str
+        What sets the top, named in the warning.
     """
     from cryod.control.feedforward.limit import mean_heater_power_w
 
     lowest = model.operating_point.flange_temperature_K
     gain = model.heater_to_thermometer.dc_gain
     return SetpointReach(setpoint_K, mean_heater_power_w(model, setpoint_K), max_power_W, lowest,
-                         lowest + gain * max_power_W, model_source)
+                         lowest + gain * max_power_W, model_source, top_source)
 
 
 def controller_model(control) -> tuple[object, str]:
@@ -111,9 +128,56 @@ def _load(path):
     return load_model(path)
 
 
-def setpoint_warning(control, setpoint_K: float | None, max_power_W: float) -> str | None:
-    """The warning for ``setpoint_K`` under the configuration's controller model (None: holdable, or no setpoint)."""
+def reach_at(control, setpoint_K: float, max_power_W: float,
+             held: tuple[float, float] | None = None) -> SetpointReach:
+    """What the heater can do at ``setpoint_K`` with the model and top the regulator runs on there.
+
+    Without zones: the controller's model (:func:`controller_model`) against R I_max^2. With zones: the
+    zone holding ``setpoint_K``, its feedforward model (else the controller's) and its heater limit (else
+    R I_max^2).
+
+    Parameters
+    ----------
+    control : cryod.config.ControlConfig
+    setpoint_K : float
+    max_power_W : float
+        R I_max^2 (W).
+    held : (float, float), optional
+        A setpoint (K) and the mean heater power (W) found holding it, what the feedforward's learned limit
+        uses (:attr:`cryod.control.feedforward.FeedforwardTerm.held_power`): its DC gain replaces the
+        model's when that setpoint is in the same zone as ``setpoint_K`` (without zones: always) and the
+        gain is positive.
+    """
+    model, source = controller_model(control)
+    top_source = "the heater's top, R I_max^2"
+    zones = getattr(control, "zones", None)
+    prefix = ""
+    if zones is not None:
+        index = zones.index_for(setpoint_K)
+        zone = zones.zones[index]
+        if zone.feedforward_model is not None:
+            model, source = zone.feedforward_model, zone.feedforward_model_source or "the zone's model"
+        prefix = f"zone {index + 1}: "
+        if zone.max_heater_power_W is not None and zone.max_heater_power_W < max_power_W:
+            max_power_W, top_source = zone.max_heater_power_W, f"zone {index + 1}'s heater limit, max_heater_power_W"
+        if held is not None and zones.index_for(held[0]) != index:
+            held = None
+    reach = setpoint_reach(model, setpoint_K, max_power_W, prefix + source, top_source)
+    if held is None:
+        return reach
+    held_K, held_w = held
+    lowest = reach.lowest_K
+    gain_K_per_W = (held_K - lowest) / held_w if held_w > 0.0 else 0.0
+    if not gain_K_per_W > 0.0:
+        return reach
+    return SetpointReach(setpoint_K, (setpoint_K - lowest) / gain_K_per_W, max_power_W, lowest,
+                         lowest + gain_K_per_W * max_power_W,
+                         f"{prefix}from the {held_w * 1e3:.1f} mW found holding {held_K:g} K", top_source)
+
+
+def setpoint_warning(control, setpoint_K: float | None, max_power_W: float,
+                     held: tuple[float, float] | None = None) -> str | None:
+    """The warning for ``setpoint_K`` (None: holdable, or no setpoint), judged as :func:`reach_at` says."""
     if setpoint_K is None:
         return None
-    model, source = controller_model(control)
-    return setpoint_reach(model, setpoint_K, max_power_W, source).warning()
+    return reach_at(control, setpoint_K, max_power_W, held).warning()

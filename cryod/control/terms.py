@@ -17,7 +17,10 @@ terms see), ``rides_on_feedback`` (the term is added after the feedback
 terms' sum has been held within the heater's range: the feedforward),
 ``take_events()`` (what the term has to say since the last tick, as
 (logging level, text) pairs, which the loop logs and writes into the record
-as events named after the term) and ``close()`` (release what it holds).
+as events named after the term), ``enter_zone(index)`` (the setpoint in use
+moved into another zone of ``control.zones``: what the term learned of the
+cryostat at the previous operating point) and ``close()`` (release what it
+holds).
 
 A new term is one module with such a class and one line in :data:`TERM_TYPES`.
 The regulator (:mod:`cryod.control.regulator`) adds the terms' outputs, holds
@@ -140,6 +143,12 @@ class ControlTerm(ABC):
     def take_events(self) -> tuple[tuple[int, str], ...]:
         """What the term has to say since the last tick: (logging level, text) pairs (by default, nothing)."""
         return ()
+
+    def enter_zone(self, index: int) -> None:
+        """The setpoint in use moved into zone ``index`` of ``control.zones`` (counted from 0), another operating
+        point of the cryostat; called after :meth:`reconfigure` has given the term the zone's settings, never for
+        a reload (the setpoint, and so the cryostat, stayed where it was). By default, nothing: the zone's
+        settings are all the term needs."""
 
     def close(self) -> None:
         """Release what the term holds (a worker thread); by default, nothing."""

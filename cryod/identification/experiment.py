@@ -27,7 +27,7 @@ straight line fitted to T2 changes by less than ``settle_fraction`` of T2's
 change since the phase began (the mean of that window less the mean of the
 previous phase's last window; for the first phase, of its first 10 s), or by
 less than ``settle_floor_K`` (a flange that was already settled). A straight line over many cooler periods is blind to the
-cooler's line, and its slope is measured to about 2 uK per window at 20 uK
+cooler's line, and its slope is measured to about 2 µK per window at 20 µK
 noise. The line's slope is that at the window's middle, so for a single
 exponential of time constant tau the default (0.5 %, 120 s) is met at
 ``t = 60 s + tau ln(120 s / (0.005 tau))``: 880 s for the shipped model's 165 s,
@@ -173,7 +173,7 @@ class ExperimentPlan:
         """The settling criterion in words (for the record's header and the report)."""
         return (f"settled when the straight line fitted to T2 over the last {self.settle_window_s:g} s changes by "
                 f"less than {100 * self.settle_fraction:g} % of T2's change since the phase began, or by less than "
-                f"{self.settle_floor_K * 1e6:g} uK; at least {self.min_settle_s:g} s, at most {self.max_settle_s:g} s")
+                f"{self.settle_floor_K * 1e6:g} µK; at least {self.min_settle_s:g} s, at most {self.max_settle_s:g} s")
 
     def metadata(self) -> dict:
         """Header lines of the record."""
@@ -384,14 +384,14 @@ class ExperimentRunner:
                           f"{self.judge.drift_K * 1e3:.3f} mW over the last {plan.settle_window_s:g} s, change in "
                           f"the phase {self.judge.change_K * 1e3:.3f} mW")
             else:
-                self.note(f"phase {phase} settled after {elapsed:.0f} s: T2 moved {self.judge.drift_K * 1e6:.1f} uK "
+                self.note(f"phase {phase} settled after {elapsed:.0f} s: T2 moved {self.judge.drift_K * 1e6:.1f} µK "
                           f"over the last {plan.settle_window_s:g} s, change in the phase "
                           f"{self.judge.change_K * 1e3:.3f} mK")
             return True
         if elapsed >= plan.max_settle_s:
             self.unsettled.append(phase)
             self.note(f"phase {phase} NOT settled after {plan.max_settle_s:g} s (--max-settle): T2 still moved "
-                      f"{self.judge.drift_K * 1e6:.1f} uK over the last {plan.settle_window_s:g} s")
+                      f"{self.judge.drift_K * 1e6:.1f} µK over the last {plan.settle_window_s:g} s")
             return True
         return False
 

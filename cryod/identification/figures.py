@@ -60,7 +60,7 @@ def _channel_figure(result: ModelIdentification, channel: ChannelResult, index: 
     middle.set_ylabel("heater (mW)")
     middle.grid(alpha=0.3)
     t, raw, smooth = thin(elapsed, residual, _period_average(residual, samples))
-    unit, scale = ("uK", 1e6) if np.nanmax(np.abs(residual)) < 2e-3 else ("mK", 1e3)
+    unit, scale = ("µK", 1e6) if np.nanmax(np.abs(residual)) < 2e-3 else ("mK", 1e3)
     bottom.plot(t, raw * scale, color="0.7", lw=0.4, label="residual")
     bottom.plot(t, smooth * scale, color="tab:blue", lw=1.0, label="residual, cooler-period average")
     noise = result.noise_rms_K[0 if quantity == "T2" else 1]
@@ -129,7 +129,7 @@ def line_figure(result: ModelIdentification, path: Path, periods: float = 6.0) -
     middle.legend(fontsize=8, loc="upper right")
     middle.grid(alpha=0.3)
     bottom.plot(t, flange.residual_K[0][window] * 1e6, color="tab:blue", lw=0.8, label="T2 residual")
-    bottom.set_ylabel("T2 measured - fit (uK)")
+    bottom.set_ylabel("T2 measured - fit (µK)")
     bottom.set_xlabel("time since the record's start (s)")
     bottom.legend(fontsize=8, loc="upper right")
     bottom.grid(alpha=0.3)

@@ -76,8 +76,8 @@ def fit_support_problems(time_s, heater_w, flange_K, stage_K, *, longest_time_co
                         "--acquire does)")
     elif largest < needed:
         problems.append(f"the largest heater step, {largest * 1e3:.3g} mW, moves T2 by about "
-                        f"{largest * abs(dc_gain_K_per_W) * 1e6:.1f} uK, under {MINIMUM_STEP_IN_NOISE:g} x its noise "
-                        f"({noise_rms_K * 1e6:.1f} uK): a step of at least {needed * 1e3:.2g} mW is needed")
+                        f"{largest * abs(dc_gain_K_per_W) * 1e6:.1f} µK, under {MINIMUM_STEP_IN_NOISE:g} x its noise "
+                        f"({noise_rms_K * 1e6:.1f} µK): a step of at least {needed * 1e3:.2g} mW is needed")
     else:
         first = int(np.flatnonzero(change >= 0.5 * largest)[0]) + 1
         after = float(time_s[-1] - time_s[first])

@@ -125,13 +125,13 @@ def write_report(result: ModelIdentification, out: Path, *, model_path: Path, re
         shown, shown_sigma = _number(value * scale, sigma * scale)
         lines.append(f"- {label}: {shown} +- {shown_sigma} {unit}")
     lines += ["", "## How well it fits", "",
-              f"Noise (white floor of the residuals): T2 {result.noise_rms_K[0] * 1e6:.1f} uK, "
-              f"T5 {result.noise_rms_K[1] * 1e6:.1f} uK rms.", "",
+              f"Noise (white floor of the residuals): T2 {result.noise_rms_K[0] * 1e6:.1f} µK, "
+              f"T5 {result.noise_rms_K[1] * 1e6:.1f} µK rms.", "",
               "| record | T2 residual rms / noise | T5 residual rms / noise |", "|---|---|---|"]
     for path, (f, s) in zip(record_paths, result.residual_rms_in_noise):
         lines.append(f"| `{Path(str(path)).name}` | {f:.3f} | {s:.3f} |")
     lines += ["", "Number of terms (BIC: lower is better; held-out: fitted on every other block, rms on the "
-              "others):", "", "| path | terms | time constants (s) | rms (uK) | held-out rms (uK) | BIC |",
+              "others):", "", "| path | terms | time constants (s) | rms (µK) | held-out rms (µK) | BIC |",
               "|---|---|---|---|---|---|"]
     for name, channel in (("G2 G1", flange), ("G3", stage)):
         for row in channel.selection.table:

@@ -42,7 +42,7 @@ from cryod.service.discovery import simulation_socket
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
 from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit, limit_changes
-from cryod.control.limit_binding import limit_binding
+from cryod.control.feedforward.limit_binding import limit_binding
 from cryod.records.columns import Event, Row
 from cryod.records.metrics import regulation_metrics
 from cryod.model import DEFAULT_MODEL_PATH, linearised_at, load_model

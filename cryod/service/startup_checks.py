@@ -174,10 +174,31 @@ def _serial_device_problem(device: str) -> str | None:
         return f"{device}: {error.strerror or error}"
     if not stat.S_ISCHR(mode):
         return f"{device} is {kind_of(mode)}, not a serial device"
+    device_class = kernel_device_class(os.stat(device).st_rdev)
+    if device_class is not None and device_class != "tty":
+        return (f"{device} is a character device of the kernel's {device_class!r} class, not a serial device (the "
+                f"'tty' class): give the adapter's serial port (ls /dev/serial/by-id)")
     if not os.access(device, os.R_OK | os.W_OK):
         return (f"{device}: user {_user()} may not read and write it: add {_user()} to the device's group "
                 f"(dialout for serial adapters; SupplementaryGroups= in the unit)")
     return None
+
+
+def kernel_device_class(device_number: int) -> str | None:
+    """The kernel's class of a character device (``tty`` for serial ports and terminals, ``mem`` for
+    /dev/null), from /sys/dev/char without opening the device (opening a serial port moves its DTR and RTS
+    lines); None where sysfs does not list it (pseudo-terminals, a system without sysfs).
+
+    Parameters
+    ----------
+    device_number : int
+        ``st_rdev`` of the device file.
+    """
+    link = Path("/sys/dev/char") / f"{os.major(device_number)}:{os.minor(device_number)}" / "subsystem"
+    try:
+        return Path(os.readlink(link)).name
+    except OSError:
+        return None
 
 
 def _user() -> str:

@@ -13,7 +13,8 @@
   (:mod:`~cryod.control.feedforward.limit`), its range for an uncertain model
   (:mod:`~cryod.control.feedforward.limit_range`), from what was learned
   (:mod:`~cryod.control.feedforward.learned_limit`), followed at the setpoint in use
-  (:mod:`~cryod.control.feedforward.limit_follower`).
+  (:mod:`~cryod.control.feedforward.limit_follower`), what binds it in the lab's words
+  (:mod:`~cryod.control.feedforward.limit_binding`).
 
 How it works and why, with the results: docs/feedforward.md. The term's names are also here, where the
 control terms' table (:data:`cryod.control.terms.TERM_TYPES`) and users import them from.

@@ -13,7 +13,9 @@ term's name (the loop writes them into the record as ``# event: feedforward:
   harmonics learned have changed (at most every :data:`SAY_AGAIN_S`; the data
   log keeps it with the readings);
 * a probe burst that ended before the plant was known to the precision asked;
-* a divergence, and the reset.
+* a divergence, and the reset;
+* the setpoint in use entering another zone (``control.zones``): the learned plant
+  starts again from the zone's model.
 
 Examples
 --------
@@ -95,6 +97,14 @@ class LearningReport:
         """The divergence guard tripped."""
         self._say(logging.WARNING, f"learning diverged: {reason}; the waveform fades out, the learned plant is "
                                    f"reset to the model and learning starts again in {retry_s:.0f} s")
+        self._fundamental_learned = False
+        self._differences = ()
+        self._learned = ()
+
+    def zone_entered(self, index: int, model_source: str) -> None:
+        """The setpoint in use moved into zone ``index`` (from 0): the learned plant starts again from its model."""
+        self._say(logging.INFO, f"zone {index + 1} entered: the plant learned at the previous zone's operating point "
+                                f"is dropped; learning starts again from the zone's model ({model_source})")
         self._fundamental_learned = False
         self._differences = ()
         self._learned = ()

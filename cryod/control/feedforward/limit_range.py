@@ -71,7 +71,7 @@ class LimitRange:
         """One line: the range in mK."""
         return (f"{self.low_K * 1e3:.4f} to {self.high_K * 1e3:.4f} mK (central 95 % of {self.draws} models drawn "
                 f"from the model's stated uncertainty; median {self.median_K * 1e3:.4f} mK, standard deviation "
-                f"{self.standard_deviation_K * 1e6:.2f} uK)"
+                f"{self.standard_deviation_K * 1e6:.2f} µK)"
                 + (f"; for {self.out_of_reach} drawn models the setpoint is out of the heater's reach"
                    if self.out_of_reach else ""))
 

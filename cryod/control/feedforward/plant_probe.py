@@ -41,13 +41,13 @@ Examples
 >>> plant = LearnedPlant.from_model(np.array([7.36e-3 * np.exp(-2.0j), 4.06e-3 * np.exp(-2.5j)]))
 >>> settings = ProbeSettings(amplitude_K=50e-6)
 >>> state, probe = next_probe(ProbeState.start(2), plant, 0.2, 2.0, settings)
->>> np.round(np.abs(probe) * 1e3, 1)                 # mW: the line first, 50 uK through its plant
+>>> np.round(np.abs(probe) * 1e3, 1)                 # mW: the line first, 50 µK through its plant
 array([6.8, 0. ])
 >>> learned = LearnedPlant(plant.model, plant.correction, np.array([np.eye(2) * 1e-4, np.eye(2)]))
 >>> state, probe = next_probe(state, learned, 0.2, 2.0, settings)
 >>> np.round(np.abs(probe) * 1e3, 1)                 # the line known to 1.4 %: the second harmonic
 array([ 0. , 12.3])
->>> round(probe_cost_K(probe, learned.plant) * 1e6, 1)   # T2's answer, harmonics together (uK)
+>>> round(probe_cost_K(probe, learned.plant) * 1e6, 1)   # T2's answer, harmonics together (µK)
 50.0
 """
 

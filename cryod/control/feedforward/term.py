@@ -68,7 +68,7 @@ from cryod.control.feedforward.harmonic_plant import plant_at_harmonics
 from cryod.control.feedforward.learned_limit import LearnedLimitInputs
 from cryod.control.feedforward.learned_projection import learning_step
 from cryod.control.feedforward.learning_report import LearningReport
-from cryod.control.limit_binding import limit_binding, measured_against_limit
+from cryod.control.feedforward.limit_binding import limit_binding, measured_against_limit
 from cryod.control.feedforward.limit_follower import LimitFollower
 from cryod.control.feedforward.plant_learner import PRIOR_SPREAD, LearnedPlant
 from cryod.control.feedforward.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
@@ -741,6 +741,13 @@ class FeedforwardTerm(ControlTerm):
         return self.limits.limit
 
     @property
+    def held_power(self) -> tuple[float, float] | None:
+        """(setpoint (K), mean heater power (W)) the learned limit was computed from: the power PI found
+        holding T2 settled at the setpoint in use, on this cryostat; None while the limit is the model's."""
+        limit = self.limits.learned_limit
+        return None if limit is None else (limit.setpoint_K, limit.mean_heater_power_W)
+
+    @property
     def limit_changes(self) -> tuple:
         """The limit if the setpoint moved by 0.5 K either way, or R I_max^2 doubled (LimitChange)."""
         return self.limits.changes
@@ -906,10 +913,27 @@ class FeedforwardTerm(ControlTerm):
         """The waveform has faded out after a divergence: the model's plant again, learning later."""
         self._learn_again_s = time_s + self._retry_s()
         self._diverged = None
-        self.worker.apply(SynchronousEstimator.reset_correction)
         self._coefficients = np.zeros_like(self._coefficients)
         self._probe = np.zeros_like(self._probe)
         self._set_played()
+        self._forget_learned_plant()
+
+    def enter_zone(self, index: int) -> None:
+        """The setpoint in use moved into zone ``index`` (from 0), whose model :meth:`reconfigure` has just taken.
+
+        The plant learned belongs to the operating point it was learned at; the zone's model is the
+        commissioned one for the new point, so the learned plant starts again from it, with the prior's
+        spread: the probe starts again, the learned limit and the line PI alone left are forgotten. The
+        waveform plays on (dropping it would be a bump) and is learned from there. Said as an event.
+        """
+        self._take_step_result()        # a step computed at the previous operating point is taken first
+        self._pi_alone = None
+        self._forget_learned_plant()
+        self.report.zone_entered(index, self.settings.model_source)
+
+    def _forget_learned_plant(self) -> None:
+        """The model's plant again, with the prior's spread; the probe from its start, no learned limit."""
+        self.worker.apply(SynchronousEstimator.reset_correction)
         self.probe_state = ProbeState.start(self.settings.harmonics)
         self.guard.clear()
         self.limits.forget_learned()

@@ -16,7 +16,7 @@ Examples
 0.0
 >>> unplayed.set(0.0, -0.010)              # the total held 10 mW below what was asked
 >>> unplayed.set(0.08, 0.0)                # played in full again
->>> round(unplayed.at(0.5) * 1e6, 2) < 0   # T2 a little cooler than the estimator's model says (uK)
+>>> round(unplayed.at(0.5) * 1e6, 2) < 0   # T2 a little cooler than the estimator's model says (µK)
 True
 """
 

@@ -150,6 +150,60 @@ def perturbed_base(model: CryostatModel, seed: int, fraction: float = PERTURBATI
     return changed, {**factors, "line_phase_rad": shift}
 
 
+#: Base-model parameters a cryostat can have further off than the recalibration's tolerance (:func:`far_off`).
+FAR_OFF_PARAMETERS = ("heater power scale", "flange time constant", "line gain", "thermometer time constant")
+
+
+def far_off(model: CryostatModel, parameter: str, factor: float, reference: CryostatModel) -> CryostatModel:
+    """``model`` with one base parameter set to ``factor`` times ``reference``'s (the shipped model's).
+
+    The parameter is set against the reference, not scaled on ``model``'s own
+    (already perturbed) value, so that the cryostat is ``factor`` off the model
+    the analysis is given, whatever :func:`perturbed_base` did to it:
+
+    * ``"heater power scale"``: G1's and G3's static gains (a wrong heater
+      resistance scales every heater path);
+    * ``"flange time constant"``: G1's pole;
+    * ``"line gain"``: the line's gain on T2, T2's line amplitude over T5's
+      (``|G2 G_link|`` at the line, what the recalibration calls ``line gain on
+      T2``), set through the link's static gain; the link's phase stays as it is;
+    * ``"thermometer time constant"``: G2's time constant.
+
+    Examples
+    --------
+    >>> from cryod.model import load_model
+    >>> shipped = load_model()
+    >>> model, _ = perturbed_base(shipped, seed=3)
+    >>> off = far_off(model, "line gain", 1.2, shipped)
+    >>> omega = shipped.ptc.angular_frequency_rad_s
+    >>> line = lambda m: abs(m.flange_to_thermometer.frequency_response(omega) * m.ptc_to_flange.frequency_response(omega))
+    >>> round(line(off) / line(shipped), 6)
+    1.2
+    """
+    from cryod.model.transfer_function import TransferFunction
+
+    if parameter == "heater power scale":
+        flange = model.heater_to_flange * (factor * reference.heater_to_flange.dc_gain / model.heater_to_flange.dc_gain)
+        stage = model.heater_to_ptc_stage * (factor * reference.heater_to_ptc_stage.dc_gain
+                                             / model.heater_to_ptc_stage.dc_gain)
+        return dataclasses.replace(model, heater_to_flange=flange, heater_to_ptc_stage=stage)
+    if parameter == "flange time constant":
+        (zero, gain), (_, one) = model.heater_to_flange.numerator, model.heater_to_flange.denominator
+        pole = reference.heater_to_flange.denominator[0] * factor
+        return dataclasses.replace(model, heater_to_flange=TransferFunction((zero, gain), (pole, one)))
+    if parameter == "line gain":
+        omega = model.ptc.angular_frequency_rad_s
+
+        def line(item):
+            return abs(item.flange_to_thermometer.frequency_response(omega) * item.ptc_to_flange.frequency_response(omega))
+
+        return dataclasses.replace(model, ptc_to_flange=model.ptc_to_flange * (factor * line(reference) / line(model)))
+    if parameter == "thermometer time constant":
+        tau = reference.flange_to_thermometer.denominator[0] * factor
+        return dataclasses.replace(model, flange_to_thermometer=TransferFunction.first_order_lag(tau))
+    raise ValueError(f"unknown base parameter {parameter!r}: one of {', '.join(FAR_OFF_PARAMETERS)}")
+
+
 def hidden_model(model: CryostatModel, cause: str, magnitude: int, variant: int = 0):
     """(model with the effect, truth) for a cause and a magnitude index (0, 1, 2), on day ``variant``."""
     changes, truth = MAGNITUDES[cause][magnitude]

@@ -159,6 +159,12 @@ class RunProcess:
         self._journal.close()
 
 
+def faults_of_its_own(journal: str) -> list[str]:
+    """The journal's lines of faults the loop found by itself (a reply later than the loop's wait, on a busy
+    machine): the heater went to 0 W for them, whatever a test did to the daemon."""
+    return [line for line in journal.splitlines() if "cryod.loop: warning: heater off: " in line]
+
+
 def delay_to_zero_s(supply, since_s: float) -> float | None:
     """How long after ``since_s`` (monotonic) the supply's output went to 0 W and stayed there; None if it
     is not at 0 W now."""

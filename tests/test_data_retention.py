@@ -31,6 +31,8 @@ def test_a_finished_day_is_compressed_when_the_next_day_starts_and_reads_back_th
     finished = read_record(tmp_path / "cryod-2026-11-18.csv.gz")
     assert len(finished) + len(read_record(tmp_path / "cryod-2026-11-19.csv")) == 100
     frame = pandas.read_csv(tmp_path / "cryod-2026-11-18.csv.gz", comment="#")     # pandas takes .gz as it is
+    # what the run's summary names is where each record is now, the finished day's compressed
+    assert datalog.written_paths() == [tmp_path / "cryod-2026-11-18.csv.gz", tmp_path / "cryod-2026-11-19.csv"]
     assert np.allclose(frame["T2_K"].to_numpy(), finished.flange_K)
     # a restart on the finished day does not reuse its name
     again = DataLog(tmp_path, SCHEMA, {}, lambda t: MIDNIGHT - 100.0 + t, 0.08, 0.5)

@@ -6,7 +6,9 @@ log, not the daemon's word, says when the heater reached 0 W. The bound is
 ``InstrumentWaits.fault_to_off_s``: one loop period, the reading's own time and one
 loop-path reply, then the heater-off. These runs take a few seconds of wall time
 each; ALLOWANCE_S is room for a loaded test machine, far below what a wait of
-``instruments.timeout_s`` would add.
+``instruments.timeout_s`` would add. A run during which the machine kept the test's process from
+running as long as the loop's wait for a reply is run again (``fault_drills.run_tcp_drill``): its
+timing would say more about the machine than about the daemon.
 """
 
 import math
@@ -14,7 +16,7 @@ import math
 import pytest
 
 from cryod.instrument_waits import InstrumentWaits
-from tests.fault_drills import TcpFaultDrill, never_claims_zero_early, reading_delay_s
+from tests.fault_drills import never_claims_zero_early, reading_delay_s, run_tcp_drill
 
 #: Scheduling room on a loaded machine (s).
 ALLOWANCE_S = 0.5
@@ -36,9 +38,8 @@ def test_a_silent_dmm_with_the_longest_timeout_the_watchdog_allows(tmp_path):
     """The largest instruments.timeout_s (1.985 s): the heater is at 0 W within the loop's bound, not after two
     timeouts; a heater-off sent while the loop recovers and a stop after it are answered within a tick; the
     watchdog fed."""
-    drill = TcpFaultDrill(tmp_path, "silent flange DMM", timeout_s=LARGEST_TIMEOUT_S, fault_at_row=15,
-                          after_fault_s=6.0, heater_off_after_s=0.5, stop_after_s=1.5)
-    result = drill.run()
+    drill, result = run_tcp_drill(tmp_path, "silent flange DMM", timeout_s=LARGEST_TIMEOUT_S, fault_at_row=15,
+                                  after_fault_s=6.0, heater_off_after_s=0.5, stop_after_s=1.5)
     waits = drill.waits
     assert result.exit_code == 0
     assert result.fault_to_off_s <= waits.fault_to_off_s(reading_delay_s(drill.daemon.loop)) + ALLOWANCE_S \
@@ -54,8 +55,8 @@ def test_a_silent_dmm_with_the_longest_timeout_the_watchdog_allows(tmp_path):
 def test_every_link_dropping_at_once_is_a_confirmed_off_and_a_recovery(tmp_path):
     """A Prologix controller all three instruments share resets: the off goes out again on a new connection
     and is confirmed there, so the loop recovers; the heater is not called UNKNOWN, nor the run a heater fault."""
-    drill = TcpFaultDrill(tmp_path, "every link drops at once", prologix=True, fault_at_row=15, after_fault_s=3.0)
-    result = drill.run()
+    drill, result = run_tcp_drill(tmp_path, "every link drops at once", prologix=True, fault_at_row=15,
+                                  after_fault_s=3.0)
     assert result.exit_code == 0
     assert result.fault_row.state == "fault:connection_lost"
     assert result.fault_to_off_s <= drill.waits.fault_to_off_s(reading_delay_s(drill.daemon.loop)) + ALLOWANCE_S
@@ -70,8 +71,7 @@ def test_a_silent_supply_ends_in_a_bounded_stop_tick_and_the_stop_is_the_last_wo
     """The supply executes but never answers: the off cannot be confirmed (exit 6, heater UNKNOWN, an empty
     heater_W from then on), the stop tick takes a setting and a heater-off, not several timeouts, and no
     overrun is written after the stop."""
-    drill = TcpFaultDrill(tmp_path, "silent heater supply", fault_at_row=15, after_fault_s=3.0)
-    result = drill.run()
+    drill, result = run_tcp_drill(tmp_path, "silent heater supply", fault_at_row=15, after_fault_s=3.0)
     waits = drill.waits
     assert result.exit_code == 6
     assert result.fault_row.state == "fault:heater_fault" and result.fault_row.heater_W > 0.0

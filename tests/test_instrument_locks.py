@@ -20,7 +20,7 @@ from drivers.clock import VirtualClock
 from cryod.service.notify import SystemdNotifier
 from drivers.transports.addresses import canonical_prologix, canonical_resource
 from tests.conftest import CONFIG
-from tests.service_bench import BenchOverTcp, RunProcess
+from tests.service_bench import BenchOverTcp, RunProcess, faults_of_its_own
 from tests.example_config import simulated_config
 from tests.fault_drills import FlakyOpener
 
@@ -140,21 +140,42 @@ def test_check_names_an_unusable_lock_directory_and_an_address_that_is_not_one(t
     assert "instruments.heater_supply.resource" in capsys.readouterr().err
 
 
-def test_two_cryod_run_on_one_supply_the_second_stops_with_exit_2_and_the_first_keeps_its_heater(tmp_path):
+def second_daemon_on_the_first_ones_supply(folder):
+    """``cryod run`` regulating, then a second ``cryod run`` naming its supply: what the supply delivered from the
+    second's start to its end, the second's exit code and journal, the first's state after and the faults the first
+    found by itself meanwhile."""
     with BenchOverTcp() as bench:
-        first = RunProcess(bench.write_config(tmp_path / "first"))
+        first = RunProcess(bench.write_config(folder / "first"))
         try:
             first.wait_for_heating(bench.supply)
             started = time.monotonic()
-            second = RunProcess(bench.write_config(tmp_path / "second"))
+            second = RunProcess(bench.write_config(folder / "second"))
             try:
-                assert second.wait(60) == 2
+                exit_code = second.wait(60)
             finally:
                 second.close()
-            assert "first/cryod.yaml" in second.journal and "instruments.heater_supply.resource" in second.journal
-            assert "no instrument was touched" in second.journal
-            changes = [power for changed_s, power in bench.supply.delivered_w if changed_s >= started]
-            assert all(power > 0.0 for power in changes) and bench.supply.heater_power_w > 0.0  # never reset to 0 W
-            assert first.process.poll() is None and first.status()["state"].startswith("closed")
+            delivered_w = [power for changed_s, power in bench.supply.delivered_w if changed_s >= started]
+            delivered_w.append(bench.supply.heater_power_w)
+            state = first.status()["state"] if first.process.poll() is None else None
+            return exit_code, second.journal, delivered_w, state, faults_of_its_own(first.journal)
         finally:
             first.close()
+
+
+def test_two_cryod_run_on_one_supply_the_second_stops_with_exit_2_and_the_first_keeps_its_heater(tmp_path):
+    """A run in which the first daemon switched its heater off for a fault of its own (a reply late on a busy
+    machine) cannot show that the second left the heater alone: it is run again, up to three times."""
+    faults = []
+    for attempt in range(3):
+        exit_code, journal, delivered_w, first_state, first_faults = \
+            second_daemon_on_the_first_ones_supply(tmp_path / str(attempt))
+        if not first_faults:
+            break
+        faults.append(first_faults[0])
+    else:
+        raise AssertionError(f"the first daemon switched its heater off by itself in every run: {faults}")
+    assert exit_code == 2
+    assert "first/cryod.yaml" in journal and "instruments.heater_supply.resource" in journal
+    assert "no instrument was touched" in journal
+    assert all(power > 0.0 for power in delivered_w)                      # never reset to 0 W
+    assert first_state is not None and first_state.startswith("closed")

@@ -20,7 +20,7 @@ from cryod.service.daemon import Daemon, stop_grace_s
 from cryod.service.stop_signals import CRASH_SIGNALS, exit_code_for, terminating_signals
 from cryod.config import load_config
 from tests.conftest import REPOSITORY
-from tests.service_bench import BenchOverTcp, RunProcess, delay_to_zero_s
+from tests.service_bench import BenchOverTcp, RunProcess, delay_to_zero_s, faults_of_its_own
 from tests.fault_drills import FaultDrill
 
 #: Each kind: systemd's watchdog, the user signals, the terminal's quit, a timer, power failure, a real-time
@@ -173,25 +173,44 @@ def supply_off(config) -> subprocess.CompletedProcess:
                                                                               EXIT_STATUS="KILL"))
 
 
-def test_after_sigkill_the_units_supply_off_switches_the_supply_off_and_leaves_a_running_daemons_alone(tmp_path,
-                                                                                                      bench):
-    """What the unit's ExecStopPost runs: the supply a SIGKILL left at its last setting goes to 0 A, output
-    off; while a daemon drives it, the same command leaves it alone."""
-    config = bench.write_config(tmp_path / "daemon")
+def supply_off_beside_a_daemon_then_after_its_sigkill(folder, bench):
+    """``--supply-off`` while ``cryod run`` drives the supply, then after a SIGKILL: both results, the power the
+    supply delivered after each, when the kill was sent, and the faults the daemon found by itself before it."""
+    config = bench.write_config(folder)
     run = RunProcess(config)
     try:
         run.wait_for_heating(bench.supply)
         refused = supply_off(config)
-        assert refused.returncode == 2 and "supply left alone (the daemon ended: SERVICE_RESULT signal, " \
-                                           "EXIT_STATUS KILL)" in refused.stderr
-        assert bench.supply.heater_power_w > 0.0 and run.process.poll() is None
+        alone = (bench.supply.heater_power_w, run.process.poll() is None)
         killed_at = run.send(signal.SIGKILL)
         run.wait(10)
-        assert bench.supply.heater_power_w > 0.0                    # what SIGKILL leaves
+        left_w = bench.supply.heater_power_w
+        own_faults = faults_of_its_own(run.journal)
         done = supply_off(config)
-        assert done.returncode == 0, done.stderr
-        assert "heater supply at 0 A, output off (the daemon ended: SERVICE_RESULT signal" in done.stderr
-        assert bench.supply.heater_power_w == 0.0 and not bench.supply.output_on
-        assert delay_to_zero_s(bench.supply, killed_at) < 30.0
+        return refused, alone, killed_at, left_w, own_faults, done
     finally:
         run.close()
+
+
+def test_after_sigkill_the_units_supply_off_switches_the_supply_off_and_leaves_a_running_daemons_alone(tmp_path,
+                                                                                                      bench):
+    """What the unit's ExecStopPost runs: the supply a SIGKILL left at its last setting goes to 0 A, output
+    off; while a daemon drives it, the same command leaves it alone. A run in which the daemon switched its
+    heater off for a fault of its own (a reply late on a busy machine) shows neither, and is run again."""
+    faults = []
+    for attempt in range(3):
+        refused, (alone_w, running), killed_at, left_w, own_faults, done = \
+            supply_off_beside_a_daemon_then_after_its_sigkill(tmp_path / f"daemon{attempt}", bench)
+        if not own_faults:
+            break
+        faults.append(own_faults[0])
+    else:
+        raise AssertionError(f"the daemon switched its heater off by itself in every run: {faults}")
+    assert refused.returncode == 2 and "supply left alone (the daemon ended: SERVICE_RESULT signal, " \
+                                       "EXIT_STATUS KILL)" in refused.stderr
+    assert alone_w > 0.0 and running
+    assert left_w > 0.0                                             # what SIGKILL leaves
+    assert done.returncode == 0, done.stderr
+    assert "heater supply at 0 A, output off (the daemon ended: SERVICE_RESULT signal" in done.stderr
+    assert bench.supply.heater_power_w == 0.0 and not bench.supply.output_on
+    assert delay_to_zero_s(bench.supply, killed_at) < 30.0

@@ -64,7 +64,7 @@ def test_a_fast_integral_close_to_oscillating_is_seen_by_its_margin(reference_mo
 
 @pytest.fixture(scope="module")
 def coarse_suggestion(reference_model):
-    return suggest_gains(reference_model, 5.0, 0.5, grid=(5, 4), refine_evaluations=8)
+    return suggest_gains(reference_model, 5.0, 0.5, grid=(4, 3), refine_evaluations=4)
 
 
 def test_the_suggestion_meets_the_tolerances_and_beats_the_example_gains(coarse_suggestion, reference_model):

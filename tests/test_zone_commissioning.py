@@ -1,6 +1,7 @@
 """Commissioning across the range: identification about a setpoint, the zone table written and read
 back, the feedforward's limit at each setpoint."""
 
+import dataclasses
 import json
 import math
 from types import SimpleNamespace
@@ -16,7 +17,8 @@ from cryod.control.zone_commissioning import (
 )
 from cryod.control.zones import Zone, ZoneTable
 from cryod.identification.experiment import ExperimentPlan, ExperimentRunner
-from cryod.identification.setpoint_series import part_about_setpoint, plans_at
+from cryod.identification.setpoint_series import part_about_setpoint, plans_at, records_about_setpoint
+from cryod.records.compression import record_path_now
 from cryod.model import TEMPERATURE_MODEL_PATH, linearised_at, load_model, save_model, steady_state
 from tests.conftest import CONFIG
 from tests.example_config import PI_SECTION, with_zone_table
@@ -89,6 +91,53 @@ def test_about_a_setpoint_the_experiment_regulates_holds_and_steps_the_setpoint(
         ExperimentPlan(setpoint_K=12.0, base_power_w=0.1).check(10.0)
     with pytest.raises(ValueError, match="increasing order"):
         plans_at([12.0, 8.0], ExperimentPlan())
+
+
+def test_an_experiment_across_midnight_is_fitted_from_the_record_with_the_step_on():
+    """The approach's day file (a ramp: its setpoint changes every tick) stays out; the step's file is cut to the
+    hold and the step, the file after it is taken whole."""
+    def record(time_s, setpoint):
+        return RecordData(time_s, np.asarray(setpoint, float), np.full(time_s.size, 8.0), np.full(time_s.size, 1.8),
+                          np.asarray(setpoint, float))
+
+    time_s = np.arange(0.0, 1000.0, 1.0)
+    ramp = record(time_s, 11.0 + time_s / 1000.0)
+    step = record(time_s, np.where(time_s < 600.0, 12.0, 12.05))
+    after = record(time_s, np.full(time_s.size, 12.05))
+    parts = records_about_setpoint([ramp, step, after], line_hold_s=120.0)
+    assert len(parts) == 2 and parts[0].time_s[0] == 480.0 and parts[1] is after
+    assert records_about_setpoint([step], 120.0)[0].time_s[0] == 480.0
+
+
+def test_a_record_compressed_at_the_days_end_is_found_where_it_is_now(tmp_path):
+    written = tmp_path / "cryod-2026-11-28.csv"
+    assert record_path_now(written) == written                       # neither: as written
+    written.write_text("x")
+    assert record_path_now(written) == written
+    compressed = tmp_path / "cryod-2026-11-28.csv.gz"
+    compressed.write_bytes(b"")
+    written.unlink()
+    assert record_path_now(written) == compressed
+
+
+def test_a_fit_whose_heater_cools_the_flange_or_that_misses_its_record_is_refused(monkeypatch):
+    import cryod.identification.setpoint_series as series
+    from cryod.identification.fit import IdentificationError
+    from cryod.model.transfer_function import TransferFunction
+
+    shipped = load_model(CONFIG / "model.yaml")
+    cooling = dataclasses.replace(shipped, heater_to_flange=TransferFunction((-0.03,), (52.0, 1.0)))
+    fitted = {"model": cooling, "residual_rms_in_noise": [(1.01, 1.0)]}
+    monkeypatch.setattr(series, "identify_model", lambda records, base, **options: SimpleNamespace(**fitted))
+    time_s = np.arange(0.0, 100.0, 1.0)
+    data = RecordData(time_s, np.full(100, 24.0), np.full(100, 18.0), np.full(100, 5.5), np.full(100, 24.0))
+    with pytest.raises(IdentificationError, match="static gain is -0.03 K/W: more heater would cool the flange"):
+        series.identify_at_setpoint(24.0, [data], ["r.csv"], shipped, 120.0)
+    # a positive gain that leaves 77 times the noise: not a description of the record
+    fitted.update(model=dataclasses.replace(shipped, heater_to_flange=TransferFunction((0.015,), (91.0, 1.0))),
+                  residual_rms_in_noise=[(77.2, 1.04)])
+    with pytest.raises(IdentificationError, match="leaves 77 times T2's noise on T2"):
+        series.identify_at_setpoint(24.0, [data], ["r.csv"], shipped, 120.0)
 
 
 def test_the_fit_takes_the_hold_and_the_step_about_the_setpoint():

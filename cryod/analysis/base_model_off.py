@@ -12,8 +12,15 @@ The rule (:func:`judged_beyond_recalibration`), after the causes are searched
 within the tolerance:
 
 1. It is asked only when the search needs it: a parameter of the
-   recalibration (refitted with the causes named) is at its tolerance, or the
-   extended model still shows a discrepancy by the rule that calls for a cause.
+   recalibration (refitted with the causes named) is at its tolerance, a
+   cause named stands for a base parameter, or the extended model still shows
+   a discrepancy by the rule that calls for a cause. A cause stands for a base
+   parameter when all it changes in what the record shows is that parameter
+   (:func:`cryod.analysis.equivalence.line_gain_stood_for`: a link whose lag
+   moves the line's phase by no more than the recalibration may is, at the one
+   frequency of the line, the line's gain on T2); such a parameter counts as
+   at its tolerance (the cause was named because the recalibration could not
+   reach it), and the cause is the parameter's equivalent reading.
 2. The base model alone is then recalibrated with :data:`WIDE` tolerances
    (50 % on gains and time constants, 0.4 rad on the line's phase). A
    parameter is *beyond* the recalibration when its widened value is past its
@@ -50,6 +57,7 @@ from dataclasses import dataclass
 from cryod.analysis.decision import (
     CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, Decision, base_discrepancy, gain_between, significance,
 )
+from cryod.analysis.equivalence import LINE_GAIN, as_link, line_gain_stood_for
 from cryod.analysis.recalibration import (
     RecalibratedParameter, Recalibration, Tolerances, recalibrate, structure_parameters,
 )
@@ -83,6 +91,9 @@ class BeyondRecalibration:
         The verdict of the search on the widened model (``none``, a cause, ``unexplained``).
     improvement : float
         Held-out sum of squares (noise units) of the first extended model less the widened one's.
+    equivalent_to : list of dict
+        Causes named within the tolerance that stood for a parameter beyond it (a link without a lag for the
+        line's gain on T2): the same readings as a cause's ``equivalent_to``.
     """
 
     parameters: list
@@ -91,13 +102,15 @@ class BeyondRecalibration:
     within_tolerance: object
     on_widened: str
     improvement: float
+    equivalent_to: list = dataclasses.field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {"parameters": [row.as_dict() | {"relative_change": row.fitted / row.shipped - 1.0}
                                for row in self.parameters],
                 "at_tolerance": list(self.at_tolerance), "within_tolerance_cause": self.within_tolerance.cause,
                 "within_tolerance_causes": self.within_tolerance.cause_names, "on_widened_model": self.on_widened,
-                "held_out_improvement": self.improvement, "advice": ADVICE}
+                "held_out_improvement": self.improvement, "equivalent_to": list(self.equivalent_to),
+                "advice": ADVICE}
 
 
 def _held_out(analysis, replay) -> float:
@@ -165,6 +178,18 @@ def explained_by_widening(search, analysis) -> bool:
     return not base_discrepancy(dataclasses.replace(analysis.context, base_replay=widened.replay)).present
 
 
+def stood_for(analysis) -> list[tuple]:
+    """(parameter, factor, named cause) for each cause named that stands for a base parameter
+    (:func:`cryod.analysis.equivalence.line_gain_stood_for`)."""
+    omega = analysis.base_line.angular_frequency_rad_s
+    found = []
+    for named in analysis.causes:
+        factor = line_gain_stood_for(named, omega)
+        if factor is not None:
+            found.append((LINE_GAIN, factor, named))
+    return found
+
+
 def judged_beyond_recalibration(search, analysis, search_on):
     """``analysis`` (from ``search``, a :class:`~cryod.analysis.pipeline.CauseSearch`), or the ``base_model_off``
     verdict when the rule of this module says so; ``search_on(model)`` searches the causes on another base model."""
@@ -172,6 +197,8 @@ def judged_beyond_recalibration(search, analysis, search_on):
         return analysis
     narrow = analysis.final_recalibration or analysis.recalibration
     at_tolerance = [row.parameter for row in narrow.table() if row.at_tolerance]
+    standing = stood_for(analysis)
+    at_tolerance += [parameter for parameter, _, _ in standing if parameter not in at_tolerance]
     remaining = analysis.remaining is not None and analysis.remaining.present
     if not at_tolerance and not remaining:
         return analysis
@@ -203,8 +230,9 @@ def judged_beyond_recalibration(search, analysis, search_on):
         final_model=inner.extended_model, final_replay=inner.extended_replay,
         timings_s=analysis.timings_s,
         beyond_recalibration=BeyondRecalibration(beyond, at_tolerance, widened, analysis, inner.cause,
-                                                 float(improvement)))
+                                                 float(improvement),
+                                                 [as_link(factor, named) for _, factor, named in standing]))
 
 
 __all__ = ["ADVICE", "BEYOND_SIGMA", "WIDE", "BeyondRecalibration", "beyond_parameters",
-           "explained_by_widening", "judged_beyond_recalibration", "widened_recalibration"]
+           "explained_by_widening", "judged_beyond_recalibration", "stood_for", "widened_recalibration"]

@@ -7,12 +7,15 @@
   constant within :data:`ALIKE_FRACTION` of the flange thermometer's is
   reported as equivalent to it.
 * **A link that differs and the line's gain on T2 off.** At the one
-  frequency of the line a link ``g / (tau s + 1)`` whose lag moves the line's
-  phase by less than the recalibration's 0.1 rad is the line's gain on T2
-  scaled by ``g``: a base model further off than the recalibration allows
-  (the benchmark's records of a line gain 20 % off are named
-  ``link_dynamics``). ``link_dynamics`` with ``atan(omega tau)`` within
-  that tolerance is reported as equivalent to that gain.
+  frequency of the line a link cause is one complex factor F on T2's line
+  (``g / (1 + j omega tau)``, or the link refitted when the line leads). When
+  F's phase is within the recalibration's 0.1 rad, the cause has no dynamics
+  the record shows: its only effect is the line's gain on T2 scaled by
+  ``|F|``, a parameter the base model has (:func:`line_gain_stood_for`).
+  Beyond the recalibration's 10 % that is a base model further off than the
+  recalibration allows, and the verdict is ``base_model_off``
+  (:mod:`cryod.analysis.base_model_off`) with the link as its equivalent
+  reading; within it, the link is reported as equivalent to that gain.
 * **Causes the record cannot tell apart** (rule 4 of
   :mod:`cryod.analysis.decision`): each of the tied causes.
 
@@ -21,9 +24,12 @@ Each reading comes with what would tell it from the cause named.
 
 from __future__ import annotations
 
-import math
+import cmath
 
 from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD
+
+#: The recalibration's parameter a link cause without a lag stands for.
+LINE_GAIN = "line gain on T2"
 
 #: Thermometer time constants within this fraction of each other lag "alike".
 ALIKE_FRACTION = 0.25
@@ -42,6 +48,35 @@ TOLD_APART = {
 }
 
 
+def link_factor_at_line(parameters: dict, angular_frequency_rad_s: float) -> complex | None:
+    """The complex factor a named ``link_dynamics`` puts on T2's line, from its fitted ``parameters`` (None when
+    they hold neither form): ``g / (1 + j omega tau)``, or the factor the refitted link was made from."""
+    if "gain_factor" in parameters and "time_constant_s" in parameters:
+        tau = max(float(parameters["time_constant_s"]), 0.0)
+        return complex(float(parameters["gain_factor"])) / complex(1.0, angular_frequency_rad_s * tau)
+    if "factor_at_line_gain" in parameters and "factor_at_line_phase_rad" in parameters:
+        return cmath.rect(float(parameters["factor_at_line_gain"]), float(parameters["factor_at_line_phase_rad"]))
+    return None
+
+
+def line_gain_stood_for(named, angular_frequency_rad_s: float) -> float | None:
+    """The factor on the line's gain on T2 that a named cause stands for, when it is only that (None otherwise).
+
+    A ``link_dynamics`` whose factor at the line moves T2's line phase by no more than the recalibration's
+    :data:`~cryod.analysis.recalibration.LINE_PHASE_TOLERANCE_RAD` changes, at the one frequency the record
+    shows the link, only the line's amplitude on T2: the base model's own line gain, scaled by the factor's
+    modulus. Whether that is beyond the recalibration's tolerance is for the recalibration to say, in its own
+    terms (the link's static gain and time scale, which both move the line's amplitude): a link cause is named
+    only where the recalibration within its tolerance could not reach the line.
+    """
+    if named.cause != "link_dynamics":
+        return None
+    factor = link_factor_at_line(named.fit.parameters, angular_frequency_rad_s)
+    if factor is None or factor == 0 or abs(cmath.phase(factor)) > LINE_PHASE_TOLERANCE_RAD:
+        return None
+    return abs(factor)
+
+
 def equivalents(analysis, named) -> list[dict]:
     """Other readings that fit the record as well as the named cause ``named`` (a NamedCause)."""
     found = []
@@ -53,11 +88,9 @@ def equivalents(analysis, named) -> list[dict]:
                                      f"1 / ({flange:.3g} s s + 1)", "cause": None,
                           "told_apart_by": TOLD_APART["heater lag"]})
     if named.cause == "link_dynamics":
-        tau = named.fit.parameters.get("time_constant_s", 0.0)
-        gain = named.fit.parameters.get("gain_factor", 1.0)
-        omega = analysis.base_line.angular_frequency_rad_s
-        if math.atan(omega * max(tau, 0.0)) <= LINE_PHASE_TOLERANCE_RAD:
-            found.append({"reading": f"line gain: the base model's line on T2 x{gain:.3g} (beyond the "
+        factor = link_factor_at_line(named.fit.parameters, analysis.base_line.angular_frequency_rad_s)
+        if factor is not None and abs(cmath.phase(factor)) <= LINE_PHASE_TOLERANCE_RAD:
+            found.append({"reading": f"line gain: the base model's line on T2 x{abs(factor):.3g} (beyond the "
                                      "recalibration when more than 10 % off)", "cause": "base_model_off",
                           "told_apart_by": TOLD_APART["line gain"]})
     if analysis.causes and named is analysis.causes[0]:
@@ -77,4 +110,13 @@ def sentence(named, readings: list[dict]) -> str:
             f"{apart}.")
 
 
-__all__ = ["equivalents", "sentence"]
+def as_link(factor: float, named) -> dict:
+    """The reading of a ``base_model_off`` verdict whose line gain a named link without a lag stood for."""
+    parameters = ", ".join(f"{name} {value:.4g}" for name, value in named.fit.parameters.items()
+                           if isinstance(value, (int, float)))
+    return {"reading": f"link_dynamics ({parameters}): the link's lag too short to move the line's phase beyond "
+                       f"the recalibration's {LINE_PHASE_TOLERANCE_RAD:g} rad, its gain the line's on T2 "
+                       f"x{factor:.3g}", "cause": "link_dynamics", "told_apart_by": TOLD_APART["line gain"]}
+
+
+__all__ = ["LINE_GAIN", "as_link", "equivalents", "line_gain_stood_for", "link_factor_at_line", "sentence"]

@@ -329,11 +329,21 @@ def _fit(context: FitContext, model: CryostatModel, replay, families: list, base
                         parameter_count=parameters["terms"])
 
 
-def fit_generic_extension(context: FitContext, base) -> GenericExtension:
+#: Causes whose effect a family of the extension can represent, and those families: the cold end's drift is a slow
+#: series on T5 and its response on T2, which the reading offsets (a free slow series on each reading) contain.
+CONTAINING_FAMILIES = {"ptc_stage_drift": ("reading_offsets",)}
+
+
+def containing_families(causes) -> tuple:
+    """The families of the extension that can represent one of ``causes`` (:data:`CONTAINING_FAMILIES`)."""
+    return tuple(sorted({family for cause in causes for family in CONTAINING_FAMILIES.get(cause, ())}))
+
+
+def fit_generic_extension(context: FitContext, base, without: tuple = ()) -> GenericExtension:
     """The generic extension fitted on top of ``context``'s model and replay, judged against ``base`` (its
-    discrepancy on the held-out blocks)."""
+    discrepancy on the held-out blocks); ``without``: families left out."""
     model, replay = context.base_model, context.base_replay
-    families = family_columns(context, model, replay)
+    families = [item for item in family_columns(context, model, replay) if item.family not in without]
     for item in families:
         if item.labels:
             item.score = score_candidate(context, _fit(context, model, replay, [item], base, item.family), base)
@@ -360,5 +370,5 @@ def _adds(context: FitContext, before: CandidateFit, after: CandidateFit) -> boo
     return improvement >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA
 
 
-__all__ = ["FAMILIES", "GenericExtension", "MeasuredDisturbance", "TIME_CONSTANTS_S", "family_columns",
+__all__ = ["CONTAINING_FAMILIES", "FAMILIES", "GenericExtension", "containing_families", "MeasuredDisturbance", "TIME_CONSTANTS_S", "family_columns",
            "fit_generic_extension", "pickup_frequencies"]

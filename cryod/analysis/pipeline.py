@@ -38,7 +38,7 @@ import numpy as np
 from cryod.analysis.base_model_off import explained_by_widening, judged_beyond_recalibration
 from cryod.analysis.candidates import CANDIDATE_CAUSES, CandidateFit, FitContext
 from cryod.analysis.fitters import FITTERS
-from cryod.analysis.generic_extension import fit_generic_extension
+from cryod.analysis.generic_extension import containing_families, fit_generic_extension
 from cryod.analysis.decision import (
     CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision,
     Gain, base_discrepancy, decide, gain_between, score_candidate, significance,
@@ -512,24 +512,31 @@ class CauseSearch:
         extension. The extension fitted on the recalibrated model alone is compared, on the held-out blocks, with
         the extension fitted on top of the causes; if the causes add less than a candidate must (5 sigma and 25),
         they stand in for something the catalogue does not have, and the reason is returned ('' when they add).
-        The extension that goes with the verdict is kept for the analysis."""
+        A family that can itself represent a cause named (:data:`~cryod.analysis.generic_extension.
+        CONTAINING_FAMILIES`: the reading offsets, a free slow series on T2 and on T5, contain the cold end's
+        drift) is left out of this comparison: against it a cause cannot add, whether it is right or not, and the
+        cause says with two numbers (its coupling) what the family says with a free series.
+        The extension that goes with the verdict is kept for the analysis (fitted again with every family when
+        one was left out)."""
         analysis = self.analysis
+        left_out = containing_families(cause.cause for cause in path.causes)
         adds, sigma, alone, on_causes = self._added_to_generic(
             (analysis.final_model, analysis.final_replay, recalibrated_base),
-            (path.context.base_model, path.context.base_replay, path.base))
+            (path.context.base_model, path.context.base_replay, path.base), left_out)
         if adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA:
-            analysis.generic = on_causes
+            analysis.generic = None if left_out else on_causes
             return ""
-        analysis.generic = alone
+        analysis.generic = None if left_out else alone
         return (f"with the generic extension ({' + '.join(alone.used)}) the causes add only {adds:.4g} "
                 f"({sigma:.1f} sigma) on the held-out blocks: they stand in for something outside the catalogue, "
                 "and no physical cause is named")
 
-    def _added_to_generic(self, without: tuple, with_: tuple):
+    def _added_to_generic(self, without: tuple, with_: tuple, left_out: tuple = ()):
         """What the causes of one model add to the generic extension over another's: each given as (model, replay,
-        its held-out discrepancy). Returns (held-out improvement, its significance, the extension on each)."""
-        first = fit_generic_extension(self._extension_context(without[0], without[1]), without[2])
-        second = fit_generic_extension(self._extension_context(with_[0], with_[1]), with_[2])
+        its held-out discrepancy); ``left_out``: families of the extension not fitted. Returns (held-out
+        improvement, its significance, the extension on each)."""
+        first = fit_generic_extension(self._extension_context(without[0], without[1]), without[2], left_out)
+        second = fit_generic_extension(self._extension_context(with_[0], with_[1]), with_[2], left_out)
         mask, noise = self.held_out_mask, self.noise_rms_K
         context = self.analysis.context
         a, b = first.fit.replay, second.fit.replay
@@ -597,7 +604,8 @@ class CauseSearch:
             if round_index > 0 and path.base.present:
                 adds, sigma, _, _ = self._added_to_generic(
                     (before.context.base_model, before.context.base_replay, before.base),
-                    (path.context.base_model, path.context.base_replay, path.base))
+                    (path.context.base_model, path.context.base_replay, path.base),
+                    containing_families([best.cause]))
                 if not (adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA):
                     before.reasons.append(f"{best.cause} would remove {100.0 * best.explained_fraction:.1f} % of what "
                                           f"is left but adds only {adds:.4g} ({sigma:.1f} sigma) to the generic "

@@ -105,6 +105,9 @@ def _base_model_off_section(analysis: Analysis) -> list[str]:
     for row in beyond.parameters:
         lines.append(f"| {row.parameter} {row.unit} | {_number(row.shipped)} | {_number(row.fitted)} | "
                      f"{_number(row.uncertainty)} | {100.0 * (row.fitted / row.shipped - 1.0):+.1f} % |")
+    for reading in beyond.equivalent_to:
+        lines += ["", f"The same record reads as {reading['reading']}. What would tell them apart: "
+                      f"{reading['told_apart_by']}."]
     return lines
 
 

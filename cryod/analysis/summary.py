@@ -21,7 +21,9 @@ statistics, its held-out gain and whether it is in the extended model: then
 ``gain`` counts it); ``residual_signature`` (spectral peaks,
 drift, cross-correlations, segments, the resid-style correlations:
 :mod:`cryod.analysis.residual_signature`). Each named cause also carries
-``equivalent_to`` (other readings that fit alike: :mod:`cryod.analysis.equivalence`).
+``equivalent_to`` (other readings that fit alike: :mod:`cryod.analysis.equivalence`), and so does
+``base_model_off`` when a cause named within the tolerance stood for the parameter it lists (a link
+without a lag for the line's gain on T2).
 """
 
 from __future__ import annotations

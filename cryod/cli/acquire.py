@@ -30,6 +30,7 @@ from typing import Callable
 from cryod.config import DaemonConfig
 from cryod.identification.experiment import ExperimentPlan, ExperimentRunner, Progress
 from cryod.records.columns import Event
+from cryod.records.compression import record_path_now
 from cryod.service.commands import Command
 from cryod.service.daemon import Daemon
 from cryod.service.faults import ExitCode, FaultCause
@@ -196,7 +197,7 @@ def acquire(config: DaemonConfig, plan: ExperimentPlan, open_instruments: Callab
     with ProgressDisplay(lambda: runner.progress, stream=progress_stream, enabled=progress):
         result = daemon.run()
     wall = time.perf_counter() - started
-    paths = list(result.log_paths)
+    paths = [record_path_now(path) for path in result.log_paths]     # a day that ended is compressed by now
     where = ", ".join(map(str, paths)) if paths else "no record was written"
     if result.exit_code == ExitCode.CONFIG and result.loop is None:
         return Acquisition("not_started", int(ExitCode.CONFIG), paths, runner,

@@ -24,7 +24,7 @@ import yaml
 
 from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit
 from cryod.control.pi import MAX_GAIN, PiGains
-from cryod.control.tuning import Tolerances, Tuning, suggest_gains
+from cryod.control.tuning import Tolerances, Tuning, TuningError, suggest_gains
 from cryod.control.zones import Zone, ZoneTable
 from cryod.model import CryostatModel, linearised_at
 
@@ -33,6 +33,10 @@ from cryod.model import CryostatModel, linearised_at
 #: by two orders of magnitude across 4-25 K, and so do the gains it needs, up to what a configuration takes.
 ZONE_SEARCH = {"proportional_range_w_per_K": (0.5, MAX_GAIN), "integral_time_range_s": (10.0, 5000.0),
                "grid": (4, 4), "refine_evaluations": 8}
+#: The finer search a zone gets when the coarse one finds no gains within the tolerances: the gains that meet
+#: them can lie between the coarse grid's points (a 1000 ohm heater at 5 K: only Kp near 80 W/K holds the
+#: cooler's line within 1.05x), and a zone is refused only when this one finds none either.
+FINE_ZONE_SEARCH = {**ZONE_SEARCH, "grid": (5, 5), "refine_evaluations": 10}
 
 
 def zone_uppers(setpoints_K: Sequence[float], setpoint_max_K: float) -> list[float]:
@@ -112,10 +116,18 @@ def tune_zones(zone_models: Sequence[tuple[float, CryostatModel, str]], heater_m
         start = setpoints[index - 1] if index else (first_start_K if first_start_K is not None
                                                     else model.operating_point.flange_temperature_K)
         length = duration_s(model) if callable(duration_s) else duration_s
+        def tuned(zone_search: dict) -> Tuning:
+            return suggest_gains(model, setpoint, heater_max_w, tolerances=tolerances,
+                                 start_heater_w=start_heater_w(model, start), duration_s=length,
+                                 period_s=period_s, ramp_K_per_min=ramp_K_per_min, **zone_search)
         try:
-            tuning = suggest_gains(model, setpoint, heater_max_w, tolerances=tolerances,
-                                   start_heater_w=start_heater_w(model, start), duration_s=length,
-                                   period_s=period_s, ramp_K_per_min=ramp_K_per_min, **search)
+            try:
+                tuning = tuned(search)
+            except TuningError:
+                if search.get("grid") == FINE_ZONE_SEARCH["grid"]:
+                    raise
+                tuning = tuned({**search, "grid": FINE_ZONE_SEARCH["grid"],
+                                "refine_evaluations": FINE_ZONE_SEARCH["refine_evaluations"]})
         except ValueError as error:
             raise type(error)(f"zone {index + 1} (setpoint {setpoint:g} K, model {source}): {error}") from None
         results.append(ZoneTuning(setpoint, upper, model, source, start, tuning))

@@ -29,6 +29,11 @@ from cryod.identification.model_fit import ModelIdentification, identify_model
 from cryod.model import CryostatModel
 
 
+#: A fit about a setpoint leaving more than this many times T2's noise on T2 is refused: a fit that describes
+#: its record leaves about 1; the closed-loop fits about 24 K that do not describe theirs left 71 to 83.
+MAX_RESIDUAL_IN_NOISE = 30.0
+
+
 def model_file_name(setpoint_K: float) -> str:
     """The model file of a setpoint: ``model-<K>K.yaml``."""
     return f"model-{setpoint_K:g}K.yaml"
@@ -43,6 +48,15 @@ def part_about_setpoint(data: RecordData, line_hold_s: float) -> RecordData:
         return data
     start = int(np.searchsorted(data.time_s, data.time_s[steps[-1] + 1] - line_hold_s))
     return data.stretch(start, data.time_s.size)
+
+
+def records_about_setpoint(records: Sequence[RecordData], line_hold_s: float) -> list[RecordData]:
+    """The hold and the step of an experiment's records (in time order, daily files): from the last record
+    whose setpoint changes (the step), cut by :func:`part_about_setpoint`, and the records after it whole; the
+    records before it held the approach (an experiment of hours crosses UTC midnight)."""
+    changes = [index for index, data in enumerate(records) if part_about_setpoint(data, line_hold_s) is not data]
+    first = changes[-1] if changes else 0
+    return [part_about_setpoint(records[first], line_hold_s), *records[first + 1:]]
 
 
 @dataclass
@@ -73,16 +87,28 @@ def identify_at_setpoint(setpoint_K: float, records: Sequence[RecordData], recor
                          base: CryostatModel, line_hold_s: float, **fit_options) -> SetpointModel:
     """Fit the model about ``setpoint_K`` to the hold and the step of its records (``fit_options`` go to
     :func:`cryod.identification.model_fit.identify_model`)."""
-    result = identify_model([part_about_setpoint(data, line_hold_s) for data in records], base, **fit_options)
+    parts = records_about_setpoint(records, line_hold_s)
+    result = identify_model(parts, base, **fit_options)
     off = result.model.operating_point.flange_temperature_K
+    gain = result.model.heater_to_thermometer.dc_gain
+    left = max((flange for flange, _ in result.residual_rms_in_noise), default=0.0)
+    if left > MAX_RESIDUAL_IN_NOISE:
+        raise IdentificationError(
+            f"about {setpoint_K:g} K the fit leaves {left:.0f} times T2's noise on T2 (more than "
+            f"{MAX_RESIDUAL_IN_NOISE:g}): the model does not describe the record (its static gain "
+            f"{gain:.4g} K/W); see docs/commissioning.md, \"Across a range of temperatures\"")
+    if not gain > 0.0:
+        raise IdentificationError(
+            f"about {setpoint_K:g} K the fit's static gain is {gain:.4g} K/W: more heater would cool the flange; the "
+            f"record does not identify the cryostat there (docs/commissioning.md, \"Across a range of temperatures\")")
     if not off > 0.0:
         slowest = max(result.model.heater_to_thermometer.time_constants_s, default=0.0)
-        fitted = part_about_setpoint(records[-1], line_hold_s).duration_s
+        fitted = sum(part.duration_s for part in parts)
         raise IdentificationError(
             f"about {setpoint_K:g} K the fit's static gain ({result.model.heater_to_thermometer.dc_gain:.4g} K/W) puts "
             f"the cryostat at {off:.4g} K with the heater off: the records do not fix it (the slowest time constant "
-            f"fitted, {slowest:.0f} s, against {fitted:.0f} s of hold and step); let the step settle longer "
-            f"(--max-settle)")
+            f"fitted, {slowest:.0f} s, against {fitted:.0f} s of hold and step); in closed loop a longer step does "
+            f"not help where the cryostat is slow (docs/commissioning.md, \"Across a range of temperatures\")")
     names = ", ".join(map(str, record_paths))
     result.model = dataclasses.replace(
         result.model, name=f"identified at {setpoint_K:g} K",

@@ -39,6 +39,16 @@ def finished_day(name: str, today: str) -> bool:
     return bool(match) and match.group(1) < today
 
 
+def where_now(path: Path) -> Path:
+    """Where a record written at ``path`` is now: ``path`` itself, or its ``.gz`` once its day was compressed.
+
+    A run's summary names every record it wrote; a run across UTC midnight finds the first day's
+    file compressed by the time it ends.
+    """
+    compressed = path.with_name(path.name + ".gz")
+    return compressed if not path.exists() and compressed.exists() else path
+
+
 def compress_file(path: Path) -> Path:
     """Compress one finished record to ``path.gz`` (temporary name, fsync, rename), then remove ``path``."""
     path = Path(path)
@@ -56,6 +66,13 @@ def compress_file(path: Path) -> Path:
         os.close(directory)
     path.unlink()
     return target
+
+
+def record_path_now(path: Path) -> Path:
+    """Where a record written as ``path`` is now: its ``.csv.gz`` once its finished day was compressed."""
+    path = Path(path)
+    compressed = path.with_name(path.name + ".gz")
+    return compressed if not path.exists() and compressed.exists() else path
 
 
 def compress_finished(directory: Path, today: str) -> list[Path]:

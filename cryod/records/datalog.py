@@ -60,7 +60,7 @@ from pathlib import Path
 from typing import Callable, Mapping
 
 from cryod.records.columns import Event, Row, RowSchema
-from cryod.records.compression import compress_in_background
+from cryod.records.compression import compress_in_background, where_now
 from cryod.records.record import format_header
 from cryod.records.record_file import RESERVE_BYTES, RecordFile
 
@@ -210,6 +210,10 @@ class DataLog:
             self._compressing.join(timeout_s)
 
     # -- writer thread -------------------------------------------------------------
+    def written_paths(self) -> list[Path]:
+        """Every record this log wrote, where each is now (a finished day's as its ``.csv.gz``)."""
+        return [where_now(path) for path in self.paths]
+
     def _run(self) -> None:
         try:
             stopping = False

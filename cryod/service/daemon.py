@@ -76,7 +76,7 @@ class RunResult:
 
     exit_code: int
     loop: ControlLoop | None
-    log_paths: list[Path]
+    log_paths: list[Path]           # every record written, where each is now (a finished day's as .csv.gz)
     wall_s: float
 
 
@@ -540,7 +540,7 @@ class Daemon:
         self.notifier.stopping(status)
         if self.datalog is not None and self.datalog.error is not None:
             log.critical("the data log failed: %s", self.datalog.error)
-        return RunResult(exit_code, self.loop, list(self.datalog.paths) if self.datalog else [],
+        return RunResult(exit_code, self.loop, self.datalog.written_paths() if self.datalog else [],
                          time.perf_counter() - started)
 
     def _check_watchdog_interval(self, config: DaemonConfig) -> None:

@@ -14,14 +14,17 @@ from drivers.transports import VisaTransport
 from simulated_hw.bench import SimulatedBench
 from simulated_hw.scpi_server import ScpiServer
 
+#: The wait of the test that a silent DMM times out.
 TIMEOUT_S = 0.25
+#: The wait where a reply is expected: room for a loaded machine, never waited out when the DMM answers.
+REPLY_WAIT_S = 5.0
 
 
 @pytest.fixture
 def dmm_over_tcp(flange_curve, ptc_stage_curve):
     bench = SimulatedBench(MonotonicClock(), flange_curve, ptc_stage_curve, noise=False)
     with ScpiServer(bench.flange_dmm) as server:
-        dmm = Keithley2002(VisaTransport(server.resource_name, timeout_s=TIMEOUT_S), bench.clock, "flange DMM")
+        dmm = Keithley2002(VisaTransport(server.resource_name, timeout_s=REPLY_WAIT_S), bench.clock, "flange DMM")
         dmm.configure_four_wire_resistance(FourWireSettings(range_ohm=20e3, nplc=0.1, autozero=False))
         dmm.configure_trigger(TriggerSource.BUS)
         yield bench, dmm
@@ -56,9 +59,12 @@ def test_dmm_garbage_over_tcp(dmm_over_tcp):
 
 def test_dmm_timeout_over_tcp(dmm_over_tcp):
     bench, dmm = dmm_over_tcp
+    dmm.transport.timeout_s = TIMEOUT_S
     bench.flange_dmm.inject_no_reply()
-    with pytest.raises(InstrumentTimeout, match="flange DMM"):
+    started = time.monotonic()
+    with pytest.raises(InstrumentTimeout, match=r"flange DMM .*: no reply within 0.25 s"):
         dmm.fetch()
+    assert time.monotonic() - started >= 0.9 * TIMEOUT_S
 
 
 def test_dmm_dropped_connection_over_tcp_and_reopen(dmm_over_tcp):

@@ -13,7 +13,10 @@ from simulated_hw.bench import PROLOGIX_ADDRESSES, SimulatedBench
 from simulated_hw.scpi_server import ScpiServer
 
 IDN_2002 = "KEITHLEY INSTRUMENTS INC.,MODEL 2002,0000002,B02  /A02"
+#: The wait of the tests that an instrument which does not answer times out.
 TCP_TIMEOUT_S = 0.25
+#: The wait where a reply is expected: room for a loaded machine, never waited out when the instrument answers.
+REPLY_WAIT_S = 5.0
 
 
 @pytest.fixture
@@ -51,7 +54,7 @@ def test_in_process_trigger_is_a_group_execute_trigger(bench):
 # -- TCP sockets through pyvisa-py ---------------------------------------------------------------
 def test_socket_query_and_settings(real_time_bench):
     with ScpiServer(real_time_bench.flange_dmm) as server:
-        transport = VisaTransport(server.resource_name, timeout_s=TCP_TIMEOUT_S)
+        transport = VisaTransport(server.resource_name, timeout_s=REPLY_WAIT_S)
         assert transport.query("*IDN?") == IDN_2002
         transport.write(":SENS:FRES:NPLC 2")
         assert transport.query(":SENS:FRES:NPLC?") == "2"
@@ -84,12 +87,12 @@ def test_socket_dropped_connection_then_reopen(real_time_bench):
 
 def test_socket_closed_transport_and_unreachable_server(real_time_bench):
     with ScpiServer(real_time_bench.flange_dmm) as server:
-        transport = VisaTransport(server.resource_name, timeout_s=TCP_TIMEOUT_S)
+        transport = VisaTransport(server.resource_name, timeout_s=REPLY_WAIT_S)
         transport.close()
         with pytest.raises(ConnectionLost, match="closed"):
             transport.query("*IDN?")
         port = server.port
-    nobody_listening = VisaTransport(f"TCPIP0::127.0.0.1::{port}::SOCKET", timeout_s=TCP_TIMEOUT_S)
+    nobody_listening = VisaTransport(f"TCPIP0::127.0.0.1::{port}::SOCKET", timeout_s=REPLY_WAIT_S)
     with pytest.raises(ConnectionLost, match="refused"):      # pyvisa-py opens; the first I/O fails
         nobody_listening.query("*IDN?")
 
@@ -97,7 +100,7 @@ def test_socket_closed_transport_and_unreachable_server(real_time_bench):
 def test_serial_instrument_resource(real_time_bench):
     """An ASRL resource (a serial port); pyserial's socket:// URL stands in for the cable."""
     with ScpiServer(real_time_bench.flange_dmm) as server:
-        transport = VisaTransport(f"ASRLsocket://127.0.0.1:{server.port}::INSTR", timeout_s=TCP_TIMEOUT_S)
+        transport = VisaTransport(f"ASRLsocket://127.0.0.1:{server.port}::INSTR", timeout_s=REPLY_WAIT_S)
         assert not transport.is_gpib_instrument and not transport.is_socket
         assert transport.query("*IDN?") == IDN_2002
         transport.trigger()                             # no GET on a serial line: *TRG
@@ -108,7 +111,7 @@ def test_serial_instrument_resource(real_time_bench):
 def test_socket_trigger_sends_trg(real_time_bench):
     clock = real_time_bench.clock
     with ScpiServer(real_time_bench.flange_dmm) as server:
-        transport = VisaTransport(server.resource_name, timeout_s=TCP_TIMEOUT_S)
+        transport = VisaTransport(server.resource_name, timeout_s=REPLY_WAIT_S)
         dmm = Keithley2002(transport, clock, "flange DMM")
         dmm.configure_four_wire_resistance(FourWireSettings(range_ohm=20e3, nplc=0.1, autozero=False))
         dmm.configure_trigger(TriggerSource.BUS)

@@ -77,12 +77,13 @@ def test_a_setpoint_the_heater_cannot_hold_is_said_and_a_second_dry_run_on_the_s
     _closed(flange)
     reply = flange.command("setpoint 16")
     # by the shipped model 1726 mW and 7.64 K at most; once the feedforward's limit comes from what it learned,
-    # from the mean power PI found holding 5 K on the simulated cryostat (within a few percent of the model's)
+    # from the mean power PI found holding 5 K on the simulated cryostat: 2-4 % above the model's in these runs,
+    # which the 11.8 K from 5 K to 16 K carries over as 1770-1800 mW (the smoothed mean follows PI's wander)
     said = re.search(r"warning: setpoint 16 K needs about (\d+) mW of heater power in steady state \((shipped model|"
                      r"from the [\d.]+ mW found holding 5 K)\), above the heater's top, R I_max\^2 = 500 mW: it holds "
                      r"the flange at about (\d+\.\d+) K at most", reply["message"])
     assert reply["ok"] and said, reply["message"]
-    assert 1690 <= int(said.group(1)) <= 1760 and 7.55 <= float(said.group(3)) <= 7.75
+    assert 1690 <= int(said.group(1)) <= 1830 and 7.50 <= float(said.group(3)) <= 7.75
     assert said.group(2) != "shipped model" or (said.group(1), said.group(3)) == ("1726", "7.64")
     assert reply["status"]["setpoint_warning"] == said.group(0).removeprefix("warning: ") + reply["message"][said.end():]
     reply = flange.command("setpoint 3.5")

@@ -225,26 +225,6 @@ def test_a_setpoints_warning_uses_the_model_and_heater_limit_of_the_zone_holding
                                 "(zone 2: zone-model.yaml), above the heater's top, R I_max^2 = 500 mW"), in_zone_2
 
 
-def test_once_the_power_holding_the_setpoint_is_measured_the_warning_uses_it_within_its_zone(tmp_path):
-    """On a cryostat whose heater reaches T2 half as strongly as the model says, PI is found holding 5 K with
-    226 mW (the model: 113 mW). The feedforward's learned limit uses that power; the warning does too: 7 K
-    needs about 812 mW, beyond the 500 mW top, where the model says 406 mW. A power held in another zone
-    says nothing of this one: there the zone's model judges."""
-    from cryod.control.setpoint_reach import reach_at, setpoint_warning
-
-    config = load_config(configured(tmp_path)[0])
-    plain = dataclasses.replace(config.control, zones=None)
-    assert setpoint_warning(plain, 7.0, 0.5) is None
-    held = (5.0, 0.226)
-    warning = setpoint_warning(plain, 7.0, 0.5, held)
-    assert warning.startswith("setpoint 7 K needs about 813 mW of heater power in steady state (from the 226.0 mW "
-                              "found holding 5 K), above the heater's top"), warning
-    assert reach_at(plain, 5.0, 0.5, held).power_needed_W == pytest.approx(0.226)
-    assert setpoint_warning(config.control, 7.0, 0.5, held).startswith("setpoint 7 K needs about 813 mW of heater "
-                                                                         "power in steady state (zone 2: from the")
-    assert setpoint_warning(config.control, 7.0, 0.5, (4.5, 0.04)) is None          # held in zone 1: zone 2's model
-
-
 def test_terms_are_told_of_a_zone_entered_by_the_setpoint_not_of_a_start_or_a_reload(tmp_path):
     """What a term learned of the cryostat (the feedforward's plant) belongs to an operating point: the setpoint
     moving into another zone moves it, a reload that redraws the zones around an unmoved setpoint does not."""

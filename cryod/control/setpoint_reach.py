@@ -13,12 +13,6 @@ that zone's feedforward model (else ``control.feedforward``'s) and its heater
 limit when it has one (else R I_max^2), the model and the top the regulator
 will run on there.
 
-Once the feedforward's limit comes from what was learned, the mean power PI
-found holding the setpoint in use is what the limit uses, and so does the
-warning: the DC gain it shows, (T_held - T2_0) / P_held, replaces the model's
-for a setpoint in the same zone (as the learned limit's "what would change it"
-does for a setpoint 0.5 K away).
-
 Examples
 --------
 >>> from cryod.model import load_model
@@ -128,8 +122,7 @@ def _load(path):
     return load_model(path)
 
 
-def reach_at(control, setpoint_K: float, max_power_W: float,
-             held: tuple[float, float] | None = None) -> SetpointReach:
+def reach_at(control, setpoint_K: float, max_power_W: float) -> SetpointReach:
     """What the heater can do at ``setpoint_K`` with the model and top the regulator runs on there.
 
     Without zones: the controller's model (:func:`controller_model`) against R I_max^2. With zones: the
@@ -142,42 +135,23 @@ def reach_at(control, setpoint_K: float, max_power_W: float,
     setpoint_K : float
     max_power_W : float
         R I_max^2 (W).
-    held : (float, float), optional
-        A setpoint (K) and the mean heater power (W) found holding it, what the feedforward's learned limit
-        uses (:attr:`cryod.control.feedforward.FeedforwardTerm.held_power`): its DC gain replaces the
-        model's when that setpoint is in the same zone as ``setpoint_K`` (without zones: always) and the
-        gain is positive.
     """
     model, source = controller_model(control)
     top_source = "the heater's top, R I_max^2"
     zones = getattr(control, "zones", None)
-    prefix = ""
     if zones is not None:
         index = zones.index_for(setpoint_K)
         zone = zones.zones[index]
         if zone.feedforward_model is not None:
             model, source = zone.feedforward_model, zone.feedforward_model_source or "the zone's model"
-        prefix = f"zone {index + 1}: "
+        source = f"zone {index + 1}: {source}"
         if zone.max_heater_power_W is not None and zone.max_heater_power_W < max_power_W:
             max_power_W, top_source = zone.max_heater_power_W, f"zone {index + 1}'s heater limit, max_heater_power_W"
-        if held is not None and zones.index_for(held[0]) != index:
-            held = None
-    reach = setpoint_reach(model, setpoint_K, max_power_W, prefix + source, top_source)
-    if held is None:
-        return reach
-    held_K, held_w = held
-    lowest = reach.lowest_K
-    gain_K_per_W = (held_K - lowest) / held_w if held_w > 0.0 else 0.0
-    if not gain_K_per_W > 0.0:
-        return reach
-    return SetpointReach(setpoint_K, (setpoint_K - lowest) / gain_K_per_W, max_power_W, lowest,
-                         lowest + gain_K_per_W * max_power_W,
-                         f"{prefix}from the {held_w * 1e3:.1f} mW found holding {held_K:g} K", top_source)
+    return setpoint_reach(model, setpoint_K, max_power_W, source, top_source)
 
 
-def setpoint_warning(control, setpoint_K: float | None, max_power_W: float,
-                     held: tuple[float, float] | None = None) -> str | None:
+def setpoint_warning(control, setpoint_K: float | None, max_power_W: float) -> str | None:
     """The warning for ``setpoint_K`` (None: holdable, or no setpoint), judged as :func:`reach_at` says."""
     if setpoint_K is None:
         return None
-    return reach_at(control, setpoint_K, max_power_W, held).warning()
+    return reach_at(control, setpoint_K, max_power_W).warning()

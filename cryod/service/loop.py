@@ -239,13 +239,9 @@ class ControlLoop:
         self.warn_about_setpoint(config.control.setpoint_K)
 
     def warn_about_setpoint(self, setpoint_K: float | None) -> str | None:
-        """Say in the journal when the heater cannot hold ``setpoint_K`` (the controller's model, or the zone's,
-        against R I_max^2 or the zone's limit; the mean power found holding the setpoint in use once the
-        feedforward's limit comes from it), and keep it for the status; the warning, or None."""
-        feedforward = self.regulator.term("feedforward")
-        held = getattr(feedforward, "held_power", None)
-        self.setpoint_warning = setpoint_warning(self.config.control, setpoint_K, self.config.heater.max_power_w,
-                                                 held)
+        """Say in the journal when the heater cannot hold ``setpoint_K`` (the controller's model against
+        R I_max^2), and keep it for the status; the warning, or None."""
+        self.setpoint_warning = setpoint_warning(self.config.control, setpoint_K, self.config.heater.max_power_w)
         if self.setpoint_warning:
             log.warning("%s", self.setpoint_warning)
         return self.setpoint_warning

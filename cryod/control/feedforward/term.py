@@ -754,13 +754,6 @@ class FeedforwardTerm(ControlTerm):
         return self.limits.limit
 
     @property
-    def held_power(self) -> tuple[float, float] | None:
-        """(setpoint (K), mean heater power (W)) the learned limit was computed from: the power PI found
-        holding T2 settled at the setpoint in use, on this cryostat; None while the limit is the model's."""
-        limit = self.limits.learned_limit
-        return None if limit is None else (limit.setpoint_K, limit.mean_heater_power_W)
-
-    @property
     def limit_changes(self) -> tuple:
         """The limit if the setpoint moved by 0.5 K either way, or R I_max^2 doubled (LimitChange)."""
         return self.limits.changes

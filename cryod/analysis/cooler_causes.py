@@ -177,25 +177,20 @@ def measured_remainder(residual_K: np.ndarray, valid: np.ndarray, sample_interva
 
 
 def _stage_path_columns(context: FitContext, model: CryostatModel) -> np.ndarray:
-    """What the stage's own path does to T5 on its own: a constant, its free decay from the state at the first
-    sample, its response to the record's heater, and that response's change with its time constant."""
-    replayer, elapsed = context.replayer, context.data.elapsed_s
-    quiet = model.with_ptc(ptc_stage_amplitude_K=0.0, harmonics=()).with_effects(
-        ptc_frequency_drift=None, ptc_amplitude_modulation=None, ptc_stage_drift=None, disturbance=None)
-    path = quiet.heater_to_ptc_stage
-    point = quiet.operating_point.ptc_stage_temperature_K
-    response = replayer.simulate(quiet).ptc_stage_K - point
-    slower = dataclasses.replace(quiet, heater_to_ptc_stage=path.time_scaled(1.01))
-    change = replayer.simulate(slower).ptc_stage_K - point - response
-    decays = [np.exp(-elapsed / tau) for tau in path.time_constants_s if tau > 0.0]
+    """What the stage's own path does to T5 on its own from its state at the first sample: a constant and its
+    free decays (one per time constant of the heater's path to T5). Its response to the heater is not among
+    them: with the drift measured beside that too, a PI-only record's drift was named with a heat capacity on
+    top (docs/analysis.md, section 6a, records 31 and 33)."""
+    elapsed = context.data.elapsed_s
+    decays = [np.exp(-elapsed / tau) for tau in model.heater_to_ptc_stage.time_constants_s if tau > 0.0]
     return np.column_stack([np.ones(elapsed.size), *decays])
 
 
 def _beside_stage_path(drift: np.ndarray, columns: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """``drift`` less its least-squares part (on ``mask``) along ``columns``: a drift is what the stage's own path
-    (its state at the first sample, its gain and time constant to the heater) does not do. Where the heater moves
-    slowly, as a PI warming the flange does, T5 cannot tell a slow drift from a stage path a little off; the
-    recalibration and the replay's initial state take that part, and the drift is measured beside them."""
+    (its state at the first sample) does not do. A record that starts inside the stage's transient cannot tell a
+    slow drift from that state a little off; the replay's initial state takes that part, and the drift is
+    measured beside it."""
     coefficients, *_ = np.linalg.lstsq(columns[mask], drift[mask], rcond=None)
     return drift - columns @ coefficients
 

@@ -87,12 +87,11 @@ def equivalents(analysis, named) -> list[dict]:
             found.append({"reading": f"heater lag: the heater's power reaching the flange and the stage through "
                                      f"1 / ({flange:.3g} s s + 1)", "cause": None,
                           "told_apart_by": TOLD_APART["heater lag"]})
-    if named.cause == "link_dynamics":
-        factor = link_factor_at_line(named.fit.parameters, analysis.base_line.angular_frequency_rad_s)
-        if factor is not None and abs(cmath.phase(factor)) <= LINE_PHASE_TOLERANCE_RAD:
-            found.append({"reading": f"line gain: the base model's line on T2 x{abs(factor):.3g} (beyond the "
-                                     "recalibration when more than 10 % off)", "cause": "base_model_off",
-                          "told_apart_by": TOLD_APART["line gain"]})
+    factor = line_gain_stood_for(named, analysis.base_line.angular_frequency_rad_s)
+    if factor is not None:
+        found.append({"reading": f"line gain: the base model's line on T2 x{factor:.3g} (beyond the "
+                                 "recalibration when more than 10 % off)", "cause": "base_model_off",
+                      "told_apart_by": TOLD_APART["line gain"]})
     if analysis.causes and named is analysis.causes[0]:
         for cause in analysis.decision.tied:
             found.append({"reading": cause, "cause": cause,

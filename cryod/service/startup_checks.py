@@ -166,15 +166,15 @@ def _is_ip_address(host: str) -> bool:
 
 def _serial_device_problem(device: str) -> str | None:
     try:
-        mode = os.stat(device).st_mode
+        status = os.stat(device)
     except FileNotFoundError:
         return (f"{device}: no such device: is the adapter plugged in? (ls /dev/serial/by-id: a name there stays "
                 f"the same across plugging and reboots)")
     except OSError as error:
         return f"{device}: {error.strerror or error}"
-    if not stat.S_ISCHR(mode):
-        return f"{device} is {kind_of(mode)}, not a serial device"
-    device_class = kernel_device_class(os.stat(device).st_rdev)
+    if not stat.S_ISCHR(status.st_mode):
+        return f"{device} is {kind_of(status.st_mode)}, not a serial device"
+    device_class = kernel_device_class(status.st_rdev)
     if device_class is not None and device_class != "tty":
         return (f"{device} is a character device of the kernel's {device_class!r} class, not a serial device (the "
                 f"'tty' class): give the adapter's serial port (ls /dev/serial/by-id)")

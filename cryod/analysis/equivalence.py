@@ -87,7 +87,8 @@ def equivalents(analysis, named) -> list[dict]:
             found.append({"reading": f"heater lag: the heater's power reaching the flange and the stage through "
                                      f"1 / ({flange:.3g} s s + 1)", "cause": None,
                           "told_apart_by": TOLD_APART["heater lag"]})
-    factor = line_gain_stood_for(named, analysis.base_line.angular_frequency_rad_s)
+    factor = line_gain_stood_for(named, analysis.base_line.angular_frequency_rad_s) \
+        if named.cause == "link_dynamics" else None
     if factor is not None:
         found.append({"reading": f"line gain: the base model's line on T2 x{factor:.3g} (beyond the "
                                  "recalibration when more than 10 % off)", "cause": "base_model_off",

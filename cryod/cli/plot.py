@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import struct
 import sys
 from pathlib import Path
 
@@ -52,8 +51,6 @@ SPECTRUM_BREAKS = ("overrun", "fault", "stop", "resumed")
 COLUMNS = 1500
 #: What a quick look's PNG names as the program that drew it (its ``Software`` text chunk).
 SOFTWARE = "cryod plot"
-#: The PNG's text chunks are looked for in its first this many bytes (they come before the image data).
-TEXT_CHUNKS_WITHIN_BYTES = 65536
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -234,24 +231,15 @@ def plot_record(record, out: Path, nominal_rad_s: float = 10.83) -> Path:
 
 def is_quick_look_of(path: Path, record_path: Path) -> bool:
     """Whether ``path`` is a PNG that ``cryod plot`` drew of the record ``record_path`` (its text chunks
-    ``Software`` and ``Title``, in its first :data:`TEXT_CHUNKS_WITHIN_BYTES` bytes); False for anything
-    else, a file missing or unreadable included."""
+    ``Software`` and ``Title``, as Pillow, matplotlib's image library, reads them); False for anything else,
+    a file missing or unreadable included."""
+    from PIL import Image
+
     try:
-        with open_regular_file(path) as file:
-            head = file.read(TEXT_CHUNKS_WITHIN_BYTES)
-    except (OSError, ValueError):
+        with open_regular_file(path) as file, Image.open(file, formats=["PNG"]) as image:
+            text = dict(image.text)
+    except (OSError, ValueError, SyntaxError):      # Pillow says SyntaxError of a damaged PNG's chunks
         return False
-    if not head.startswith(b"\x89PNG\r\n\x1a\n"):
-        return False
-    text, position = {}, 8
-    while position + 8 <= len(head):
-        length, kind = struct.unpack(">I4s", head[position:position + 8])
-        if kind in (b"IDAT", b"IEND"):
-            break
-        if kind == b"tEXt":
-            key, _, value = head[position + 8:position + 8 + length].partition(b"\0")
-            text[key.decode("latin-1")] = value.decode("latin-1")
-        position += 12 + length
     return text.get("Software") == SOFTWARE and text.get("Title") == Path(record_path).name
 
 

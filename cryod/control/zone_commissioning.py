@@ -109,6 +109,8 @@ def tune_zones(zone_models: Sequence[tuple[float, CryostatModel, str]], heater_m
         A zone where no gains meet the tolerances (names the zone).
     """
     search = {**ZONE_SEARCH, **search}
+    finer = {**search, "grid": FINE_ZONE_SEARCH["grid"], "refine_evaluations": FINE_ZONE_SEARCH["refine_evaluations"]}
+    searches = [search] if search.get("grid") == FINE_ZONE_SEARCH["grid"] else [search, finer]
     setpoints = [setpoint for setpoint, _, _ in zone_models]
     uppers = zone_uppers(setpoints, setpoint_max_K)
     results = []
@@ -116,20 +118,16 @@ def tune_zones(zone_models: Sequence[tuple[float, CryostatModel, str]], heater_m
         start = setpoints[index - 1] if index else (first_start_K if first_start_K is not None
                                                     else model.operating_point.flange_temperature_K)
         length = duration_s(model) if callable(duration_s) else duration_s
-        def tuned(zone_search: dict) -> Tuning:
-            return suggest_gains(model, setpoint, heater_max_w, tolerances=tolerances,
-                                 start_heater_w=start_heater_w(model, start), duration_s=length,
-                                 period_s=period_s, ramp_K_per_min=ramp_K_per_min, **zone_search)
-        try:
+        for attempt, zone_search in enumerate(searches, start=1):
             try:
-                tuning = tuned(search)
-            except TuningError:
-                if search.get("grid") == FINE_ZONE_SEARCH["grid"]:
-                    raise
-                tuning = tuned({**search, "grid": FINE_ZONE_SEARCH["grid"],
-                                "refine_evaluations": FINE_ZONE_SEARCH["refine_evaluations"]})
-        except ValueError as error:
-            raise type(error)(f"zone {index + 1} (setpoint {setpoint:g} K, model {source}): {error}") from None
+                tuning = suggest_gains(model, setpoint, heater_max_w, tolerances=tolerances,
+                                       start_heater_w=start_heater_w(model, start), duration_s=length,
+                                       period_s=period_s, ramp_K_per_min=ramp_K_per_min, **zone_search)
+                break
+            except ValueError as error:     # no gains found (TuningError): the finer search, if there is one
+                if not isinstance(error, TuningError) or attempt == len(searches):
+                    raise type(error)(f"zone {index + 1} (setpoint {setpoint:g} K, model {source}): {error}") \
+                        from None
         results.append(ZoneTuning(setpoint, upper, model, source, start, tuning))
         if progress is not None:
             best = tuning.best

@@ -19,6 +19,7 @@ Examples
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -80,24 +81,24 @@ class RecordData:
     notes: list[str] = field(default_factory=list)
     heater_change_s: np.ndarray | None = None
 
-    @property
+    @functools.cached_property
     def elapsed_s(self) -> np.ndarray:
-        """Seconds since the first sample (the simulator's PTC phase reference)."""
-        return self.time_s - self.time_s[0]
+        """Seconds since the first sample (the simulator's PTC phase reference; made once, read-only)."""
+        return _read_only(self.time_s - self.time_s[0])
 
     @property
     def duration_s(self) -> float:
         return float(self.time_s[-1] - self.time_s[0])
 
-    @property
+    @functools.cached_property
     def sample_interval_s(self) -> float:
         """Median interval between samples (s)."""
         return float(np.median(np.diff(self.time_s)))
 
-    @property
+    @functools.cached_property
     def valid(self) -> np.ndarray:
-        """Samples with both temperatures present."""
-        return np.isfinite(self.flange_K) & np.isfinite(self.ptc_stage_K)
+        """Samples with both temperatures present (made once, read-only)."""
+        return _read_only(np.isfinite(self.flange_K) & np.isfinite(self.ptc_stage_K))
 
     def stretch(self, start: int, stop: int) -> "RecordData":
         """The samples ``[start, stop)`` alone, with a note saying which they are."""
@@ -259,6 +260,12 @@ def saturation_fraction(heater_w: np.ndarray, limit_w: float | None) -> tuple[fl
     at_zero = float(np.mean(heater_w <= 0.0))
     at_limit = float(np.mean(heater_w >= limit_w * (1.0 - 1e-6))) if limit_w else 0.0
     return at_zero, at_limit
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """``array``, made read-only (a value the record keeps for every caller)."""
+    array.setflags(write=False)
+    return array
 
 
 __all__ = ["ANALYSED_COLUMNS", "RecordData", "analysed_stretch", "read_record_data", "fit_block_mask", "block_length_s", "heater_limit_from_metadata",

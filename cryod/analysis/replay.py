@@ -98,6 +98,8 @@ def stage_release_response(model: CryostatModel, elapsed_s) -> np.ndarray:
     return _release_response(stage_heater, np.asarray(elapsed_s, dtype=float))
 
 
+#: Kept mode and release columns whose fit rows a replayer keeps.
+ROWS_KEPT = 16
 #: Bases whose columns on the fit rows a replayer keeps (the recalibration's, in the replays of one search).
 BASES_KEPT = 8
 
@@ -295,6 +297,7 @@ class Replayer:
         self._measured_cycle = None
         self._fit_rows = np.flatnonzero(self.fit_mask)
         self._basis_rows: dict = {}
+        self._kept_rows: dict = {}
 
     def weighted(self, noise_rms_K: tuple[float, float]) -> "Replayer":
         """The same replayer (record, fit samples, settled power, measured cycle) weighting by ``noise_rms_K``."""
@@ -313,6 +316,18 @@ class Replayer:
         """Take the settled power before the record from a replay's T5 initial-state estimate."""
         start = self.initial_heater_power_w if self.initial_heater_power_w is not None else float(self.data.heater_w[0])
         self.initial_heater_power_w = max(start + replay.initial_power_offset_w, 0.0)
+
+    def _on_fit_rows(self, kept: np.ndarray) -> np.ndarray:
+        """A kept (read-only) array's fit rows, taken once per array: every replay of one model needs its mode
+        and release columns there."""
+        found = self._kept_rows.get(id(kept))
+        if found is None or found[0] is not kept:
+            if kept.flags.writeable:
+                return kept[self._fit_rows]
+            if len(self._kept_rows) >= ROWS_KEPT:
+                self._kept_rows.pop(next(iter(self._kept_rows)))
+            found = self._kept_rows[id(kept)] = (kept, kept[self._fit_rows])
+        return found[1]
 
     def _basis_on_fit_rows(self, basis: LinearBasis):
         """A basis's columns on the fit rows (T2, T5) and their weighted Gram matrix, made once per basis."""
@@ -416,10 +431,10 @@ class Replayer:
         # the basis and the target; T5 its offset, the release, the shared, the basis and the target.
         flange_part = np.empty((rows.size, flange_columns + shared + 1))
         flange_part[:, 0] = 1.0
-        flange_part[:, 1:flange_columns] = modes[rows]
+        flange_part[:, 1:flange_columns] = self._on_fit_rows(modes)
         stage_part = np.empty((rows.size, 2 + shared + 1))
         stage_part[:, 0] = 1.0
-        stage_part[:, 1] = stage_release[rows]
+        stage_part[:, 1] = self._on_fit_rows(stage_release)
         if shared:
             flange_part[:, flange_columns:-1] = flange_extra[rows]
             stage_part[:, 2:-1] = stage_extra[rows]

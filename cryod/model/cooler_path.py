@@ -30,7 +30,13 @@ import numpy as np
 
 from cryod.model.parameters import CryostatModel
 from cryod.model.cooler_cycle import CoolerCycle
+from cryod.model.kept_results import KeptResults, digest
 from cryod.model.transfer_function import TransferFunction
+
+
+#: The last phase terms made, by the cycle's phase and the components' orders and phases: every simulation of a
+#: record has a drive of its own, and most share the cycle (the line measured once, the model's own frequency).
+_PHASE_TERMS = KeptResults(8)
 
 
 @dataclass(frozen=True)
@@ -74,8 +80,10 @@ class CoolerDrive:
         if self._terms_at is None or self._terms_at.shape != elapsed_s.shape \
                 or not np.array_equal(self._terms_at, elapsed_s):
             phase, frequency = self.cycle.phase_and_frequency(elapsed_s)
-            terms = [np.exp(1j * (component.order * phase + component.phase_rad)) for component in self.components]
-            self._terms_at, self._terms = np.array(elapsed_s, dtype=float), (frequency, terms)
+            components = [(component.order, component.phase_rad) for component in self.components]
+            terms = _PHASE_TERMS.get_or_make(digest("phase terms", phase, components), lambda: tuple(
+                np.exp(1j * (order * phase + phase_rad)) for order, phase_rad in components))
+            self._terms_at, self._terms = np.array(elapsed_s, dtype=float), (frequency, list(terms))
         return self._terms
 
 

@@ -176,16 +176,24 @@ def linear_recurrence(a: np.ndarray, b: np.ndarray, initial) -> np.ndarray:
     factor = np.ones(blocks * SCAN_BLOCK, dtype=dtype)
     offset = np.zeros(blocks * SCAN_BLOCK, dtype=dtype)
     factor[:count], offset[:count] = a, b                  # the padding (a = 1, b = 0) changes nothing before it
-    factor, offset = factor.reshape(blocks, SCAN_BLOCK), offset.reshape(blocks, SCAN_BLOCK)
+    # one column per block: each pass of the scan works on whole contiguous rows, into a scratch array
+    factor = np.ascontiguousarray(factor.reshape(blocks, SCAN_BLOCK).T)
+    offset = np.ascontiguousarray(offset.reshape(blocks, SCAN_BLOCK).T)
+    scratch = np.empty_like(factor)
     span = 1
     while span < SCAN_BLOCK:                                 # each block's maps composed from its start
-        offset[:, span:] = factor[:, span:] * offset[:, :-span] + offset[:, span:]
-        factor[:, span:] = factor[:, span:] * factor[:, :-span]
+        np.multiply(factor[span:], offset[:-span], out=scratch[span:])
+        np.add(scratch[span:], offset[span:], out=offset[span:])
+        np.multiply(factor[span:], factor[:-span], out=scratch[span:])
+        factor, scratch = scratch, factor
+        factor[:span] = scratch[:span]
         span *= 2
-    starts = _scan(factor[:, -1], offset[:, -1], initial, dtype)    # z at each block's start
+    starts = _scan(factor[-1], offset[-1], initial, dtype)    # z at each block's start
     values = np.empty(count + 1, dtype=dtype)
     values[0] = initial
-    values[1:] = (factor * starts[:-1, None] + offset).ravel()[:count]
+    np.multiply(factor, starts[:-1], out=factor)
+    factor += offset
+    values[1:] = factor.T.ravel()[:count]
     return values
 
 

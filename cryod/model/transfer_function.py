@@ -209,7 +209,12 @@ class TransferFunction:
         Returns
         -------
         ModalForm
+            Found once per transfer function (its arrays read-only).
         """
+        return self._modal_form
+
+    @functools.cached_property
+    def _modal_form(self) -> ModalForm:
         lead = self.denominator[0]
         denominator = np.asarray(self.denominator) / lead
         numerator = np.asarray(self.numerator) / lead
@@ -225,6 +230,9 @@ class TransferFunction:
             [np.polyval(numerator, p) / np.polyval(np.polyder(denominator), p) for p in poles],
             dtype=complex,
         )
+        poles = np.array(poles)
+        for array in (poles, residues):
+            array.setflags(write=False)
         return ModalForm(poles=poles, residues=residues, direct=direct)
 
     def sampled_response(self, angular_frequency_rad_s, period_s: float, setting_delay_s: float = 0.0):

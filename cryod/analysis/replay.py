@@ -141,9 +141,18 @@ class LinearBasis:
     upper: np.ndarray
     widths: np.ndarray
 
+    #: The bases :meth:`without` made, by the names left out (each made once: every replay of a candidate asks).
+    _without: dict = field(init=False, default_factory=dict, repr=False, compare=False)
+
     def without(self, names) -> "LinearBasis | None":
         """The same basis without the named parameters (None if nothing is left)."""
-        keep = [index for index, name in enumerate(self.names) if name not in set(names)]
+        key = frozenset(names)
+        if key not in self._without:
+            self._without[key] = self._made_without(key)
+        return self._without[key]
+
+    def _made_without(self, names: frozenset) -> "LinearBasis | None":
+        keep = [index for index, name in enumerate(self.names) if name not in names]
         if not keep:
             return None
         return LinearBasis(tuple(self.names[i] for i in keep), self.flange_columns[:, keep],

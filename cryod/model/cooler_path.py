@@ -29,13 +29,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.model.parameters import CryostatModel
-from cryod.model.cooler_cycle import CoolerCycle
+from cryod.model.cooler_cycle import CoolerCycle, MeasuredCoolerCycle
 from cryod.model.kept_results import KeptResults, digest
 from cryod.model.transfer_function import TransferFunction
 
 
-#: The last phase terms made, by the cycle's phase and the components' orders and phases: every simulation of a
-#: record has a drive of its own, and most share the cycle (the line measured once, the model's own frequency).
+#: The last phase terms made (the cycle's frequency, each component's ``exp(j (order theta + phase))``), by the
+#: cycle, the instants and the components' orders and phases: every simulation of a record has a drive of its own,
+#: and most share the cycle (the phase measured once, or the model's own frequency).
 _PHASE_TERMS = KeptResults(8)
 
 
@@ -79,12 +80,29 @@ class CoolerDrive:
         """
         if self._terms_at is None or self._terms_at.shape != elapsed_s.shape \
                 or not np.array_equal(self._terms_at, elapsed_s):
-            phase, frequency = self.cycle.phase_and_frequency(elapsed_s)
             components = [(component.order, component.phase_rad) for component in self.components]
-            terms = _PHASE_TERMS.get_or_make(digest("phase terms", phase, components), lambda: tuple(
-                np.exp(1j * (order * phase + phase_rad)) for order, phase_rad in components))
+
+            def made():
+                phase, frequency = self.cycle.phase_and_frequency(elapsed_s)
+                return frequency, tuple(np.exp(1j * (order * phase + phase_rad)) for order, phase_rad in components)
+
+            key = _cycle_key(self.cycle)
+            if key is None:
+                frequency, terms = made()
+            else:
+                frequency, terms = _PHASE_TERMS.get_or_make(digest("phase terms", *key, elapsed_s, components), made)
             self._terms_at, self._terms = np.array(elapsed_s, dtype=float), (frequency, list(terms))
         return self._terms
+
+
+def _cycle_key(cycle) -> tuple | None:
+    """What a cycle's phase and frequency depend on (for :data:`_PHASE_TERMS`), or None for a cycle of another
+    kind (its terms are then made every time)."""
+    if type(cycle) is CoolerCycle:
+        return ("model", repr(cycle))             # floats by repr: exact
+    if type(cycle) is MeasuredCoolerCycle:
+        return ("measured", cycle.elapsed_s, cycle.phase_values_rad, cycle.frequency_values_rad_s)
+    return None
 
 
 class CoolerPath:

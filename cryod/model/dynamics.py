@@ -364,7 +364,8 @@ def _simulate_whole(plant: CryostatPlant, time_s: np.ndarray, heater_power_w: np
     else:
         outputs = _run_time_scaled(plant, held)
         flange_heater = outputs if held.sample_positions is None else outputs[held.sample_positions]
-    elapsed = time_s - plant.start_time_s
+    elapsed = _ELAPSED.get_or_make(digest("elapsed", record_key, plant.start_time_s),
+                                   lambda: time_s - plant.start_time_s)
     scale = 1.0 if plant.heat_capacity is None else plant.time_scale_at(flange_heater)
     envelope = plant.envelope(elapsed)
     flange_drift, stage_drift = plant.drift_offsets_K(elapsed)
@@ -396,8 +397,10 @@ class _HeldInputs:
     key: bytes
 
 
-#: Inputs of the last paths simulated, and the paths' responses to them (each an hour's record or so).
+#: Inputs of the last paths simulated, and the paths' responses to them (each an hour's record or so); the
+#: instants of the last records from their start (one array per record: what the cooler's phase terms are kept by).
 _HELD_INPUTS = KeptResults(8)
+_ELAPSED = KeptResults(4)
 _PATH_RUNS = KeptResults(16)
 
 

@@ -74,6 +74,9 @@ def _array_digest(array: np.ndarray) -> bytes:
     with _LARGE_LOCK:
         kept = _LARGE_DIGESTS.get(id(array))
     if kept is not None and kept[0] == header and np.array_equal(kept[1], contents):
+        with _LARGE_LOCK:
+            if id(array) in _LARGE_DIGESTS:
+                _LARGE_DIGESTS.move_to_end(id(array))        # the least recently asked is dropped first
         return kept[2]
     hashed = hashlib.sha1(header, usedforsecurity=False)
     hashed.update(array.data)

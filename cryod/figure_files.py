@@ -20,14 +20,24 @@ import numpy as np
 MOST_POINTS = 4000
 #: Harmonics of the cooler marked on a spectrum.
 HARMONICS = 6
+#: Resolution of every figure written (dots per inch).
+DPI = 110
+#: zlib level of the PNG files: 1 writes a plot's large plain areas some times faster than the default 6, for
+#: files about a tenth larger.
+PNG_COMPRESS_LEVEL = 1
 
 
 def save_figure(figure, path: Path) -> Path:
-    """Lay out, write ``figure`` to ``path`` (PNG, 110 dpi), close it; returns ``path``."""
+    """Lay out, write ``figure`` to ``path`` (PNG, :data:`DPI`), close it; returns ``path``.
+
+    The figure is laid out at the resolution it is written at, so that the text measured for the layout is
+    measured once (matplotlib keeps it per renderer), and the PNG is compressed at
+    :data:`PNG_COMPRESS_LEVEL`."""
     import matplotlib.pyplot as plt
 
+    figure.set_dpi(DPI)
     figure.tight_layout()
-    figure.savefig(path, dpi=110)
+    figure.savefig(path, dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     plt.close(figure)
     return path
 

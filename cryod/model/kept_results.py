@@ -63,7 +63,7 @@ def digest(*parts) -> bytes:
 #: of the same array asked again is some ten times faster than hashing them again.
 _LARGE = 4096
 _LARGE_DIGESTS: OrderedDict = OrderedDict()
-_LARGE_KEPT = 8
+_LARGE_KEPT = 16
 _LARGE_LOCK = threading.Lock()
 
 

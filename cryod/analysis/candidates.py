@@ -264,11 +264,11 @@ def fit_sensor_lag(context: FitContext) -> CandidateFit:
 
     def replay_at(tau):
         flange_only = model(tau)
-        factor, replay = line_factor(context, flange_only)
+        factor, own_replay = _line_factor(context, flange_only)
         angle = cmath.phase(factor)
         stage = float(min(math.tan(angle) / omega, 30.0)) if smallest < angle < math.pi / 2 else 0.0
         stage_taus[tau] = stage
-        return replay if stage == 0.0 else context.replay(model(tau, stage), context.base_line)
+        return own_replay() if stage == 0.0 else context.replay(model(tau, stage), context.base_line)
 
     objective = _CachedObjective(context, model, context.base_line, replay_at)
     tau = scalar_search(objective, np.geomspace(0.01, 20.0, 15), (0.0, 30.0), 1e-6)
@@ -373,6 +373,12 @@ def line_factor(context: FitContext, model: CryostatModel | None = None) -> tupl
     fitted on the fit blocks jointly with the nuisance parameters. The replay
     returned is the model's own (F = 1); ``model`` None: the base model.
     """
+    factor, own_replay = _line_factor(context, model)
+    return factor, own_replay()
+
+
+def _line_factor(context: FitContext, model: CryostatModel | None = None):
+    """:func:`line_factor`'s factor, and the model's own replay as a function (made only when asked for)."""
     data = context.data
     aligned = context.base_line.applied_to(model if model is not None else context.base_model)
     cycle = context.base_line.cycle
@@ -383,7 +389,8 @@ def line_factor(context: FitContext, model: CryostatModel | None = None) -> tupl
                                                shared_columns=(np.column_stack([response.real, -response.imag]),
                                                                np.zeros((data.time_s.size, 2))), basis=basis)
     return (complex(1.0 + linear.shared_coefficients[0], linear.shared_coefficients[1]),
-            context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K, basis=basis))
+            lambda: context.replayer.replay_simulated(aligned, simulated.flange_K, simulated.ptc_stage_K,
+                                                      basis=basis))
 
 
 def fit_link_dynamics(context: FitContext) -> CandidateFit:
@@ -396,7 +403,7 @@ def fit_link_dynamics(context: FitContext) -> CandidateFit:
     base = context.base_model
     if context.link_reference is not None:
         base = dataclasses.replace(base, ptc_to_flange=context.link_reference)
-    factor, _ = line_factor(context, base)
+    factor, _ = _line_factor(context, base)
     omega = context.base_line.angular_frequency_rad_s
     note = ""
     inverse = 1.0 / factor if factor != 0 else complex(math.inf)

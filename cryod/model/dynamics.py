@@ -429,7 +429,7 @@ def _path_at_samples(path: HeaterPath, held: _HeldInputs) -> np.ndarray:
     key = digest(held.key, path.poles, path.residues, path.direct, path.state, path.input)
 
     def made():
-        outputs = path.run(np.diff(held.grid), held.inputs[:-1])
+        outputs = path.run(np.diff(held.grid), held.inputs[:-1], kept_by=held.key)
         at_samples = outputs if held.sample_positions is None else outputs[held.sample_positions]
         return at_samples, tuple(path.state), path.input
 

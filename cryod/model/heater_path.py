@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 
+from cryod.model.kept_results import KeptResults, digest
 from cryod.model.transfer_function import TransferFunction
 
 
@@ -101,7 +102,7 @@ class HeaterPath:
         total = total.real if isinstance(total, complex) else total
         return total / duration_s
 
-    def run(self, durations_s: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+    def run(self, durations_s: np.ndarray, inputs: np.ndarray, kept_by: bytes | None = None) -> np.ndarray:
         """Outputs at the start of each interval and after the last one (vectorised).
 
         Parameters
@@ -110,6 +111,10 @@ class HeaterPath:
             Interval lengths h_k in s (length n).
         inputs : numpy.ndarray
             Input held over each interval (length n).
+        kept_by : bytes, optional
+            A digest of ``durations_s`` and ``inputs``: each mode's states are then kept
+            (:data:`_MODE_STATES`) for the next run with the same pole, starting state and inputs (a path whose
+            gains alone changed has the same modes).
 
         Returns
         -------
@@ -124,15 +129,24 @@ class HeaterPath:
         previous_input = np.concatenate(([self.input], inputs))
         outputs += self.direct * previous_input
         for i, pole in enumerate(self.poles):
-            a = np.exp(pole * durations_s)
-            b = (a - 1.0) / pole * inputs
-            states = linear_recurrence(a, b, self.state[i])
+            def made(pole=pole, initial=self.state[i]):
+                a = np.exp(pole * durations_s)
+                b = (a - 1.0) / pole * inputs
+                return linear_recurrence(a, b, initial)
+
+            if kept_by is None:
+                states = made()
+            else:
+                states = _MODE_STATES.get_or_make(digest(kept_by, pole, self.state[i]), made)
             self.state[i] = states[-1].item()
             outputs += np.real(self.residues[i] * states)
         if count:
             self.input = float(inputs[-1])
         return outputs
 
+
+#: The last modes' states over a record, by inputs, pole and starting state (see :meth:`HeaterPath.run`).
+_MODE_STATES = KeptResults(24)
 
 #: Samples per block of :func:`linear_recurrence`'s two-level scan.
 SCAN_BLOCK = 32

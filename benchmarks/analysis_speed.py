@@ -14,7 +14,9 @@ discrepancies, figures, report, model file), each run a fresh process
 verdict, the wall and the CPU time of the process (the machine is shared: CPU
 time is what the analysis itself costs) and the step times of its report. With
 ``--tree``, the same records are analysed by another checkout's code in the
-same run, alternately, and the ratio of CPU times is printed.
+same run, alternately, and the ratio of CPU times is printed, with the two
+trees' ``--json`` outputs compared (verdicts, causes, every number: equal, or
+the largest relative difference).
 """
 
 from __future__ import annotations
@@ -82,7 +84,34 @@ def analysed_in_child(tree: Path, record: Path, out: Path, figures: bool) -> dic
         raise SystemExit(f"cryod analyze failed on {record} with {tree}: {stderr.decode()[-400:]}")
     result = json.loads(stdout)
     return {"wall_s": wall, "named": "+".join(c["cause"] for c in result["causes"]) or result["cause"],
-            "cause": result["cause"], "timings": _timings(out / "report.md")}
+            "cause": result["cause"], "timings": _timings(out / "report.md"), "json": result}
+
+
+def json_differences(first, second, where: str = "") -> tuple[float, list[str]]:
+    """Largest relative difference of the numbers in two ``--json`` outputs, and where anything else differs
+    (a verdict, a cause, a list's length; paths of written files aside)."""
+    if isinstance(first, dict) and isinstance(second, dict):
+        largest, found = 0.0, [f"{where}/{key}" for key in set(first) ^ set(second)]
+        for key in set(first) & set(second):
+            value, other = json_differences(first[key], second[key], f"{where}/{key}")
+            largest, found = max(largest, value), found + other
+        return largest, found
+    if isinstance(first, list) and isinstance(second, list):
+        if len(first) != len(second):
+            return 0.0, [f"{where} (length)"]
+        largest, found = 0.0, []
+        for index, (value, other) in enumerate(zip(first, second)):
+            value, other = json_differences(value, other, f"{where}[{index}]")
+            largest, found = max(largest, value), found + other
+        return largest, found
+    numbers = (int, float)
+    if isinstance(first, numbers) and isinstance(second, numbers) and not isinstance(first, bool):
+        if first == second or (first != first and second != second):        # equal, or both NaN
+            return 0.0, []
+        return abs(first - second) / max(abs(first), abs(second)), []
+    if isinstance(first, str) and isinstance(second, str) and os.sep in first and os.sep in second:
+        return 0.0, []
+    return 0.0, ([] if first == second else [where])
 
 
 def main() -> None:
@@ -99,8 +128,9 @@ def main() -> None:
     print(f"python {platform.python_version()}, {platform.machine()}, one hour at 12.5 Hz, best of {args.repeat}, "
           f"{'without' if args.no_figures else 'with'} figures")
     print("| hidden | tree | verdict | wall (s) | CPU (s) | of which: recalibration (s) | candidates (s) | "
-          "naming (s) | widened model (s) | figures (s) |" + (" CPU this / other |" if args.tree else ""))
-    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|" if args.tree else ""))
+          "naming (s) | widened model (s) | figures (s) |"
+          + (" CPU this / other | JSON against the other |" if args.tree else ""))
+    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if args.tree else ""))
     with tempfile.TemporaryDirectory() as directory:
         wanted = set(args.only.split(",")) if args.only else None
         for name, hidden in cases(model).items():
@@ -127,12 +157,21 @@ def main() -> None:
                 candidates = sum(v for k, v in timings.items()
                                  if k not in steps and "next cause" not in k and "widened" not in k)
                 widened = sum(v for k, v in timings.items() if "widened" in k or k == "wider recalibration")
-                ratio = (f" {best['this']['cpu_s'] / best['other']['cpu_s']:.2f} |"
-                         if args.tree and label == "this" else (" |" if args.tree else ""))
+                ratio = (f" {best['this']['cpu_s'] / best['other']['cpu_s']:.2f} | {_compared(best)} |"
+                         if args.tree and label == "this" else (" | |" if args.tree else ""))
                 print(f"| {name} | {label} | {found['named']} | {found['wall_s']:.2f} | {found['cpu_s']:.2f} | "
                       f"{timings.get('recalibration', 0):.2f} | {candidates:.2f} | "
                       f"{timings.get('naming the causes', 0):.2f} | {widened:.2f} | "
                       f"{timings.get('figures', 0):.2f} |{ratio}", flush=True)
+
+
+def _compared(best: dict) -> str:
+    """The two trees' ``--json`` outputs compared: equal, or the largest relative difference of a number and what
+    else differs."""
+    largest, other = json_differences(best["this"]["json"], best["other"]["json"])
+    if not other:
+        return "equal" if largest == 0.0 else f"numbers within {largest:.1e} (relative)"
+    return f"differs at {', '.join(sorted(other)[:3])}" + (f"; numbers within {largest:.1e}" if largest else "")
 
 
 def _timings(report: Path) -> dict:

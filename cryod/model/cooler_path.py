@@ -40,6 +40,12 @@ from cryod.model.transfer_function import TransferFunction
 _PHASE_TERMS = KeptResults(8)
 
 
+#: The last paths' outputs over a record, by the path, the components, the cycle, the instants and the time scale:
+#: a cause on the heater's paths (a dead time, a heater's nonlinearity) leaves both thermometers' cooler paths as
+#: they were.
+_PATH_VALUES = KeptResults(8)
+
+
 @dataclass(frozen=True)
 class _CoolerComponent:
     order: int
@@ -166,11 +172,21 @@ class CoolerPath:
         factor per instant (heat-capacity effect).
         """
         elapsed_s = np.asarray(elapsed_s, dtype=float)
-        frequency, terms = self.drive.phase_terms(elapsed_s)
-        total = np.zeros(elapsed_s.shape)
-        for term, phasor in zip(terms, self.output_phasors(frequency, time_scale)):
-            total += np.real(phasor * term)
-        return total
+
+        def made():
+            frequency, terms = self.drive.phase_terms(elapsed_s)
+            total = np.zeros(elapsed_s.shape)
+            for term, phasor in zip(terms, self.output_phasors(frequency, time_scale)):
+                total += np.real(phasor * term)
+            return total
+
+        cycle = _cycle_key(self.drive.cycle)
+        if cycle is None or not isinstance(time_scale, float):
+            return made()
+        components = [(c.order, c.heat_phasor, c.stage_phasor, c.phase_rad) for c in self.drive.components]
+        return _PATH_VALUES.get_or_make(digest(
+            "cooler path", self.transfer_function.numerator, self.transfer_function.denominator, self.input_is_heat,
+            components, *cycle, elapsed_s, time_scale), made)
 
     def mean_value(self, elapsed_s: float, duration_s: float, time_scale: float = 1.0) -> float:
         """Mean output over ``[elapsed_s, elapsed_s + duration_s]``, frequency frozen at the start."""

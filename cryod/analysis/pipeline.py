@@ -428,9 +428,11 @@ class CauseSearch:
         """Add causes to the recalibrated model while the record shows a discrepancy (see the module doc).
 
         The best candidate is added first and the next ones on top of it. When that leaves a discrepancy, the
-        path that starts from the second-best candidate is followed too (one cause can stand in for most of two:
-        a thermometer lag with the stage lagging alike looks much like a dead time plus a link that differs), and
-        the path that explains clearly more is kept. At most ``most`` causes; with 1, no second path.
+        paths that start from each of the other leading candidates (refitted with the recalibration, counting) are
+        followed too (one cause can stand in for most of two: a thermometer lag with the stage lagging alike looks
+        much like a dead time plus a link that differs, or a heat capacity plus a link), and of the paths with
+        more than one cause that leave less than half the first path's excess, the one that leaves least is kept.
+        At most ``most`` causes; with 1, no second path.
         """
         analysis = self.analysis
         context, fits, scores, first = analysis.context, analysis.fits, analysis.scores, analysis.decision
@@ -455,9 +457,11 @@ class CauseSearch:
                     (score_candidate(context, refined[cause][0], base) for cause in refined
                      if cause != decision.best.cause), key=lambda score: -score.improvement)
                 alternatives = [score for score in alternatives if score.counts]
-                if path.base.present and alternatives:
-                    other = self._follow(alternatives[0], refined, recalibrated_base, most)
-                    if other.base.excess < ALTERNATIVE_FRACTION * path.base.excess and len(other.causes) > 1:
+                first_path = path
+                for alternative in alternatives if path.base.present else []:
+                    other = self._follow(alternative, refined, recalibrated_base, most)
+                    if (other.base.excess < ALTERNATIVE_FRACTION * first_path.base.excess and len(other.causes) > 1
+                            and other.base.excess < path.base.excess):
                         path = other
         excess_text = (f"the recalibrated base model's held-out excess is {recalibrated_base.excess:.4g} "
                        f"({recalibrated_base.significance:.1f} sigma, "

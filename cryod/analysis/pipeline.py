@@ -427,12 +427,13 @@ class CauseSearch:
     def _name_causes(self, recalibrated: BaseDiscrepancy, most: int) -> None:
         """Add causes to the recalibrated model while the record shows a discrepancy (see the module doc).
 
-        The best candidate is added first and the next ones on top of it. When that leaves a discrepancy, the
-        paths that start from each of the other leading candidates (refitted with the recalibration, counting) are
-        followed too (one cause can stand in for most of two: a thermometer lag with the stage lagging alike looks
-        much like a dead time plus a link that differs, or a heat capacity plus a link), and of the paths with
-        more than one cause that leave less than half the first path's excess, the one that leaves least is kept.
-        At most ``most`` causes; with 1, no second path.
+        The best candidate is added first and the next ones on top of it. When that leaves a discrepancy, the path
+        that starts from the second-best candidate is followed too (one cause can stand in for most of two: a
+        thermometer lag with the stage lagging alike looks much like a dead time plus a link that differs), and
+        when the first path would name its causes (they remove 70 % of the excess) the paths from the other leading
+        candidates as well (refitted with the recalibration, counting: a lag of seconds on both thermometers takes
+        most of a heat capacity plus a link); of the paths with more than one cause that leave less than half the
+        first path's excess, the one that leaves least is kept. At most ``most`` causes; with 1, no second path.
         """
         analysis = self.analysis
         context, fits, scores, first = analysis.context, analysis.fits, analysis.scores, analysis.decision
@@ -458,7 +459,9 @@ class CauseSearch:
                      if cause != decision.best.cause), key=lambda score: -score.improvement)
                 alternatives = [score for score in alternatives if score.counts]
                 first_path = path
-                for alternative in alternatives if path.base.present else []:
+                removed = recalibrated_base.excess - path.base.excess
+                names_a_cause = removed >= EXPLAINED_FRACTION * recalibrated_base.excess
+                for alternative in (alternatives if names_a_cause else alternatives[:1]) if path.base.present else []:
                     other = self._follow(alternative, refined, recalibrated_base, most)
                     if (other.base.excess < ALTERNATIVE_FRACTION * first_path.base.excess and len(other.causes) > 1
                             and other.base.excess < path.base.excess):

@@ -15,6 +15,13 @@ from tests.conftest import REPOSITORY
 from tests.scripted_daemon import ScriptedDaemon
 
 
+@pytest.fixture
+def dry_run_speed():
+    """Ten times real time: these tests need the loop regulating into a record, not the daemon's clock far ahead, and a
+    dry run at ``max`` would take a core from the ``cryod`` commands they run beside it."""
+    return "10"
+
+
 def _closed(flange):
     """Wait until the loop regulates and its record is open (the data log's thread opens the file at the first
     row it writes, a moment after the loop's first tick: until then ``record_path`` is null)."""

@@ -179,6 +179,7 @@ def test_a_heater_15_percent_stronger_is_base_model_off_not_a_nonlinearity(tmp_p
     assert cli.main(["analyze", str(path), "--out", str(tmp_path / "out"), "--json", "--no-figures"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["cause"] == "base_model_off" and result["causes"] == []
+    assert "model_uncertainty" not in result                     # the shipped model states no uncertainty
     off = result["base_model_off"]
     asked = {row["parameter"]: row["relative_change"] for row in off["parameters"]}
     assert set(asked) == {"heater_to_flange static gain", "heater_to_ptc_stage static gain"}

@@ -60,7 +60,7 @@ from cryod.records.metrics import regulation_metrics
 from drivers.clock import VirtualClock
 from cryod.service.commands import Command
 from cryod.service.daemon import Daemon
-from cryod.service.simulation import SimulatedInstrumentsOpener, simulation_config
+from cryod.service.simulation import DryRunOptions, SimulatedInstrumentsOpener, simulation_config
 
 REPOSITORY = Path(__file__).resolve().parent.parent
 CONFIG = REPOSITORY / "config" / "cryod-4-25K.yaml"
@@ -76,8 +76,8 @@ AVERAGED_PERIODS = 4
 
 def simulated(config_path: Path, folder: Path, seed: int = 0):
     """The configuration for a run in ``folder`` on virtual time, in process."""
-    overrides = argparse.Namespace(setpoint=None, no_feedforward=False, transport="in-process", speed="max",
-                                   seed=seed, data_dir=folder / "data", socket=folder / "control.sock")
+    overrides = DryRunOptions(transport="in-process", speed="max", seed=seed, data_dir=folder / "data",
+                              socket=folder / "control.sock")
     return simulation_config(overrides, load_config(config_path))
 
 

@@ -29,6 +29,11 @@ from typing import Protocol
 class Clock(Protocol):
     """Time in seconds on a monotonic scale."""
 
+    #: The Unix time (s) a daemon started on this clock dates its record from; None: the wall time at which
+    #: it starts. A run on virtual time can be dated to any day (the tests date theirs away from UTC
+    #: midnight, where a record is split into two days' files).
+    wall_start_s: float | None
+
     def now(self) -> float:
         """Current time in s; never goes backwards."""
 
@@ -40,6 +45,7 @@ class MonotonicClock:
     """The real monotonic clock (``time.monotonic``)."""
 
     is_virtual = False
+    wall_start_s = None
 
     def now(self) -> float:
         return time.monotonic()
@@ -60,6 +66,7 @@ class ScaledClock:
     """
 
     is_virtual = False
+    wall_start_s = None
 
     def __init__(self, speed: float):
         if not speed > 0.0:
@@ -86,6 +93,7 @@ class VirtualClock:
     """
 
     is_virtual = True
+    wall_start_s: float | None = None
 
     def __init__(self, start_s: float = 0.0):
         self._now = float(start_s)

@@ -12,6 +12,7 @@ import pytest
 
 from cryod.cli import use_one_blas_thread
 from cryod.model import load_model
+from drivers.clock import VirtualClock
 from tests.headless_browser import headless_chromium
 
 use_one_blas_thread()          # as the command line does for the daemon and the model tools
@@ -20,6 +21,20 @@ REPOSITORY = Path(__file__).resolve().parent.parent
 CONFIG = REPOSITORY / "config"
 DATA = Path(__file__).resolve().parent / "data"
 CALIBRATION_DATA = DATA / "calibration"
+
+
+#: How long before UTC midnight a test's daemon stops dating its record from now (s): longer than any
+#: test's simulated run, so that none crosses midnight, where the daemon splits its record in two days' files.
+MIDNIGHT_MARGIN_S = 4 * 3600.0
+
+
+@pytest.fixture(autouse=True)
+def records_dated_away_from_midnight(monkeypatch):
+    """A daemon on a virtual clock dates its record from now, or, in the last four hours of a UTC day, from
+    four hours before its end: a test that reads its daemon's record whole reads one file at any hour."""
+    now = time.time()
+    day_end = now - now % 86400.0 + 86400.0
+    monkeypatch.setattr(VirtualClock, "wall_start_s", min(now, day_end - MIDNIGHT_MARGIN_S))
 
 
 @pytest.fixture(scope="session")

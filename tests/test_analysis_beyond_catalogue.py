@@ -18,14 +18,15 @@ from cryod.analysis.candidates import CandidateFit, EffectForm
 from cryod.analysis.decision import BaseDiscrepancy, score_candidate
 from cryod.analysis import report
 from cryod.analysis.cooler_causes import measured_remainder
-from cryod.analysis.equivalence import equivalents, line_gain_stood_for
+from cryod.analysis.equivalence import delayed_flange_reading, equivalents, line_gain_stood_for
 from cryod.analysis.generic_extension import MeasuredDisturbance
 from cryod.analysis.residual_signature import (
     bartlett_band, classify_peak, cross_correlation, drift, spectral_peaks,
 )
 from cryod.analysis.slow_series import correlation_time_s, in_file_form
 from cryod.model import (
-    CryostatPlant, DeadTime, Disturbance, FileFormatError, HeaterPathCorrection, Pickup, CoolerAmplitudeModulation,
+    CryostatPlant, DeadTime, Disturbance, FileFormatError, HeaterPathCorrection, LinkDynamics, Pickup,
+    CoolerAmplitudeModulation,
     PtcStageDrift, SlowProcess, load_model, load_model_text, model_to_dict, save_model, simulate,
 )
 from cryod.records.record import write_record
@@ -160,11 +161,40 @@ def test_peaks_are_placed_against_the_harmonics_and_their_sidebands():
 def test_both_thermometers_lagging_alike_read_as_a_heater_lag():
     named = SimpleNamespace(cause="sensor_lag", fit=SimpleNamespace(parameters={
         "flange_thermometer_time_constant_s": 0.4, "ptc_stage_thermometer_time_constant_s": 0.41}))
-    analysis = SimpleNamespace(causes=[named], decision=SimpleNamespace(tied=()))
+    analysis = SimpleNamespace(causes=[named], decision=SimpleNamespace(tied=()), other_paths=[])
     readings = equivalents(analysis, named)
     assert [reading["reading"].split(":")[0] for reading in readings] == ["heater lag"]
     named.fit.parameters["ptc_stage_thermometer_time_constant_s"] = 0.0
     assert equivalents(analysis, named) == []
+
+
+def test_a_dead_time_with_a_link_is_named_where_a_flange_thermometer_lag_alone_would_do():
+    """A flange thermometer's lag alone leaves no discrepancy on a quarter hour of PI, but a dead time with a
+    link that differs, followed as a path of their own, leave clearly less: the two are named, with their
+    numbers."""
+    model = other_day(base_model(), 1).with_effects(dead_time=DeadTime(0.38), link_dynamics=LinkDynamics(0.27, 0.96))
+    analysis = analysed(model, "pi_only", 900.0, 1)
+    assert analysis.cause_names == ["dead_time", "link_dynamics"]
+    dead_time, link = (named.fit.parameters for named in analysis.causes)
+    assert dead_time["heater_to_flange_s"] == pytest.approx(0.38, rel=0.05)
+    assert link["time_constant_s"] == pytest.approx(0.27, rel=0.1)
+    assert link["gain_factor"] == pytest.approx(0.96, rel=0.05)
+    assert "less than sensor_lag alone" in analysis.decision.reason
+
+
+def test_a_dead_time_with_a_link_that_the_record_cannot_tell_from_a_lag_is_its_equivalent_reading():
+    def named(cause, **parameters):
+        return SimpleNamespace(cause=cause, fit=SimpleNamespace(parameters=parameters))
+
+    lag = named("sensor_lag", flange_thermometer_time_constant_s=0.19, ptc_stage_thermometer_time_constant_s=0.0)
+    reading = delayed_flange_reading([named("dead_time", heater_to_flange_s=0.382),
+                                      named("link_dynamics", time_constant_s=0.242, gain_factor=0.935)], 28.4, 2.7)
+    analysis = SimpleNamespace(causes=[lag], decision=SimpleNamespace(tied=()), other_paths=[reading])
+    readings = equivalents(analysis, lag)
+    assert [item["causes"] for item in readings] == [["dead_time", "link_dynamics"]]
+    assert readings[0]["reading"].startswith("dead_time (heater_to_flange_s 0.382) + link_dynamics "
+                                             "(time_constant_s 0.242, gain_factor 0.935)")
+    assert "2.7 sigma" in readings[0]["reading"] and "dead time" in readings[0]["told_apart_by"]
 
 
 def test_a_heater_15_percent_stronger_is_base_model_off_not_a_nonlinearity(tmp_path, capsys):
@@ -389,7 +419,7 @@ def test_a_link_without_a_lag_reads_as_the_lines_gain():
     0.8 / sqrt(1 + (omega tau)^2) = 0.799: the line's gain on T2 off by 20 %; a link of 0.2 s (1.1 rad) is not."""
     named = SimpleNamespace(cause="link_dynamics", fit=SimpleNamespace(parameters={
         "time_constant_s": 0.005, "gain_factor": 0.8}))
-    analysis = SimpleNamespace(causes=[named], decision=SimpleNamespace(tied=()),
+    analysis = SimpleNamespace(causes=[named], decision=SimpleNamespace(tied=()), other_paths=[],
                                base_line=SimpleNamespace(angular_frequency_rad_s=10.83))
     readings = equivalents(analysis, named)
     assert [reading["cause"] for reading in readings] == ["base_model_off"] and "x0.799" in readings[0]["reading"]

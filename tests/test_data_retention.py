@@ -12,6 +12,11 @@ from cryod.records import compression
 from cryod.records.columns import REQUIRED, STATE, Row, RowSchema
 from cryod.records.datalog import DataLog
 from cryod.records.record import RecordFormatError, read_record
+from cryod.service.daemon import Daemon
+from cryod.service.notify import SystemdNotifier
+from drivers.clock import VirtualClock
+from cryod.service.simulation import SimulatedInstrumentsOpener
+from tests.example_config import simulated_config
 from tests.record_rows import rows
 
 SCHEMA = RowSchema(REQUIRED + (STATE,))
@@ -41,6 +46,19 @@ def test_a_finished_day_is_compressed_when_the_next_day_starts_and_reads_back_th
         again.put(row)
     again.stop()
     assert again.paths[0].name == "cryod-2026-11-18.2.csv"
+
+
+def test_a_daemon_on_a_virtual_clock_dates_its_record_from_the_clocks_wall_start(tmp_path, reference_model):
+    """A run dated 30 s before midnight splits its record there, the finished day compressed."""
+    clock = VirtualClock()
+    clock.wall_start_s = MIDNIGHT - 30.0
+    config = simulated_config(tmp_path)
+    result = Daemon(config, SimulatedInstrumentsOpener(reference_model, seed=1), clock,
+                    notifier=SystemdNotifier({}), install_signal_handlers=False).run(60.0)
+    assert result.exit_code == 0
+    assert [path.name for path in result.log_paths] == ["cryod-2026-11-18.csv.gz", "cryod-2026-11-19.csv"]
+    first, second = (read_record(path) for path in result.log_paths)
+    assert len(first) == pytest.approx(30.0 / 0.08, abs=2) and len(second) == pytest.approx(30.0 / 0.08, abs=2)
 
 
 def test_a_day_that_ends_while_the_day_before_is_still_compressing_is_compressed_too(tmp_path, monkeypatch):

@@ -16,6 +16,14 @@
   recalibration allows, and the verdict is ``base_model_off``
   (:mod:`cryod.analysis.base_model_off`) with the link as its equivalent
   reading; within it, the link is reported as equivalent to that gain.
+* **The flange thermometer lagging, and a dead time with a link that
+  differs.** A lag of T2's thermometer alone (the stage's not alike) delays
+  T2 on every path: on the heater's like a dead time, as far as the heater's
+  content is slow against the lag, and on the line's like a link that lags.
+  With little heater content at the line the record fits both readings; the
+  one cause is named, and the two, followed as any path of causes is (a dead
+  time, then a link on top), are reported when they leave no discrepancy
+  either and add less than a cause must (:func:`delayed_flange_reading`).
 * **Causes the record cannot tell apart** (rule 4 of
   :mod:`cryod.analysis.decision`): each of the tied causes.
 
@@ -42,6 +50,9 @@ TOLD_APART = {
     "line gain": ("nothing at the one frequency of the line: the cryostat identified (`cryod identify`) gives the "
                   "line's gain, and an analysis with that model says whether a link is left"),
     "sensor_lag": "a heater modulation at a few tenths of a hertz (a thermometer lags every path alike)",
+    "dead time and link": ("a heater modulation at a few tenths of a hertz or steps with a fast edge: a "
+                           "thermometer's lag rolls the response off as 1 / (1 + j omega tau), a dead time turns "
+                           "its phase in proportion to the frequency and leaves its amplitude"),
     "dead_time": "heater steps of two sizes and a modulation above 0.1 Hz (a delay's phase grows with frequency)",
     "heater_nonlinearity": "steps of several heights from the same power (the response to P^2)",
     "heat_capacity_temperature": "steps at two temperatures (the time constants move with T)",
@@ -77,6 +88,28 @@ def line_gain_stood_for(named, angular_frequency_rad_s: float) -> float | None:
     return abs(factor)
 
 
+def lag_on_the_flange_only(named) -> bool:
+    """Whether a named cause is a lag of the flange thermometer without the stage's lagging alike."""
+    if named.cause != "sensor_lag":
+        return False
+    flange = named.fit.parameters.get("flange_thermometer_time_constant_s", 0.0)
+    stage = named.fit.parameters.get("ptc_stage_thermometer_time_constant_s", 0.0)
+    return flange > 0.0 and stage < (1.0 - ALIKE_FRACTION) * flange
+
+
+def delayed_flange_reading(causes, better: float, sigma: float) -> dict:
+    """The reading of a record as a dead time with a link that differs (``causes``: the two NamedCauses), beside a
+    flange thermometer's lag named alone; ``better``: how much lower the two leave the held-out sum of squares
+    (noise units), ``sigma``: that in standard deviations of the difference between the two predictions."""
+    described = " + ".join(
+        f"{named.cause} (" + ", ".join(f"{name} {value:.3g}" for name, value in named.fit.parameters.items()
+                                       if isinstance(value, (int, float))) + ")" for named in causes)
+    return {"reading": f"{described}: they leave the held-out sum of squares {better:.3g} lower "
+                       f"({sigma:.1f} sigma), less than a cause must add",
+            "cause": None, "causes": [named.cause for named in causes],
+            "told_apart_by": TOLD_APART["dead time and link"]}
+
+
 def equivalents(analysis, named) -> list[dict]:
     """Other readings that fit the record as well as the named cause ``named`` (a NamedCause)."""
     found = []
@@ -94,6 +127,7 @@ def equivalents(analysis, named) -> list[dict]:
                                  "recalibration when more than 10 % off)", "cause": "base_model_off",
                       "told_apart_by": TOLD_APART["line gain"]})
     if analysis.causes and named is analysis.causes[0]:
+        found.extend(analysis.other_paths)
         for cause in analysis.decision.tied:
             found.append({"reading": cause, "cause": cause,
                           "told_apart_by": TOLD_APART.get(cause, "a record with another protocol")})
@@ -119,4 +153,5 @@ def as_link(factor: float, named) -> dict:
                        f"x{factor:.3g}", "cause": "link_dynamics", "told_apart_by": TOLD_APART["line gain"]}
 
 
-__all__ = ["LINE_GAIN", "as_link", "equivalents", "line_gain_stood_for", "link_factor_at_line", "sentence"]
+__all__ = ["LINE_GAIN", "as_link", "delayed_flange_reading", "equivalents", "lag_on_the_flange_only",
+           "line_gain_stood_for", "link_factor_at_line", "sentence"]

@@ -39,6 +39,7 @@ from cryod.analysis.base_model_off import explained_by_widening, judged_beyond_r
 from cryod.analysis.candidates import CANDIDATE_CAUSES, CandidateFit, FitContext
 from cryod.analysis.fitters import FITTERS
 from cryod.analysis.generic_extension import containing_families, fit_generic_extension
+from cryod.analysis.equivalence import delayed_flange_reading, lag_on_the_flange_only
 from cryod.analysis.decision import (
     CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision,
     Gain, base_discrepancy, decide, gain_between, score_candidate, significance,
@@ -142,6 +143,9 @@ class Analysis:
     widened : Recalibration or None
         The base model alone recalibrated with the wider tolerances of :mod:`cryod.analysis.base_model_off`,
         once a parameter reached its usual tolerance.
+    other_paths : list of dict
+        Readings of several causes that fit the record as well as the cause named alone
+        (:mod:`cryod.analysis.equivalence`; each with ``reading``, ``causes`` and ``told_apart_by``).
     """
 
     data: RecordData
@@ -167,6 +171,7 @@ class Analysis:
     generic: object = None
     residual_signature: object = None
     widened: Recalibration | None = None
+    other_paths: list = field(default_factory=list)
 
     @property
     def cause(self) -> str:
@@ -427,12 +432,13 @@ class CauseSearch:
     def _name_causes(self, recalibrated: BaseDiscrepancy, most: int) -> None:
         """Add causes to the recalibrated model while the record shows a discrepancy (see the module doc).
 
-        The best candidate is added first and the next ones on top of it. When that leaves a discrepancy, the
-        paths that start from each of the other leading candidates (refitted with the recalibration, counting) are
-        followed too (one cause can stand in for most of two: a thermometer lag with the stage lagging alike looks
-        much like a dead time plus a link that differs, or a heat capacity plus a link), and of the paths with
-        more than one cause that leave less than half the first path's excess, the one that leaves least is kept.
-        At most ``most`` causes; with 1, no second path.
+        The best candidate is added first and the next ones on top of it. When that leaves a discrepancy, the path
+        that starts from the second-best candidate is followed too (one cause can stand in for most of two: a
+        thermometer lag with the stage lagging alike looks much like a dead time plus a link that differs), and
+        when the first path would name its causes (they remove 70 % of the excess) the paths from the other leading
+        candidates as well (refitted with the recalibration, counting: a lag of seconds on both thermometers takes
+        most of a heat capacity plus a link); of the paths with more than one cause that leave less than half the
+        first path's excess, the one that leaves least is kept. At most ``most`` causes; with 1, no second path.
         """
         analysis = self.analysis
         context, fits, scores, first = analysis.context, analysis.fits, analysis.scores, analysis.decision
@@ -458,7 +464,9 @@ class CauseSearch:
                      if cause != decision.best.cause), key=lambda score: -score.improvement)
                 alternatives = [score for score in alternatives if score.counts]
                 first_path = path
-                for alternative in alternatives if path.base.present else []:
+                removed = recalibrated_base.excess - path.base.excess
+                names_a_cause = removed >= EXPLAINED_FRACTION * recalibrated_base.excess
+                for alternative in (alternatives if names_a_cause else alternatives[:1]) if path.base.present else []:
                     other = self._follow(alternative, refined, recalibrated_base, most)
                     if (other.base.excess < ALTERNATIVE_FRACTION * first_path.base.excess and len(other.causes) > 1
                             and other.base.excess < path.base.excess):
@@ -474,6 +482,15 @@ class CauseSearch:
             analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
             analysis.remaining = recalibrated_base
             return
+        delayed = self._lag_as_delay_and_link(path, fits, recalibrated_base) if most > 1 else None
+        if delayed is not None:
+            other, better, sigma = delayed
+            if better >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA:
+                other.reasons.append(f"these two leave {better:.4g} less than {path.causes[0].cause} alone "
+                                     f"({sigma:.1f} sigma), which they stand for")
+                path = other
+            else:
+                analysis.other_paths = [delayed_flange_reading(other.causes, better, sigma)]
         analysis.causes = path.causes
         base = path.base
         explained = (recalibrated_base.excess - base.excess) / recalibrated_base.excess
@@ -510,6 +527,35 @@ class CauseSearch:
             gain_between(shipped.sum_of_squares, recalibrated_base.sum_of_squares, shipped.terms))
         analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
         analysis.remaining = recalibrated_base
+
+    def _lag_as_delay_and_link(self, path: _Path, fits: dict, recalibrated_base: BaseDiscrepancy):
+        """A flange thermometer's lag named alone (the stage's not alike) and leaving no discrepancy: the same
+        record read as a dead time with a link that differs. Returns (that path, how much lower it leaves the
+        held-out sum of squares, in standard deviations of the difference between the two predictions), or None
+        when it does not apply or the two leave a discrepancy.
+
+        The lag delays T2 on every path: on the heater's like a dead time (as far as the heater's content is
+        slow against the lag), on the line's like a link that lags. The two are followed as any path is, a dead
+        time first and a link on top. When they add what a cause must (5 sigma and 25) they are named instead;
+        otherwise the record cannot tell them from the lag, which is named, and they are its equivalent reading
+        (:func:`cryod.analysis.equivalence.delayed_flange_reading`)."""
+        if not (len(path.causes) == 1 and not path.base.present and "dead_time" in fits
+                and lag_on_the_flange_only(path.causes[0])):
+            return None
+        context = self.analysis.context
+        refined = {"dead_time": refine(self.replayer, context.recalibrated, fits["dead_time"], [])}
+        score = score_candidate(context, refined["dead_time"][0], recalibrated_base)
+        if not score.counts:
+            return None
+        other = self._follow(score, refined, recalibrated_base, 2, causes=("dead_time", "link_dynamics"))
+        if [named.cause for named in other.causes] != ["dead_time", "link_dynamics"] or other.base.present:
+            return None
+        mask, noise = context.held_out_mask, context.noise_rms_K
+        a, b = path.context.base_replay, other.context.base_replay
+        flange = (a.flange_K - b.flange_K)[mask] / noise[0]
+        stage = (a.ptc_stage_K - b.ptc_stage_K)[mask] / noise[1]
+        better = path.base.sum_of_squares - other.base.sum_of_squares
+        return other, better, significance(better, float(flange @ flange + stage @ stage))
 
     def _against_generic(self, path: _Path, recalibrated_base: BaseDiscrepancy) -> str:
         """When the causes on ``path`` leave a discrepancy: whether they add anything significant to the generic
@@ -556,17 +602,18 @@ class CauseSearch:
                           self.fit_mask, self.held_out_mask)
 
     def _follow(self, choice: CandidateScore, refined: dict, recalibrated_base: BaseDiscrepancy,
-                most: int = MOST_CAUSES) -> _Path:
+                most: int = MOST_CAUSES, causes=None) -> _Path:
         """Name ``choice`` (a refined candidate's score) first, then causes on top of it while one counts and
         removes at least 70 % of what is left (``most`` causes in all). A further cause that leaves a discrepancy
         must also add significantly to the generic extension on the model without it: a leftover of the causes
         named (a drift's spline that is a little too stiff) is not taken for another cause. Every cause of the
         search is tried on top of those named, also one that made the first round worse: with a much larger effect
         unnamed, a small one's fit takes that effect's misfit (a thermometer's lag of 60 ms beside a heat capacity
-        that removes 99.8 %), and only once the larger one is named does it fit what it stands for."""
+        that removes 99.8 %), and only once the larger one is named does it fit what it stands for.
+        ``causes``: those tried (default: the search's)."""
         context = self.analysis.context
         path = _Path([], context, recalibrated_base, [], context.recalibrated, [])
-        remaining = list(self.causes)
+        remaining = list(self.causes if causes is None else causes)
         if choice.cause not in remaining:
             remaining.append(choice.cause)
         best = choice

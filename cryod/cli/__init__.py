@@ -195,10 +195,13 @@ def _main(argv: list[str] | None) -> int:
         parser.error(f"{', '.join(misplaced)}: option(s) of the dry run (cryod --simulate {misplaced[0]} ...); "
                      f"a command's own options go after it (cryod {args.command or 'COMMAND'} --help)")
     if args.simulate:
-        from cryod.service.simulation import run_simulation
+        from cryod.service.simulation import DryRunOptions, run_simulation
 
         use_one_blas_thread()
-        return run_simulation(args)
+        return run_simulation(DryRunOptions(
+            config=args.config, duration_s=args.duration, speed=args.speed, json=args.json, window_s=args.window,
+            setpoint_K=args.setpoint, sim_model=args.sim_model, seed=args.seed, feedforward=not args.no_feedforward,
+            data_dir=args.data_dir, socket=args.socket, transport=args.transport))
     if args.command == "run":
         use_one_blas_thread()
         return _run_service(args)

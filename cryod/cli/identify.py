@@ -193,11 +193,11 @@ def _acquire(args, config, base, plan: ExperimentPlan | None = None) -> tuple[in
     expected = 5.0 * max(taus) if taus else 900.0
     metadata = {"identify_base_model": str(args.base)}
     if args.simulate:
-        from cryod.service.simulation import SimulatedInstrumentsOpener, simulation_config
+        from cryod.service.simulation import DryRunOptions, SimulatedInstrumentsOpener, simulation_config
 
-        overrides = argparse.Namespace(setpoint=None, no_feedforward=False, transport=None, speed=args.speed,
-                                       seed=args.seed, data_dir=args.data_dir or ACQUIRE_DIRECTORY / "data",
-                                       socket=args.socket or ACQUIRE_DIRECTORY / "control.sock")
+        overrides = DryRunOptions(speed=args.speed, seed=args.seed,
+                                  data_dir=args.data_dir or ACQUIRE_DIRECTORY / "data",
+                                  socket=args.socket or ACQUIRE_DIRECTORY / "control.sock")
         try:
             config = simulation_config(overrides, config)
             simulated = load_model(args.sim_model or config.simulation.model or DEFAULT_MODEL_PATH)

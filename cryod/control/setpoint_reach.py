@@ -138,7 +138,7 @@ def reach_at(control, setpoint_K: float, max_power_W: float) -> SetpointReach:
     """
     model, source = controller_model(control)
     top_source = "the heater's top, R I_max^2"
-    zones = getattr(control, "zones", None)
+    zones = control.zones
     if zones is not None:
         index = zones.index_for(setpoint_K)
         zone = zones.zones[index]

@@ -433,7 +433,7 @@ class Daemon:
         exit_code = ExitCode.OK
         try:
             clock_start = self.clock.now()
-            wall_start = time.time()
+            wall_start = self.clock.wall_start_s if self.clock.wall_start_s is not None else time.time()
             schema = daemon_schema(config)
             self.datalog = DataLog(config.data.directory, schema, record_metadata(config, schema, self.metadata),
                                    lambda t: wall_start + (t - clock_start), config.loop.period_s,

@@ -21,7 +21,6 @@ GPIB-ETHERNET controller (TCP only).
 
 from __future__ import annotations
 
-import argparse
 import collections
 import contextlib
 import dataclasses
@@ -89,21 +88,65 @@ class WindowCollector:
         return tuple(data[:, i] for i in range(6))
 
 
-def simulation_config(args, config: DaemonConfig) -> DaemonConfig:
-    """The configuration with the command line's overrides (setpoint, seed, paths, transport).
+@dataclasses.dataclass(frozen=True)
+class DryRunOptions:
+    """What a dry run is asked for (``cryod --simulate``'s options, :func:`simulate`'s arguments); None: the
+    configuration's own, or the dry run's default.
+
+    Attributes
+    ----------
+    config : pathlib.Path, optional
+        The daemon's configuration (default: the example, ``config/cryod.yaml``).
+    duration_s : float, optional
+        Simulated seconds to run (None: until stopped).
+    speed : float or "max"
+        Simulated seconds per real second; "max" runs on virtual time.
+    json : bool
+        Print the summary as one JSON object.
+    window_s : float
+        The summary's metrics window (s).
+    setpoint_K : float, optional
+    sim_model : pathlib.Path, optional
+        The simulated cryostat's model.
+    seed : int, optional
+        Sensor-noise seed.
+    feedforward : bool
+        False: PI alone.
+    data_dir, socket : pathlib.Path, optional
+        Where the record goes and the control socket.
+    transport : str, optional
+        ``tcp`` or ``in-process`` (default: in-process on virtual time, else the configuration's).
+    """
+
+    config: Path | None = None
+    duration_s: float | None = None
+    speed: float | str = 1.0
+    json: bool = False
+    window_s: float = 300.0
+    setpoint_K: float | None = None
+    sim_model: Path | None = None
+    seed: int | None = None
+    feedforward: bool = True
+    data_dir: Path | None = None
+    socket: Path | None = None
+    transport: str | None = None
+
+
+def simulation_config(args: DryRunOptions, config: DaemonConfig) -> DaemonConfig:
+    """The configuration with the dry run's overrides (setpoint, seed, paths, transport).
 
     A run on any clock but real time (``--speed`` other than 1) is a computation,
     not a service keeping deadlines: it neither takes real-time priority nor
     locks memory.
     """
     control = config.control
-    if args.setpoint is not None:
-        if not control.setpoint_min_K <= args.setpoint <= control.setpoint_max_K:
-            raise ValueError(f"--setpoint {args.setpoint:g} K is outside control.setpoint_min_K.."
+    if args.setpoint_K is not None:
+        if not control.setpoint_min_K <= args.setpoint_K <= control.setpoint_max_K:
+            raise ValueError(f"--setpoint {args.setpoint_K:g} K is outside control.setpoint_min_K.."
                              f"setpoint_max_K = {control.setpoint_min_K:g}..{control.setpoint_max_K:g} K "
                              f"of {config.source}")
-        control = dataclasses.replace(control, setpoint_K=args.setpoint)
-    if getattr(args, "no_feedforward", False):
+        control = dataclasses.replace(control, setpoint_K=args.setpoint_K)
+    if not args.feedforward:
         control = dataclasses.replace(control, terms=tuple(
             (name, dataclasses.replace(settings, enabled=False) if name == "feedforward" else settings)
             for name, settings in control.terms))
@@ -223,7 +266,7 @@ class SimulationRun:
     log_paths: list[Path]
 
 
-def prepare_simulation(args) -> tuple[DaemonConfig, object, Path]:
+def prepare_simulation(args: DryRunOptions) -> tuple[DaemonConfig, object, Path]:
     """The dry run's configuration, simulated model and its path, or SimulationNotStarted saying why."""
     config_path = args.config or EXAMPLE_CONFIG_PATH
     try:
@@ -246,7 +289,7 @@ def prepare_simulation(args) -> tuple[DaemonConfig, object, Path]:
     return config, model, Path(model_path)
 
 
-def execute_simulation(args, stream=None) -> SimulationRun:
+def execute_simulation(args: DryRunOptions, stream=None) -> SimulationRun:
     """Run the daemon on the simulated cryostat as ``args`` say; the log and status line go to ``stream``.
 
     Raises
@@ -259,14 +302,14 @@ def execute_simulation(args, stream=None) -> SimulationRun:
     config_path = args.config or EXAMPLE_CONFIG_PATH
     clock = clock_for_speed(args.speed)
     opener = SimulatedInstrumentsOpener(model, config.simulation.seed)
-    collector = WindowCollector(args.window, config.loop.period_s)
+    collector = WindowCollector(args.window_s, config.loop.period_s)
     metadata = {"simulated": "yes (cryod --simulate)", "simulated_model": str(model_path),
                 "simulation_seed": config.simulation.seed, "simulation_speed": args.speed,
                 "simulation_transport": config.simulation.transport}
     daemon = Daemon(config, opener, clock, metadata=metadata, row_taps=[collector],
                     reload_config=lambda: simulation_config(args, load_config(config_path)),
                     install_signal_handlers=threading.current_thread() is threading.main_thread())
-    status_line = StatusLine(daemon.live_view, stream, duration_s=args.duration,
+    status_line = StatusLine(daemon.live_view, stream, duration_s=args.duration_s,
                              speed=clock.recent_speed if isinstance(clock, PacedClock) else None)
     logging_service = ServiceLogging(stream=status_line.log_stream)
     logging_service.start()
@@ -274,7 +317,7 @@ def execute_simulation(args, stream=None) -> SimulationRun:
     log.info("talk to it: cryod ctl %sstatus", "" if args.socket is None else f"--socket {config.control_socket.path} ")
     cpu_start = _cpu_seconds()
     try:
-        result = daemon.run(args.duration)
+        result = daemon.run(args.duration_s)
     except Exception as error:
         logging.getLogger("cryod").critical("simulation stopped: %s: %s", type(error).__name__, error)
         raise
@@ -308,7 +351,7 @@ def socket_taken(socket_path: Path) -> str | None:
     return None
 
 
-def run_simulation(args) -> int:
+def run_simulation(args: DryRunOptions) -> int:
     """Run ``cryod --simulate``; prints the summary, returns the exit code."""
     try:
         run = execute_simulation(args)
@@ -362,11 +405,10 @@ def simulate(duration_s: float, setpoint_K: float | None = None, *, config: str 
     SimulationNotStarted
         A bad configuration, model or argument; nothing ran.
     """
-    args = argparse.Namespace(config=Path(config) if config else None, duration=float(duration_s), speed=speed,
-                              json=True, window=float(window_s), setpoint=setpoint_K,
-                              sim_model=Path(sim_model) if sim_model else None, seed=seed,
-                              no_feedforward=not feedforward, data_dir=Path(data_dir) if data_dir else None,
-                              socket=Path(socket) if socket else None, transport=None)
+    args = DryRunOptions(config=Path(config) if config else None, duration_s=float(duration_s), speed=speed,
+                         json=True, window_s=float(window_s), setpoint_K=setpoint_K,
+                         sim_model=Path(sim_model) if sim_model else None, seed=seed, feedforward=feedforward,
+                         data_dir=Path(data_dir) if data_dir else None, socket=Path(socket) if socket else None)
     return execute_simulation(args, stream=log_stream)
 
 

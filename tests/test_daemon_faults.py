@@ -40,7 +40,7 @@ def test_transient_faults_heater_off_then_recover(tmp_path, cause, inject, clear
     if clear is not None:
         actions[1503] = clear
     drill = FaultDrill(tmp_path, actions)
-    assert drill.run(300.0).exit_code == 0
+    assert drill.run(220.0).exit_code == 0
     index = first_fault(drill, cause)
     assert 1500 <= index <= 1502
     # the fault tick's row: the power the supply had; then the off's own row: 0 W from then on

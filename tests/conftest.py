@@ -58,8 +58,15 @@ def runtime_dir():
 
 
 @pytest.fixture
-def running_dry_run(tmp_path, monkeypatch, runtime_dir):
-    """``cryod simulate --speed max`` in its own process, found by the client without a path."""
+def dry_run_speed():
+    """The ``--speed`` of ``running_dry_run``: ``max`` for tests that wait on the daemon's clock; a module whose tests
+    only need the loop regulating into a record overrides it with a paced speed, which leaves the CPU to the test."""
+    return "max"
+
+
+@pytest.fixture
+def running_dry_run(tmp_path, monkeypatch, runtime_dir, dry_run_speed):
+    """``cryod simulate --speed max`` (``dry_run_speed``) in its own process, found by the client without a path."""
     runtime = runtime_dir
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(runtime))
     monkeypatch.setattr("cryod.service.discovery.SERVICE_CONFIG", tmp_path / "no-service.yaml")
@@ -73,7 +80,7 @@ def running_dry_run(tmp_path, monkeypatch, runtime_dir):
                       .replace("integral_W_per_K_s: 0.2 ", "integral_W_per_K_s: 4.13 ")
                       .replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/"))
     process = subprocess.Popen([sys.executable, "-m", "cryod.cli", "simulate", "--config", str(config), "--speed",
-                                "max", "--duration", "40000", "--data-dir", str(tmp_path / "data")],
+                                dry_run_speed, "--duration", "40000", "--data-dir", str(tmp_path / "data")],
                                env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     socket_path = runtime / "cryod" / "simulate.sock"
     deadline = time.monotonic() + 60

@@ -1,6 +1,8 @@
 """``cryod analyze`` end to end: files, JSON contract, extended model, bad input, the paper's measurements."""
 
+import contextlib
 import hashlib
+import io
 import json
 import subprocess
 import sys
@@ -139,29 +141,39 @@ def test_printed_model_on_the_papers_measurements(table1_record, tmp_path, capsy
     assert link.denominator[0] == pytest.approx(0.1996, rel=0.02)
 
 
-def test_shipped_model_explains_the_flange_in_the_papers_measurements(table1_record, tmp_path, capsys):
-    status, out, err = _analyze(capsys, table1_record, "--out", tmp_path, "--json", "--no-figures")
-    result = json.loads(out)
-    assert status == 0 and result["cause"] in ("none", "unexplained")
+@pytest.fixture(scope="module")
+def shipped_analysis(table1_record, tmp_path_factory):
+    """``cryod analyze RECORD --json --no-figures`` on a copy of the paper's record with the shipped model, run from
+    another folder: (the record, that folder, its JSON output). Read by the two tests below."""
+    folder = tmp_path_factory.mktemp("shipped")
+    record = folder / "records" / "run.csv"
+    record.parent.mkdir()
+    record.write_bytes(table1_record.read_bytes())
+    with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(io.StringIO()) as out:
+        patch.chdir(folder)                           # not where the analysis goes
+        status = cli.main(["analyze", str(record), "--json", "--no-figures"])
+    assert status == 0
+    return record, folder, json.loads(out.getvalue())
+
+
+def test_shipped_model_explains_the_flange_in_the_papers_measurements(shipped_analysis):
+    _, _, result = shipped_analysis
+    assert result["cause"] in ("none", "unexplained")
     flange = [d for d in result["discrepancies"] if d["quantity"].startswith("T2 residual rms")]
     assert flange and all(d["measured"] < 1.05 * d["model"] for d in flange)
     assert all(c["score"] < 25.0 or c["significance"] < 5.0 for c in result["candidates"])
 
 
-def test_the_analysis_goes_beside_the_record_and_an_earlier_one_is_kept_without_force(table1_record, tmp_path,
-                                                                                        capsys, monkeypatch):
-    record = tmp_path / "records" / "run.csv"
-    record.parent.mkdir()
-    record.write_bytes(table1_record.read_bytes())
-    monkeypatch.chdir(tmp_path)                       # not where the analysis goes
-    status, out, err = _analyze(capsys, record, "--json", "--no-figures")
-    assert status == 0, err
-    beside = tmp_path / "records" / "run-analysis"
-    assert json.loads(out)["extended_model"] == str(beside / "extended-model.yaml")
+def test_the_analysis_goes_beside_the_record_and_an_earlier_one_is_kept_without_force(shipped_analysis, capsys,
+                                                                                        monkeypatch):
+    record, folder, result = shipped_analysis
+    monkeypatch.chdir(folder)
+    beside = folder / "records" / "run-analysis"
+    assert result["extended_model"] == str(beside / "extended-model.yaml")
     written = (beside / "analysis.json").read_bytes()
     status, _, err = _analyze(capsys, record, "--json", "--no-figures")
     assert status == 2 and "holds an earlier analysis (analysis.json); give --force" in err
     assert (beside / "analysis.json").read_bytes() == written
     status, _, err = _analyze(capsys, record, "--json", "--no-figures", "--force")
     assert status == 0, err
-    assert not (tmp_path / "run-analysis").exists()
+    assert not (folder / "run-analysis").exists()

@@ -111,7 +111,7 @@ def test_a_per_user_directory_of_someone_else_is_refused(tmp_path, monkeypatch):
         simulation_socket()
 
 
-def test_run_check_validates_without_instruments(tmp_path):
+def test_run_check_validates_without_instruments(tmp_path, capsys):
     text = (CONFIG / "cryod.yaml").read_text().replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/")
     lan = tmp_path / "lan.yaml"          # the instruments behind a LAN-to-GPIB gateway: no GPIB card binding needed
     lan.write_text(text.replace("GPIB0::16::INSTR", "TCPIP0::192.168.1.20::1234::SOCKET")
@@ -120,21 +120,24 @@ def test_run_check_validates_without_instruments(tmp_path):
                    .replace("trigger: gpib-group", "trigger: sequential")       # no GPIB card to trigger on
                    .replace("/var/lib/cryod", str(tmp_path / "data"))
                    .replace("/run/cryod/control.sock", str(tmp_path / "control.sock")))
-    result = cryod("run", "--config", str(lan), "--check")
-    assert result.returncode == 0 and "valid" in result.stdout, result.stderr
+    code = main(["run", "--config", str(lan), "--check"])     # in process: test_run_check runs it as a process
+    captured = capsys.readouterr()
+    assert code == 0 and "valid" in captured.out, captured.err
 
 
-def test_a_gpib_card_without_its_python_binding_is_an_installation_error_not_an_outage():
+def test_a_gpib_card_without_its_python_binding_is_an_installation_error_not_an_outage(capsys):
+    """In process (the exit code and the message are main's; test_run_check runs ``cryod run`` and ``--check``
+    as processes)."""
     import importlib.util
 
     if importlib.util.find_spec("gpib") or importlib.util.find_spec("gpib_ctypes"):
         pytest.skip("a GPIB binding is installed here")
-    result = cryod("run", "--config", str(CONFIG / "cryod.yaml"), "--check")
-    assert result.returncode == 2
+    assert main(["run", "--config", str(CONFIG / "cryod.yaml"), "--check"]) == 2
+    stderr = capsys.readouterr().err
     line = line_of((CONFIG / "cryod.yaml").read_text(), "GPIB0::16::INSTR")
-    assert f"cryod.yaml:{line}: instruments.flange_dmm.resource: GPIB0::16::INSTR is on a GPIB card" in result.stderr
-    assert "linux-gpib" in result.stderr
-    assert "Traceback" not in result.stderr
+    assert f"cryod.yaml:{line}: instruments.flange_dmm.resource: GPIB0::16::INSTR is on a GPIB card" in stderr
+    assert "linux-gpib" in stderr
+    assert "Traceback" not in stderr
 
 
 def test_simulate_json_contract_and_log(tmp_path, capsys):

@@ -125,10 +125,10 @@ def test_service_behaviour_of_a_real_process(daemon):
     write_config(run.config, proportional=12.0)           # a good change, then a bad one
     run.process.send_signal(signal.SIGHUP)
     run.wait_for_message("RELOADING=1")
-    time.sleep(1.5)
+    run.wait_for_message("STATUS=configuration reloaded from")     # READY=1 with the reload's outcome
     run.config.write_text(run.config.read_text().replace("proportional_W_per_K: 12.0", "proportional_W_per_K: hot"))
     run.process.send_signal(signal.SIGHUP)
-    time.sleep(1.5)
+    run.wait_for_message("STATUS=reload refused")
     assert send_command(run.socket_path, "status")["ok"]  # still running on the good configuration
 
     run.process.send_signal(signal.SIGTERM)

@@ -187,8 +187,8 @@ def test_analyze_says_whether_the_discrepancy_is_within_the_models_stated_uncert
         check = json.loads(capsys.readouterr().out)["model_uncertainty"]
         assert check["draws"] == 20 and check["within_model_uncertainty"] is within, check["verdict"]
         assert "The base model's own uncertainty" in (out / "report.md").read_text()
-    assert cli.main(["analyze", str(path), "--out", str(tmp_path / "plain"), "--no-figures", "--json"]) == 0
-    assert "model_uncertainty" not in json.loads(capsys.readouterr().out)      # the shipped model states none
+    # without a stated uncertainty (the shipped model) there is no such check: test_analysis_beyond_catalogue's
+    # heater 15 % stronger, analysed with the shipped model
 
 
 def test_a_record_without_a_step_is_accepted_beside_one_with_it(tmp_path, reference_model, capsys):

@@ -102,19 +102,19 @@ def run_in_pseudo_terminal(argv, cwd, runtime_dir, columns=0) -> tuple[int, str]
     return process.wait(timeout=60), drawn.decode(errors="replace")
 
 
-SIMULATE = [sys.executable, "-m", "cryod.cli", "--simulate", "--duration", "900", "--speed", "max"]
+SIMULATE = [sys.executable, "-m", "cryod.cli", "--simulate", "--duration", "300", "--speed", "max"]
 
 
 def test_a_terminal_gets_a_live_status_line_with_progress_and_a_pipe_gets_none(tmp_path, runtime_dir):
     code, drawn = run_in_pseudo_terminal(SIMULATE, tmp_path, runtime_dir)          # a pseudo-terminal that says 0 columns
     assert code == 0
-    redraws = [part for part in drawn.split("\r") if "/900 s, left" in part and part.startswith("closed")]
+    redraws = [part for part in drawn.split("\r") if "/300 s, left" in part and part.startswith("closed")]
     assert len(redraws) >= 2, drawn[-2000:]
     last = redraws[-1]
     assert "T2 5.00" in last and " K (" in last and ("µK)" in last or "mK)" in last)
     assert "heater " in last and " mW" in last and "line " in last
     assert "cryod.datalog: data log: writing" in drawn                 # the log still shows, above the line
-    assert "duration_s: 900.0" in drawn                               # and the summary after it
+    assert "duration_s: 300.0" in drawn                               # and the summary after it
 
     piped = subprocess.run(SIMULATE[:-4] + ["--duration", "300", "--speed", "max"], cwd=tmp_path,    # a second of
                            capture_output=True, text=True, timeout=120, env=private_runtime(runtime_dir))  # redraws, or more

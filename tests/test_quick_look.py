@@ -34,7 +34,7 @@ def test_cryod_plot_draws_a_daemon_record_beside_it_and_keeps_an_existing_figure
     """A record named on the command line: its figure is kept unless --force. Without a path, the record the
     daemon is writing grows between looks: its own quick look is drawn again in place, anything else there is
     still kept unless --force."""
-    run = cryod.simulate(600.0, data_dir=tmp_path / "data", socket=tmp_path / "c.sock", log_stream=io.StringIO())
+    run = cryod.simulate(300.0, data_dir=tmp_path / "data", socket=tmp_path / "c.sock", log_stream=io.StringIO())
     record_path = run.log_paths[0]
     record = cryod.read_record(record_path)                  # one cooler frequency: the daemon's, the plot's, --json's
     locked = record.columns["ff_locked"] == 1

@@ -10,9 +10,17 @@ import time
 import pytest
 
 import cryod
+from cryod.cli import main
 from cryod.service.commands import parse_command
 from tests.conftest import REPOSITORY
 from tests.scripted_daemon import ScriptedDaemon
+
+
+@pytest.fixture
+def dry_run_speed():
+    """Ten times real time: these tests need the loop regulating into a record, not the daemon's clock far ahead, and a
+    dry run at ``max`` would take a core from the ``cryod`` commands they run beside it."""
+    return "10"
 
 
 def _closed(flange):
@@ -30,25 +38,27 @@ def _cryod(*arguments, env_of, timeout=120):
                           timeout=timeout, cwd=env_of.socket.parent.parent.parent)
 
 
-def test_the_status_names_the_record_and_a_note_goes_into_it_with_who_sent_it(running_dry_run):
+def test_the_status_names_the_record_and_a_note_goes_into_it_with_who_sent_it(running_dry_run, capsys):
+    """The command line's ``cryod ctl`` and ``cryod plot`` run in this process (found through the fixture's
+    ``XDG_RUNTIME_DIR``): what they print and what the daemon records of them."""
     flange = cryod.connect()
     _closed(flange)
     path = flange.record_path()
     assert os.path.isabs(path) and path.endswith(".csv") and flange.status()["record_path"] == path
     flange.note("sample 7 mounted, valve V3 closed")
-    ctl = _cryod("ctl", "note", "cold", "plate", " swapped", env_of=running_dry_run)
-    assert ctl.returncode == 0 and ctl.stdout.strip() == "note written: cold plate  swapped"
-    ctl_status = _cryod("ctl", "--json", "status", env_of=running_dry_run)
-    assert f'"record_path": "{path}"' in ctl_status.stdout
+    assert main(["ctl", "note", "cold", "plate", " swapped"]) == 0
+    assert capsys.readouterr().out.strip() == "note written: cold plate  swapped"
+    assert main(["ctl", "--json", "status"]) == 0
+    assert f'"record_path": "{path}"' in capsys.readouterr().out
     with pytest.raises(cryod.CommandRefused, match="not printable"):
         flange.note("bell \x07")
     with pytest.raises(ValueError, match="line break"):
         flange.note("two\nlines")
     with pytest.raises(cryod.CommandRefused, match="takes 1 argument"):
         flange.note("   ")
-    plotted = _cryod("plot", env_of=running_dry_run)                    # no path: the record being written
-    assert plotted.returncode == 0, plotted.stderr
-    assert plotted.stdout.strip() == path.removesuffix(".csv") + ".png" and os.path.getsize(plotted.stdout.strip())
+    assert main(["plot"]) == 0                                          # no path: the record being written
+    figure = capsys.readouterr().out.strip()
+    assert figure == path.removesuffix(".csv") + ".png" and os.path.getsize(figure)
     process = running_dry_run.process
     process.terminate()
     journal = process.communicate(timeout=60)[1]

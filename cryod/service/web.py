@@ -205,15 +205,18 @@ class WebServer(TcpService):
         await self._send(writer, 200, self.assets[name], ASSETS[name])
 
     async def _events(self, writer: asyncio.StreamWriter) -> None:
-        """Server-sent events: the status at every new frame, with the bins and events since the last."""
+        """Server-sent events: the status at every new frame, with the bins and events since the last.
+
+        Where the stream starts is taken before its headers go out: the page counts as connected once it has
+        them, and an event folded in while they were on their way is in the next frame, not lost."""
+        last_bin = self.history.bins[-1]["time_s"] if self.history.bins else None
+        last_event = self.history.events[-1]["seq"] if self.history.events else 0
         await send(writer, ("HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\nConnection: close\r\n"
                             + SECURITY_HEADERS + "\r\n").encode("ascii"))
         self.pages += 1
         if self._new_frame is None:
             self._new_frame = asyncio.Event()
         try:
-            last_bin = self.history.bins[-1]["time_s"] if self.history.bins else None
-            last_event = self.history.events[-1]["seq"] if self.history.events else 0
             while True:
                 waiting = self._new_frame
                 try:

@@ -18,7 +18,7 @@ from cryod.analysis.candidates import CandidateFit, EffectForm
 from cryod.analysis.decision import BaseDiscrepancy, score_candidate
 from cryod.analysis import report
 from cryod.analysis.cooler_causes import measured_remainder
-from cryod.analysis.equivalence import delayed_flange_reading, equivalents, line_gain_stood_for
+from cryod.analysis.equivalence import equivalents, line_gain_stood_for, other_way_round, path_reading
 from cryod.analysis.generic_extension import MeasuredDisturbance
 from cryod.analysis.residual_signature import (
     bartlett_band, classify_peak, cross_correlation, drift, spectral_peaks,
@@ -179,7 +179,7 @@ def test_a_dead_time_with_a_link_is_named_where_a_flange_thermometer_lag_alone_w
     assert dead_time["heater_to_flange_s"] == pytest.approx(0.38, rel=0.05)
     assert link["time_constant_s"] == pytest.approx(0.27, rel=0.1)
     assert link["gain_factor"] == pytest.approx(0.96, rel=0.05)
-    assert "less than sensor_lag alone" in analysis.decision.reason
+    assert "these leave" in analysis.decision.reason and "less than sensor_lag (" in analysis.decision.reason
 
 
 def test_a_dead_time_with_a_link_that_the_record_cannot_tell_from_a_lag_is_its_equivalent_reading():
@@ -187,7 +187,7 @@ def test_a_dead_time_with_a_link_that_the_record_cannot_tell_from_a_lag_is_its_e
         return SimpleNamespace(cause=cause, fit=SimpleNamespace(parameters=parameters))
 
     lag = named("sensor_lag", flange_thermometer_time_constant_s=0.19, ptc_stage_thermometer_time_constant_s=0.0)
-    reading = delayed_flange_reading([named("dead_time", heater_to_flange_s=0.382),
+    reading = path_reading([named("dead_time", heater_to_flange_s=0.382),
                                       named("link_dynamics", time_constant_s=0.242, gain_factor=0.935)], 28.4, 2.7)
     analysis = SimpleNamespace(causes=[lag], decision=SimpleNamespace(tied=()), other_paths=[reading])
     readings = equivalents(analysis, lag)
@@ -195,6 +195,20 @@ def test_a_dead_time_with_a_link_that_the_record_cannot_tell_from_a_lag_is_its_e
     assert readings[0]["reading"].startswith("dead_time (heater_to_flange_s 0.382) + link_dynamics "
                                              "(time_constant_s 0.242, gain_factor 0.935)")
     assert "2.7 sigma" in readings[0]["reading"] and "dead time" in readings[0]["told_apart_by"]
+
+
+def test_the_other_way_round_of_a_lag_is_a_dead_time_with_a_link_and_back():
+    def named(cause, **parameters):
+        return SimpleNamespace(cause=cause, fit=SimpleNamespace(parameters=parameters))
+
+    flange_only = named("sensor_lag", flange_thermometer_time_constant_s=0.2, ptc_stage_thermometer_time_constant_s=0.0)
+    alike = named("sensor_lag", flange_thermometer_time_constant_s=0.2, ptc_stage_thermometer_time_constant_s=0.19)
+    assert other_way_round([flange_only]) == ("dead_time", "link_dynamics")
+    assert other_way_round([named("link_dynamics"), named("dead_time")]) == ("sensor_lag", "dead_time")
+    assert other_way_round([named("dead_time"), named("link_dynamics")]) == ("sensor_lag", "dead_time")
+    assert other_way_round([alike]) is None                      # a lag on both alike is a heater lag
+    assert other_way_round([flange_only, named("dead_time")]) is None
+    assert other_way_round([named("link_dynamics")]) is None
 
 
 def test_a_widened_model_no_better_than_the_tolerance_with_the_same_cause_is_not_base_model_off():

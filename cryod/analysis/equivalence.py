@@ -20,10 +20,13 @@
   differs.** A lag of T2's thermometer alone (the stage's not alike) delays
   T2 on every path: on the heater's like a dead time, as far as the heater's
   content is slow against the lag, and on the line's like a link that lags.
-  With little heater content at the line the record fits both readings; the
-  one cause is named, and the two, followed as any path of causes is (a dead
-  time, then a link on top), are reported when they leave no discrepancy
-  either and add less than a cause must (:func:`delayed_flange_reading`).
+  With little heater content at the line the record fits both readings, and
+  beside a dead time of its own the lag is a link with a dead time longer by
+  the lag. When one reading is named (a lag alone, or a link with a dead
+  time), the other (a dead time then a link; a lag then a dead time:
+  :func:`other_way_round`) is followed as any path of causes is, and reported
+  when it leaves no discrepancy either and adds less than a cause must
+  (:func:`path_reading`).
 * **Causes the record cannot tell apart** (rule 4 of
   :mod:`cryod.analysis.decision`): each of the tied causes.
 
@@ -97,10 +100,21 @@ def lag_on_the_flange_only(named) -> bool:
     return flange > 0.0 and stage < (1.0 - ALIKE_FRACTION) * flange
 
 
-def delayed_flange_reading(causes, better: float, sigma: float) -> dict:
-    """The reading of a record as a dead time with a link that differs (``causes``: the two NamedCauses), beside a
-    flange thermometer's lag named alone; ``better``: how much lower the two leave the held-out sum of squares
-    (noise units), ``sigma``: that in standard deviations of the difference between the two predictions."""
+def other_way_round(causes) -> tuple | None:
+    """The causes that read a record the other way round from the NamedCauses ``causes`` (see the module doc), in
+    the order they are followed: a dead time then a link for a flange thermometer's lag named alone, the flange
+    thermometer's lag then a dead time for a link named with a dead time; None for any other causes."""
+    if len(causes) == 1 and lag_on_the_flange_only(causes[0]):
+        return ("dead_time", "link_dynamics")
+    if sorted(named.cause for named in causes) == ["dead_time", "link_dynamics"]:
+        return ("sensor_lag", "dead_time")
+    return None
+
+
+def path_reading(causes, better: float, sigma: float) -> dict:
+    """The reading of a record as the NamedCauses ``causes`` (:func:`other_way_round`) beside the causes named;
+    ``better``: how much lower they leave the held-out sum of squares (noise units), ``sigma``: that in standard
+    deviations of the difference between the two predictions."""
     described = " + ".join(
         f"{named.cause} (" + ", ".join(f"{name} {value:.3g}" for name, value in named.fit.parameters.items()
                                        if isinstance(value, (int, float))) + ")" for named in causes)
@@ -153,5 +167,5 @@ def as_link(factor: float, named) -> dict:
                        f"x{factor:.3g}", "cause": "link_dynamics", "told_apart_by": TOLD_APART["line gain"]}
 
 
-__all__ = ["LINE_GAIN", "as_link", "delayed_flange_reading", "equivalents", "lag_on_the_flange_only",
-           "line_gain_stood_for", "link_factor_at_line", "sentence"]
+__all__ = ["LINE_GAIN", "as_link", "equivalents", "lag_on_the_flange_only", "line_gain_stood_for",
+           "link_factor_at_line", "other_way_round", "path_reading", "sentence"]

@@ -39,7 +39,7 @@ from cryod.analysis.base_model_off import explained_by_widening, judged_beyond_r
 from cryod.analysis.candidates import CANDIDATE_CAUSES, CandidateFit, FitContext
 from cryod.analysis.fitters import FITTERS
 from cryod.analysis.generic_extension import containing_families, fit_generic_extension
-from cryod.analysis.equivalence import delayed_flange_reading, lag_on_the_flange_only
+from cryod.analysis.equivalence import other_way_round, path_reading
 from cryod.analysis.decision import (
     CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore, Decision,
     Gain, base_discrepancy, decide, gain_between, score_candidate, significance,
@@ -482,15 +482,16 @@ class CauseSearch:
             analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
             analysis.remaining = recalibrated_base
             return
-        delayed = self._lag_as_delay_and_link(path, fits, recalibrated_base) if most > 1 else None
-        if delayed is not None:
-            other, better, sigma = delayed
+        turned = self._the_other_way_round(path, fits, recalibrated_base) if most > 1 else None
+        if turned is not None:
+            other, better, sigma = turned
             if better >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA:
-                other.reasons.append(f"these two leave {better:.4g} less than {path.causes[0].cause} alone "
-                                     f"({sigma:.1f} sigma), which they stand for")
+                other.reasons.append(f"these leave {better:.4g} less than "
+                                     f"{' + '.join(named.cause for named in path.causes)} ({sigma:.1f} sigma), "
+                                     "which they stand for")
                 path = other
             else:
-                analysis.other_paths = [delayed_flange_reading(other.causes, better, sigma)]
+                analysis.other_paths = [path_reading(other.causes, better, sigma)]
         analysis.causes = path.causes
         base = path.base
         explained = (recalibrated_base.excess - base.excess) / recalibrated_base.excess
@@ -528,27 +529,28 @@ class CauseSearch:
         analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
         analysis.remaining = recalibrated_base
 
-    def _lag_as_delay_and_link(self, path: _Path, fits: dict, recalibrated_base: BaseDiscrepancy):
-        """A flange thermometer's lag named alone (the stage's not alike) and leaving no discrepancy: the same
-        record read as a dead time with a link that differs. Returns (that path, how much lower it leaves the
-        held-out sum of squares, in standard deviations of the difference between the two predictions), or None
-        when it does not apply or the two leave a discrepancy.
+    def _the_other_way_round(self, path: _Path, fits: dict, recalibrated_base: BaseDiscrepancy):
+        """The causes named on ``path``, leaving no discrepancy, read the other way round
+        (:func:`cryod.analysis.equivalence.other_way_round`: a flange thermometer's lag alone as a dead time with
+        a link; a link with a dead time as the lag with a dead time). Returns (that path, how much lower it leaves
+        the held-out sum of squares, in standard deviations of the difference between the two predictions), or
+        None when no such reading applies or it leaves a discrepancy.
 
         The lag delays T2 on every path: on the heater's like a dead time (as far as the heater's content is
-        slow against the lag), on the line's like a link that lags. The two are followed as any path is, a dead
-        time first and a link on top. When they add what a cause must (5 sigma and 25) they are named instead;
-        otherwise the record cannot tell them from the lag, which is named, and they are its equivalent reading
-        (:func:`cryod.analysis.equivalence.delayed_flange_reading`)."""
-        if not (len(path.causes) == 1 and not path.base.present and "dead_time" in fits
-                and lag_on_the_flange_only(path.causes[0])):
+        slow against the lag), on the line's like a link that lags. The other reading is followed as any path
+        is, its first cause first. When it adds what a cause must (5 sigma and 25) it is named instead;
+        otherwise the record cannot tell it from the causes named, and it is their equivalent reading
+        (:func:`cryod.analysis.equivalence.path_reading`)."""
+        other_causes = other_way_round(path.causes)
+        if other_causes is None or path.base.present or other_causes[0] not in fits:
             return None
-        context = self.analysis.context
-        refined = {"dead_time": refine(self.replayer, context.recalibrated, fits["dead_time"], [])}
-        score = score_candidate(context, refined["dead_time"][0], recalibrated_base)
+        context, first = self.analysis.context, other_causes[0]
+        refined = {first: refine(self.replayer, context.recalibrated, fits[first], [])}
+        score = score_candidate(context, refined[first][0], recalibrated_base)
         if not score.counts:
             return None
-        other = self._follow(score, refined, recalibrated_base, 2, causes=("dead_time", "link_dynamics"))
-        if [named.cause for named in other.causes] != ["dead_time", "link_dynamics"] or other.base.present:
+        other = self._follow(score, refined, recalibrated_base, len(other_causes), causes=other_causes)
+        if tuple(named.cause for named in other.causes) != other_causes or other.base.present:
             return None
         mask, noise = context.held_out_mask, context.noise_rms_K
         a, b = path.context.base_replay, other.context.base_replay

@@ -120,17 +120,7 @@ class BeyondRecalibration:
 
 
 def _held_out(analysis, replay) -> float:
-    mask, noise = analysis.context.held_out_mask, analysis.noise_rms_K
-    flange = replay.flange_residual_K[mask] / noise[0]
-    stage = replay.ptc_stage_residual_K[mask] / noise[1]
-    return float(flange @ flange + stage @ stage)
-
-
-def _distinct(analysis, first, second) -> float:
-    mask, noise = analysis.context.held_out_mask, analysis.noise_rms_K
-    flange = (first.flange_K - second.flange_K)[mask] / noise[0]
-    stage = (first.ptc_stage_K - second.ptc_stage_K)[mask] / noise[1]
-    return float(flange @ flange + stage @ stage)
+    return sum(analysis.context.chi_square(replay, analysis.context.held_out_mask))
 
 
 def beyond_parameters(widened: Recalibration, base_model) -> list[RecalibratedParameter]:
@@ -207,7 +197,7 @@ def _asks_beyond_its_causes(search, analysis, inner, inner_sum: float) -> bool:
         return True
     fit = refine(search.replayer, analysis.context.recalibrated, fits[0], [])[0]
     improvement = _held_out(analysis, fit.replay) - inner_sum
-    spread = significance(improvement, _distinct(analysis, fit.replay, inner.extended_replay))
+    spread = significance(improvement, analysis.context.distinctness(fit.replay, inner.extended_replay))
     return improvement >= CANDIDATE_MINIMUM_IMPROVEMENT and spread >= CANDIDATE_SIGMA
 
 
@@ -233,7 +223,7 @@ def judged_beyond_recalibration(search, analysis, search_on):
         return analysis
     first_sum, inner_sum = _held_out(analysis, analysis.extended_replay), _held_out(analysis, inner.extended_replay)
     improvement = first_sum - inner_sum
-    spread = significance(improvement, _distinct(analysis, analysis.extended_replay, inner.extended_replay))
+    spread = significance(improvement, analysis.context.distinctness(analysis.extended_replay, inner.extended_replay))
     better = improvement >= CANDIDATE_MINIMUM_IMPROVEMENT and spread >= CANDIDATE_SIGMA
     worse = -improvement >= CANDIDATE_MINIMUM_IMPROVEMENT and -spread >= CANDIDATE_SIGMA
     if inner.cause == "unexplained" or not (better or (at_tolerance and not worse)):

@@ -116,6 +116,14 @@ class FitContext:
         stage = replay.ptc_stage_residual_K[mask] / self.noise_rms_K[1]
         return float(flange @ flange), float(stage @ stage)
 
+    def distinctness(self, first: Replay, second: Replay) -> float:
+        """How much two replays' predictions differ on the held-out samples: the sum of squares of their
+        difference, each thermometer in units of its noise variance (D of :mod:`cryod.analysis.decision`)."""
+        mask = self.held_out_mask
+        flange = (first.flange_K - second.flange_K)[mask] / self.noise_rms_K[0]
+        stage = (first.ptc_stage_K - second.ptc_stage_K)[mask] / self.noise_rms_K[1]
+        return float(flange @ flange + stage @ stage)
+
     def estimated_model(self, model: CryostatModel) -> CryostatModel:
         """``model`` at the record's estimated operating point (what the heat-capacity effect needs)."""
         return dataclasses.replace(model, operating_point=self.base_replay.operating_point)

@@ -164,10 +164,7 @@ def score_candidate(context: FitContext, fit: CandidateFit, base: BaseDiscrepanc
     mask = context.held_out_mask
     flange, stage = context.chi_square(fit.replay, mask)
     improvement = base.sum_of_squares - (flange + stage)
-    base_replay = context.base_replay
-    difference_flange = (fit.replay.flange_K - base_replay.flange_K)[mask] / context.noise_rms_K[0]
-    difference_stage = (fit.replay.ptc_stage_K - base_replay.ptc_stage_K)[mask] / context.noise_rms_K[1]
-    distinctness = float(difference_flange @ difference_flange + difference_stage @ difference_stage)
+    distinctness = context.distinctness(fit.replay, context.base_replay)
     explained = improvement / base.excess if base.excess > 0.0 else 0.0
     gain = gain_between(base.sum_of_squares, flange + stage, base.terms)
     return CandidateScore(fit.cause, flange, stage, improvement, distinctness,

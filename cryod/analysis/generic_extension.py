@@ -362,11 +362,9 @@ def fit_generic_extension(context: FitContext, base, without: tuple = ()) -> Gen
 
 def _adds(context: FitContext, before: CandidateFit, after: CandidateFit) -> bool:
     """Whether ``after`` improves on ``before`` on the held-out blocks as a cause must (5 sigma and 25)."""
-    mask, noise = context.held_out_mask, context.noise_rms_K
+    mask = context.held_out_mask
     improvement = sum(context.chi_square(before.replay, mask)) - sum(context.chi_square(after.replay, mask))
-    flange = (before.replay.flange_K - after.replay.flange_K)[mask] / noise[0]
-    stage = (before.replay.ptc_stage_K - after.replay.ptc_stage_K)[mask] / noise[1]
-    sigma = significance(improvement, float(flange @ flange + stage @ stage))
+    sigma = significance(improvement, context.distinctness(before.replay, after.replay))
     return improvement >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA
 
 

@@ -204,13 +204,8 @@ def measured_noise(data: RecordData, replay: Replay, line: PtcLine) -> tuple[flo
 
 
 def _distinctness(context: FitContext, fits: dict):
-    mask, noise = context.held_out_mask, context.noise_rms_K
-
     def distinctness(first: str, second: str) -> float:
-        a, b = fits[first].replay, fits[second].replay
-        flange = (a.flange_K - b.flange_K)[mask] / noise[0]
-        stage = (a.ptc_stage_K - b.ptc_stage_K)[mask] / noise[1]
-        return float(flange @ flange + stage @ stage)
+        return context.distinctness(fits[first].replay, fits[second].replay)
 
     return distinctness
 
@@ -552,12 +547,9 @@ class CauseSearch:
         other = self._follow(score, refined, recalibrated_base, len(other_causes), causes=other_causes)
         if tuple(named.cause for named in other.causes) != other_causes or other.base.present:
             return None
-        mask, noise = context.held_out_mask, context.noise_rms_K
-        a, b = path.context.base_replay, other.context.base_replay
-        flange = (a.flange_K - b.flange_K)[mask] / noise[0]
-        stage = (a.ptc_stage_K - b.ptc_stage_K)[mask] / noise[1]
         better = path.base.sum_of_squares - other.base.sum_of_squares
-        return other, better, significance(better, float(flange @ flange + stage @ stage))
+        return other, better, significance(better, context.distinctness(path.context.base_replay,
+                                                                        other.context.base_replay))
 
     def _against_generic(self, path: _Path, recalibrated_base: BaseDiscrepancy) -> str:
         """When the causes on ``path`` leave a discrepancy: whether they add anything significant to the generic
@@ -589,13 +581,10 @@ class CauseSearch:
         improvement, its significance, the extension on each)."""
         first = fit_generic_extension(self._extension_context(without[0], without[1]), without[2], left_out)
         second = fit_generic_extension(self._extension_context(with_[0], with_[1]), with_[2], left_out)
-        mask, noise = self.held_out_mask, self.noise_rms_K
         context = self.analysis.context
         a, b = first.fit.replay, second.fit.replay
-        adds = sum(context.chi_square(a, mask)) - sum(context.chi_square(b, mask))
-        flange = (a.flange_K - b.flange_K)[mask] / noise[0]
-        stage = (a.ptc_stage_K - b.ptc_stage_K)[mask] / noise[1]
-        return adds, significance(adds, float(flange @ flange + stage @ stage)), first, second
+        adds = sum(context.chi_square(a, context.held_out_mask)) - sum(context.chi_square(b, context.held_out_mask))
+        return adds, significance(adds, context.distinctness(a, b)), first, second
 
     def _extension_context(self, model: CryostatModel, replay: Replay) -> FitContext:
         """A context on ``model`` and its replay, without a linearised recalibration (for the generic extension)."""
@@ -704,11 +693,8 @@ class CauseSearch:
                                           replay=context.base_replay, effect=own)
             others = [item for item in kept if item.cause != newest.cause]
             fit, refined_base, others = refine(self.replayer, path.recalibration_base, without, others)
-            mask, noise = context.held_out_mask, context.noise_rms_K
-            flange = (fit.replay.flange_K - context.base_replay.flange_K)[mask] / noise[0]
-            stage = (fit.replay.ptc_stage_K - context.base_replay.ptc_stage_K)[mask] / noise[1]
-            distinct = float(flange @ flange + stage @ stage)
-            adds = sum(context.chi_square(fit.replay, mask)) - path.base.sum_of_squares
+            distinct = context.distinctness(fit.replay, context.base_replay)
+            adds = sum(context.chi_square(fit.replay, context.held_out_mask)) - path.base.sum_of_squares
             sigma = adds / (2.0 * math.sqrt(distinct)) if distinct > 0 else 0.0
             without_excess = path.base.excess + adds
             if (adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA

@@ -93,7 +93,10 @@ def test_a_fit_at_a_physical_limit_does_not_count():
     t = np.arange(0.0, 10.0, 1.0)
     context = SimpleNamespace(held_out_mask=np.ones(t.size, bool), noise_rms_K=(1.0, 1.0),
                               base_replay=SimpleNamespace(flange_K=t * 0 + 5.0, ptc_stage_K=t * 0),
-                              chi_square=lambda replay, mask: (0.0, 0.0))
+                              chi_square=lambda replay, mask: (0.0, 0.0),
+                              distinctness=lambda first, second: float(np.sum((first.flange_K - second.flange_K) ** 2)
+                                                                        + np.sum((first.ptc_stage_K
+                                                                                  - second.ptc_stage_K) ** 2)))
     base = BaseDiscrepancy(20, 1000.0, 980.0, 155.0)
     replay = SimpleNamespace(flange_K=t * 0, ptc_stage_K=t * 0)
     effect = EffectForm((1.0, 100.0), (0.0, 0.0), (1.0, 1e4), (1e-3, 1.0), None, None, lambda v: v[0] >= 1.0)

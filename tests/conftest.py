@@ -1,6 +1,7 @@
 """Shared fixtures: the shipped and printed models, a private runtime folder, a dry run to talk to, a headless browser."""
 
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -35,6 +36,19 @@ def records_dated_away_from_midnight(monkeypatch):
     now = time.time()
     day_end = now - now % 86400.0 + 86400.0
     monkeypatch.setattr(VirtualClock, "wall_start_s", min(now, day_end - MIDNIGHT_MARGIN_S))
+
+
+@pytest.fixture
+def terminal_signals():
+    """SIGINT and SIGQUIT as a shell at a terminal leaves them to a command, for the test's process: a shell
+    that starts the tests as a background job ignores both, and the daemon leaves a signal it inherited
+    ignored alone (it would not end the process)."""
+    before = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGQUIT)}
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGQUIT, signal.SIG_DFL)
+    yield
+    for number, handler in before.items():
+        signal.signal(number, handler)
 
 
 @pytest.fixture(scope="session")

@@ -155,7 +155,7 @@ def test_acquire_simulate_end_to_end_writes_model_figures_and_report(tmp_path, c
     assert "--force" in capsys.readouterr().err
 
 
-def test_ctrl_c_keeps_the_record_and_leaves_the_heater_at_0_w(tmp_path):
+def test_ctrl_c_keeps_the_record_and_leaves_the_heater_at_0_w(tmp_path, terminal_signals):
     opener = SimulatedInstrumentsOpener(load_model(), seed=5)
     interrupt = RowCounter(opener, 300.0, lambda _: os.kill(os.getpid(), signal.SIGINT))
     acquisition = acquire(simulated_config(tmp_path), ExperimentPlan(), opener, VirtualClock(), row_taps=[interrupt])

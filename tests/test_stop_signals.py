@@ -29,7 +29,8 @@ SIGNALS = [signal.SIGABRT, signal.SIGUSR1, signal.SIGUSR2, signal.SIGQUIT, signa
            signal.SIGRTMIN + 3, signal.SIGTERM, signal.SIGINT]
 
 
-def test_the_signals_caught_are_every_one_that_would_end_the_process_but_the_uncatchable_and_the_crashes():
+def test_the_signals_caught_are_every_one_that_would_end_the_process_but_the_uncatchable_and_the_crashes(
+        terminal_signals):
     caught = set(terminating_signals())
     assert set(SIGNALS) <= caught and set(range(signal.SIGRTMIN, signal.SIGRTMAX + 1)) <= caught
     assert not caught & {signal.SIGKILL, signal.SIGSTOP, signal.SIGHUP, *CRASH_SIGNALS}

@@ -29,7 +29,6 @@ Steps:
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -144,7 +143,7 @@ class Analysis:
         The base model alone recalibrated with the wider tolerances of :mod:`cryod.analysis.base_model_off`,
         once a parameter reached its usual tolerance.
     other_paths : list of dict
-        Readings of several causes that fit the record as well as the cause named alone
+        Readings of other causes that fit the record as well as the causes named
         (:mod:`cryod.analysis.equivalence`; each with ``reading``, ``causes`` and ``told_apart_by``).
     """
 
@@ -695,7 +694,7 @@ class CauseSearch:
             fit, refined_base, others = refine(self.replayer, path.recalibration_base, without, others)
             distinct = context.distinctness(fit.replay, context.base_replay)
             adds = sum(context.chi_square(fit.replay, context.held_out_mask)) - path.base.sum_of_squares
-            sigma = adds / (2.0 * math.sqrt(distinct)) if distinct > 0 else 0.0
+            sigma = significance(adds, distinct)
             without_excess = path.base.excess + adds
             if (adds >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA
                     and (not path.base.present or adds >= EXPLAINED_FRACTION * without_excess)):

@@ -161,6 +161,55 @@ def test_open_pages_receive_the_status_at_each_new_tick(tmp_path):
             assert times == sorted(times) and len(set(times)) == 3
 
 
+def test_an_event_stream_starts_after_the_event_the_page_or_the_browser_names(tmp_path):
+    """The page asks for the events after the last its history gave (``?after=``), a browser that reconnects
+    for those after the last frame's id (``Last-Event-ID``): the events folded in between are in the first
+    frame. Without either, the stream starts after the newest; a sequence number that is not one is refused."""
+    def first_frame(daemon, head: bytes):
+        with socket.create_connection(("127.0.0.1", port_of(daemon)), timeout=20) as page:
+            page.sendall(b"GET /api/events" + head + b"\r\n\r\n")
+            stream = page.makefile("rb")
+            assert stream.readline().startswith(b"HTTP/1.1 200")
+            identity = None
+            while True:
+                line = stream.readline()
+                if line.startswith(b"id: "):
+                    identity = int(line[4:])
+                if line.startswith(b"data: "):
+                    return identity, json.loads(line[6:])
+                if not line.strip():
+                    daemon.gate.run_ticks(1)
+
+    def note(daemon, text):
+        sent = threading.Thread(target=send_command, args=(daemon.socket_path, f"note {text}"))
+        sent.start()
+        while sent.is_alive():
+            daemon.gate.run_ticks(1)
+            sent.join(0.005)
+
+    with web_daemon(tmp_path) as daemon:
+        daemon.gate.run_ticks(20)
+        for text in ("first", "second", "third"):
+            note(daemon, text)
+        deadline = time.monotonic() + 20.0            # the history is folded on the interface's thread
+        while len(history := request(daemon, "GET", "/api/history", run_ticks=True)[1]["events"]) < 3:
+            assert time.monotonic() < deadline, history
+            daemon.gate.run_ticks(1)
+        seqs = [event["seq"] for event in history]
+        assert len(seqs) >= 2 and seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+        identity, frame = first_frame(daemon, f"?after={seqs[0]} HTTP/1.1\r\nHost: test".encode())
+        assert [event["seq"] for event in frame["events"]][:len(seqs) - 1] == seqs[1:]
+        assert identity == frame["events"][-1]["seq"]
+        identity, frame = first_frame(daemon, f" HTTP/1.1\r\nHost: test\r\nLast-Event-ID: {seqs[-2]}".encode())
+        assert [event["seq"] for event in frame["events"]][:1] == seqs[-1:]
+        _, frame = first_frame(daemon, b" HTTP/1.1\r\nHost: test")
+        assert all(event["seq"] > seqs[-1] for event in frame["events"])
+        _, frame = first_frame(daemon, b"?after=99999 HTTP/1.1\r\nHost: test")      # a daemon restarted since
+        assert all(event["seq"] > seqs[-1] for event in frame["events"])
+        status, body, _ = request(daemon, "GET", "/api/events?after=-1")
+        assert status == 400 and body["message"] == "after must be a whole number of events, got '-1'"
+
+
 # -- a real browser ---------------------------------------------------------------------------------
 def artifact_folder() -> Path:
     """The folder for files a reader looks at after the run: ``CRYOD_TEST_ARTIFACTS`` or test-artifacts/."""

@@ -7,7 +7,10 @@ HTML, one script, one style sheet, plain canvas drawing, nothing fetched from el
 * ``GET /api/history``: the last hour in one-second bins and the recent events
   (:mod:`cryod.service.history`);
 * ``GET /api/events``: server-sent events, one every :data:`PUSH_S` while the loop runs: the
-  status, the bins completed since and the new events;
+  status, the bins completed since and the new events, each frame with the sequence number of its
+  last event as its ``id``. The stream's events start after ``?after=SEQ`` (the page gives the last
+  of ``/api/history``) or the ``Last-Event-ID`` a browser sends when it reconnects, so an event
+  folded in between is not lost; without either, after the newest;
 * ``POST /api/command`` (only with ``web.writable: true``): ``{"command": "setpoint 5.2"}`` with the
   token of ``web.token_file`` in the ``X-Cryod-Token`` header. The command goes through the
   operator's command table and the loop's limits like every other path; the loop journals it with
@@ -67,6 +70,21 @@ SECURITY_HEADERS = ("Content-Security-Policy: default-src 'none'; script-src 'se
 REASONS = {200: "OK", 400: "Bad Request", 403: "Forbidden", 404: "Not Found", 405: "Method Not Allowed",
            408: "Request Timeout", 411: "Length Required", 413: "Content Too Large",
            431: "Request Header Fields Too Large", 503: "Service Unavailable"}
+
+
+def _events_after(query: str, headers: dict) -> int | None:
+    """The sequence number an event stream starts after: the browser's ``Last-Event-ID`` on a reconnection,
+    else the query's ``after``, else None; _HttpError naming the one that is not a whole number."""
+    if "last-event-id" in headers:
+        given, where = headers["last-event-id"], "Last-Event-ID"
+    else:
+        values = [item.partition("=")[2] for item in query.split("&") if item.partition("=")[0] == "after"]
+        if not values:
+            return None
+        given, where = values[-1], "after"
+    if not (given.isascii() and given.isdigit() and len(given) <= 18):
+        raise _HttpError(400, f"{where} must be a whole number of events, got {given[:40]!r}")
+    return int(given)
 
 
 class _HttpError(Exception):
@@ -146,9 +164,10 @@ class WebServer(TcpService):
     async def serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, peer: str) -> None:
         self.requests += 1
         try:
-            method, path, headers = await asyncio.wait_for(self._head(reader), HEAD_TIMEOUT_S)
+            method, target, headers = await asyncio.wait_for(self._head(reader), HEAD_TIMEOUT_S)
+            path, _, query = target.partition("?")
             if path == "/api/events" and method == "GET":
-                await self._events(writer)
+                await self._events(writer, _events_after(query, headers))
             elif method == "GET":
                 await self._get(writer, path)
             elif method == "POST" and path == "/api/command":
@@ -162,7 +181,8 @@ class WebServer(TcpService):
             await self._respond(writer, 408, {"message": f"no complete request within {HEAD_TIMEOUT_S:g} s"})
 
     async def _head(self, reader: asyncio.StreamReader) -> tuple[str, str, dict[str, str]]:
-        """Method, path and headers (lower-case names) of the request; _HttpError when malformed."""
+        """Method, target (path and query) and headers (lower-case names) of the request; _HttpError when
+        malformed."""
         lines = []
         while True:
             try:
@@ -189,7 +209,7 @@ class WebServer(TcpService):
             raise _HttpError(400, "not an HTTP request") from None
         if not version.startswith("HTTP/1.") or not target.startswith("/"):
             raise _HttpError(400, "not an HTTP/1 request")
-        return method, target.split("?", 1)[0], headers
+        return method, target, headers
 
     async def _get(self, writer: asyncio.StreamWriter, path: str) -> None:
         if path == "/api/status":
@@ -204,13 +224,15 @@ class WebServer(TcpService):
             raise _HttpError(404, f"{path[:80]} is not served here")
         await self._send(writer, 200, self.assets[name], ASSETS[name])
 
-    async def _events(self, writer: asyncio.StreamWriter) -> None:
+    async def _events(self, writer: asyncio.StreamWriter, after: int | None) -> None:
         """Server-sent events: the status at every new frame, with the bins and events since the last.
 
-        Where the stream starts is taken before its headers go out: the page counts as connected once it has
-        them, and an event folded in while they were on their way is in the next frame, not lost."""
+        The events start after sequence number ``after`` (None, or one this history has not reached, as after
+        a restart of the daemon: after the newest). Where the stream starts is taken before its headers go out:
+        the page counts as connected once it has them."""
         last_bin = self.history.bins[-1]["time_s"] if self.history.bins else None
-        last_event = self.history.events[-1]["seq"] if self.history.events else 0
+        newest = self.history.events[-1]["seq"] if self.history.events else 0
+        last_event = newest if after is None or after > newest else after
         await send(writer, ("HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\nConnection: close\r\n"
                             + SECURITY_HEADERS + "\r\n").encode("ascii"))
         self.pages += 1
@@ -229,7 +251,8 @@ class WebServer(TcpService):
                 last_bin = bins[-1]["time_s"] if bins else last_bin
                 last_event = events[-1]["seq"] if events else last_event
                 frame = dict(self._frame, bins=bins, events=events)
-                await send(writer, b"data: " + json.dumps(frame).encode("utf-8") + b"\n\n")
+                await send(writer, f"id: {last_event}\n".encode("ascii") + b"data: "
+                           + json.dumps(frame).encode("utf-8") + b"\n\n")
         finally:
             self.pages -= 1
 

@@ -274,7 +274,9 @@ async function start() {
   renderStatus(status.status);
   setUpControl(status.page_commands);
   requestDraw();
-  const events = new EventSource("/api/events");
+  // the stream starts after the last event the history gave: one folded in between is not lost
+  const lastSeq = history.events.length ? history.events[history.events.length - 1].seq : 0;
+  const events = new EventSource(`/api/events?after=${lastSeq}`);
   const connection = document.getElementById("connection");
   events.onopen = () => { connection.textContent = "live"; connection.className = "connection live"; };
   events.onerror = () => { connection.textContent = "connection lost, retrying"; connection.className = "connection lost"; };

@@ -97,14 +97,16 @@ class LearningReport:
         """The divergence guard tripped."""
         self._say(logging.WARNING, f"learning diverged: {reason}; the waveform fades out, the learned plant is "
                                    f"reset to the model and learning starts again in {retry_s:.0f} s")
-        self._fundamental_learned = False
-        self._differences = ()
-        self._learned = ()
+        self._forget_the_plant()
 
     def zone_entered(self, index: int, model_source: str) -> None:
         """The setpoint in use moved into zone ``index`` (from 0): the learned plant starts again from its model."""
         self._say(logging.INFO, f"zone {index + 1} entered: the plant learned at the previous zone's operating point "
                                 f"is dropped; learning starts again from the zone's model ({model_source})")
+        self._forget_the_plant()
+
+    def _forget_the_plant(self) -> None:
+        """What was said of the learned plant no longer holds: the next learning is reported afresh."""
         self._fundamental_learned = False
         self._differences = ()
         self._learned = ()

@@ -29,6 +29,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import urllib.parse
 from importlib import resources
 from pathlib import Path
 from typing import Callable
@@ -78,7 +79,7 @@ def _events_after(query: str, headers: dict) -> int | None:
     if "last-event-id" in headers:
         given, where = headers["last-event-id"], "Last-Event-ID"
     else:
-        values = [item.partition("=")[2] for item in query.split("&") if item.partition("=")[0] == "after"]
+        values = urllib.parse.parse_qs(query, keep_blank_values=True).get("after")
         if not values:
             return None
         given, where = values[-1], "after"

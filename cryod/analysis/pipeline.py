@@ -447,7 +447,7 @@ class CauseSearch:
                         f"({shipped.significance:.1f} sigma): its parameters differ, no effect is needed"))
             analysis.remaining = base
             return
-        path = None
+        path, refined = None, {}
         if first.best is not None and first.best.cause in fits:
             start = _Path([], context, base, [], context.recalibrated, [])
             decision, refined = self._refined_decision(start, fits, scores)
@@ -476,7 +476,7 @@ class CauseSearch:
             analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
             analysis.remaining = recalibrated_base
             return
-        turned = self._the_other_way_round(path, fits, recalibrated_base) if most > 1 else None
+        turned = self._the_other_way_round(path, fits, refined, recalibrated_base) if most > 1 else None
         if turned is not None:
             other, better, sigma = turned
             if better >= CANDIDATE_MINIMUM_IMPROVEMENT and sigma >= CANDIDATE_SIGMA:
@@ -523,12 +523,14 @@ class CauseSearch:
         analysis.final_model, analysis.final_replay = analysis.recalibration.model, analysis.final_replay
         analysis.remaining = recalibrated_base
 
-    def _the_other_way_round(self, path: _Path, fits: dict, recalibrated_base: BaseDiscrepancy):
+    def _the_other_way_round(self, path: _Path, fits: dict, refined: dict, recalibrated_base: BaseDiscrepancy):
         """The causes named on ``path``, leaving no discrepancy, read the other way round
         (:func:`cryod.analysis.equivalence.other_way_round`: a flange thermometer's lag alone as a dead time with
         a link; a link with a dead time as the lag with a dead time). Returns (that path, how much lower it leaves
         the held-out sum of squares, in standard deviations of the difference between the two predictions), or
-        None when no such reading applies or it leaves a discrepancy.
+        None when no such reading applies or it leaves a discrepancy. ``refined``: the first round's candidates
+        already refitted with the recalibration (:meth:`_refined_decision`), reused when the reading starts
+        with one of them.
 
         The lag delays T2 on every path: on the heater's like a dead time (as far as the heater's content is
         slow against the lag), on the line's like a link that lags. The other reading is followed as any path
@@ -539,7 +541,7 @@ class CauseSearch:
         if other_causes is None or path.base.present or other_causes[0] not in fits:
             return None
         context, first = self.analysis.context, other_causes[0]
-        refined = {first: refine(self.replayer, context.recalibrated, fits[first], [])}
+        refined = {first: refined.get(first) or refine(self.replayer, context.recalibrated, fits[first], [])}
         score = score_candidate(context, refined[first][0], recalibrated_base)
         if not score.counts:
             return None

@@ -444,3 +444,48 @@ def test_a_heater_off_never_waits_behind_a_flood_and_what_was_sent_before_it_is_
     assert loop.regulator.ramp.rate_K_per_min == 0.25 and loop.heater_w == 0.0
     states = [item.state for item in items if isinstance(item, Row)]
     assert set(states[101:]) == {"off"}                               # and stayed off to the end
+
+
+# -- a command is taken by the loop or withdrawn by its client, never both ----------------------------
+def test_of_take_and_withdraw_only_the_first_succeeds_whatever_the_threads():
+    """Two threads race for each of 2000 commands: exactly one of the loop's take and the client's withdraw wins."""
+    outcomes = collections.Counter()
+    for index in range(2000):
+        command = Command("setpoint", 5.0)
+        results = {}
+        start = threading.Barrier(2)
+
+        def race(name, claim):
+            start.wait()
+            results[name] = claim()
+
+        threads = [threading.Thread(target=race, args=("take", command.take)),
+                   threading.Thread(target=race, args=("withdraw", command.withdraw))]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        assert results["take"] != results["withdraw"]
+        assert command.claim == ("taken" if results["take"] else "withdrawn")
+        outcomes[command.claim] += 1
+    assert sum(outcomes.values()) == 2000
+
+
+def test_a_command_whose_client_stopped_waiting_is_never_carried_out(tmp_path):
+    """The loop stands between two ticks; a setpoint sent through the socket with a 0.3 s reply timeout is
+    answered as withdrawn, and when the loop goes on it is journaled as withdrawn and the setpoint stays."""
+    with GatedDaemon(tmp_path) as daemon:
+        target_before = daemon.loop.regulator.ramp.target_K
+        server = ControlSocketServer(tmp_path / "short.sock", 0o600, None, None, daemon.daemon._submit,
+                                     lambda: {}, reply_timeout_s=0.3)
+        server.start()
+        try:
+            reply = send_command(server.path, "setpoint 6.5")
+        finally:
+            server.stop()
+        assert reply["ok"] is False and "withdrawn" in reply["message"] and "not be carried out" in reply["message"]
+        daemon.gate.run_ticks(3)
+        assert daemon.loop.regulator.ramp.target_K == target_before != 6.5
+        messages = [event.message for _, event in daemon.gate.events if event.kind == "command"]
+        assert any(message.startswith("setpoint withdrawn") for message in messages)
+        assert not any("setpoint accepted" in message for message in messages)

@@ -162,6 +162,10 @@ class AlarmMonitor:
         changes = []
         while self._requests:
             command = self._requests.popleft()
+            if not command.take():          # its client stopped waiting: never carried out
+                log.info("alarms %s %s withdrawn by its client before it was carried out (by %s)", *command.value,
+                         command.sender or "an unknown sender")
+                continue
             _, which = command.value
             try:
                 acknowledged = self.board.acknowledge(which, self._time_s, command.sender)

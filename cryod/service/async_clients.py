@@ -29,7 +29,7 @@ import socket
 import threading
 from typing import Awaitable, Callable
 
-from cryod.service.commands import Command
+from cryod.service.commands import TAKEN_ANSWER_WAIT_S, Command, no_answer
 
 log = logging.getLogger("cryod.clients")
 
@@ -181,10 +181,14 @@ __all__ = ["ClientsThread", "ConnectionBook", "resolve"]
 async def loop_answer(command: Command, submit, timeout_s: float) -> Command:
     """Hand ``command`` to the loop with ``submit`` and wait for its answer without blocking the event loop.
 
+    After ``timeout_s`` without an answer the command is withdrawn, so that the loop never carries it out
+    later (:func:`cryod.service.commands.no_answer`); when the loop had taken it already, its answer is
+    waited for :data:`~cryod.service.commands.TAKEN_ANSWER_WAIT_S` more.
+
     Returns
     -------
     Command
-        Answered, or (after ``timeout_s``) marked refused with the reason.
+        Answered, or marked refused with the reason.
     """
     event_loop = asyncio.get_running_loop()
     answered = event_loop.create_future()
@@ -197,11 +201,14 @@ async def loop_answer(command: Command, submit, timeout_s: float) -> Command:
 
     command.on_answer = wake
     submit(command)
-    if not command.done.is_set():
+    for wait_s in (timeout_s, TAKEN_ANSWER_WAIT_S):
+        if command.done.is_set():
+            return command
         try:
-            await asyncio.wait_for(answered, timeout_s)
+            await asyncio.wait_for(asyncio.shield(answered), wait_s)
         except asyncio.TimeoutError:
-            pass
-    if not command.done.is_set():
-        command.ok, command.message = False, f"no answer from the control loop within {timeout_s:g} s"
-    return command
+            if command.withdraw():
+                break
+    if command.done.is_set():
+        return command
+    return no_answer(command, timeout_s)

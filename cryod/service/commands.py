@@ -40,9 +40,19 @@ class CommandRefused(ValueError):
     """A command the loop does not carry out, with the reason."""
 
 
+#: Where a command is between its client and the loop: waiting in the queue, taken by the loop (it will be
+#: carried out and answered), or withdrawn by a client that stopped waiting (it will never be carried out).
+PENDING, TAKEN, WITHDRAWN = "pending", "taken", "withdrawn"
+
+
 @dataclass
 class Command:
     """A request to the loop, answered at the next tick boundary.
+
+    A command is carried out at most once, and only while its client still waits for it: the loop
+    :meth:`take` s it before carrying it out, a client that stops waiting :meth:`withdraw` s it, and
+    of the two only the first succeeds (one claim under a lock). A withdrawn command is answered as
+    withdrawn and never applied; a taken one is always answered, within the tick that took it.
 
     ``on_answer``, when given, is called once the command is answered, on the thread that
     answers it (the loop's): it must return at once and never raise (the control socket
@@ -59,6 +69,9 @@ class Command:
     sender: str = ""
     #: More of the answer, as keys of the control socket's reply (``alarms`` for ``cryod ctl alarms``).
     reply: dict | None = None
+    #: :data:`PENDING`, :data:`TAKEN` or :data:`WITHDRAWN`.
+    claim: str = PENDING
+    _claim_lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def answer(self, ok: bool, message: str) -> None:
         self.ok, self.message = ok, message
@@ -66,12 +79,50 @@ class Command:
         if self.on_answer is not None:
             self.on_answer()
 
+    def take(self) -> bool:
+        """The loop claims the command to carry it out; False when its client withdrew it first."""
+        return self._settle(TAKEN)
+
+    def withdraw(self) -> bool:
+        """The client stops waiting: True when the command will never be carried out, False when the loop
+        has taken it already (its answer follows within the tick that took it)."""
+        return self._settle(WITHDRAWN)
+
+    def _settle(self, outcome: str) -> bool:
+        with self._claim_lock:
+            if self.claim == PENDING:
+                self.claim = outcome
+            return self.claim == outcome
+
+
+#: How long a client that gave up on the loop still waits for a command the loop had taken already (s): the
+#: rest of the tick that carries it out.
+TAKEN_ANSWER_WAIT_S = 2.0
+
+
+def no_answer(command: Command, timeout_s: float) -> Command:
+    """A command whose client waited ``timeout_s`` in vain, withdrawn so that it never takes effect later.
+
+    When the loop took it meanwhile (it is being carried out), its answer is not owed to a withdrawal: the
+    caller waits :data:`TAKEN_ANSWER_WAIT_S` more for it (:func:`wait_for`, :func:`loop_answer`) and this
+    only says what is known when even that does not come."""
+    if command.withdraw():
+        command.ok, command.message = False, (f"no answer from the control loop within {timeout_s:g} s: withdrawn, "
+                                              f"it will not be carried out")
+    elif not command.done.is_set():
+        command.ok, command.message = False, (f"taken by the control loop, but not answered within {timeout_s:g} s "
+                                              f"and {TAKEN_ANSWER_WAIT_S:g} s more: it may have taken effect; "
+                                              f"check the status")
+    return command
+
 
 def wait_for(command: Command, timeout_s: float = 5.0) -> Command:
-    """Block until the loop has answered ``command`` (or time out)."""
-    if not command.done.wait(timeout_s):
-        command.ok, command.message = False, f"no answer from the control loop within {timeout_s:g} s"
-    return command
+    """Block until the loop has answered ``command``; after ``timeout_s`` it is withdrawn (:func:`no_answer`)."""
+    if command.done.wait(timeout_s):
+        return command
+    if not command.withdraw() and command.done.wait(TAKEN_ANSWER_WAIT_S):
+        return command
+    return no_answer(command, timeout_s)
 
 
 # -- what each command does to the loop ------------------------------------------------

@@ -657,7 +657,9 @@ class ControlLoop:
     def _apply_commands(self) -> None:
         """Carry out up to :data:`COMMANDS_PER_TICK` queued commands, in order. A ``heater-off``
         never waits behind others: when one is queued, the commands sent before it are refused as
-        superseded (none of them may turn the heater back on after it) and it is carried out now."""
+        superseded (none of them may turn the heater back on after it) and it is carried out now.
+        Each command is taken from its client first (:meth:`Command.take`): one its client withdrew
+        (it stopped waiting) is journaled as withdrawn and never carried out."""
         commands = self.commands
         if not commands:
             return
@@ -666,13 +668,28 @@ class ControlLoop:
                            default=None)
             for _ in range(last_off or 0):
                 superseded = commands.popleft()
-                self._record_command(superseded, False, "superseded by a heater-off sent after it")
-        for _ in range(COMMANDS_PER_TICK):
+                if superseded.take():
+                    self._record_command(superseded, False, "superseded by a heater-off sent after it")
+                else:
+                    self._record_withdrawn(superseded)
+        carried_out = 0
+        while carried_out < COMMANDS_PER_TICK:
             try:
                 command = commands.popleft()
             except IndexError:
                 return
+            if not command.take():
+                self._record_withdrawn(command)
+                continue
+            carried_out += 1
             self._record_command(command, *apply_command(self, command))
+
+    def _record_withdrawn(self, command: Command) -> None:
+        """A command whose client stopped waiting before the loop came to it: said, never carried out."""
+        sender = f" (by {command.sender})" if command.sender else ""
+        message = f"{command.name} withdrawn: its client stopped waiting before the loop came to it; not carried out"
+        self._event("command", message + sender)
+        log.warning("command %s%s", message, sender)
 
     def _record_command(self, command: Command, ok: bool, message: str) -> None:
         """The command's event, journal line and answer (sent after the tick)."""

@@ -1,5 +1,6 @@
 """The daemon configuration: every error names file, line and key; nothing runs on a bad file."""
 
+import os
 import dataclasses
 import re
 import subprocess
@@ -137,3 +138,35 @@ def test_a_token_file_others_may_read_or_without_a_token_is_refused(tmp_path):
     token.write_text("short\n")
     with pytest.raises(FileFormatError, match="holds no usable token"):
         load_config(_with(tmp_path, f'web: {{address: "127.0.0.1:8336", writable: true, token_file: {token}}}\n'))
+
+
+def test_the_token_file_is_checked_at_every_read_and_nothing_but_a_bounded_regular_file_is_read(tmp_path):
+    """What the web page reads at each write: a FIFO (which would hold the reader until a writer came), a device
+    (/dev/zero never ends), a file of another user and a file grown beyond the bound are refused at once."""
+    import time
+    from cryod.web_token import MAX_TOKEN_FILE_BYTES, read_token
+
+    token = tmp_path / "web.token"
+    token.write_text("0123456789abcdef0123456789abcdef\n")
+    token.chmod(0o640)
+    assert read_token(token) == "0123456789abcdef0123456789abcdef"
+    token.unlink()
+    os.mkfifo(token, 0o640)
+    started = time.monotonic()
+    with pytest.raises(ValueError, match="is a FIFO .* regular file only"):
+        read_token(token)
+    assert time.monotonic() - started < 1.0
+    token.unlink()
+    token.symlink_to("/dev/zero")
+    with pytest.raises(ValueError, match="is a character device"):
+        read_token(token)
+    token.unlink()
+    token.write_text("0123456789abcdef0123456789abcdef\n" + "#" * MAX_TOKEN_FILE_BYTES)
+    token.chmod(0o640)
+    with pytest.raises(ValueError, match="bytes: a token file holds one line"):
+        read_token(token)
+    token.write_text("0123456789abcdef0123456789abcdef\n")
+    if os.geteuid() == 0:                         # only root can give a file away
+        os.chown(token, 65534, 65534)
+        with pytest.raises(ValueError, match="belongs to uid 65534, not to this service's user"):
+            read_token(token)

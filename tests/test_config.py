@@ -1,7 +1,7 @@
 """The daemon configuration: every error names file, line and key; nothing runs on a bad file."""
 
-import os
 import dataclasses
+import os
 import re
 import subprocess
 import sys

@@ -34,14 +34,17 @@ import json
 import logging
 import math
 import os
-import signal
+import selectors
+import shutil
 import socket
 import subprocess
 import threading
+import time
 from dataclasses import dataclass
 
 from cryod.alarms.latch import Transition
 from cryod.alarms.settings import AlarmHook
+from cryod.service.process_tree import ProcessTree, become_subreaper
 from drivers.clock import Clock
 
 log = logging.getLogger("cryod.alarms")
@@ -50,6 +53,12 @@ log = logging.getLogger("cryod.alarms")
 POLL_S = 0.2
 #: Characters of the hook's output quoted in the journal when it fails.
 OUTPUT_QUOTED = 300
+#: Bytes of the hook's output held (its last ones); the rest is read and dropped.
+OUTPUT_KEPT = 64 * 1024
+#: Bytes read from the hook's output at a time.
+READ_CHUNK = 64 * 1024
+#: Wall time between two looks at the hook's process tree while it runs (s).
+TREE_LOOK_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -109,10 +118,14 @@ def hook_details(notice: HookNotice, cryostat: str) -> dict[str, str]:
 
 
 def run_hook(hook: AlarmHook, details: dict[str, str]) -> str | None:
-    """Run the hook once (this thread waits for it, at most ``hook.timeout_s``); what went wrong, or None.
+    """Run the hook once (this thread waits for it, at most ``hook.timeout_s`` and a moment); what went wrong,
+    or None.
 
-    The command gets ``details`` in its environment and as JSON on its standard input; one that is still
-    running at the timeout is killed with its process group.
+    The command gets ``details`` in its environment and as JSON on its standard input. Its output (standard
+    output and error together) is read as it comes and only the last :data:`OUTPUT_KEPT` bytes are held, however
+    much it writes. The run is over when the command has exited and its output has ended; at ``timeout_s`` what
+    is still running of its process tree (its process group, processes it moved to sessions of their own, their
+    orphans: :class:`~cryod.service.process_tree.ProcessTree`) is killed, and the output is no longer read.
     """
     environment = dict(os.environ, **details)
     payload = json.dumps({key.removeprefix("CRYOD_").lower(): value for key, value in details.items()})
@@ -122,19 +135,78 @@ def run_hook(hook: AlarmHook, details: dict[str, str]) -> str | None:
                                    close_fds=True)
     except OSError as error:
         return f"could not be started: {error}"
+    deadline = time.monotonic() + hook.timeout_s
+    tree = ProcessTree(process.pid)
+    output = bytearray()
+    ended, exited = False, False
     try:
-        output, _ = process.communicate(payload.encode("utf-8"), timeout=hook.timeout_s)
-    except subprocess.TimeoutExpired:
-        try:
-            os.killpg(process.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        process.communicate()
+        _give(process.stdin, payload.encode("utf-8"))
+        ended = _read_until_done(process, tree, output, deadline)
+    finally:
+        exited = process.poll() is not None
+        left = tree.end()
+        process.stdout.close()
+        process.wait()
+    text = output.decode("utf-8", "replace").strip()[-OUTPUT_QUOTED:]
+    if not ended and not exited:
         return f"still running after {hook.timeout_s:g} s (alarms.hook.timeout_s): killed"
+    if not ended:
+        return (f"exited, but left {left} process(es) running that held its output open until {hook.timeout_s:g} s "
+                f"(alarms.hook.timeout_s): killed" + (f"; its output: {text}" if text else ""))
     if process.returncode != 0:
-        text = output.decode("utf-8", "replace").strip()[-OUTPUT_QUOTED:]
         return f"exit {process.returncode}" + (f": {text}" if text else "")
     return None
+
+
+def _give(pipe, data: bytes) -> None:
+    """The hook's standard input, written without waiting on a hook that does not read it, then closed."""
+    try:
+        os.set_blocking(pipe.fileno(), False)
+        os.write(pipe.fileno(), data)             # less than a pipe's buffer: taken at once or not at all
+    except (BlockingIOError, BrokenPipeError):
+        pass
+    finally:
+        try:
+            pipe.close()
+        except BrokenPipeError:
+            pass
+
+
+def _read_until_done(process: subprocess.Popen, tree: ProcessTree, output: bytearray, deadline: float) -> bool:
+    """Read the hook's output into ``output`` (its last :data:`OUTPUT_KEPT` bytes) until the hook has exited and
+    its output ended (True), or until ``deadline`` (False)."""
+    descriptor = process.stdout.fileno()
+    os.set_blocking(descriptor, False)
+    with selectors.DefaultSelector() as selector:
+        selector.register(descriptor, selectors.EVENT_READ)
+        output_open = True
+        next_look_s = 0.0
+        while True:
+            now = time.monotonic()
+            if now >= next_look_s:                  # its descendants, before an exit hands them to this process
+                tree.look()
+                next_look_s = now + TREE_LOOK_S
+            left_s = deadline - now
+            if not output_open and process.poll() is not None:
+                return True
+            if left_s <= 0.0:
+                return False
+            if not output_open:
+                try:
+                    process.wait(min(left_s, POLL_S))
+                except subprocess.TimeoutExpired:
+                    pass
+                continue
+            if selector.select(min(left_s, POLL_S)):
+                try:
+                    chunk = os.read(descriptor, READ_CHUNK)
+                except BlockingIOError:
+                    continue
+                if not chunk:
+                    output_open = False
+                    continue
+                output += chunk
+                del output[:-OUTPUT_KEPT]
 
 
 class AlarmHookRunner:
@@ -165,11 +237,35 @@ class AlarmHookRunner:
         #: Runs made and runs that failed (for the status and tests).
         self.runs = 0
         self.failures = 0
+        #: What went wrong with the last run, or why the hook cannot run at all (None: the last run went well).
+        self.problem: str | None = None
 
     def configure(self, hook: AlarmHook | None) -> None:
         """New settings (a reload), from any thread."""
         self.hook = hook
+        self._check_command()
         self._wake.set()
+
+    def _check_command(self) -> None:
+        """Say at once, in the journal and :attr:`problem`, when the hook's command cannot be run at all."""
+        hook = self.hook
+        if hook is None:
+            self.problem = None
+            return
+        program = hook.command[0]
+        found = shutil.which(program) if os.sep not in program else (program if os.access(program, os.X_OK) else None)
+        if found is None:
+            self.problem = (f"{program} cannot be run (not found, or not executable by this user): alarm changes "
+                            f"are not passed on (alarms.hook.command)")
+            log.error("alarm hook: %s", self.problem)
+        else:
+            self.problem = None
+
+    def status(self) -> dict:
+        """The hook channel for the status: its command, runs, failures, the last problem (None when all is well)."""
+        hook = self.hook
+        return {"command": hook.command[0] if hook else None, "runs": self.runs, "failures": self.failures,
+                "waiting": len(self._incoming) + self.schedule.waiting, "problem": self.problem}
 
     def offer(self, transition: Transition) -> None:
         """A change to tell (any thread; never waits)."""
@@ -178,6 +274,13 @@ class AlarmHookRunner:
             self._wake.set()
 
     def start(self) -> None:
+        """Run hooks from a thread of its own; this process becomes the reaper of what they leave behind
+        (:func:`~cryod.service.process_tree.become_subreaper`), so that nothing a hook starts outlives its run."""
+        if self.hook is not None and not become_subreaper():
+            log.warning("alarm hook: this system does not hand orphaned processes to the daemon (prctl "
+                        "PR_SET_CHILD_SUBREAPER): a process a hook moves to a session of its own and leaves behind "
+                        "may outlive it")
+        self._check_command()
         self._thread = threading.Thread(target=self._run, name="cryod-alarm-hook", daemon=True)
         self._thread.start()
 
@@ -214,6 +317,7 @@ class AlarmHookRunner:
             problem = self.runner(hook, hook_details(notice, self.cryostat))
         except Exception as error:      # whatever the hook does, the daemon goes on
             problem = f"{type(error).__name__}: {error}"
+        self.problem = problem
         if problem is not None:
             self.failures += 1
             log.warning("alarm hook %s for %s %s: %s", hook.command[0], notice.transition.name,

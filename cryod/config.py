@@ -153,6 +153,9 @@ class SafetyConfig:
     valid_readings_to_resume: int
     recovery_timeout_s: float
     instruments_wait_s: float | None = None     # None: wait for unreachable instruments without end
+    #: The oldest readings the heater may be set from, and the longest a setting may outlive its readings when
+    #: the loop does not run (s); beyond it the heater goes to 0 W (fault readings_too_old).
+    max_reading_age_s: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -540,6 +543,7 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
         valid_readings_to_resume=section.number("valid_readings_to_resume", 5, minimum=1, maximum=1000, integer=True),
         recovery_timeout_s=section.number("recovery_timeout_s", 60.0, minimum=0.0, maximum=86400.0),
         instruments_wait_s=section.number("instruments_wait_s", None, minimum=0.0),
+        max_reading_age_s=section.number("max_reading_age_s", 0.5, minimum=2.0 * loop.period_s, maximum=60.0),
     )
     section.finish()
 

@@ -140,25 +140,37 @@ def test_sigabrt_from_the_watchdog_puts_the_supply_at_0_W_within_a_period_and_sa
 
 
 def test_a_loop_hung_in_an_instrument_call_is_stepped_over_the_heater_goes_off_and_the_process_ends(tmp_path, bench):
-    """The loop thread waits forever inside a reading (no timeout ends it): the signal's thread switches the
-    heater off after the loop's grace, says so, and ends the process after as long again."""
+    """The loop thread waits forever inside a reading (no timeout ends it): the reading watchdog switches the
+    heater off once its setting is safety.max_reading_age_s (0.5 s) older than its readings, and says so; a
+    signal then finds the loop stuck, the signal's thread holds the heater off after the loop's grace and ends
+    the process after as long again."""
     config = bench.write_config(tmp_path / "daemon", instruments={"timeout_s": 0.3})
     grace_s = stop_grace_s(load_config(config))
     hang = tmp_path / "hang"
     run = RunProcess(config, hang_when=hang)
     try:
         run.wait_for_heating(bench.supply)
+        hung_at = time.monotonic()
         hang.touch()
-        time.sleep(0.3)
-        assert bench.supply.heater_power_w > 0.0                        # hung with the heater on
+        time.sleep(0.25)
+        assert bench.supply.heater_power_w > 0.0                        # hung with the heater on ...
+        deadline = time.monotonic() + 5.0
+        while bench.supply.heater_power_w > 0.0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        delay = delay_to_zero_s(bench.supply, hung_at)
+        # ... until its setting is 0.5 s older than its readings (triggered up to a period and a reading
+        # before the hang), a look of the watchdog (20 ms) and the supply's off later
+        assert delay is not None and 0.5 - 0.08 - 0.05 <= delay < 0.5 + 0.25
+        assert "heater switched off from the watchdog's thread" in run.journal
         sent = run.send(signal.SIGUSR1)
         assert run.wait(30) == 138
-        delay = delay_to_zero_s(bench.supply, sent)
-        assert delay is not None and grace_s <= delay < grace_s + 1.0
         stepped_in = f"SIGUSR1 received; the loop did not stop within {grace_s:.3g} s: heater switched off from " \
                      f"outside the loop"
         assert f"cryod.daemon: critical: {stepped_in}" in run.journal
+        assert bench.supply.zero_since(sent) is not None and not bench.supply.output_on
         events = [text for _, text in run.record().events]
+        assert any(text.startswith("event: watchdog: readings_too_old: the heater's setting came from readings")
+                   for text in events)
         assert events[-2:] == [
             f"event: stopping: {stepped_in}",
             "event: stop: signal: SIGUSR1 received; the loop thread was stuck, the process was ended from outside "

@@ -331,6 +331,11 @@ class Regulator:
         for term in self.terms:
             term.close()
 
+    def follow_timing(self, on_time: bool) -> None:
+        """Tell every term whether the loop's cycles keep their deadlines (:meth:`ControlTerm.follow_timing`)."""
+        for term in self.terms:
+            term.follow_timing(on_time)
+
     def term(self, name: str) -> ControlTerm | None:
         """The control term called ``name``, if this regulator has it."""
         return next((term for term in self.terms if term.name == name), None)

@@ -19,8 +19,9 @@ terms' sum has been held within the heater's range: the feedforward),
 (logging level, text) pairs, which the loop logs and writes into the record
 as events named after the term), ``enter_zone(index)`` (the setpoint in use
 moved into another zone of ``control.zones``: what the term learned of the
-cryostat at the previous operating point) and ``close()`` (release what it
-holds).
+cryostat at the previous operating point), ``follow_timing(on_time)`` (the
+loop's cycles keep their deadlines, or have been late many in a row) and
+``close()`` (release what it holds).
 
 A new term is one module with such a class and one line in :data:`TERM_TYPES`.
 The regulator (:mod:`cryod.control.regulator`) adds the terms' outputs, holds
@@ -149,6 +150,11 @@ class ControlTerm(ABC):
         point of the cryostat; called after :meth:`reconfigure` has given the term the zone's settings, never for
         a reload (the setpoint, and so the cryostat, stayed where it was). By default, nothing: the zone's
         settings are all the term needs."""
+
+    def follow_timing(self, on_time: bool) -> None:
+        """Whether the loop's cycles keep their deadlines (True) or have been late many in a row (False): a
+        term that relies on the ticks' timing (the feedforward's phase and its learning) holds back while
+        they do not. By default, nothing: PI takes each tick's own ``dt_s``."""
 
     def close(self) -> None:
         """Release what the term holds (a worker thread); by default, nothing."""

@@ -50,6 +50,7 @@ from cryod.service.lakeshore336_server import Lakeshore336Server
 from cryod.service.live_view import LiveView
 from cryod.service.web import WebServer
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
+from cryod.service.reading_watchdog import ReadingWatchdog
 from cryod.service.realtime import RealtimeSession
 from cryod.service.control_socket import ControlSocketServer
 from cryod.service.notes import write_note
@@ -424,6 +425,7 @@ class Daemon:
         instruments: Instruments | None = None
         control_socket: ControlSocketServer | None = None
         realtime: RealtimeSession | None = None
+        reading_watchdog: ReadingWatchdog | None = None
         metrics = None
         interfaces: list = []
         service = threading.Thread(target=self._service, name="cryod-service", daemon=True)
@@ -489,6 +491,9 @@ class Daemon:
                     self.loop.request_stop(self._stop_reason, *self._stop_as)
                 if self.datalog.failure is not None:
                     self.loop.fail(Fault(FaultCause.DATA_LOG_FAILED, self.datalog.failure))
+                reading_watchdog = ReadingWatchdog(self.loop, instruments, self.clock, self.datalog.put,
+                                                   config.instruments.timeout_s, config.loop.realtime_priority)
+                reading_watchdog.start()
                 realtime = RealtimeSession(config.loop.realtime_priority, config.loop.lock_memory)
                 realtime.start()
                 for problem in realtime.problems:
@@ -509,6 +514,8 @@ class Daemon:
             raise
         finally:
             self._loop_done.set()
+            if reading_watchdog is not None:
+                reading_watchdog.stop()
             if realtime is not None:
                 realtime.end()
             self._service_stop = True

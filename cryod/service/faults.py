@@ -17,12 +17,12 @@ with any other cause cannot be made.
 | sensor_overflow            | yes       | no          | 4                  |
 | sensor_out_of_calibration  | yes       | no          | 4                  |
 | sensor_stale               | yes       | no          | 4                  |
+| readings_too_old           | yes       | no          | 5                  |
 | identity_mismatch          | no        |             | 2                  |
 | over_temperature           | no        |             | 3                  |
 | heater_fault               | no        |             | 6                  |
 | heater_output_off          | no        |             | 6                  |
 | data_log_failed            | no        |             | 7                  |
-| overrun_streak             | no        |             | 5                  |
 | exception                  | no        |             | 1                  |
 | stop_requested (SIGTERM)   | no        |             | 0                  |
 | signal (SIGABRT, SIGUSR1, ...) | no    |             | 128 + its number   |
@@ -43,6 +43,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 
+from cryod.service.heater_guard import HeaterSwitchedOff
 from drivers.errors import (
     BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterOutputOff, HeaterRefused, IdentityMismatch,
     InstrumentError, InstrumentReportedError, InstrumentTimeout, OverflowReading,
@@ -57,7 +58,8 @@ class ExitCode(IntEnum):
     CONFIG = 2
     OVER_TEMPERATURE = 3
     INSTRUMENTS_LOST = 4
-    OVERRUN_STREAK = 5
+    #: the loop's readings were too old to set the heater from, again and again (safety.max_reading_age_s)
+    READINGS_TOO_OLD = 5
     HEATER_FAULT = 6
     DATA_LOG_FAILED = 7
 
@@ -91,12 +93,14 @@ class FaultCause(StrEnum):
     SENSOR_OVERFLOW = ("sensor_overflow", True, ExitCode.INSTRUMENTS_LOST)
     SENSOR_OUT_OF_CALIBRATION = ("sensor_out_of_calibration", True, ExitCode.INSTRUMENTS_LOST)
     SENSOR_STALE = ("sensor_stale", True, ExitCode.INSTRUMENTS_LOST)
+    #: The heater would have been set from readings older than ``safety.max_reading_age_s``, or its setting
+    #: outlived that bound because the loop did not run (switched off from the watchdog's thread).
+    READINGS_TOO_OLD = ("readings_too_old", True, ExitCode.READINGS_TOO_OLD)
     IDENTITY_MISMATCH = ("identity_mismatch", False, ExitCode.CONFIG)
     OVER_TEMPERATURE = ("over_temperature", False, ExitCode.OVER_TEMPERATURE)
     HEATER_FAULT = ("heater_fault", False, ExitCode.HEATER_FAULT)
     HEATER_OUTPUT_OFF = ("heater_output_off", False, ExitCode.HEATER_FAULT)
     DATA_LOG_FAILED = ("data_log_failed", False, ExitCode.DATA_LOG_FAILED)
-    OVERRUN_STREAK = ("overrun_streak", False, ExitCode.OVERRUN_STREAK)
     EXCEPTION = ("exception", False, ExitCode.EXCEPTION)
     STOP_REQUESTED = ("stop_requested", False, ExitCode.OK)
     #: Another signal that ends the process (cryod.service.stop_signals); the process's exit code is
@@ -136,6 +140,7 @@ class Fault:
 
 #: Driver errors and the cause each one is, most specific first.
 _DRIVER_ERROR_CAUSES = (
+    (HeaterSwitchedOff, FaultCause.READINGS_TOO_OLD),
     (HeaterOutputOff, FaultCause.HEATER_OUTPUT_OFF),
     ((HeaterRefused, HeaterCompliance, HeaterLimitRefused), FaultCause.HEATER_FAULT),
     (OverflowReading, FaultCause.SENSOR_OVERFLOW),

@@ -53,6 +53,8 @@ log = logging.getLogger("cryod.loop")
 #: Commands carried out at one tick boundary at most; the rest wait, in order, for the next ticks
 #: (many clients of the control socket at once cannot stretch a tick).
 COMMANDS_PER_TICK = 8
+#: Cycles that keep their deadlines for this long after a streak of late ones make the timing reliable again (s).
+ON_TIME_AGAIN_S = 10.0
 #: A heater-off's own row lies at least this long after the row before it (s): two steps of the record's
 #: time, so that the two never print as one instant. An off confirmed sooner is written this much later:
 #: the record may say the heater was on a fraction of a millisecond longer than it was, never shorter.
@@ -215,6 +217,11 @@ class ControlLoop:
         self.last_commanded_w = 0.0         # the last power sent to the supply
         self._heater_off_s = math.nan       # when the supply last confirmed the off (clock)
         self._heater_driven = False         # a power went to the supply since it last confirmed the off
+        #: The trigger instant of the readings the heater's setting came from (clock, s): the reading watchdog
+        #: switches the heater off when a setting outlives ``safety.max_reading_age_s`` (the loop did not run).
+        self.heater_reading_s = math.nan
+        #: The cycles keep their deadlines (:meth:`_follow_timing`).
+        self.on_time = True
         self._last_row_s = -math.inf        # time of the last row emitted
         self.last_fault: Fault | None = None
         self._status: Status | None = None
@@ -312,11 +319,7 @@ class ControlLoop:
                                            f"(started {(self._tick_start_s - deadline) * 1e3:.1f} ms late); "
                                            f"{missed} deadline(s) skipped")
                 deadline += (missed + 1) * self.period_s
-                if missed and self.timing.overrun_streak >= self.config.loop.overrun_streak_limit \
-                        and self.exit_code is None:
-                    self._fault(Fault(FaultCause.OVERRUN_STREAK,
-                                      f"{self.timing.overrun_streak} cycles in a row ended after "
-                                      f"the next deadline (last: {missed} period(s) late)"))
+                self._follow_timing(missed)
                 if manage_gc and self.exit_code is None:
                     self._gc.collect_if_time(deadline - self.clock.now())
                     self.timing.gc_longest_s = self._gc.longest_s
@@ -329,6 +332,28 @@ class ControlLoop:
             if manage_gc:
                 self._gc.stop()
         return self.exit_code
+
+    def _follow_timing(self, missed: int) -> None:
+        """Late cycles with fresh readings are no fault of the cryostat: the loop regulates on. After
+        ``loop.overrun_streak_limit`` of them in a row the timing counts as unreliable: the control terms that
+        rely on it hold back (the feedforward fades out and pauses its learning) until the cycles have kept
+        their deadlines for :data:`ON_TIME_AGAIN_S`; both changes are said in the journal and the record."""
+        timing = self.timing
+        if self.on_time and missed and timing.overrun_streak >= self.config.loop.overrun_streak_limit:
+            self.on_time = False
+            self.regulator.follow_timing(False)
+            message = (f"{timing.overrun_streak} cycles in a row ended after the next deadline (last: {missed} "
+                       f"period(s) late; loop.overrun_streak_limit {self.config.loop.overrun_streak_limit}): "
+                       f"regulating on, the feedforward fades out until the cycles keep their deadlines for "
+                       f"{ON_TIME_AGAIN_S:g} s")
+            log.warning("timing: %s", message)
+            self._event("timing", message)
+        elif not self.on_time and timing.on_time_streak * self.period_s >= ON_TIME_AGAIN_S:
+            self.on_time = True
+            self.regulator.follow_timing(True)
+            message = f"the cycles kept their deadlines for {ON_TIME_AGAIN_S:g} s: the feedforward fades back in"
+            log.info("timing: %s", message)
+            self._event("timing", message)
 
     # -- one tick -----------------------------------------------------------------
     def _tick(self, deadline: float) -> None:
@@ -394,6 +419,12 @@ class ControlLoop:
         if self._stop_reason is not None:        # asked to stop while this tick read: no new setting
             self._stop_as_requested(row)
             return
+        age_s = self.clock.now() - reading.trigger_time_s
+        if age_s > self.config.safety.max_reading_age_s:
+            self._fault(Fault(FaultCause.READINGS_TOO_OLD,
+                              f"the readings were {age_s:.3f} s old when the heater was to be set from them "
+                              f"(safety.max_reading_age_s {self.config.safety.max_reading_age_s:g})"), row)
+            return
         self.last_commanded_w = step.power_w
         self._heater_driven = True
         try:
@@ -408,6 +439,7 @@ class ControlLoop:
                 self._fault(error, row)
             return
         row.heater_set_s = self.clock.now()
+        self.heater_reading_s = reading.trigger_time_s
         # how long computing and setting take, smoothed: when the next setting will take effect
         self._setting_time_s += 0.1 * (row.heater_set_s - computing_since - self._setting_time_s)
         self.heater_w = row.heater_W = step.power_w

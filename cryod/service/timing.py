@@ -34,6 +34,8 @@ class LoopTiming:
         self.overruns = 0
         self.missed_deadlines = 0
         self.overrun_streak = 0
+        #: Cycles in a row that ended before the next deadline.
+        self.on_time_streak = 0
         #: Cycles that ended late while the heater was off waiting for valid readings (instruments timing
         #: out during a recovery): not overruns.
         self.waiting_cycles = 0
@@ -57,8 +59,10 @@ class LoopTiming:
             self.overruns += 1
             self.missed_deadlines += missed
             self.overrun_streak += 1
+            self.on_time_streak = 0
         else:
             self.overrun_streak = 0
+            self.on_time_streak += 1
 
     def percentile_s(self, fraction: float) -> float:
         """Lateness (s) below which ``fraction`` of the ticks started (bin upper edge)."""

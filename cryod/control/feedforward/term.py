@@ -419,6 +419,8 @@ class FeedforwardTerm(ControlTerm):
     def __init__(self, settings: FeedforwardSettings, output_max: float):
         self.output_max = output_max
         self.switched_on = settings.enabled
+        #: The loop's cycles keep their deadlines (:meth:`follow_timing`): the waveform may play and learn.
+        self.on_time = True
         self.scale = 0.0
         self._coefficients = np.zeros(settings.harmonics, dtype=complex)
         self._probe = np.zeros(settings.harmonics, dtype=complex)
@@ -544,6 +546,11 @@ class FeedforwardTerm(ControlTerm):
             self.worker.close()
         self.limits.close()
 
+    def follow_timing(self, on_time: bool) -> None:
+        """Late cycles in a row put the waveform's phase and the learning's inputs in doubt: the waveform fades
+        out and learning pauses until the cycles keep their deadlines again, then it fades back in."""
+        self.on_time = bool(on_time)
+
     def switch(self, on: bool) -> None:
         """``cryod ctl feedforward on|off``: fade in or out."""
         self.switched_on = bool(on)
@@ -631,7 +638,7 @@ class FeedforwardTerm(ControlTerm):
         self._time_s = tick.time_s
         locked = self.phase is not None and self.phase.locked
         learning = self._diverged is None and tick.time_s >= self._learn_again_s
-        wanted = 1.0 if (self.switched_on and locked and learning) else 0.0
+        wanted = 1.0 if (self.switched_on and locked and learning and self.on_time) else 0.0
         fade = self.settings.fade_time_s
         step = tick.dt_s / fade if fade > 0.0 else 1.0
         self.scale = min(self.scale + step, wanted) if wanted > self.scale else max(self.scale - step, wanted)
@@ -643,7 +650,7 @@ class FeedforwardTerm(ControlTerm):
             elif tick.time_s >= self._next_update_s:
                 self._next_update_s += self.settings.update_interval_s
                 self._follow_mean(abs(tick.setpoint_K - tick.flange_feedback_K))
-                self._ask_for_step(learning and self.switched_on)
+                self._ask_for_step(learning and self.switched_on and self.on_time)
         self.limits.follow(tick.time_s, tick.setpoint_K, self.output_max, self.settings.period_s,
                            self.setting_delay_s, self._learned_limit_inputs)
         if self.scale <= 0.0 or self.phase is None:
@@ -792,6 +799,9 @@ class FeedforwardTerm(ControlTerm):
         if plant.differences_said():
             lines.append(plant.differences_said())
         lines.append(self._describe_probe())
+        if not self.on_time:
+            lines.append("the loop's cycles are late many in a row: the waveform fades out and learning pauses "
+                         "until they keep their deadlines again")
         if self._diverged is not None:
             lines.append(f"learning diverged ({self._diverged}): fading out")
         elif self._time_s < self._learn_again_s:

@@ -188,6 +188,9 @@ class WebConfig:
     address: str                        # host:port, 127.0.0.1 unless stated otherwise
     writable: bool = False              # control from the page (needs token_file)
     token_file: Path | None = None      # the token a write must carry; readable by the service's group only
+    #: More names the ``Host`` header may give (a DNS name the lab reaches the PC by, a proxy's); the listening
+    #: address, localhost and this computer's own names are always taken.
+    allowed_hosts: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -196,6 +199,9 @@ class Lakeshore336Config:
 
     address: str                        # host:port, 127.0.0.1 unless stated otherwise
     writable: bool = False              # SETP, RAMP and RANGE taken (within the same limits as every path)
+    #: Addresses of other computers whose writes are taken; from this computer, writes are taken from the users
+    #: that may use the control socket.
+    write_from: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -638,7 +644,9 @@ def _web(section: Section | None, base: Path) -> WebConfig | None:
     if section is None:
         return None
     web = WebConfig(address=_listen_address(section), writable=section.flag("writable", False),
-                    token_file=_existing_file(section, "token_file", base, None))
+                    token_file=_existing_file(section, "token_file", base, None),
+                    allowed_hosts=tuple(_host_name(section, "allowed_hosts", name)
+                                        for name in section.texts("allowed_hosts", [])))
     if web.writable and web.token_file is None:
         raise section.error("writable", "control from the page needs web.token_file: a file holding the token "
                                         "a write must carry (at least 16 characters), readable by the service's "
@@ -655,9 +663,29 @@ def _web(section: Section | None, base: Path) -> WebConfig | None:
 def _lakeshore336(section: Section | None) -> Lakeshore336Config | None:
     if section is None:
         return None
-    lakeshore = Lakeshore336Config(address=_listen_address(section), writable=section.flag("writable", False))
+    lakeshore = Lakeshore336Config(address=_listen_address(section), writable=section.flag("writable", False),
+                                   write_from=tuple(_ip_address(section, "write_from", text)
+                                                    for text in section.texts("write_from", [])))
     section.finish()
     return lakeshore
+
+
+def _host_name(section: Section, key: str, text: str) -> str:
+    """A host name or address as a ``Host`` header gives it (lower case, no port)."""
+    name = text.strip().lower()
+    if not name or not all(character.isalnum() or character in ".-:_[]" for character in name):
+        raise section.error(key, f"{text!r} is not a host name or address (give names without a port)")
+    return name.strip("[]")
+
+
+def _ip_address(section: Section, key: str, text: str) -> str:
+    """An IP address, as the kernel gives a peer's."""
+    import ipaddress
+
+    try:
+        return str(ipaddress.ip_address(text.strip()))
+    except ValueError:
+        raise section.error(key, f"{text!r} is not an IP address (give each computer's address)") from None
 
 
 def _control(section: Section, safety: SafetyConfig, heater: HeaterConfig) -> ControlConfig:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
 
 from cryod.config import load_config
 from cryod.model import load_model
@@ -76,8 +77,12 @@ class GatedDaemon:
             control=dataclasses.replace(config.control, **control))
         self.socket_path = self.config.control_socket.path
         self.gate = TickGate()
+        #: Where the interfaces process (web page, 336, metrics, hooks) writes its journal lines.
+        self.interfaces_log = tmp_path / "interfaces.log"
+        self._interfaces_stderr = open(self.interfaces_log, "w")
         self.daemon = Daemon(self.config, SimulatedInstrumentsOpener(load_model(), seed=4), VirtualClock(),
-                             notifier=SystemdNotifier({}), row_taps=[self.gate], install_signal_handlers=False)
+                             notifier=SystemdNotifier({}), row_taps=[self.gate], install_signal_handlers=False,
+                             interfaces_options={"stderr": self._interfaces_stderr})
         self.result = None
         self._thread = threading.Thread(target=self._run, name="gated-daemon", daemon=True)
 
@@ -99,6 +104,28 @@ class GatedDaemon:
             self.daemon.loop.request_stop("test finished")
             self.gate.open()
             self._thread.join(60.0)
+        self._interfaces_stderr.close()
+
+    def interface(self, name: str, timeout_s: float = 30.0) -> str:
+        """Where the interfaces process serves ``name`` (``web``, ``lakeshore336``, ``metrics``), once it has said so
+        and has the daemon's stream."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            status = self.daemon._interfaces_status() or {}
+            if status.get(name):
+                return status[name]
+            assert time.monotonic() < deadline, f"the interfaces process did not serve {name} within {timeout_s:g} s:" \
+                                                f" {status}; its journal: {self.interfaces_journal()}"
+            time.sleep(0.02)
+
+    def port(self, name: str) -> int:
+        """The port the interfaces process serves ``name`` on."""
+        return int(self.interface(name).rstrip("/").removesuffix("/metrics").rpartition(":")[2])
+
+    def interfaces_journal(self) -> str:
+        """What the interfaces process has written to its journal so far."""
+        self._interfaces_stderr.flush()
+        return self.interfaces_log.read_text()
 
     @property
     def loop(self):

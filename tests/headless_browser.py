@@ -46,8 +46,8 @@ def headless_chromium(folder):
 
 
 def port_of(daemon) -> int:
-    """The port of a gated daemon's web page."""
-    return next(interface.port for interface in daemon.daemon.network_interfaces if "web" in interface.what)
+    """The port of a gated daemon's web page (served by its interfaces process)."""
+    return daemon.port("web")
 
 
 def wait_until(condition, what: str, timeout_s: float = 20.0):

@@ -151,10 +151,14 @@ class Event:
     kind : str
         ``fault``, ``stop``, ``resumed``, ``overrun``, ``command``, ``reload`` ...
     message : str
+    details : dict, optional
+        The figures behind the message, for listeners that act on them (an alarm's change for the lab's
+        hook); not written to the record.
     """
 
     kind: str
     message: str
+    details: dict | None = field(default=None, compare=False)
 
     @property
     def text(self) -> str:

@@ -8,7 +8,8 @@ says each change of an alarm:
 * in the journal, at warning (an acknowledgement at info);
 * in the record, as ``# event: alarm: NAME KIND: what, with the figures``, right after the
   row that made it;
-* to the lab's hook, which runs on a thread of its own (:mod:`cryod.service.alarm_hook`).
+* to the lab's hook, which runs in the interfaces process (:mod:`cryod.service.alarm_hook`), fed by the
+  daemon's stream (:mod:`cryod.service.stream`): the event carries the change's figures.
 
 What stands is published as a snapshot for the other threads: ``alarms`` in the status
 (``cryod ctl status``, the web page), ``cryod_alarm{name}`` in the metrics, the reply of
@@ -22,6 +23,7 @@ every change of an alarm. A reload hands the new ``alarms`` section over the sam
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 import math
 
@@ -62,7 +64,7 @@ class AlarmMonitor:
     period_s : float
         The loop period (s).
     hook : AlarmHookRunner, optional
-        Runs the lab's hook (``alarms.hook``); started and stopped by the daemon.
+        Runs the lab's hook (``alarms.hook``) in this process (the daemon leaves it to the interfaces process).
     """
 
     def __init__(self, config: AlarmsConfig, heater_max_power_w: float, cooler_rad_s: float, period_s: float,
@@ -181,6 +183,6 @@ class AlarmMonitor:
     def _say(self, change: Transition) -> None:
         level = logging.INFO if change.kind == "acknowledged" else logging.WARNING
         log.log(level, "alarm %s", change.text)
-        self.emit(Event("alarm", change.text))
+        self.emit(Event("alarm", change.text, details=dataclasses.asdict(change)))
         if self.hook is not None:
             self.hook.offer(change)

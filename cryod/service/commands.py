@@ -71,6 +71,8 @@ class Command:
     reply: dict | None = None
     #: :data:`PENDING`, :data:`TAKEN` or :data:`WITHDRAWN`.
     claim: str = PENDING
+    #: The command line it was parsed from (:func:`parse_command`), to pass it on as it was given.
+    line: str = ""
     _claim_lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def answer(self, ok: bool, message: str) -> None:
@@ -342,14 +344,14 @@ def parse_command(line: str) -> Command:
         counts = " or ".join(str(count) for count in spec.counts)
         raise ValueError(f"'{spec.name}' takes {counts} argument(s): {spec.usage}")
     if not arguments:
-        return Command(spec.name)
+        return Command(spec.name, line=spec.name)
     text = " ".join(arguments)
     try:
         value = spec.parse(text)
     except ValueError as error:
         raise ValueError(f"'{spec.name}' argument {spec.argument}: {shown(text)} is {error}; "
                          f"usage: {spec.usage}") from None
-    return Command(spec.name, value)
+    return Command(spec.name, value, line=f"{spec.name} {text}")
 
 
 def apply_command(loop: "ControlLoop", command: Command) -> tuple[bool, str]:

@@ -45,11 +45,16 @@ from typing import Callable
 
 from cryod.service.commands import Command, parse_command, wait_for
 from cryod.service.async_clients import ClientsThread, ConnectionBook, loop_answer
+from cryod.service.stream import StreamHub, finite_or_none
 
 log = logging.getLogger("cryod.control")
 
 #: Longest command line, bytes (without its newline).
 MAX_LINE = 256
+#: Longest relayed command line (``relay {...}``: the command and who sent it), bytes.
+MAX_RELAY_LINE = 1024
+#: Longest name of a relayed command's sender, characters.
+MAX_SENDER = 200
 #: Connections the kernel holds until the server takes them (a full backlog makes a client wait).
 BACKLOG = 256
 #: Connections open at once that carry any command (each costs a file descriptor, and a command waiting
@@ -90,12 +95,14 @@ class ControlSocketServer:
         How long a client has to send its line, s (default :data:`LINE_TIMEOUT_S`).
     reserved_connections : int, optional
         Connections beyond ``max_clients`` carrying only heater-off (default :data:`RESERVED_CONNECTIONS`).
+    stream : StreamHub, optional
+        The daemon's live stream, served to ``subscribe`` (:mod:`cryod.service.stream`).
     """
 
     def __init__(self, path: Path, mode: int, owner: str | None, group: str | None,
                  submit: Callable[[Command], Command], status: Callable[[], dict], reply_timeout_s: float = 5.0,
                  max_clients: int | None = None, line_timeout_s: float | None = None,
-                 reserved_connections: int | None = None):
+                 reserved_connections: int | None = None, stream: StreamHub | None = None):
         self.path = Path(path)
         self.mode = mode
         self.owner = owner
@@ -108,8 +115,15 @@ class ControlSocketServer:
         reserved = RESERVED_CONNECTIONS if reserved_connections is None else reserved_connections
         #: The connections open now (:attr:`ConnectionBook.open`), the most at once, those closed for room.
         self.connections = ConnectionBook(self.max_clients, reserved)
-        self._clients = ClientsThread("control socket", lambda listener: asyncio.start_unix_server(
-            self._serve_client, sock=listener, limit=MAX_LINE, backlog=BACKLOG))
+        self.stream = stream
+        self._clients = ClientsThread("control socket", self._open_server)
+
+    async def _open_server(self, listener: socket.socket) -> asyncio.AbstractServer:
+        server = await asyncio.start_unix_server(self._serve_client, sock=listener, limit=MAX_RELAY_LINE,
+                                                 backlog=BACKLOG)
+        if self.stream is not None:
+            asyncio.ensure_future(self.stream.run())        # cancelled with the clients at the stop
+        return server
 
     # -- replies ----------------------------------------------------------------------
     def handle_line(self, line: str) -> dict:
@@ -123,13 +137,9 @@ class ControlSocketServer:
         answered = wait_for(self.submit(command), self.reply_timeout_s)
         return reply_to(answered, self.status())
 
-    async def _reply_to_line(self, raw: bytes, sender: str = "") -> dict:
-        if len(raw) > MAX_LINE:
-            return {"ok": False, "message": f"command longer than {MAX_LINE} bytes refused"}
+    async def _reply_to_line(self, text: str, sender: str = "") -> dict:
         try:
-            command = parse_command(raw.decode("utf-8"))
-        except UnicodeDecodeError:
-            return {"ok": False, "message": "command is not UTF-8 text"}
+            command = parse_command(text)
         except ValueError as error:
             return {"ok": False, "message": str(error)}
         if command.name == "status":
@@ -137,6 +147,37 @@ class ControlSocketServer:
         command.sender = sender
         answered = await loop_answer(command, self.submit, self.reply_timeout_s)
         return reply_to(answered, self.status())
+
+    def _request(self, raw: bytes, credentials: tuple[int, int] | None) -> tuple[str, str] | dict:
+        """The command line and who sent it, from a connection's line: a plain command (its sender the peer the
+        kernel names), or ``relay {"sender": ..., "command": ...}`` from a process of the daemon's own user (the
+        interfaces process, passing on a command from the web page or the 336 with its client); else the
+        refusal."""
+        who = describe_peer(credentials)
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            return {"ok": False, "message": "command is not UTF-8 text"}
+        if not text.startswith("relay "):
+            if len(raw) > MAX_LINE:
+                return {"ok": False, "message": f"command longer than {MAX_LINE} bytes refused"}
+            return text, who
+        if credentials is None or credentials[1] not in (os.geteuid(), 0):
+            return {"ok": False, "message": "relay refused: only the daemon's own user passes on commands of "
+                                            "other clients"}
+        try:
+            relayed = json.loads(text[len("relay "):])
+            command, sender = relayed["command"], relayed["sender"]
+            if not isinstance(command, str) or not isinstance(sender, str):
+                raise TypeError
+        except (ValueError, KeyError, TypeError):
+            return {"ok": False, "message": 'relay refused: give relay {"sender": "...", "command": "..."}'}
+        if len(command.encode("utf-8")) > MAX_LINE or "\n" in command:
+            return {"ok": False, "message": f"command longer than {MAX_LINE} bytes refused"}
+        if len(sender) > MAX_SENDER or not sender.isprintable():
+            return {"ok": False, "message": f"relay refused: a sender is printable text of at most {MAX_SENDER} "
+                                            f"characters"}
+        return command, f"{sender}; via {who}"
 
     @property
     def clients(self) -> int:
@@ -175,12 +216,20 @@ class ControlSocketServer:
                 return
             line = await self._read_line(reader, RESERVED_LINE_TIMEOUT_S if reserved else self.line_timeout_s)
             self.connections.request_received()
-            if isinstance(line, dict):
-                reply = line
-            elif reserved and line.strip().split(maxsplit=1)[:1] != [RESERVED_FOR.encode("ascii")]:
-                reply = self._busy(open_now)
+            request = line if isinstance(line, dict) else self._request(line, peer_credentials(writer))
+            if isinstance(request, dict):
+                reply = request
             else:
-                reply = await self._reply_to_line(line, peer(writer))
+                text, sender = request
+                words = text.split(maxsplit=1)
+                if reserved and words[:1] != [RESERVED_FOR]:
+                    reply = self._busy(open_now)
+                elif words[:1] == ["subscribe"]:
+                    reply = await self._subscribe(reader, writer, sender, words[1:])
+                    if reply is None:           # served until it ended
+                        return
+                else:
+                    reply = await self._reply_to_line(text, sender)
             await self._send(writer, reply)
         except asyncio.CancelledError:
             if self.connections.closed_for_room_now():
@@ -195,6 +244,16 @@ class ControlSocketServer:
             await self._send(writer, {"ok": False, "message": f"internal error: {type(error).__name__}"})
         finally:
             self.connections.left()
+
+    async def _subscribe(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, sender: str,
+                         arguments: list[str]) -> dict | None:
+        """``subscribe [SEQ]``: the live stream on this connection until it ends (None), or the refusal."""
+        if self.stream is None:
+            return {"ok": False, "message": "subscribe refused: this daemon serves no stream"}
+        after = arguments[0].strip() if arguments else None
+        if after is not None and not (after.isascii() and after.isdigit() and len(after) <= 18):
+            return {"ok": False, "message": f"subscribe SEQ: SEQ is a whole number of events, got {after[:40]!r}"}
+        return await self.stream.serve(reader, writer, sender, None if after is None else int(after))
 
     async def _send(self, writer: asyncio.StreamWriter, reply: dict) -> None:
         try:
@@ -248,14 +307,22 @@ class ControlSocketServer:
             pass
 
 
-def peer(writer: asyncio.StreamWriter) -> str:
-    """Who is at the other end of a Unix socket connection (the kernel's word: SO_PEERCRED)."""
+def peer_credentials(writer: asyncio.StreamWriter) -> tuple[int, int] | None:
+    """(pid, uid) of the process at the other end of a Unix socket connection (the kernel's word: SO_PEERCRED)."""
     connection = writer.get_extra_info("socket")
     try:
         pid, uid, _ = struct.unpack("3i", connection.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED,
                                                                  struct.calcsize("3i")))
     except (AttributeError, OSError):
+        return None
+    return pid, uid
+
+
+def describe_peer(credentials: tuple[int, int] | None) -> str:
+    """``uid 1000 (alice), pid 4242`` for :func:`peer_credentials`."""
+    if credentials is None:
         return "an unknown peer"
+    pid, uid = credentials
     try:
         name = pwd.getpwuid(uid).pw_name
     except KeyError:
@@ -263,20 +330,14 @@ def peer(writer: asyncio.StreamWriter) -> str:
     return f"uid {uid} ({name}), pid {pid}"
 
 
+def peer(writer: asyncio.StreamWriter) -> str:
+    """Who is at the other end of a Unix socket connection, in words."""
+    return describe_peer(peer_credentials(writer))
+
+
 def reply_to(command: Command, status: dict) -> dict:
     """The reply line's object for an answered command: ``ok``, ``message``, what else it answers, ``status``."""
     return {"ok": command.ok, "message": command.message, **(command.reply or {}), "status": status}
-
-
-def finite_or_none(value):
-    """JSON-safe copy: NaN and infinities become null (strict JSON has no NaN)."""
-    if isinstance(value, dict):
-        return {key: finite_or_none(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [finite_or_none(item) for item in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def _socket_answers(path: Path) -> bool:

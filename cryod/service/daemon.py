@@ -5,13 +5,16 @@ the instruments handed over (real ones, locked against other daemons, or drivers
 talking to simulated ones) and the clock.
 
 Threads: the main thread runs the control loop and nothing else. The data
-log writer, the control socket, the status/reload service thread, the log
-listener and the network interfaces (metrics, web page, Lake Shore 336 command
-set; each on a thread of its own when configured) run beside it and talk to the
-loop through queues and snapshots. The signal watch sees every terminating signal at once; when the loop does not stop
-within :func:`stop_grace_s` of one (or of an exception in another thread), a
-thread of the daemon switches the heater off through the :class:`HeaterGuard`
-and, if the loop thread stays stuck, ends the process.
+log writer, the control socket (with the live stream), the status/reload
+service thread, the log listener and the reading watchdog run beside it and
+talk to the loop through queues and snapshots. The web page, the Lake Shore 336
+command set, the metrics and the alarm hooks run in a second process, the
+interfaces process, which the daemon starts and starts again when it ends
+(:mod:`cryod.service.interfaces_process`). The signal watch sees every
+terminating signal at once; when the loop does not stop within
+:func:`stop_grace_s` of one (or of an exception in another thread), a thread of
+the daemon switches the heater off through the :class:`HeaterGuard` and, if the
+loop thread stays stuck, ends the process.
 """
 
 from __future__ import annotations
@@ -38,17 +41,15 @@ from cryod.control.setpoint_reach import controller_model
 from cryod.instrument_waits import InstrumentWaits
 from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
-from cryod.service.alarm_hook import AlarmHookRunner
 from cryod.service.alarms import AlarmMonitor
 from cryod.service.commands import Command, wait_for
 from cryod.service.faults import ExitCode, Fault, FaultCause
 from cryod.service.heater_guard import HeaterGuard
-from cryod.service.history import RecentRows
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock, InstrumentLocks
+from cryod.service.interfaces_process import InterfacesProcess, interface_settings
 from cryod.service.lakeshore336 import Lakeshore336Setup
-from cryod.service.lakeshore336_server import Lakeshore336Server
 from cryod.service.live_view import LiveView
-from cryod.service.web import WebServer
+from cryod.service.stream import StreamHub, StreamTap
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
 from cryod.service.reading_watchdog import ReadingWatchdog
 from cryod.service.realtime import RealtimeSession
@@ -132,13 +133,17 @@ class Daemon:
         ``instrument_addresses(config) -> {canonical address: [keys]}`` of the real instruments, locked
         host-wide for the whole run before any is touched (``cryod run``:
         :func:`cryod.service.instruments.instrument_addresses`); a simulation's instruments are its own.
+    interfaces_options : dict, optional
+        More keyword arguments of :class:`~cryod.service.interfaces_process.InterfacesProcess` (tests: where
+        it logs).
     """
 
     def __init__(self, config: DaemonConfig, open_instruments: Callable, clock: Clock,
                  notifier: SystemdNotifier | None = None, metadata: dict | None = None,
                  row_taps: list[Callable] | None = None, install_signal_handlers: bool = True,
                  reload_config: Callable[[], DaemonConfig] | None = None, datalog_options: dict | None = None,
-                 instrument_addresses: Callable[[DaemonConfig], dict[str, list[str]]] | None = None):
+                 instrument_addresses: Callable[[DaemonConfig], dict[str, list[str]]] | None = None,
+                 interfaces_options: dict | None = None):
         self.config = config
         self.reload_config = reload_config or (lambda: load_config(self.config.source))
         self.open_instruments = open_instruments
@@ -149,23 +154,23 @@ class Daemon:
         self.datalog_options = datalog_options or {}      # e.g. a fake disk's free space, for tests
         self.install_signal_handlers = install_signal_handlers
         self.instrument_addresses = instrument_addresses
+        self.interfaces_options = interfaces_options or {}     # e.g. where the interfaces process logs, for tests
         self.loop: ControlLoop | None = None
         self.datalog: DataLog | None = None
         #: Why the run did not start because another daemon runs this cryostat (None otherwise).
         self.not_started: str | None = None
         #: The latest row and faults, for the status line and the metrics endpoint.
         self.live_view = LiveView(config.loop.period_s, cooler_rad_s(config))
-        #: The latest rows and events for the web page's history (a row tap only when the page is on).
-        self.recent_rows = RecentRows()
-        #: The alarms (``alarms``): the last row tap; their hook's thread.
-        self.alarm_hook = AlarmHookRunner(clock, config.metrics.cryostat, config.alarms.hook)
+        #: The alarms (``alarms``): the last row tap; their hook runs in the interfaces process.
         self.alarms = AlarmMonitor(config.alarms, config.heater.max_power_w, cooler_rad_s(config),
-                                   config.loop.period_s, self.alarm_hook)
+                                   config.loop.period_s)
         self.live_view.attach_alarms(self.alarms.raised_names)
-        self._instrument_status: tuple[object, dict] = (None, {})
+        #: The live stream of the control socket (``subscribe``): a row tap, and its side on the socket's thread.
+        self.stream_tap = StreamTap()
+        self.stream = StreamHub(self.stream_tap, self._stream_status, self._hello)
         self._lakeshore_setup: tuple[object, Lakeshore336Setup | None] = (None, None)
-        #: The web page and Lake Shore 336 interfaces serving now (their ports, for tests and tools).
-        self.network_interfaces: list = []
+        #: The interfaces process (web page, 336 command set, metrics, alarm hooks), when any is configured.
+        self.interfaces: InterfacesProcess | None = None
         self._reload_wanted = False
         self._socket_reloads: collections.deque[Command] = collections.deque()   # "reload" from the socket
         self._stop_reason: str | None = None
@@ -314,6 +319,8 @@ class Daemon:
         if command.ok:
             self.config = new
             self.alarms.reconfigure(new.alarms)
+            if self.interfaces is not None:
+                self.interfaces.configure(self._interface_settings(new))
             log.info("%s (by %s)", command.message, sender)
         else:
             log.error("%s (by %s)", command.message, sender)
@@ -349,37 +356,49 @@ class Daemon:
         paths = self.datalog.paths if self.datalog is not None else []
         return str(paths[-1].absolute()) if paths else None
 
-    def _status(self) -> dict:
+    def _stream_status(self) -> dict:
+        """The status as the stream sends it: ``cryod ctl status --json`` without the figures a subscriber computes
+        from the rows itself (``T2_average_K``, ``line_amplitude_K``)."""
         if self.loop is None:
-            return {"state": "waiting", "message": self._waiting, "heater_W": None, "record_path": self.record_path()}
-        status = self.loop.status.as_dict()
-        status["record_path"] = self.record_path()
-        status["setpoint_warning"] = self.loop.setpoint_warning
-        # figures over the recent past, computed on this (the socket's) thread
-        status["T2_average_K"] = self.live_view.flange_average_K()
-        status["line_amplitude_K"] = self.live_view.line_amplitude_K()
-        status["alarms"] = self.alarms.raised()
+            status = {"state": "waiting", "message": self._waiting, "heater_W": None,
+                      "record_path": self.record_path()}
+        else:
+            status = self.loop.status.as_dict()
+            status["record_path"] = self.record_path()
+            status["setpoint_warning"] = self.loop.setpoint_warning
+            status["alarms"] = self.alarms.raised()
+        status["alarm_states"] = self.alarms.states()
+        status["interfaces"] = self._interfaces_status()
         return status
 
-    def _status_for_instruments(self) -> dict:
-        """The loop's status with the thermometers' resistances, built once a tick (the 336's queries).
+    def _status(self) -> dict:
+        status = self._stream_status()
+        if self.loop is not None:
+            # figures over the recent past, computed on this (the socket's) thread
+            status["T2_average_K"] = self.live_view.flange_average_K()
+            status["line_amplitude_K"] = self.live_view.line_amplitude_K()
+        return status
 
-        Without the averages :meth:`_status` computes, so that a client polling fast costs little.
-        """
-        loop = self.loop
-        if loop is None:
-            return self._status()
-        status = loop.status
-        cached_for, cached = self._instrument_status
-        if cached_for is not status:
-            row = self.live_view.latest_row()
-            cached = dict(status.as_dict(), T2_ohm=getattr(row, "T2_ohm", None), T5_ohm=getattr(row, "T5_ohm", None))
-            self._instrument_status = (status, cached)
-        return cached
+    def _interfaces_status(self) -> dict | None:
+        """The interfaces process: whether it runs, where it serves, what it says went wrong (None: not wanted)."""
+        if self.interfaces is None:
+            return None
+        reports = [report for report in self.stream.reports() if report.get("pid") == self.interfaces.status()["pid"]]
+        report = reports[-1] if reports else {}
+        return dict(self.interfaces.status(), web=report.get("web"), lakeshore336=report.get("lakeshore336"),
+                    metrics=report.get("metrics"), alarm_hook=report.get("alarm_hook"),
+                    problems=report.get("problems", []))
 
-    def _lakeshore336_setup(self) -> Lakeshore336Setup:
-        """The 336's view of the configuration in force (built again after a reload)."""
-        config = self.config
+    def _hello(self) -> dict:
+        """Who this daemon is, for a subscriber's first line."""
+        return {"version": __version__, "pid": os.getpid(), "period_s": self.config.loop.period_s,
+                "cooler_rad_s": cooler_rad_s(self.config), "cryostat": self.config.metrics.cryostat,
+                "config_file": str(self.config.source or "")}
+
+    def _lakeshore336_setup(self, config: DaemonConfig) -> Lakeshore336Setup | None:
+        """The 336's view of ``config`` (built again after a reload), None without the 336 command set."""
+        if config.lakeshore336 is None:
+            return None
         built_for, setup = self._lakeshore_setup
         if built_for is not config:
             from cryod.thermometry import load_calibration
@@ -389,24 +408,21 @@ class Daemon:
             self._lakeshore_setup = (config, setup)
         return setup
 
-    def _start_network_interfaces(self, config: DaemonConfig) -> list:
-        """The web page and the Lake Shore 336 command set, as configured; one that cannot listen is said in
-        the journal and left out (the cryostat is regulated all the same)."""
-        started = []
-        if config.web is not None:
-            started.append(WebServer(config.web.address, config.web.writable, config.web.token_file, self._status,
-                                     self._submit, self.recent_rows, self.live_view.line_amplitude_K))
-        if config.lakeshore336 is not None:
-            self._lakeshore336_setup()
-            started.append(Lakeshore336Server(config.lakeshore336.address, config.lakeshore336.writable,
-                                              self._status_for_instruments, self._submit, self._lakeshore336_setup))
-        for interface in list(started):
-            try:
-                interface.start()
-            except OSError as error:
-                log.error("not started: %s", error)
-                started.remove(interface)
-        return started
+    def _interface_settings(self, config: DaemonConfig):
+        return interface_settings(config, cooler_rad_s(config), self._lakeshore336_setup(config))
+
+    def _start_interfaces(self, config: DaemonConfig) -> None:
+        """The interfaces process, when the configuration asks for any of what it serves; one that cannot be
+        started is said in the journal (the cryostat is regulated all the same)."""
+        settings = self._interface_settings(config)
+        if not settings.wanted:
+            return
+        self.interfaces = InterfacesProcess(settings, self.stream.last_seq_of, **self.interfaces_options)
+        try:
+            self.interfaces.start()
+        except OSError as error:
+            log.error("the interfaces process (web page, 336, metrics, alarm hooks) could not be started: %s", error)
+            self.interfaces = None
 
     # -- the run --------------------------------------------------------------------
     def run(self, duration_s: float | None = None) -> RunResult:
@@ -426,8 +442,6 @@ class Daemon:
         control_socket: ControlSocketServer | None = None
         realtime: RealtimeSession | None = None
         reading_watchdog: ReadingWatchdog | None = None
-        metrics = None
-        interfaces: list = []
         service = threading.Thread(target=self._service, name="cryod-service", daemon=True)
         signals = SignalWatch(self._on_stop_signal, self._on_reload_signal, self._on_signal_seen) \
             if self.install_signal_handlers else None
@@ -449,28 +463,15 @@ class Daemon:
                 restore_exception_hook = install_thread_exception_hook(self._on_thread_exception)
             control_socket = ControlSocketServer(config.control_socket.path, config.control_socket.mode,
                                                  config.control_socket.owner, config.control_socket.group,
-                                                 self._submit, self._status)
+                                                 self._submit, self._status, stream=self.stream)
             try:
                 control_socket.start()
             except (OSError, KeyError) as error:         # KeyError: an owner or group gone since the checks
                 self._stop_event(str(located_error(config, "control_socket.path",
                                                    f"the control socket cannot be served: {error}")), ExitCode.CONFIG)
                 raise _NotStarted from None
-            if config.metrics.address is not None:
-                from cryod.service.metrics_export import MetricsEndpoint
-
-                metrics = MetricsEndpoint(self.live_view, config.metrics.address, config.metrics.cryostat,
-                                          alarms=self.alarms.states)
-                try:
-                    metrics.start()
-                except OSError as error:      # monitoring is not worth a cryostat: say so and regulate
-                    log.error("no metrics endpoint: %s", error)
-                    metrics = None
-                else:
-                    log.info("Prometheus metrics on http://%s:%d/metrics", metrics.host, metrics.port)
-            interfaces = self.network_interfaces = self._start_network_interfaces(config)
+            self._start_interfaces(config)
             service.start()
-            self.alarm_hook.start()
             self.notifier.ready("started: opening the instruments")
             opened = self._open_instruments_waiting(config) if self.datalog.failure is None \
                 else self._data_log_stop()
@@ -479,9 +480,7 @@ class Daemon:
             else:
                 opened_instruments, flange_curve, stage_curve = opened
                 instruments = self._guard = HeaterGuard(opened_instruments)
-                taps = [self.datalog.put, self.live_view, *self.row_taps]
-                if config.web is not None:
-                    taps.append(self.recent_rows)
+                taps = [self.datalog.put, self.live_view, self.stream_tap, *self.row_taps]
                 emit = _fan_out([*taps, self.alarms])      # the alarms last: their events follow the row
                 self.alarms.attach(emit)
                 self.loop = ControlLoop(config, instruments, flange_curve, stage_curve, self.clock,
@@ -526,13 +525,10 @@ class Daemon:
                 except Exception as error:                 # already off in the loop; say so and go on
                     log.critical("closing the instruments failed (the loop had set the heater to 0 W or said it "
                                  "could not): %s", error)
+            if self.interfaces is not None:
+                self.interfaces.stop()
             if control_socket is not None:
                 control_socket.stop()
-            if metrics is not None:
-                metrics.stop()
-            for interface in interfaces:
-                interface.stop()
-            self.alarm_hook.stop()
             if self.datalog is not None:
                 self.datalog.stop()
             if signals is not None:

@@ -3,7 +3,7 @@
 A lab's existing 336 drivers (PyMeasure, QCoDeS, EPICS, LabVIEW) talk to cryod as to a 336: input
 A is the flange (T2), input B the cooler's second stage (T5), output 1 the flange heater. This
 module is the protocol only: one message in, the replies out and the commands for the loop; the
-TCP server is :mod:`cryod.service.lakeshore336_server`. docs/operations.md lists every command,
+TCP server is :mod:`cryod.interfaces.lakeshore336_server`. docs/operations.md lists every command,
 the mapping of each value and the manual's sections (Lake Shore Model 336 user's manual,
 chapter 6).
 
@@ -164,13 +164,18 @@ class Lakeshore336Session:
     writable : bool
         ``lakeshore336.writable``: whether SETP, RAMP and RANGE reach the loop.
     peer : str
-        The client's address (``127.0.0.1:54321``), in the journal with every write.
+        The client's address (``127.0.0.1:54321``, with its user for a client on this computer), in the journal
+        with every write.
+    write_refusal : str, optional
+        Why this client may not write although the interface is writable (its user may not use the control
+        socket, its address is not in ``lakeshore336.write_from``); None: it may.
     """
 
-    def __init__(self, setup, writable: bool, peer: str):
+    def __init__(self, setup, writable: bool, peer: str, write_refusal: str | None = None):
         self._setup = setup if callable(setup) else (lambda: setup)
         self.writable = writable
         self.peer = peer
+        self.write_refusal = write_refusal
         #: Standard event status register and its enable mask.
         self.event_status = 0
         self.event_enable = 0
@@ -218,6 +223,9 @@ class Lakeshore336Session:
         if not self.writable:
             log.warning("Lake Shore 336 interface: %s refused: lakeshore336.writable is false (by %s)",
                         what, self.sender)
+            raise _Refused(EXECUTION_ERROR)
+        if self.write_refusal is not None:
+            log.warning("Lake Shore 336 interface: %s refused: %s (by %s)", what, self.write_refusal, self.sender)
             raise _Refused(EXECUTION_ERROR)
 
     def _write(self, line: str) -> Command:

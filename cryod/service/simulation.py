@@ -45,7 +45,7 @@ from cryod.control.feedforward.limit_binding import limit_binding
 from cryod.records.columns import Event, Row
 from cryod.records.metrics import regulation_metrics
 from cryod.model import DEFAULT_MODEL_PATH, linearised_at, load_model
-from cryod.service.control_socket import finite_or_none
+from cryod.service.stream import finite_or_none
 from cryod.service.logs import ServiceLogging
 from cryod.service.readable import readable, rounded
 from cryod.service.status_line import StatusLine

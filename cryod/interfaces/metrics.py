@@ -1,15 +1,11 @@
 """The daemon's live state as Prometheus metrics, for labs that watch many cryostats.
 
-Off unless the configuration gives ``metrics.address`` (``host:port``). The
-endpoint serves every client from one thread with an asyncio event loop (not a
-thread per connection, as prometheus_client's own server does: 800 idle
-connections would be 800 threads competing with the loop); each scrape reads a
-:class:`~cryod.service.live_view.LiveView` snapshot, so the loop does no work for
-it, and prometheus_client encodes it. One request per connection: a client has
-:data:`REQUEST_TIMEOUT_S` to send it, and beyond :data:`MAX_CONNECTIONS` open at
-once the one that has waited longest without sending it is closed to make room
-(:class:`cryod.service.async_clients.ConnectionBook`). Metric names follow Prometheus' conventions (base units,
-``_total`` for counters)::
+Off unless the configuration gives ``metrics.address`` (``host:port``). Served by the interfaces
+process on an :class:`~cryod.interfaces.http_server.HttpServer` (every client on one event loop, a
+bound on connections, the connection that has waited longest for its request closed to make room);
+each scrape reads the :class:`~cryod.service.live_view.LiveView` the interfaces process keeps from
+the daemon's stream, so the daemon does no work for it, and prometheus_client encodes it. Metric
+names follow Prometheus' conventions (base units, ``_total`` for counters)::
 
     cryod_flange_temperature_kelvin        T2
     cryod_ptc_stage_temperature_kelvin     T5
@@ -35,18 +31,16 @@ Examples
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import math
-import socket
 
 from prometheus_client import CollectorRegistry
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.exposition import choose_encoder
 
 from cryod import __version__
+from cryod.interfaces.http_server import HttpServer, Request, Response
 from cryod.listen_address import parse_address
-from cryod.service.async_clients import ClientsThread, ConnectionBook
 from cryod.service.faults import FaultCause
 from cryod.service.live_view import LiveView
 from cryod.service.states import LoopState
@@ -55,10 +49,6 @@ log = logging.getLogger("cryod.metrics")
 
 #: Connections open at once; one more closes the one that has waited longest for its request.
 MAX_CONNECTIONS = 64
-#: How long a client has to send its request (line and headers), s.
-REQUEST_TIMEOUT_S = 5.0
-#: Longest request (line and headers), bytes.
-MAX_REQUEST_BYTES = 8192
 #: The paths that give the metrics.
 METRICS_PATHS = ("/metrics", "/")
 
@@ -133,7 +123,7 @@ class CryodCollector:
 
 
 class MetricsEndpoint:
-    """The HTTP endpoint serving :class:`CryodCollector` (start, stop), from one thread.
+    """The HTTP endpoint serving :class:`CryodCollector` on the interfaces process's event loop.
 
     Parameters
     ----------
@@ -146,79 +136,27 @@ class MetricsEndpoint:
         The alarms' states for ``cryod_alarm`` (:class:`CryodCollector`).
     max_connections : int, optional
         Connections open at once (default :data:`MAX_CONNECTIONS`).
-    request_timeout_s : float, optional
-        How long a client has to send its request (default :data:`REQUEST_TIMEOUT_S`).
     """
 
-    def __init__(self, view: LiveView, address: str, cryostat: str = "", max_connections: int = MAX_CONNECTIONS,
-                 request_timeout_s: float = REQUEST_TIMEOUT_S, alarms=None):
-        self.host, self.port = metrics_address(address) if not str(address).endswith(":0") \
-            else (str(address).rpartition(":")[0], 0)
+    def __init__(self, view: LiveView, address: str, cryostat: str = "", alarms=None,
+                 max_connections: int = MAX_CONNECTIONS):
         self.registry = CollectorRegistry(auto_describe=False)
         self.registry.register(CryodCollector(view, cryostat, alarms))
-        self.request_timeout_s = request_timeout_s
-        #: The connections open now, the most at once, those closed to make room.
-        self.connections = ConnectionBook(max_connections)
-        self._clients = ClientsThread("metrics endpoint", lambda listener: asyncio.start_server(
-            self._serve_client, sock=listener, limit=MAX_REQUEST_BYTES))
+        self.server = HttpServer("metrics endpoint", address, self.route, max_connections, max_body=0,
+                                 error_body=lambda status, message: (message.encode("utf-8") + b"\n", "text/plain"))
 
-    def start(self) -> None:
-        """Listen; an address in use or not on this host raises OSError naming it."""
-        try:
-            family = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)[0][0]
-            listener = socket.socket(family, socket.SOCK_STREAM)
-            listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            try:
-                listener.bind((self.host, self.port))
-                listener.listen(128)
-            except OSError:
-                listener.close()
-                raise
-        except OSError as error:
-            raise OSError(f"metrics.address {self.host}:{self.port}: {error.strerror or error}") from error
-        self.port = listener.getsockname()[1]
-        self._clients.start(listener)
+    @property
+    def port(self) -> int:
+        return self.server.port
 
-    async def _serve_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        place = self.connections.arrived()
-        try:
-            if place is ConnectionBook.FULL:        # every connection open is being answered: no room now
-                return
-            try:
-                head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), self.request_timeout_s)
-            except (asyncio.IncompleteReadError, asyncio.TimeoutError, asyncio.LimitOverrunError, OSError):
-                return                          # no request (in time, or at all): nothing to answer
-            self.connections.request_received()
-            status, headers, body = self._answer(head)
-            lines = [f"HTTP/1.1 {status}", *(f"{name}: {value}" for name, value in headers),
-                     f"Content-Length: {len(body)}", "Connection: close", "", ""]
-            writer.write("\r\n".join(lines).encode("latin-1") + (b"" if head.startswith(b"HEAD ") else body))
-            await asyncio.wait_for(writer.drain(), self.request_timeout_s)
-        except (asyncio.CancelledError, asyncio.TimeoutError, OSError):
-            pass                                # closed for room, the daemon stopping, a client gone
-        except Exception as error:              # one client's trouble never ends the endpoint
-            log.warning("metrics endpoint: answering a client failed: %s: %s", type(error).__name__, error)
-        finally:
-            writer.close()
-            self.connections.left()
+    async def route(self, request: Request) -> Response:
+        """The metrics for ``GET /metrics`` (or ``/``), in the format the client accepts."""
+        if request.method not in ("GET", "HEAD"):
+            return Response(405, b"GET /metrics\n", "text/plain", (("Allow", "GET, HEAD"),))
+        if request.path not in METRICS_PATHS:
+            return Response(404, b"the metrics are at /metrics\n", "text/plain")
+        encoder, content_type = choose_encoder(request.headers.get("accept", ""))
+        return Response(200, b"" if request.method == "HEAD" else encoder(self.registry), content_type)
 
-    def _answer(self, head: bytes) -> tuple[str, list[tuple[str, str]], bytes]:
-        """Status, headers and body for one request (its line and headers)."""
-        request_line, *header_lines = head.decode("latin-1").split("\r\n")
-        parts = request_line.split()
-        if len(parts) != 3 or not parts[2].startswith("HTTP/"):
-            return "400 Bad Request", [("Content-Type", "text/plain")], b"not an HTTP request\n"
-        method, target, _ = parts
-        if method not in ("GET", "HEAD"):
-            return "405 Method Not Allowed", [("Allow", "GET, HEAD"), ("Content-Type", "text/plain")], \
-                b"GET /metrics\n"
-        if target.split("?", 1)[0] not in METRICS_PATHS:
-            return "404 Not Found", [("Content-Type", "text/plain")], b"the metrics are at /metrics\n"
-        accept = next((line.split(":", 1)[1].strip() for line in header_lines
-                       if line.lower().startswith("accept:")), "")
-        encoder, content_type = choose_encoder(accept)
-        return "200 OK", [("Content-Type", content_type)], encoder(self.registry)
 
-    def stop(self) -> None:
-        """Stop serving and close the port."""
-        self._clients.stop()
+__all__ = ["CryodCollector", "MetricsEndpoint", "metrics_address", "STATES"]

@@ -1,20 +1,20 @@
-"""The last hour of the loop in one-second bins, for the web page: kept off the loop's thread.
+"""The last hour of the loop in one-second bins, for the web page, folded in the interfaces process.
 
-:class:`RecentRows` is one more listener of the loop's rows and events (a row tap, like the data
-log): on the loop thread it only appends a reference to a short deque. :class:`History`, on the web
-interface's thread, takes what came since its last look and folds it into one-second bins: the
-band (least and most) and mean of T2, T5 and the heater, PI's part, the feedforward waveform's band,
-the setpoint and the state; the last :data:`SPAN_S` are kept. Events (faults, commands, notes)
-are kept with the time of the row before them and a sequence number.
+:class:`History` takes the daemon's rows as its stream brings them (:mod:`cryod.service.stream`)
+and folds them into one-second bins: the band (least and most) and mean of T2, T5 and the heater,
+PI's part, the feedforward waveform's band, the setpoint and the state; the last :data:`SPAN_S` are
+kept. Events (faults, commands, notes) are kept as the stream numbers them, with the time of the
+row before them. None of this touches the daemon's process.
 
 Examples
 --------
 >>> from cryod.records.columns import Row
->>> recent, history = RecentRows(), History()
+>>> history = History()
 >>> for tick in range(30):
-...     recent(Row(time_s=0.08 * tick, lateness_ms=0.1, state="closed", T2_K=5.0 + 1e-4 * (tick % 3), T5_K=3.4, heater_W=0.1,
-...                setpoint_K=5.0, control={"pi_proportional_W": 0.02, "pi_integral_W": 0.08}))
->>> bins = history.take(recent)
+...     history.add_row(Row(time_s=0.08 * tick, lateness_ms=0.1, state="closed", T2_K=5.0 + 1e-4 * (tick % 3),
+...                         T5_K=3.4, heater_W=0.1, setpoint_K=5.0,
+...                         control={"pi_proportional_W": 0.02, "pi_integral_W": 0.08}))
+>>> bins = list(history.bins)
 >>> len(bins), bins[0]["T2_max_K"] - bins[0]["T2_min_K"] > 1.9e-4, bins[0]["pi_W"]
 (2, True, 0.1)
 """
@@ -24,30 +24,14 @@ from __future__ import annotations
 import collections
 import math
 
-from cryod.records.columns import Event, Row
+from cryod.records.columns import Row
 
 #: Width of a bin, s.
 BIN_S = 1.0
 #: Bins kept: one hour.
 SPAN_S = 3600.0
-#: Rows held for the web interface between two of its looks (20 s of rows at 80 ms).
-RECENT_ROWS = 256
 #: Events kept.
 EVENTS_KEPT = 200
-
-
-class RecentRows:
-    """Row tap: the latest rows and events, for a reader on another thread (deque appends are atomic)."""
-
-    def __init__(self):
-        self.rows: collections.deque = collections.deque(maxlen=RECENT_ROWS)
-        self.events: collections.deque = collections.deque(maxlen=EVENTS_KEPT)
-
-    def __call__(self, item: Row | Event) -> None:
-        if type(item) is Row:
-            self.rows.append(item)
-        else:
-            self.events.append(item)
 
 
 def _finite(values: list[float]) -> list[float]:
@@ -106,45 +90,37 @@ class _Bin:
 
 
 class History:
-    """One-second bins of the last hour and the recent events, fed from :class:`RecentRows`."""
+    """One-second bins of the last hour and the recent events, fed row by row and event by event.
 
-    def __init__(self):
+    Parameters
+    ----------
+    line_amplitude_K : callable, optional
+        The cooler line's amplitude on T2 now (K), written into each bin as it is completed.
+    """
+
+    def __init__(self, line_amplitude_K=lambda: math.nan):
+        self.line_amplitude_K = line_amplitude_K
         self.bins: collections.deque = collections.deque(maxlen=int(SPAN_S / BIN_S))
         self.events: collections.deque = collections.deque(maxlen=EVENTS_KEPT)
         self._open: _Bin | None = None
-        self._last_time_s = math.nan
-        self._events_seen = 0
 
-    def take(self, recent: RecentRows, line_amplitude_K=lambda: math.nan) -> list[dict]:
-        """Fold in the rows and events that came since the last call; the bins completed by them.
-
-        ``line_amplitude_K`` (a callable) gives the cooler line's amplitude now, written into
-        each bin as it is completed.
-        """
-        completed = []
-        while True:
-            try:
-                row = recent.rows.popleft()
-            except IndexError:
-                break
-            start = math.floor(row.time_s / BIN_S) * BIN_S
-            if self._open is not None and start != self._open.start_s:
-                completed.append(self._open.summary(line_amplitude_K()))
-                self._open = None
-            if self._open is None:
-                self._open = _Bin(start)
-            self._open.add(row)
-            self._last_time_s = row.time_s
-        while True:
-            try:
-                event = recent.events.popleft()
-            except IndexError:
-                break
-            self._events_seen += 1
-            self.events.append({"seq": self._events_seen, "kind": event.kind, "message": event.message,
-                                "time_s": None if math.isnan(self._last_time_s) else self._last_time_s})
-        self.bins.extend(completed)
+    def add_row(self, row: Row) -> dict | None:
+        """Fold in one row; the bin it completed, if any."""
+        start = math.floor(row.time_s / BIN_S) * BIN_S
+        completed = None
+        if self._open is not None and start != self._open.start_s:
+            completed = self._open.summary(self.line_amplitude_K())
+            self.bins.append(completed)
+            self._open = None
+        if self._open is None:
+            self._open = _Bin(start)
+        self._open.add(row)
         return completed
+
+    def add_event(self, event: dict) -> None:
+        """Keep one event of the stream (``seq``, ``kind``, ``message``, ``time_s``)."""
+        if not self.events or event["seq"] > self.events[-1]["seq"]:
+            self.events.append({key: event[key] for key in ("seq", "kind", "message", "time_s")})
 
     def since(self, time_s: float | None) -> list[dict]:
         """The bins that start after ``time_s`` (all of them for None)."""

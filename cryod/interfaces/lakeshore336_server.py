@@ -60,6 +60,9 @@ class _Connection:
         self.writer = writer
         self.last_message = time.monotonic()
         self.answering = False
+        #: The daemon's status in its answer to this connection's last command: newer than the stream's until
+        #: the stream catches up (a query after SETP shows the new setpoint).
+        self.after_command: dict | None = None
 
 
 class Lakeshore336Server:
@@ -206,7 +209,7 @@ class Lakeshore336Server:
                     second, served = time.monotonic(), 1
                 connection.answering = True
                 try:
-                    reply = await self._answer(session, raw)
+                    reply = await self._answer(session, raw, connection)
                 finally:
                     connection.answering = False
                     connection.last_message = time.monotonic()
@@ -214,12 +217,19 @@ class Lakeshore336Server:
                     writer.write(reply.encode("ascii") + b"\r\n")
                     await asyncio.wait_for(writer.drain(), SEND_TIMEOUT_S)
 
-    def _status(self) -> dict:
-        """The daemon's status with the thermometers' resistances of its latest row (``RDGR?``)."""
+    def _status(self, connection: _Connection) -> dict:
+        """The daemon's status with the thermometers' resistances of its latest row (``RDGR?``): the stream's, or
+        the one the daemon answered this connection's last command with while the stream has not reached it."""
+        status = self.mirror.status()
+        newer = connection.after_command
+        if newer is not None and (status.get("time_s") or -1.0) < (newer.get("time_s") or -1.0):
+            status = newer
+        else:
+            connection.after_command = None
         row = self.mirror.latest_row()
-        return dict(self.mirror.status(), T2_ohm=getattr(row, "T2_ohm", None), T5_ohm=getattr(row, "T5_ohm", None))
+        return dict(status, T2_ohm=getattr(row, "T2_ohm", None), T5_ohm=getattr(row, "T5_ohm", None))
 
-    async def _answer(self, session: Lakeshore336Session, raw: bytes) -> str | None:
+    async def _answer(self, session: Lakeshore336Session, raw: bytes, connection: _Connection) -> str | None:
         """The reply line to one message (None when it holds no query that is answered)."""
         self.messages += 1
         if len(raw) > MAX_MESSAGE:
@@ -233,14 +243,15 @@ class Lakeshore336Server:
         replies = []
         status = None
         for part in split_message(text):
-            status = self._status() if status is None else status
+            status = self._status(connection) if status is None else status
             outcome = session.respond(part, status)
             if isinstance(outcome, Command):
                 reply = await self.link.command(outcome.line, outcome.sender)
                 outcome.ok, outcome.message = bool(reply.get("ok")), str(reply.get("message", ""))
                 session.answered(outcome)
-                status = dict(reply["status"], T2_ohm=status.get("T2_ohm"), T5_ohm=status.get("T5_ohm")) \
-                    if isinstance(reply.get("status"), dict) else None   # what follows sees the command's effect
+                if isinstance(reply.get("status"), dict):       # what follows sees the command's effect
+                    connection.after_command = reply["status"]
+                status = None
             elif outcome is not None:
                 replies.append(outcome)
         return ";".join(replies) if replies else None

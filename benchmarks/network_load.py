@@ -97,7 +97,7 @@ class ClientLoad:
 
     def _page(self) -> None:
         with self._connect(self.web_port) as page:
-            page.sendall(b"GET /api/events HTTP/1.1\r\nHost: load\r\n\r\n")
+            page.sendall(b"GET /api/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
             stream = page.makefile("rb")
             while not self.stopping.is_set():
                 line = stream.readline()

@@ -459,7 +459,7 @@ def test_an_alarm_in_the_daemon_is_said_everywhere_and_acknowledged_through_ever
     from cryod.cli import main
     from cryod.client import CommandRefused, DaemonClient
     from cryod.service.control_socket import send_command
-    from cryod.service.metrics_export import CryodCollector
+    from cryod.interfaces.metrics import CryodCollector
     from tests.gated_daemon import GatedDaemon
 
     warm = PtcStageWarmAlarm(threshold_K=3.0, delay_s=1.0, latching=True)      # the simulated T5 is above it

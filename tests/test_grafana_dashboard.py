@@ -8,7 +8,7 @@ from prometheus_client import CollectorRegistry, generate_latest
 
 from cryod.records.columns import Event, Row
 from cryod.service.live_view import LiveView
-from cryod.service.metrics_export import CryodCollector
+from cryod.interfaces.metrics import CryodCollector
 from tests.conftest import REPOSITORY
 
 DASHBOARD = REPOSITORY / "contrib" / "grafana" / "cryod-dashboard.json"

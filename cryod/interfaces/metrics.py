@@ -149,6 +149,17 @@ class MetricsEndpoint:
     def port(self) -> int:
         return self.server.port
 
+    async def start(self) -> None:
+        """Listen; an address in use or not on this host raises OSError naming ``metrics.address``."""
+        try:
+            await self.server.start()
+        except OSError as error:
+            raise OSError(f"metrics.address {self.server.host}:{self.server.port}: {error.strerror or error}") \
+                from error
+
+    async def stop(self) -> None:
+        await self.server.stop()
+
     async def route(self, request: Request) -> Response:
         """The metrics for ``GET /metrics`` (or ``/``), in the format the client accepts."""
         if request.method not in ("GET", "HEAD"):

@@ -88,23 +88,22 @@ class Interfaces:
         """Start what the settings configure; one that cannot listen is said and left out."""
         settings = self.settings
         if settings.web is not None:
-            self.web = await self._started(WebPage(settings.web, self.mirror, self.link), "server")
+            self.web = await self._started(WebPage(settings.web, self.mirror, self.link))
         if settings.lakeshore336 is not None:
             self.lakeshore336 = await self._started(
                 Lakeshore336Server(settings.lakeshore336, lambda: self.settings.lakeshore336_setup, self.mirror,
-                                   self.link, settings.socket_path), None)
+                                   self.link, settings.socket_path))
         if settings.metrics_address is not None:
             def alarms() -> dict[str, float]:
                 return dict(self.mirror.stream_status.get("alarm_states") or {})
 
             self.metrics = await self._started(MetricsEndpoint(self.mirror.view, settings.metrics_address,
-                                                               settings.cryostat, alarms), "server")
+                                                               settings.cryostat, alarms))
         self.hooks.start()
 
-    async def _started(self, interface, inner: str | None):
-        server = getattr(interface, inner) if inner else interface
+    async def _started(self, interface):
         try:
-            await server.start()
+            await interface.start()
         except OSError as error:
             problem = f"not started: {error}"
             log.error("%s", problem)
@@ -118,11 +117,9 @@ class Interfaces:
         self.hooks.configure(settings.alarm_hook)
 
     async def stop(self) -> None:
-        for interface in (self.web, self.metrics):
+        for interface in (self.web, self.lakeshore336, self.metrics):
             if interface is not None:
-                await interface.server.stop()
-        if self.lakeshore336 is not None:
-            await self.lakeshore336.stop()
+                await interface.stop()
         self.hooks.stop()
 
 

@@ -144,6 +144,12 @@ class WebPage:
     def writable(self) -> bool:
         return self.config.writable
 
+    async def start(self) -> None:
+        await self.server.start()
+
+    async def stop(self) -> None:
+        await self.server.stop()
+
     async def route(self, request: Request) -> Response | EventStream:
         try:
             if request.method == "GET":

@@ -33,6 +33,7 @@ one.
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass
 
 from drivers.clock import Clock
@@ -52,10 +53,15 @@ class CommunicationFaults:
         controller times out), as a hung or powered-down instrument would.
     garbage_replies : int
         The next this many replies are replaced by line noise.
+    reply_delay_s : float
+        Each reply is sent this long after its query, in real time (the instruments served over TCP: a
+        slow adapter or a busy bus; the virtual clock of the in-process bench does not see it).
     """
 
     silent: bool = False
     garbage_replies: int = 0
+    #: Each reply is sent this long after its query (s, real time): a slow adapter, a busy bus.
+    reply_delay_s: float = 0.0
 
 
 #: What a garbage reply looks like: bytes of a corrupted transfer, no number in it.
@@ -106,6 +112,11 @@ class EmulatedInstrument:
         with self._lock:
             self.faults.silent = silent
 
+    def inject_reply_delay(self, delay_s: float = 0.0) -> None:
+        """Fault: each reply comes ``delay_s`` late (real time; 0 ends it)."""
+        with self._lock:
+            self.faults.reply_delay_s = float(delay_s)
+
     def inject_garbage(self, count: int = 1) -> None:
         """Fault: the next ``count`` replies are garbage."""
         with self._lock:
@@ -124,7 +135,10 @@ class EmulatedInstrument:
             if self.faults.garbage_replies > 0:
                 self.faults.garbage_replies -= 1
                 return GARBAGE_REPLY
-            return reply
+            delay_s = self.faults.reply_delay_s
+        if delay_s > 0.0:
+            time.sleep(delay_s)
+        return reply
 
     def group_execute_trigger(self, time_s: float | None = None) -> None:
         """The GPIB GET interface message addressed to this instrument (same effect as ``*TRG``).

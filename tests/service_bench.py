@@ -76,16 +76,16 @@ class BenchOverTcp:
         return path
 
 
-#: ``cryod run`` whose loop thread hangs inside its next reading once the file named first exists (a hung
-#: instrument call no timeout ends): what the last resort of a stop is for.
+#: ``cryod run`` whose loop thread hangs inside its next reading while the file named first exists (a hung
+#: instrument call no timeout ends): what the reading watchdog and the last resort of a stop are for.
 HANGING_RUN = """\
-import pathlib, runpy, sys, threading
+import pathlib, runpy, sys, time
 from cryod.service import instruments
 marker = pathlib.Path(sys.argv.pop(1))
 measure = instruments.DriverInstruments.measure
 def hanging_measure(self):
-    if marker.exists():
-        threading.Event().wait()
+    while marker.exists():
+        time.sleep(0.01)
     return measure(self)
 instruments.DriverInstruments.measure = hanging_measure
 sys.argv[0] = "cryod"

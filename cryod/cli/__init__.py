@@ -275,6 +275,25 @@ def _supply_off(config) -> int:
     return 0
 
 
+def interfaces_line(interfaces: dict | None) -> str:
+    """The interfaces process in one line of ``cryod ctl status``: where it serves, and what is wrong."""
+    if not interfaces:
+        return "none configured (web, lakeshore336, metrics.address and alarms.hook are off)"
+    if not interfaces.get("running"):
+        return (f"NOT running (ended: {interfaces.get('last_exit') or 'unknown'}; started again "
+                f"{interfaces.get('restarts', 0)} times)")
+    served = [f"{name} {interfaces[name]}" for name in ("web", "lakeshore336", "metrics") if interfaces.get(name)]
+    hook = interfaces.get("alarm_hook")
+    if hook:
+        served.append(f"alarm hook {hook.get('command')} ({hook.get('runs', 0)} runs, {hook.get('failures', 0)} "
+                      f"failed)")
+    text = f"pid {interfaces.get('pid')}: " + (", ".join(served) or "starting")
+    problems = interfaces.get("problems") or []
+    if interfaces.get("restarts"):
+        text += f"; started again {interfaces['restarts']} times (last end: {interfaces.get('last_exit')})"
+    return text + (f"; PROBLEMS: {'; '.join(problems)}" if problems else "")
+
+
 def _ctl(args) -> int:
     from cryod.service.control_socket import CLIENT_TIMEOUT_S, send_command
     from cryod.service.discovery import find_daemon_socket
@@ -322,6 +341,11 @@ def _ctl(args) -> int:
                 print("alarms: none raised" if not value else "alarms:")
                 for alarm in value or []:
                     print(f"  {alarm_line(alarm)}")
+                continue
+            if key == "alarm_states":           # the metrics' view of the alarms above
+                continue
+            if key == "interfaces":
+                print(f"interfaces: {interfaces_line(value)}")
                 continue
             print(f"{key}: {readable(key, value)}")
     else:

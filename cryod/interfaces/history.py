@@ -11,9 +11,9 @@ Examples
 >>> from cryod.records.columns import Row
 >>> history = History()
 >>> for tick in range(30):
-...     history.add_row(Row(time_s=0.08 * tick, lateness_ms=0.1, state="closed", T2_K=5.0 + 1e-4 * (tick % 3),
-...                         T5_K=3.4, heater_W=0.1, setpoint_K=5.0,
-...                         control={"pi_proportional_W": 0.02, "pi_integral_W": 0.08}))
+...     _ = history.add_row(Row(time_s=0.08 * tick, lateness_ms=0.1, state="closed", T2_K=5.0 + 1e-4 * (tick % 3),
+...                             T5_K=3.4, heater_W=0.1, setpoint_K=5.0,
+...                             control={"pi_proportional_W": 0.02, "pi_integral_W": 0.08}))
 >>> bins = list(history.bins)
 >>> len(bins), bins[0]["T2_max_K"] - bins[0]["T2_min_K"] > 1.9e-4, bins[0]["pi_W"]
 (2, True, 0.1)

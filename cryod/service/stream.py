@@ -120,7 +120,7 @@ class StreamHub:
         self.status = status
         self.hello = hello
         self.events: collections.deque[dict] = collections.deque(maxlen=BACKLOG_EVENTS)
-        self.rows: collections.deque[dict] = collections.deque(maxlen=RECENT_ROWS)
+        self.rows: collections.deque[Row] = collections.deque(maxlen=RECENT_ROWS)
         self.seq = 0
         self.subscribers: list[_Subscriber] = []
         #: Subscribers closed because they did not read.
@@ -130,8 +130,8 @@ class StreamHub:
         self._last_row_s = math.nan
 
     # -- folding (the socket's thread) ----------------------------------------------------
-    def take(self) -> tuple[list[dict], list[dict]]:
-        """The rows and events the loop handed over since the last call, as the stream sends them."""
+    def take(self) -> tuple[list[Row], list[dict]]:
+        """The rows and the events (as the stream sends them) the loop handed over since the last call."""
         rows, events = [], []
         incoming = self.tap.incoming
         while True:
@@ -140,9 +140,8 @@ class StreamHub:
             except IndexError:
                 break
             if type(item) is Row:
-                fields = row_fields(item)
-                rows.append(fields)
-                self.rows.append(fields)
+                rows.append(item)
+                self.rows.append(item)
                 self._last_row_s = item.time_s
             else:
                 self.seq += 1
@@ -169,10 +168,10 @@ class StreamHub:
         while True:
             await asyncio.sleep(FRAME_S)
             rows, events = self.take()
-            if not self.subscribers:
+            if not self.subscribers:                # rows become JSON only for someone
                 continue
-            line = (json.dumps(finite_or_none({"rows": rows, "events": events, "status": self.status()}))
-                    + "\n").encode("utf-8")
+            line = (json.dumps(finite_or_none({"rows": [row_fields(row) for row in rows], "events": events,
+                                               "status": self.status()})) + "\n").encode("utf-8")
             for subscriber in list(self.subscribers):
                 self._send(subscriber, line, events[-1]["seq"] if events else None)
 
@@ -200,7 +199,8 @@ class StreamHub:
         newest = self.events[-1]["seq"] if self.events else 0
         live_after = newest if after is None or after > newest else after
         first = {"ok": True, "message": "subscribed", "hello": self.hello(), "live_after": live_after,
-                 "rows": list(self.rows), "events": list(self.events), "status": self.status()}
+                 "rows": [row_fields(row) for row in self.rows], "events": list(self.events),
+                 "status": self.status()}
         subscriber = _Subscriber(writer, peer)
         subscriber.last_seq = newest
         self.subscribers.append(subscriber)

@@ -70,7 +70,9 @@ class BenchOverTcp:
         data["data"]["directory"] = str(folder / "data")
         data["control_socket"]["path"] = str(folder / "control.sock")
         for section, values in sections.items():
-            data.setdefault(section, {}).update(values)
+            if data.get(section) is None:           # a section that is off (null) in the example
+                data[section] = {}
+            data[section].update(values)
         path = folder / name
         path.write_text(yaml.safe_dump(data, sort_keys=False))
         return path

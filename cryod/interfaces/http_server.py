@@ -220,7 +220,11 @@ class HttpServer:
             now = time.monotonic()
             for place in list(self.places.values()):
                 if place.state == _Place.STREAM:
-                    self._look_at_stream(place, now)
+                    try:
+                        self._look_at_stream(place, now)
+                    except Exception as error:      # one stream's trouble never stops the looks at the others
+                        log.warning("%s: looking at an event stream failed: %s: %s", self.what,
+                                    type(error).__name__, error)
 
     def _look_at_stream(self, place: _Place, now: float) -> None:
         transport = place.writer.transport

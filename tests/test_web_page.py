@@ -117,7 +117,7 @@ def test_writes_need_the_token_go_through_the_limits_and_are_journaled_with_the_
         messages = [event.message for _, event in daemon.gate.events if event.kind == "command"]
         accepted = next(message for message in messages if message.startswith("setpoint accepted: setpoint 5.2 K"))
         # the page's client (address and user) and the interfaces process that passed the command on
-        assert f"(by web page, 127.0.0.1:" in accepted and f", uid {os.geteuid()} (" in accepted
+        assert "(by web page, 127.0.0.1:" in accepted and f", uid {os.geteuid()} (" in accepted
         assert "; via uid " in accepted
         journal = daemon.interfaces_journal()
     assert journal.count("wrong or missing token (by web page, 127.0.0.1:") == 2

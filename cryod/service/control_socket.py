@@ -33,7 +33,6 @@ import asyncio
 import grp
 import json
 import logging
-import math
 import os
 import pwd
 import socket

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Callable
 
 from cryod.alarms.settings import AlarmHook
-from cryod.config import DaemonConfig, Lakeshore336Config, MetricsConfig, WebConfig
+from cryod.config import DaemonConfig, Lakeshore336Config, WebConfig
 
 log = logging.getLogger("cryod.interfaces")
 

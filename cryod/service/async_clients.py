@@ -1,7 +1,7 @@
-"""The daemon's servers for many clients: one thread each, and a bound on the connections open at once.
+"""The control socket's server for many clients: one thread, and a bound on the connections open at once.
 
-The control socket and the metrics endpoint each serve every client from one thread with an
-asyncio event loop (:class:`ClientsThread`), so many clients cost the loop what one thread
+The control socket serves every client (and the live stream's subscribers) from one thread with
+an asyncio event loop (:class:`ClientsThread`), so many clients cost the loop what one thread
 costs, not one thread each. What bounds them is the number of connections (file descriptors,
 memory): :class:`ConnectionBook` allows ``most_open`` at once. A client that connects and says
 nothing holds one until its request's timeout; many such clients (a stuck script, a scanner, a

@@ -159,7 +159,7 @@ class Daemon:
         self.datalog: DataLog | None = None
         #: Why the run did not start because another daemon runs this cryostat (None otherwise).
         self.not_started: str | None = None
-        #: The latest row and faults, for the status line and the metrics endpoint.
+        #: The latest row and faults, for the status line and ``cryod ctl status``'s figures of the recent past.
         self.live_view = LiveView(config.loop.period_s, cooler_rad_s(config))
         #: The alarms (``alarms``): the last row tap; their hook runs in the interfaces process.
         self.alarms = AlarmMonitor(config.alarms, config.heater.max_power_w, cooler_rad_s(config),

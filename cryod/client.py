@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 from cryod.service.control_socket import send_command
+from cryod.service.daemon_status import status_from_json
 from cryod.service.discovery import find_daemon_socket
 
 
@@ -84,7 +85,7 @@ class DaemonClient:
         A restart on the same day writes a new file (``cryod-DATE.2.csv``, ...): ask, rather than
         build the name from the date.
         """
-        return self.status().get("record_path")
+        return status_from_json(self.status()).record_path
 
     def note(self, text: str) -> dict:
         """Write ``text`` into the record being written (``# event: note: TEXT (by ...)``) and the journal.
@@ -160,8 +161,8 @@ class DaemonClient:
         start = None
         while True:
             status = self.status()
-            now = status.get("time_s")
-            if now is not None:
+            now = status_from_json(status).loop.time_s
+            if math.isfinite(now):
                 start = now if start is None else start
                 if now - start >= seconds:
                     return status
@@ -203,17 +204,19 @@ class DaemonClient:
             except ConnectionError as lost:
                 raise NotStable(f"the daemon went away while waiting ({lost}); last seen: "
                                 f"{_how_far(error, 'not settled')}") from None
-            now = status.get("time_s")
-            state = str(status.get("state"))
-            if now is None:
-                raise NotStable(f"the daemon is not regulating yet ({status.get('message', state)})")
+            seen = status_from_json(status)
+            loop, now = seen.loop, seen.loop.time_s
+            state = loop.state
+            if seen.waiting_for is not None or not math.isfinite(now):
+                raise NotStable(f"the daemon is not regulating yet ({seen.waiting_for or state})")
             start = now if start is None else start
             if state.startswith("fault") or state in ("off", "stopped", "manual"):
                 raise NotStable(f"the loop is {state}, not regulating"
-                                + (f" (last fault: {status['last_fault']})" if status.get("last_fault") else ""))
-            setpoint, target, average = status.get("setpoint_K"), status.get("target_K"), status.get("T2_average_K")
+                                + (f" (last fault: {loop.last_fault})" if loop.last_fault else ""))
+            setpoint, target = loop.setpoint_K, loop.target_K
+            average = seen.recent.flange_average_K if seen.recent is not None else math.nan
             ramping = setpoint is None or target is None or abs(setpoint - target) > 1e-9
-            error = None if ramping or average is None or not state.startswith("closed") else average - setpoint
+            error = None if ramping or not math.isfinite(average) or not seen.regulating else average - setpoint
             if error is None or abs(error) > tolerance_K:
                 settled_since = None
             else:

@@ -6,6 +6,7 @@ loop held between two ticks (their readings are compared with ``ctl status`` of 
 against a running ``cryod simulate``. A plain socket covers the error paths.
 """
 
+import dataclasses
 import logging
 import math
 import os
@@ -20,14 +21,20 @@ import cryod
 from cryod.config import Lakeshore336Config
 from cryod.interfaces.lakeshore336_server import MAX_CLIENTS, MESSAGES_PER_S
 from cryod.service.control_socket import send_command
+from cryod.service.daemon_status import DaemonStatus, LoopStatus
 from cryod.service.lakeshore336 import MAX_MESSAGE, SUPPORTED, Lakeshore336Session, Lakeshore336Setup, split_message
 from tests.conftest import REPOSITORY
 from tests.dry_run_process import DryRunProcess, lab_config
 from tests.gated_daemon import GatedDaemon
 
-STATUS = {"state": "closed", "T2_K": 5.0001234, "T5_K": 3.41, "setpoint_K": 5.0, "target_K": 5.0,
-          "last_target_K": 5.0, "ramp_K_per_min": 0.0, "heater_W": 0.1132, "T2_ohm": 1587.2, "T5_ohm": 2011.0,
-          "last_fault": None}
+STATUS = DaemonStatus(LoopStatus(state="closed", flange_K=5.0001234, ptc_stage_K=3.41, setpoint_K=5.0, target_K=5.0,
+                                 last_target_K=5.0, ramp_K_per_min=0.0, heater_w=0.1132, last_fault=None),
+                      flange_ohm=1587.2, ptc_stage_ohm=2011.0)
+
+
+def looped(**changes) -> DaemonStatus:
+    """STATUS with the loop's fields changed."""
+    return dataclasses.replace(STATUS, loop=dataclasses.replace(STATUS.loop, **changes))
 
 
 def ask(session, message, status=STATUS):
@@ -47,21 +54,21 @@ def test_readings_heater_and_loop_as_the_336_answers_them():
     assert ask(session, "CRDG? A") == f"{5.0001234 - 273.15:+.6f}"
     assert ask(session, "SRDG? A") == "+1587.2000"
     assert ask(session, "RDGST? A;RDGST? C") == "000;001"           # input C is not read: invalid reading
-    assert ask(session, "RDGST? A", dict(STATUS, T2_K=math.nan)) == "001"
+    assert ask(session, "RDGST? A", looped(flange_K=math.nan)) == "001"
     assert ask(session, "HTR? 1") == "+22.640"                       # % of R I_max^2 = 0.5 W
     assert ask(session, "SETP? 1;RAMP? 1;RAMPST? 1;RANGE? 1;OUTMODE? 1") == "+5.000000;0,+0.000;0;3;1,1,0"
-    assert ask(session, "RAMPST? 1", dict(STATUS, setpoint_K=4.9, ramp_K_per_min=0.5)) == "1"
+    assert ask(session, "RAMPST? 1", looped(setpoint_K=4.9, ramp_K_per_min=0.5)) == "1"
     # Kp 10 W/K over 0.5 W is 2000 %/K; Ki 0.2 W/(K s) is an integral time of 50 s, the 336's reset 1000/50
     assert ask(session, "PID? 1") == "+2000.0,+20.0,+0"
     assert ask(session, "MOUT? 1") == "+0.000"
-    assert ask(session, "MOUT? 1", dict(STATUS, state="manual", heater_W=0.05)) == "+10.000"
+    assert ask(session, "MOUT? 1", looped(state="manual", heater_w=0.05)) == "+10.000"
     assert ask(session, "TLIMIT? A;TLIMIT? B") == "+25.000;+15.000"
     assert ask(session, "INTYPE? A;INCRV? A;INCRV? C") == "3,1,0,0,1;21;0"
     assert ask(session, "HTRSET? 1") == "0,2,0,+0.100,2"
-    off = dict(STATUS, state="off", setpoint_K=None, target_K=None, heater_W=0.0)
+    off = looped(state="off", setpoint_K=None, target_K=None, heater_w=0.0)
     assert ask(session, "RANGE? 1;OUTMODE? 1;SETP? 1", off) == "0;0,1,0;+5.000000"     # keeps its setpoint
     assert ask(session, "HTRST? 1") == "0"
-    assert ask(session, "HTRST? 1", dict(STATUS, heater_W=math.nan)) == "1"          # heater state unknown
+    assert ask(session, "HTRST? 1", looped(heater_w=math.nan)) == "1"          # heater state unknown
     assert ask(session, "*ESR?") == "000"
 
 
@@ -93,10 +100,10 @@ def test_writes_become_the_operators_commands_with_the_peer():
     assert session.respond("RAMP 1,0,0.5", STATUS).value == 0.0               # ramping off: steps
     assert session.respond("RANGE 1,0", STATUS).name == "heater-off"
     assert session.respond("RANGE 1,3", STATUS) is None                       # already regulating
-    off = dict(STATUS, state="off", target_K=None, last_target_K=5.4)
+    off = looped(state="off", target_K=None, last_target_K=5.4)
     again = session.respond("RANGE 1,1", off)
     assert (again.name, again.value) == ("setpoint", 5.4)                     # regulates again at its setpoint
-    assert session.respond("RANGE 1,2", dict(off, last_target_K=None)) is None  # nothing to regulate to
+    assert session.respond("RANGE 1,2", dataclasses.replace(off, loop=dataclasses.replace(off.loop, last_target_K=None))) is None  # nothing to regulate to
     assert session.respond("SETP 1,1_5", STATUS) is None                      # numbers as the control socket takes them
     assert ask(session, "*ESR?") == "016"
 

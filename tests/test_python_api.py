@@ -111,3 +111,45 @@ def test_operator_actions_reach_the_journal_and_the_record_with_who_sent_them(ru
     (path,) = (tmp_path / "data").glob("cryod-*.csv")
     events = [text for _, text in cryod.read_record(path).events]
     assert f"event: command: setpoint accepted: setpoint 5.05 K (by {who})" in events
+
+
+# -- the typed status ---------------------------------------------------------------------------------
+def test_the_typed_status_gives_every_key_users_rely_on_and_reads_them_back(tmp_path):
+    """One function makes the JSON of ``cryod ctl status --json``: the keys are those of the contract (DESIGN 4.4)
+    and of the docs, and reading the JSON back gives the same status."""
+    import math
+
+    from cryod.service.daemon_status import DaemonStatus, status_from_json, status_json
+    from tests.gated_daemon import GatedDaemon
+
+    with GatedDaemon(tmp_path) as daemon:
+        status = daemon.daemon.status()
+        data = status_json(status)
+    assert list(data)[:10] == ["time_s", "state", "T2_K", "T5_K", "heater_W", "setpoint_K", "target_K",
+                               "ramp_K_per_min", "last_target_K", "last_fault"]
+    assert {"pi_proportional_W", "pi_integral_W", "ff_W", "ff_line_K", "ticks", "overruns", "lateness_ms_p99",
+            "record_path", "setpoint_warning", "alarms", "T2_average_K", "line_amplitude_K"} <= set(data)
+    back = status_from_json(data)
+    assert back.loop.control == status.loop.control and back.loop.timing == status.loop.timing
+    assert back.record_path == status.record_path and back.loop.flange_K == status.loop.flange_K
+    assert status_json(back).keys() == data.keys()
+    waiting = status_json(DaemonStatus(waiting_for="opening the instruments"))
+    assert waiting["state"] == "waiting" and waiting["message"] == "opening the instruments"
+    assert waiting["heater_W"] is None and math.isnan(status_from_json(waiting).loop.heater_w)
+
+
+def test_no_reader_of_the_status_goes_by_string_keys():
+    """The status is read by its fields everywhere in cryod; its keys appear in the JSON function only."""
+    import re
+
+    from tests.conftest import REPOSITORY
+
+    pattern = re.compile(r"""status(_json\([^)]*\))?\s*(\[\s*["']|\.get\(\s*["'])""")
+    offenders = []
+    for path in sorted((REPOSITORY / "cryod").rglob("*.py")):
+        if path.name == "daemon_status.py" or {"analysis", "identification"} & set(path.parts):
+            continue
+        for number, line in enumerate(path.read_text().splitlines(), start=1):
+            if pattern.search(line):
+                offenders.append(f"{path.relative_to(REPOSITORY)}:{number}: {line.strip()}")
+    assert not offenders, "\n".join(offenders)

@@ -13,6 +13,7 @@ from cryod.control.pi import PiGains
 from cryod.control.regulator import HeaterPowerOutput, Regulator
 from cryod.control.zones import Zone, ZoneTable
 from cryod.model import TEMPERATURE_MODEL_PATH
+from cryod.service.daemon_status import DaemonStatus, status_json
 from cryod.yaml_source import FileFormatError
 from tests.conftest import CONFIG
 from tests.example_config import with_zone_table
@@ -187,14 +188,14 @@ def test_the_daemon_shows_the_zone_in_its_status_and_records_each_change(tmp_pat
     assert zone_events[0].startswith("zone 2 (up to 20 K)") and zone_events[0].endswith("; start")   # setpoint 5 K
     assert re.search(r"^zone 1 \(up to 4\.6 K\).*; loop closed at 4\.2\d* K$", zone_events[1])     # the ramp's start
     assert re.search(r"^zone 2 \(up to 20 K\).*; setpoint in use 4\.6\d* K$", zone_events[-1])
-    status = loop.status.as_dict()
+    status = status_json(DaemonStatus(loop=loop.status))
     assert status["zone"] == 2 and status["zone_upper_K"] == 20.0
     assert "(zone 2)" in loop.status.one_line()
     crossing = next(index for index, row in enumerate(rows) if row.setpoint_K > 4.6)
     assert max(row.heater_W for row in rows[:crossing]) <= 0.2 + 1e-12      # zone 1's limit
     plain, _, _, _, plain_events = make_loop(reference_model, example_curves(), load_config(CONFIG / "cryod.yaml"))
     plain.run(duration_s=5.0, manage_gc=False)
-    assert "zone" not in plain.status.as_dict() and not [event for event in plain_events if event.kind == "zone"]
+    assert "zone" not in status_json(DaemonStatus(loop=plain.status)) and not [event for event in plain_events if event.kind == "zone"]
 
 
 # -- the setpoint the heater can hold, judged in its zone -------------------------------------

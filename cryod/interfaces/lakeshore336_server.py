@@ -27,6 +27,7 @@ any client from changing what it may not or keeping others out:
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 import socket
 import time
@@ -40,6 +41,7 @@ from cryod.interfaces.peers import is_loopback, loopback_peer, may_use_socket, u
 from cryod.listen_address import describe, parse_address
 from cryod.listen_address import is_loopback as listens_on_loopback
 from cryod.service.commands import Command
+from cryod.service.daemon_status import DaemonStatus, status_from_json
 from cryod.service.lakeshore336 import MAX_MESSAGE, Lakeshore336Session, split_message
 
 log = logging.getLogger("cryod.lakeshore336")
@@ -62,7 +64,7 @@ class _Connection:
         self.answering = False
         #: The daemon's status in its answer to this connection's last command: newer than the stream's until
         #: the stream catches up (a query after SETP shows the new setpoint).
-        self.after_command: dict | None = None
+        self.after_command: DaemonStatus | None = None
 
 
 class Lakeshore336Server:
@@ -217,17 +219,15 @@ class Lakeshore336Server:
                     writer.write(reply.encode("ascii") + b"\r\n")
                     await asyncio.wait_for(writer.drain(), SEND_TIMEOUT_S)
 
-    def _status(self, connection: _Connection) -> dict:
-        """The daemon's status with the thermometers' resistances of its latest row (``RDGR?``): the stream's, or
+    def _status(self, connection: _Connection) -> DaemonStatus:
+        """The daemon's status with the thermometers' resistances of its latest row (``SRDG?``): the stream's, or
         the one the daemon answered this connection's last command with while the stream has not reached it."""
         status = self.mirror.status()
         newer = connection.after_command
-        if newer is not None and (status.get("time_s") or -1.0) < (newer.get("time_s") or -1.0):
-            status = newer
-        else:
-            connection.after_command = None
-        row = self.mirror.latest_row()
-        return dict(status, T2_ohm=getattr(row, "T2_ohm", None), T5_ohm=getattr(row, "T5_ohm", None))
+        if newer is not None and not status.loop.time_s >= newer.loop.time_s:
+            return dataclasses.replace(newer, flange_ohm=status.flange_ohm, ptc_stage_ohm=status.ptc_stage_ohm)
+        connection.after_command = None
+        return status
 
     async def _answer(self, session: Lakeshore336Session, raw: bytes, connection: _Connection) -> str | None:
         """The reply line to one message (None when it holds no query that is answered)."""
@@ -250,7 +250,7 @@ class Lakeshore336Server:
                 outcome.ok, outcome.message = bool(reply.get("ok")), str(reply.get("message", ""))
                 session.answered(outcome)
                 if isinstance(reply.get("status"), dict):       # what follows sees the command's effect
-                    connection.after_command = reply["status"]
+                    connection.after_command = status_from_json(reply["status"])
                 status = None
             elif outcome is not None:
                 replies.append(outcome)

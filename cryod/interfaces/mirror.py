@@ -12,11 +12,13 @@ event to act on (the alarm hooks: only those after the subscription's ``live_aft
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
 from typing import Callable
 
 from cryod.interfaces.history import History
 from cryod.records.columns import Row
+from cryod.service.daemon_status import DaemonStatus, RecentFigures, status_from_json
 from cryod.service.live_view import LiveView
 from cryod.service.stream import ROW_FIELDS
 
@@ -43,8 +45,8 @@ class DaemonMirror:
     def __init__(self, period_s: float, cooler_rad_s: float):
         self.view = LiveView(period_s, cooler_rad_s)
         self.history = History(self.view.line_amplitude_K)
-        self.stream_status: dict = {"state": "waiting", "message": "not connected to the daemon yet",
-                                    "heater_W": None}
+        #: The status as the stream's last line gave it.
+        self.stream_status = DaemonStatus(waiting_for="the interfaces process is not connected to the daemon yet")
         self.hello: dict = {}
         self.connected = False
         #: The sequence number of the last event taken.
@@ -52,8 +54,8 @@ class DaemonMirror:
         #: Set at each new line (and replaced): what an event stream waits on.
         self.changed = asyncio.Event()
         self._on_event: list[Callable[[dict], None]] = []
-        self.view.attach_timing(lambda: self.stream_status)
-        self.view.attach_alarms(lambda: [alarm["name"] for alarm in self.stream_status.get("alarms") or []])
+        self.view.attach_timing(lambda: dataclasses.asdict(self.stream_status.loop.timing))
+        self.view.attach_alarms(lambda: [alarm["name"] for alarm in self.stream_status.alarms])
 
     def on_event(self, listener: Callable[[dict], None]) -> None:
         """Call ``listener(event)`` for each event to act on (after the subscription's ``live_after``)."""
@@ -73,7 +75,7 @@ class DaemonMirror:
                     self._act_on(event)
         self.last_seq = max(self.last_seq, live_after)
         self.connected = True
-        self._status(line.get("status") or {})
+        self._status(line.get("status"))
 
     def frame(self, line: dict) -> None:
         """One more line of the stream."""
@@ -83,13 +85,13 @@ class DaemonMirror:
             if event["seq"] > self.last_seq:
                 self.view(_EventForView(event))
                 self._act_on(event)
-        self._status(line.get("status") or {})
+        self._status(line.get("status"))
 
     def lost(self) -> None:
         """The connection to the daemon ended: what is served says so until it is back."""
         self.connected = False
-        self.stream_status = dict(self.stream_status, state="not connected",
-                                  message="the interfaces lost the daemon's stream; reconnecting")
+        self.stream_status = DaemonStatus(waiting_for="the interfaces process lost the daemon's stream; "
+                                                      "connecting again")
         self._changed()
 
     def _rows(self, rows: list[dict], first: bool = False) -> None:
@@ -108,8 +110,9 @@ class DaemonMirror:
         for listener in self._on_event:
             listener(event)
 
-    def _status(self, status: dict) -> None:
-        self.stream_status = status
+    def _status(self, data: dict | None) -> None:
+        if isinstance(data, dict):
+            self.stream_status = status_from_json(data)
         self._changed()
 
     def _changed(self) -> None:
@@ -117,13 +120,17 @@ class DaemonMirror:
         self.changed = asyncio.Event()
 
     # -- what the interfaces serve -------------------------------------------------------------
-    def status(self) -> dict:
-        """``cryod ctl status --json``'s keys: the stream's status with the figures of the recent rows."""
-        status = dict(self.stream_status)
-        if self.connected:
-            status["T2_average_K"] = self.view.flange_average_K()
-            status["line_amplitude_K"] = self.view.line_amplitude_K()
-        return status
+    def status(self) -> DaemonStatus:
+        """What ``cryod ctl status`` says: the stream's status with the figures of the recent rows and the
+        thermometers' resistances of the latest."""
+        status = self.stream_status
+        if not self.connected or status.waiting_for is not None:
+            return status
+        row = self.view.latest_row()
+        return dataclasses.replace(status, recent=RecentFigures(self.view.flange_average_K(),
+                                                                 self.view.line_amplitude_K()),
+                                   flange_ohm=None if row is None else row.T2_ohm,
+                                   ptc_stage_ohm=None if row is None else row.T5_ohm)
 
     def latest_row(self) -> Row | None:
         return self.view.latest_row()

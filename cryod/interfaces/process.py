@@ -95,7 +95,7 @@ class Interfaces:
                                    self.link, settings.socket_path))
         if settings.metrics_address is not None:
             def alarms() -> dict[str, float]:
-                return dict(self.mirror.stream_status.get("alarm_states") or {})
+                return dict(self.mirror.stream_status.alarm_states)
 
             self.metrics = await self._started(MetricsEndpoint(self.mirror.view, settings.metrics_address,
                                                                settings.cryostat, alarms))

@@ -40,6 +40,7 @@ from cryod.interfaces.mirror import DaemonMirror
 from cryod.interfaces.peers import is_loopback, loopback_peer, user_name
 from cryod.listen_address import parse_address
 from cryod.service.commands import parse_command
+from cryod.service.daemon_status import status_json
 from cryod.service.stream import finite_or_none
 from cryod.web_token import read_token, token_matches
 
@@ -165,7 +166,7 @@ class WebPage:
     async def _get(self, request: Request) -> Response | EventStream:
         path = request.path
         if path == "/api/status":
-            return json_response(200, {"status": self.mirror.status(), "writable": self.writable,
+            return json_response(200, {"status": status_json(self.mirror.status()), "writable": self.writable,
                                        "page_commands": list(PAGE_COMMANDS) if self.writable else []})
         if path == "/api/history":
             history = self.mirror.history
@@ -195,20 +196,18 @@ class WebPage:
                 yield b": still here\n\n"
                 continue
             status = self.mirror.status()
-            last_time = status.get("time_s")
+            last_time = status.loop.time_s
             bins = history.since(last_bin)
             events = [event for event in history.events if event["seq"] > last_event]
             last_bin = bins[-1]["time_s"] if bins else last_bin
             last_event = events[-1]["seq"] if events else last_event
-            frame = json.dumps(finite_or_none({"status": status, "bins": bins, "events": events}))
+            frame = json.dumps(finite_or_none({"status": status_json(status), "bins": bins, "events": events}))
             yield f"id: {last_event}\ndata: {frame}\n\n".encode("utf-8")
             await asyncio.sleep(PUSH_S)
 
-    async def _next_tick(self, last_time) -> None:
-        """Until the mirror holds a status of another tick than ``last_time`` (or its connection changed)."""
-        while True:
-            if self.mirror.stream_status.get("time_s") != last_time or last_time is None:
-                return
+    async def _next_tick(self, last_time: float | None) -> None:
+        """Until the mirror holds a status of another tick than ``last_time``."""
+        while last_time is not None and self.mirror.stream_status.loop.time_s == last_time:
             await self.mirror.changed.wait()
 
     async def _command(self, request: Request) -> Response:
@@ -245,7 +244,7 @@ class WebPage:
         reply = await self.link.command(line.strip(), sender)
         status = 200 if reply.get("ok") else (409 if "status" in reply else 503)
         return json_response(status, {"ok": bool(reply.get("ok")), "message": reply.get("message", ""),
-                                      "status": reply.get("status") or self.mirror.status()})
+                                      "status": reply.get("status") or status_json(self.mirror.status())})
 
 
 __all__ = ["WebPage", "PAGE_COMMANDS", "allowed_hosts", "load_assets"]

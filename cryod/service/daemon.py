@@ -43,6 +43,7 @@ from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
 from cryod.service.alarms import AlarmMonitor
 from cryod.service.commands import Command, wait_for
+from cryod.service.daemon_status import DaemonStatus, RecentFigures, status_json
 from cryod.service.faults import ExitCode, Fault, FaultCause
 from cryod.service.heater_guard import HeaterGuard
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock, InstrumentLocks
@@ -356,28 +357,24 @@ class Daemon:
         paths = self.datalog.paths if self.datalog is not None else []
         return str(paths[-1].absolute()) if paths else None
 
-    def _stream_status(self) -> dict:
-        """The status as the stream sends it: ``cryod ctl status --json`` without the figures a subscriber computes
-        from the rows itself (``T2_average_K``, ``line_amplitude_K``)."""
+    def status(self, recent: bool = True) -> DaemonStatus:
+        """The daemon's status now; with ``recent``, the figures of the recent past, computed on the caller's
+        thread from the live view (the stream leaves them to its subscribers, which have the rows)."""
+        interfaces = self._interfaces_status()
         if self.loop is None:
-            status = {"state": "waiting", "message": self._waiting, "heater_W": None,
-                      "record_path": self.record_path()}
-        else:
-            status = self.loop.status.as_dict()
-            status["record_path"] = self.record_path()
-            status["setpoint_warning"] = self.loop.setpoint_warning
-            status["alarms"] = self.alarms.raised()
-        status["alarm_states"] = self.alarms.states()
-        status["interfaces"] = self._interfaces_status()
-        return status
+            return DaemonStatus(waiting_for=self._waiting, record_path=self.record_path(),
+                                alarm_states=self.alarms.states(), interfaces=interfaces)
+        figures = RecentFigures(self.live_view.flange_average_K(), self.live_view.line_amplitude_K()) \
+            if recent else None
+        return DaemonStatus(loop=self.loop.status, record_path=self.record_path(),
+                            setpoint_warning=self.loop.setpoint_warning, alarms=tuple(self.alarms.raised()),
+                            alarm_states=self.alarms.states(), interfaces=interfaces, recent=figures)
 
     def _status(self) -> dict:
-        status = self._stream_status()
-        if self.loop is not None:
-            # figures over the recent past, computed on this (the socket's) thread
-            status["T2_average_K"] = self.live_view.flange_average_K()
-            status["line_amplitude_K"] = self.live_view.line_amplitude_K()
-        return status
+        return status_json(self.status())
+
+    def _stream_status(self) -> dict:
+        return status_json(self.status(recent=False))
 
     def _interfaces_status(self) -> dict | None:
         """The interfaces process: whether it runs, where it serves, what it says went wrong (None: not wanted)."""

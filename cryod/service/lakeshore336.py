@@ -23,9 +23,11 @@ Each connection has its own status registers, so one client's errors do not show
 
 Examples
 --------
+>>> from cryod.service.daemon_status import DaemonStatus, LoopStatus
 >>> session = Lakeshore336Session(Lakeshore336Setup.example(), writable=False, peer="127.0.0.1:5000")
->>> status = {"state": "closed", "T2_K": 5.0001234, "T5_K": 3.41, "setpoint_K": 5.0, "target_K": 5.0,
-...           "last_target_K": 5.0, "ramp_K_per_min": 0.0, "heater_W": 0.125, "T2_ohm": 1587.2, "T5_ohm": 2011.0}
+>>> status = DaemonStatus(LoopStatus(state="closed", flange_K=5.0001234, ptc_stage_K=3.41, setpoint_K=5.0,
+...                                  target_K=5.0, last_target_K=5.0, heater_w=0.125),
+...                       flange_ohm=1587.2, ptc_stage_ohm=2011.0)
 >>> [session.respond(part, status) for part in split_message("KRDG? A;HTR? 1;RANGE? 1")]
 ['+5.000123', '+25.000', '3']
 >>> session.respond("SETP 1,5.2", status) is None, session.respond("*ESR?", status)
@@ -41,6 +43,7 @@ from dataclasses import dataclass
 
 from cryod import __version__
 from cryod.service.commands import Command, parse_command
+from cryod.service.daemon_status import DaemonStatus
 
 log = logging.getLogger("cryod.lakeshore336")
 
@@ -185,7 +188,7 @@ class Lakeshore336Session:
         """Who sends this connection's commands, as the journal and the record say it."""
         return f"Lake Shore 336 interface, {self.peer}"
 
-    def respond(self, text: str, status: dict) -> str | Command | None:
+    def respond(self, text: str, status: DaemonStatus) -> str | Command | None:
         """What one command of a message does.
 
         Returns
@@ -286,23 +289,23 @@ class Lakeshore336Session:
 
     def _kelvin(self, arguments, status) -> str:
         which = self._input(arguments, all_allowed=True)
-        value = {"A": status.get("T2_K"), "B": status.get("T5_K")}
+        value = {"A": status.loop.flange_K, "B": status.loop.ptc_stage_K}
         return ",".join(_number(value.get(name), 6) for name in (INPUTS if which == "0" else (which,)))
 
     def _celsius(self, arguments, status) -> str:
         which = self._input(arguments, all_allowed=True)
-        value = {"A": status.get("T2_K"), "B": status.get("T5_K")}
+        value = {"A": status.loop.flange_K, "B": status.loop.ptc_stage_K}
         return ",".join(_number(None if value.get(name) is None else value[name] - 273.15, 6)
                         for name in (INPUTS if which == "0" else (which,)))
 
     def _sensor_units(self, arguments, status) -> str:
         which = self._input(arguments, all_allowed=True)
-        value = {"A": status.get("T2_ohm"), "B": status.get("T5_ohm")}
+        value = {"A": status.flange_ohm, "B": status.ptc_stage_ohm}
         return ",".join(_number(value.get(name), 4) for name in (INPUTS if which == "0" else (which,)))
 
     def _reading_status(self, arguments, status) -> str:
         which = self._input(arguments)
-        value = {"A": status.get("T2_K"), "B": status.get("T5_K")}.get(which)
+        value = {"A": status.loop.flange_K, "B": status.loop.ptc_stage_K}.get(which)
         return "000" if value is not None and math.isfinite(value) else "001"     # bit 0: invalid reading
 
     def _input_type(self, arguments, status) -> str:
@@ -342,8 +345,8 @@ class Lakeshore336Session:
         if self._output(arguments) != "1":
             return _number(0.0, 6)
         # the target the loop heads for, also while the heater is off (the 336 keeps its setpoint)
-        target = status.get("target_K")
-        return _number(target if target is not None else status.get("last_target_K"), 6)
+        loop = status.loop
+        return _number(loop.target_K if loop.target_K is not None else loop.last_target_K, 6)
 
     def _setpoint(self, arguments, status) -> Command:
         if self._output(arguments, 2) != "1":
@@ -353,7 +356,7 @@ class Lakeshore336Session:
     def _ramp_query(self, arguments, status) -> str:
         if self._output(arguments) != "1":
             return "0,+0.0"
-        rate = status.get("ramp_K_per_min") or 0.0
+        rate = status.loop.ramp_K_per_min or 0.0
         return f"{1 if rate > 0 else 0},{_number(rate, 3)}"
 
     def _ramp(self, arguments, status) -> Command:
@@ -365,12 +368,12 @@ class Lakeshore336Session:
     def _ramp_status(self, arguments, status) -> str:
         if self._output(arguments) != "1":
             return "0"
-        setpoint, target = status.get("setpoint_K"), status.get("target_K")
+        setpoint, target = status.loop.setpoint_K, status.loop.target_K
         return "1" if setpoint is not None and target is not None and abs(setpoint - target) > 1e-9 else "0"
 
     def _heater_percent(self, status) -> float:
-        heater = status.get("heater_W")
-        return 100.0 * heater / self._setup().heater_max_w if heater is not None and math.isfinite(heater) else 0.0
+        heater = status.loop.heater_w
+        return 100.0 * heater / self._setup().heater_max_w if math.isfinite(heater) else 0.0
 
     def _heater_output(self, arguments, status) -> str:
         if self._output(arguments) != "1":            # (outputs 3 and 4 are off: 0 %, as AOUT? would say)
@@ -380,18 +383,14 @@ class Lakeshore336Session:
     def _heater_status(self, arguments, status) -> str:
         if self._output(arguments, outputs=("1", "2")) != "1":
             return "0"
-        heater = status.get("heater_W")
-        fault = str(status.get("last_fault") or "")
-        stopped_on_heater = str(status.get("state")) == "stopped" and fault.startswith("heater_")
-        return "1" if stopped_on_heater or heater is None or not math.isfinite(heater) else "0"
-
-    def _regulating(self, status) -> bool:
-        return str(status.get("state", "")).startswith("closed")
+        loop = status.loop
+        stopped_on_heater = loop.state == "stopped" and (loop.last_fault or "").startswith("heater_")
+        return "1" if stopped_on_heater or not math.isfinite(loop.heater_w) else "0"
 
     def _range_query(self, arguments, status) -> str:
         if self._output(arguments) != "1":
             return "0"
-        return "3" if self._regulating(status) or str(status.get("state")) == "manual" else "0"
+        return "3" if status.regulating or status.loop.state == "manual" else "0"
 
     def _range(self, arguments, status) -> Command | None:
         if self._output(arguments, 2) != "1":
@@ -400,9 +399,10 @@ class Lakeshore336Session:
         if level == "0":
             return self._write("heater-off")
         self._check_writable(f"RANGE 1,{level}")
-        if self._regulating(status):
+        if status.regulating:
             return None                             # already regulating: nothing to change
-        target = status.get("target_K") if status.get("target_K") is not None else status.get("last_target_K")
+        loop = status.loop
+        target = loop.target_K if loop.target_K is not None else loop.last_target_K
         if target is None:
             log.warning("Lake Shore 336 interface: RANGE 1,%s refused: no setpoint to regulate to; give one "
                         "with SETP 1,<K> (by %s)", level, self.sender)
@@ -412,8 +412,7 @@ class Lakeshore336Session:
     def _output_mode(self, arguments, status) -> str:
         if self._output(arguments) != "1":
             return "0,0,0"
-        state = str(status.get("state", ""))
-        mode = 1 if self._regulating(status) else 3 if state == "manual" else 0
+        mode = 1 if status.regulating else 3 if status.loop.state == "manual" else 0
         return f"{mode},1,0"                        # controlled from input A, not on at power-up
 
     def _pid(self, arguments, status) -> str:
@@ -429,7 +428,7 @@ class Lakeshore336Session:
         return f"{_number(p, 1)},{_number(i, 1)},{_number(d, 0)}"
 
     def _manual_output(self, arguments, status) -> str:
-        if self._output(arguments) != "1" or str(status.get("state")) != "manual":
+        if self._output(arguments) != "1" or status.loop.state != "manual":
             return _number(0.0, 3)
         return _number(self._heater_percent(status), 3)
 

@@ -28,7 +28,6 @@ from __future__ import annotations
 import collections
 import logging
 import math
-from dataclasses import dataclass
 from typing import Callable, NamedTuple, Protocol
 
 from cryod.config import DaemonConfig, located_error
@@ -37,6 +36,7 @@ from cryod.control.setpoint_reach import setpoint_warning
 from cryod.control.terms import term_columns
 from cryod.records.columns import TIME_DECIMALS, Event, Row, RowSchema, loop_schema
 from cryod.service.commands import Command, CommandRefused, apply_command
+from cryod.service.daemon_status import LoopStatus
 from cryod.service.fault_episodes import FaultEpisodes
 from cryod.service.faults import ExitCode, Fault, FaultCause, ReadingChecks, fault_from_instrument_error
 from cryod.service.logs import reply_for_log
@@ -107,57 +107,10 @@ def daemon_schema(config: DaemonConfig) -> RowSchema:
 # ---------------------------------------------------------------------------
 # status
 # ---------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Status:
-    """A snapshot of the loop for the control socket and systemd STATUS."""
-
-    time_s: float = math.nan
-    state: LoopState = LoopState.HOLDING
-    flange_K: float = math.nan
-    ptc_stage_K: float = math.nan
-    heater_w: float = 0.0               # NaN: unknown (the supply could not be switched off)
-    setpoint_K: float | None = None
-    target_K: float | None = None
-    ramp_K_per_min: float = 0.0
-    last_fault: str | None = None
-    #: The last target given (K), kept while the loop is open: what regulating again heads for.
-    last_target_K: float | None = None
-    loop_timing: object = None      # LoopTiming, summarised when asked, not every tick
-    control: dict | None = None     # the control terms' columns of the last tick
-    #: The zone in use (counted from 1) and its upper temperature (K); None without ``control.zones``.
-    zone: int | None = None
-    zone_upper_K: float | None = None
-
-    @property
-    def timing(self) -> dict:
-        return self.loop_timing.summary() if self.loop_timing is not None else {}
-
-    def as_dict(self) -> dict:
-        return {
-            "time_s": self.time_s, "state": str(self.state), "T2_K": self.flange_K, "T5_K": self.ptc_stage_K,
-            "heater_W": self.heater_w, "setpoint_K": self.setpoint_K, "target_K": self.target_K,
-            "ramp_K_per_min": self.ramp_K_per_min, "last_target_K": self.last_target_K,
-            "last_fault": self.last_fault, **(self.control or {}),
-            **({"zone": self.zone, "zone_upper_K": self.zone_upper_K} if self.zone is not None else {}),
-            **self.timing,
-        }
-
-    def one_line(self) -> str:
-        """Short text for systemd STATUS=."""
-        setpoint = f"{self.setpoint_K:.4f} K" if self.setpoint_K is not None else "none"
-        heater = f"{self.heater_w * 1e3:.2f} mW" if math.isfinite(self.heater_w) else "UNKNOWN"
-        zone = f" (zone {self.zone})" if self.zone is not None else ""
-        text = (f"{self.state}: T2 {self.flange_K:.5f} K, setpoint {setpoint}{zone}, heater {heater}, "
-                f"overruns {self.timing.get('overruns', 0)}")
-        if self.last_fault:
-            text += f"; last fault: {self.last_fault}"
-        return text
-
-
 class _Snapshot(NamedTuple):
     """What the last tick left for the status, assigned at once: readers in other threads see one tick's.
 
-    The :class:`Status` is built from it when asked, not every tick.
+    The :class:`~cryod.service.daemon_status.LoopStatus` is built from it when asked, at most once a tick.
     """
 
     time_s: float
@@ -224,7 +177,7 @@ class ControlLoop:
         self.on_time = True
         self._last_row_s = -math.inf        # time of the last row emitted
         self.last_fault: Fault | None = None
-        self._status: Status | None = None
+        self._status: LoopStatus | None = None
         self._publish(_Snapshot(math.nan, LoopState.HOLDING, math.nan, math.nan, self.heater_w, None,
                                 config.control.setpoint_K, config.control.ramp_K_per_min, None, None,
                                 _given(self.regulator.ramp.target_K), self._zone()))
@@ -499,20 +452,20 @@ class ControlLoop:
         return None if zone is None else (self.regulator.zone_index + 1, zone.upper_K)
 
     @property
-    def status(self) -> Status:
-        """The loop as of its last tick (built when asked, from the tick's snapshot)."""
+    def status(self) -> LoopStatus:
+        """The loop as of its last tick (built when asked, at most once a tick, from the tick's snapshot)."""
         status = self._status
         if status is None:
             snapshot = self._snapshot
             zone = snapshot.zone
-            status = Status(time_s=snapshot.time_s, state=snapshot.state, flange_K=snapshot.flange_K,
-                            ptc_stage_K=snapshot.ptc_stage_K, heater_w=snapshot.heater_w,
-                            setpoint_K=snapshot.setpoint_K, target_K=snapshot.target_K,
-                            ramp_K_per_min=snapshot.ramp_K_per_min,
-                            last_fault=str(snapshot.last_fault) if snapshot.last_fault else None,
-                            loop_timing=self.timing, control=snapshot.control,
-                            last_target_K=snapshot.last_target_K, zone=zone[0] if zone else None,
-                            zone_upper_K=zone[1] if zone else None)
+            status = LoopStatus(time_s=snapshot.time_s, state=snapshot.state, flange_K=snapshot.flange_K,
+                                ptc_stage_K=snapshot.ptc_stage_K, heater_w=snapshot.heater_w,
+                                setpoint_K=snapshot.setpoint_K, target_K=snapshot.target_K,
+                                ramp_K_per_min=snapshot.ramp_K_per_min,
+                                last_fault=str(snapshot.last_fault) if snapshot.last_fault else None,
+                                control=snapshot.control, last_target_K=snapshot.last_target_K,
+                                zone=zone[0] if zone else None, zone_upper_K=zone[1] if zone else None,
+                                timing=self.timing.figures())
             self._status = status
         return status
 

@@ -15,6 +15,10 @@ Examples
 
 from __future__ import annotations
 
+import dataclasses
+
+from cryod.service.daemon_status import TimingFigures
+
 BIN_S = 10e-6
 
 
@@ -76,15 +80,15 @@ class LoopTiming:
                 return min((index + 1) * BIN_S, self.lateness_max_s)
         return self.lateness_max_s
 
+    def figures(self) -> TimingFigures:
+        """Counts and lateness percentiles in ms, as the status gives them."""
+        return TimingFigures(ticks=self.ticks, overruns=self.overruns, missed_deadlines=self.missed_deadlines,
+                             late_cycles_waiting_for_instruments=self.waiting_cycles,
+                             lateness_ms_p50=round(self.percentile_s(0.50) * 1e3, 3),
+                             lateness_ms_p99=round(self.percentile_s(0.99) * 1e3, 3),
+                             lateness_ms_max=round(self.lateness_max_s * 1e3, 3),
+                             gc_ms_max=round(self.gc_longest_s * 1e3, 3))
+
     def summary(self) -> dict:
-        """Counts and lateness percentiles in ms."""
-        return {
-            "ticks": self.ticks,
-            "overruns": self.overruns,
-            "missed_deadlines": self.missed_deadlines,
-            "late_cycles_waiting_for_instruments": self.waiting_cycles,
-            "lateness_ms_p50": round(self.percentile_s(0.50) * 1e3, 3),
-            "lateness_ms_p99": round(self.percentile_s(0.99) * 1e3, 3),
-            "lateness_ms_max": round(self.lateness_max_s * 1e3, 3),
-            "gc_ms_max": round(self.gc_longest_s * 1e3, 3),
-        }
+        """:meth:`figures` by name (the ``--json`` summary, the status line)."""
+        return dataclasses.asdict(self.figures())

@@ -262,6 +262,7 @@ def test_pymeasure_and_qcodes_read_what_ctl_status_shows_at_the_same_tick(tmp_pa
     pymeasure_lakeshore = pytest.importorskip("pymeasure.instruments.lakeshore")
     qcodes_336 = pytest.importorskip("qcodes.instrument_drivers.Lakeshore")
     with lakeshore_daemon(tmp_path) as daemon:
+        daemon.gate.run_ticks(80)                       # ten cooler cycles: the heater's level is known
         resource = f"TCPIP::127.0.0.1::{port_of(daemon)}::SOCKET"
         controller = pymeasure_lakeshore.LakeShore3xx(resource, visa_library="@py", timeout=10_000)
         qcodes = qcodes_336.LakeshoreModel336("tick_336", resource, visalib="@py", timeout=10)
@@ -271,7 +272,7 @@ def test_pymeasure_and_qcodes_read_what_ctl_status_shows_at_the_same_tick(tmp_pa
                 assert controller.input_A.kelvin == pytest.approx(status["T2_K"], abs=1e-6)
                 assert qcodes.A.temperature() == pytest.approx(status["T2_K"], abs=1e-6)
                 assert qcodes.B.temperature() == pytest.approx(status["T5_K"], abs=1e-6)
-                assert controller.output_1.output == pytest.approx(100 * status["heater_W"] / 0.5, abs=1e-3)
+                assert controller.output_1.output == pytest.approx(100 * status["heater_mean_W"] / 0.5, abs=1e-3)
                 daemon.gate.run_ticks(1)
         finally:
             controller.adapter.close()
@@ -332,6 +333,8 @@ def test_pymeasure_reads_sets_and_waits_and_a_setpoint_above_the_limit_leaves_it
         assert send_command(dry_run.socket, "status")["status"]["target_K"] == pytest.approx(5.05)
         assert controller.ask("*ESR?").strip() == "016"        # the 336's execution error: the client can tell
         assert controller.output_1.range == "high"
+        levels = [controller.output_1.output for _ in range(30)]   # the output's level, not the waveform's instant
+        assert max(levels) - min(levels) < 10.0 and 5.0 < sum(levels) / 30 < 60.0, levels
     finally:
         controller.adapter.close()
     journal = dry_run.journal()

@@ -18,7 +18,7 @@ from typing import Callable
 
 from cryod.interfaces.history import History
 from cryod.records.columns import Row
-from cryod.service.daemon_status import DaemonStatus, RecentFigures, status_from_json
+from cryod.service.daemon_status import DaemonStatus, status_from_json
 from cryod.service.live_view import LiveView
 from cryod.service.stream import ROW_FIELDS
 
@@ -127,8 +127,7 @@ class DaemonMirror:
         if not self.connected or status.waiting_for is not None:
             return status
         row = self.view.latest_row()
-        return dataclasses.replace(status, recent=RecentFigures(self.view.flange_average_K(),
-                                                                 self.view.line_amplitude_K()),
+        return dataclasses.replace(status, recent=self.view.recent(),
                                    flange_ohm=None if row is None else row.T2_ohm,
                                    ptc_stage_ohm=None if row is None else row.T5_ohm)
 

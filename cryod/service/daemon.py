@@ -43,7 +43,7 @@ from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
 from cryod.service.alarms import AlarmMonitor
 from cryod.service.commands import Command, wait_for
-from cryod.service.daemon_status import DaemonStatus, RecentFigures, status_json
+from cryod.service.daemon_status import DaemonStatus, status_json
 from cryod.service.faults import ExitCode, Fault, FaultCause
 from cryod.service.heater_guard import HeaterGuard
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock, InstrumentLocks
@@ -158,6 +158,9 @@ class Daemon:
         self.interfaces_options = interfaces_options or {}     # e.g. where the interfaces process logs, for tests
         self.loop: ControlLoop | None = None
         self.datalog: DataLog | None = None
+        #: The wall clock (s since the epoch, as the record's timestamps) at the daemon's clock time 0: a clock
+        #: time plus this is the time of day the record gives it.
+        self.clock_offset_s = 0.0
         #: Why the run did not start because another daemon runs this cryostat (None otherwise).
         self.not_started: str | None = None
         #: The latest row and faults, for the status line and ``cryod ctl status``'s figures of the recent past.
@@ -338,7 +341,7 @@ class Daemon:
             if self.datalog is None:
                 command.answer(False, "note refused: no record is open yet")
             else:
-                command.answer(True, write_note(self.datalog.put, str(command.value), command.sender))
+                command.answer(True, write_note(self._put_note, str(command.value), command.sender))
             return command
         if command.name == "reload" and command.value is None:
             # read and checked on the service thread, as for SIGHUP; answered when the loop has taken it
@@ -352,6 +355,11 @@ class Daemon:
             return command
         return self.loop.submit(command)
 
+    def _put_note(self, event: Event) -> None:
+        """A note into the record and the stream (the web page's events), from the socket's thread."""
+        self.datalog.put(event)
+        self.stream_tap(event)
+
     def record_path(self) -> str | None:
         """The record being written now (the data log's latest file, as an absolute path), None before the first."""
         paths = self.datalog.paths if self.datalog is not None else []
@@ -364,8 +372,7 @@ class Daemon:
         if self.loop is None:
             return DaemonStatus(waiting_for=self._waiting, record_path=self.record_path(),
                                 alarm_states=self.alarms.states(), interfaces=interfaces)
-        figures = RecentFigures(self.live_view.flange_average_K(), self.live_view.line_amplitude_K()) \
-            if recent else None
+        figures = self.live_view.recent() if recent else None
         return DaemonStatus(loop=self.loop.status, record_path=self.record_path(),
                             setpoint_warning=self.loop.setpoint_warning, alarms=tuple(self.alarms.raised()),
                             alarm_states=self.alarms.states(), interfaces=interfaces, recent=figures)
@@ -389,6 +396,7 @@ class Daemon:
     def _hello(self) -> dict:
         """Who this daemon is, for a subscriber's first line."""
         return {"version": __version__, "pid": os.getpid(), "period_s": self.config.loop.period_s,
+                "clock_offset_s": self.clock_offset_s,
                 "cooler_rad_s": cooler_rad_s(self.config), "cryostat": self.config.metrics.cryostat,
                 "config_file": str(self.config.source or "")}
 
@@ -447,6 +455,7 @@ class Daemon:
         try:
             clock_start = self.clock.now()
             wall_start = self.clock.wall_start_s if self.clock.wall_start_s is not None else time.time()
+            self.clock_offset_s = wall_start - clock_start
             schema = daemon_schema(config)
             self.datalog = DataLog(config.data.directory, schema, record_metadata(config, schema, self.metadata),
                                    lambda t: wall_start + (t - clock_start), config.loop.period_s,

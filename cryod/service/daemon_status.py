@@ -114,12 +114,14 @@ class LoopStatus:
 
 @dataclass(frozen=True)
 class RecentFigures:
-    """What the last seconds of rows say: T2 averaged over 10 s, the cooler line's amplitude on T2 (K; NaN
-    until there is enough). Computed by whoever holds the rows (the daemon for ``cryod ctl``, the interfaces
-    process for what it serves), so the stream can leave them out."""
+    """What the last seconds of rows say: T2 averaged over 10 s, the cooler line's amplitude on T2 (K), the
+    heater's level (its power over the last whole cooler cycles, W); NaN until there is enough. Computed by
+    whoever holds the rows (the daemon for ``cryod ctl``, the interfaces process for what it serves), so the
+    stream can leave them out."""
 
     flange_average_K: float = math.nan
     line_amplitude_K: float = math.nan
+    heater_mean_W: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -192,14 +194,15 @@ def status_json(status: DaemonStatus) -> dict:
     data.update(record_path=status.record_path, setpoint_warning=status.setpoint_warning,
                 alarms=[dict(alarm) for alarm in status.alarms], **extra)
     if status.recent is not None:
-        data.update(T2_average_K=status.recent.flange_average_K, line_amplitude_K=status.recent.line_amplitude_K)
+        data.update(T2_average_K=status.recent.flange_average_K, line_amplitude_K=status.recent.line_amplitude_K,
+                    heater_mean_W=status.recent.heater_mean_W)
     return data
 
 
 #: The keys of :func:`status_json` that are not a control term's column.
 _LOOP_KEYS = {"time_s", "state", "T2_K", "T5_K", "heater_W", "setpoint_K", "target_K", "ramp_K_per_min",
               "last_target_K", "last_fault", "zone", "zone_upper_K", *TIMING_KEYS, "record_path", "setpoint_warning",
-              "alarms", "alarm_states", "interfaces", "T2_average_K", "line_amplitude_K", "message"}
+              "alarms", "alarm_states", "interfaces", "T2_average_K", "line_amplitude_K", "heater_mean_W", "message"}
 
 
 def _number(value) -> float:
@@ -223,7 +226,8 @@ def status_from_json(data: Mapping[str, Any]) -> DaemonStatus:
                       zone=data.get("zone"), zone_upper_K=data.get("zone_upper_K"), timing=timing)
     recent = None
     if "T2_average_K" in data or "line_amplitude_K" in data:
-        recent = RecentFigures(_number(data.get("T2_average_K")), _number(data.get("line_amplitude_K")))
+        recent = RecentFigures(_number(data.get("T2_average_K")), _number(data.get("line_amplitude_K")),
+                               _number(data.get("heater_mean_W")))
     return DaemonStatus(loop=loop, setpoint_warning=data.get("setpoint_warning"),
                         alarms=tuple(data.get("alarms") or ()), recent=recent, **extra)
 

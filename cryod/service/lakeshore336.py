@@ -372,7 +372,12 @@ class Lakeshore336Session:
         return "1" if setpoint is not None and target is not None and abs(setpoint - target) > 1e-9 else "0"
 
     def _heater_percent(self, status) -> float:
+        """The output's level in % of R*I_max^2: while regulating, its power over the last whole cooler cycles
+        (the level a 336 shows; the feedforward's waveform averages out), else the power set now."""
         heater = status.loop.heater_w
+        level = status.recent.heater_mean_W if status.recent is not None else math.nan
+        if status.regulating and math.isfinite(level):
+            heater = level
         return 100.0 * heater / self._setup().heater_max_w if math.isfinite(heater) else 0.0
 
     def _heater_output(self, arguments, status) -> str:

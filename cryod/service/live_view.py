@@ -34,12 +34,16 @@ import numpy as np
 
 from cryod.cooler.line_fit import fit_line
 from cryod.records.columns import Event, Row
+from cryod.service.daemon_status import RecentFigures
 
 #: T2 readings kept for the line's amplitude when the feedforward does not estimate it (s).
 LINE_WINDOW_S = 20.0
 #: T2 is averaged over this much of the recent past (s): about 17 cooler periods, so the line
 #: (1.75 mK at most) leaves less than 20 µK in the average.
 AVERAGE_WINDOW_S = 10.0
+#: The heater's level is its power averaged over this many whole cooler cycles: what the setpoint costs,
+#: without the feedforward's waveform (which averages to nothing over whole cycles).
+HEATER_CYCLES = 10
 
 
 class LiveView:
@@ -64,6 +68,7 @@ class LiveView:
         size = max(int(LINE_WINDOW_S / self.period_s), 16)
         self._times = np.full(size, np.nan)
         self._flange = np.full(size, np.nan)
+        self._heater = np.full(size, np.nan)
         self._next = 0
         self._row: Row | None = None
         self._first_time_s: float | None = None
@@ -89,6 +94,7 @@ class LiveView:
             sample = item.T2_sample_s
             self._times[index] = sample if sample == sample else item.time_s
             self._flange[index] = item.T2_K
+            self._heater[index] = item.heater_W
             self._next += 1
             self._row = item
         else:
@@ -124,6 +130,25 @@ class LiveView:
         if times.max() - times[recent].min() < AVERAGE_WINDOW_S - 2 * self.period_s:
             return math.nan
         return float(np.mean(flange[recent]))
+
+    def heater_mean_W(self) -> float:
+        """The heater power averaged over the last :data:`HEATER_CYCLES` whole cooler cycles (W), NaN until
+        there are that many."""
+        times, heater = self._times.copy(), self._heater.copy()
+        usable = np.isfinite(times) & np.isfinite(heater)
+        if not usable.any():
+            return math.nan
+        times, heater = times[usable], heater[usable]
+        span_s = HEATER_CYCLES * 2.0 * math.pi / self.line_rad_s
+        recent = times > times.max() - span_s
+        if times.max() - times[recent].min() < span_s - 2.0 * self.period_s:
+            return math.nan
+        return float(np.mean(heater[recent]))
+
+    def recent(self) -> RecentFigures:
+        """The figures of the recent past the status gives: T2's 10 s average, the line's amplitude, the heater's
+        level."""
+        return RecentFigures(self.flange_average_K(), self.line_amplitude_K(), self.heater_mean_W())
 
     def latest_row(self) -> Row | None:
         """The last row the loop made (None before the first)."""

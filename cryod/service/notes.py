@@ -2,8 +2,8 @@
 
 A note is the daemon's, not the loop's: it is written at once, whether or not
 the loop runs, as ``# event: note: TEXT (by WHO)`` in the record (who sent it
-as the control socket saw it: uid, user name, pid) and at info level in the
-journal.
+as the control socket saw it: uid, user name, pid), into the live stream (the
+web page's events) and at info level in the journal.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ def write_note(put, text: str, sender: str) -> str:
     Parameters
     ----------
     put : callable
-        Takes an :class:`~cryod.records.columns.Event` for the record (``DataLog.put``).
+        Takes an :class:`~cryod.records.columns.Event` for the record and the stream.
     text : str
         The note, already checked (:func:`cryod.service.commands.note_text`).
     sender : str

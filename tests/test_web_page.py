@@ -10,6 +10,7 @@ the folder ``CRYOD_TEST_ARTIFACTS`` names), where CI and a reader find it after 
 import http.client
 import json
 import os
+import re
 import socket
 import threading
 import time
@@ -234,25 +235,67 @@ def shown(browser, element_id) -> str:
 
 
 def test_the_page_in_a_browser_shows_ctl_status_and_follows_the_loop(tmp_path, browser):
+    """A real headless chromium on the page: its tiles show ctl status of the same tick (the heater's big number is
+    its level over the last cooler cycles), its charts' time axis reads the lab's time of day (the daemon's clock
+    plus its offset to the wall clock), a note sent with ``cryod ctl note`` reaches its list of events; the page is
+    drawn at 1920x1080 and at a laptop's 1366x768 without a horizontal scroll bar, and both are kept as
+    screenshots."""
+    import datetime
+
     with web_daemon(tmp_path) as daemon:
         daemon.gate.run_ticks(300)                                      # 24 s: the averages have their windows
+        browser.set_window_size(1920, 1080)
         browser.get(f"http://127.0.0.1:{port_of(daemon)}/")
         wait_until(lambda: browser.find_element("id", "connection").text == "live", "connect")
         for _ in range(3):
             status = send_command(daemon.socket_path, "status")["status"]
             wait_until(lambda: shown(browser, "time_s") == repr(status["time_s"]), "show this tick")
             assert shown(browser, "state") == status["state"]
-            for key in ("T2_K", "T5_K", "setpoint_K", "heater_W", "T2_average_K", "line_amplitude_K", "ff_limit_K"):
+            for key in ("T2_K", "T5_K", "setpoint_K", "heater_W", "heater_mean_W", "T2_average_K",
+                        "line_amplitude_K", "ff_limit_K"):
                 assert status[key] is not None, key
                 assert float(shown(browser, key)) == pytest.approx(status[key], rel=1e-12, abs=1e-15), key
             assert browser.find_element("id", "T2_K").text == f"{status['T2_K']:.6f} K"
+            assert browser.find_element("id", "heater_mean_W").text == f"{status['heater_mean_W'] * 1e3:.3f} mW"
             assert float(shown(browser, "error_K")) == pytest.approx(status["T2_K"] - status["setpoint_K"], abs=1e-12)
             assert float(shown(browser, "pi_W")) == pytest.approx(status["pi_proportional_W"] + status["pi_integral_W"])
             daemon.gate.run_ticks(15)                                   # the page follows the loop
+        # the time of day: the tick's wall time as the record writes it, on the header and the charts' axis
+        wall = daemon.daemon.clock_offset_s + status["time_s"]
+        expected = datetime.datetime.fromtimestamp(wall).strftime("%H:%M")
+        assert expected in browser.find_element("id", "wall_time").text
+        axis = browser.find_element("id", "chart-T2").get_attribute("data-time-axis").split()
+        assert axis and all(re.fullmatch(r"\d\d:\d\d(:\d\d)?", tick) for tick in axis), axis
+        ticks = [datetime.datetime.strptime(tick, "%H:%M:%S" if tick.count(":") == 2 else "%H:%M") for tick in axis]
+        last = datetime.datetime.strptime(datetime.datetime.fromtimestamp(wall).strftime("%H:%M:%S"), "%H:%M:%S")
+        assert all(abs((tick - last).total_seconds()) < 700 for tick in ticks), (axis, last)   # the window's times
+        legend = browser.execute_script('return [...document.querySelectorAll("#chart-heater .u-legend .u-label")]'
+                                        '.map((label) => label.textContent);')
+        assert {"heater mean of each second", "waveform range: lowest", "PI's part"} <= set(legend), legend
+        sent = threading.Thread(target=send_command, args=(daemon.socket_path, "note cold plate swapped"))
+        sent.start()
+        while sent.is_alive():
+            daemon.gate.run_ticks(1)
+            sent.join(0.005)
+
+        def listed():
+            texts = browser.execute_script('return [...document.querySelectorAll("#events li")]'
+                                           '.map((item) => item.textContent);')
+            if any("note: cold plate swapped" in text for text in texts):
+                return True
+            daemon.gate.run_ticks(1)
+            return False
+
+        wait_until(listed, "list the note")
         assert browser.find_element("id", "control").get_attribute("hidden") is not None    # read-only page
         errors = [entry for entry in browser.get_log("browser") if entry["level"] == "SEVERE"]
         assert not errors, errors
-        screenshot = artifact_folder() / "web-page.png"
-        browser.save_screenshot(str(screenshot))
-        print(f"screenshot of the page: {screenshot}")
-        assert screenshot.stat().st_size > 10_000
+        for name, size in (("web-page.png", (1920, 1080)), ("web-page-laptop.png", (1366, 768))):
+            browser.set_window_size(*size)
+            time.sleep(0.3)
+            width = browser.execute_script("return [document.documentElement.scrollWidth, window.innerWidth];")
+            assert width[0] <= width[1], (size, width)                  # nothing wider than the screen
+            screenshot = artifact_folder() / name
+            browser.save_screenshot(str(screenshot))
+            print(f"screenshot of the page at {size[0]}x{size[1]}: {screenshot}")
+            assert screenshot.stat().st_size > 10_000

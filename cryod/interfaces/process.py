@@ -88,7 +88,7 @@ class Interfaces:
         """Start what the settings configure; one that cannot listen is said and left out."""
         settings = self.settings
         if settings.web is not None:
-            self.web = await self._started(WebPage(settings.web, self.mirror, self.link))
+            self.web = await self._started(WebPage(settings.web, self.mirror, self.link, settings.heater_max_w))
         if settings.lakeshore336 is not None:
             self.lakeshore336 = await self._started(
                 Lakeshore336Server(settings.lakeshore336, lambda: self.settings.lakeshore336_setup, self.mirror,

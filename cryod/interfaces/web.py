@@ -2,11 +2,14 @@
 
 Off unless the configuration has a ``web`` section; served by the interfaces process
 (:mod:`cryod.interfaces`), never by the daemon's. The page (``web_assets``: HTML, one script, one
-style sheet, nothing fetched from elsewhere) reads:
+style sheet, and the uPlot charting library 1.6.32 (MIT), vendored from the npm registry with its
+licence; nothing fetched from elsewhere) reads:
 
-* ``GET /api/status``: the status ``cryod ctl status --json`` gives, and whether the page may write;
+* ``GET /api/status``: the status ``cryod ctl status --json`` gives, whether the page may write, and
+  ``clock_offset_s``, the wall clock at the daemon's clock time 0 (a ``time_s`` plus this is the time
+  of day the record gives it);
 * ``GET /api/history``: the last hour in one-second bins and the recent events
-  (:mod:`cryod.interfaces.history`), folded and encoded in this process;
+  (:mod:`cryod.interfaces.history`), folded and encoded in this process, and ``clock_offset_s``;
 * ``GET /api/events``: server-sent events, one every :data:`PUSH_S` while the loop runs: the status,
   the bins completed since and the new events, each frame with the sequence number of its last event
   as its ``id``. The stream's events start after ``?after=SEQ`` (the page gives the last of
@@ -60,7 +63,9 @@ KEEPALIVE_S = 15.0
 PAGE_COMMANDS = ("setpoint", "ramp", "heater-off", "feedforward")
 #: The page's files (name: content type).
 ASSETS = {"index.html": "text/html; charset=utf-8", "app.js": "text/javascript; charset=utf-8",
-          "style.css": "text/css; charset=utf-8", "icon.svg": "image/svg+xml"}
+          "style.css": "text/css; charset=utf-8", "icon.svg": "image/svg+xml",
+          "uPlot.iife.min.js": "text/javascript; charset=utf-8", "uPlot.min.css": "text/css; charset=utf-8",
+          "uPlot.LICENSE.txt": "text/plain; charset=utf-8"}
 
 
 def load_assets() -> dict[str, bytes]:
@@ -131,10 +136,13 @@ class WebPage:
     mirror : DaemonMirror
     link : DaemonLink
         Commands go through it.
+    heater_max_w : float
+        R * I_max^2 (W), the top of the heater chart (``heater_max_W`` of ``/api/status``).
     """
 
-    def __init__(self, config: WebConfig, mirror: DaemonMirror, link: DaemonLink):
+    def __init__(self, config: WebConfig, mirror: DaemonMirror, link: DaemonLink, heater_max_w: float):
         self.config = config
+        self.heater_max_w = heater_max_w
         self.mirror = mirror
         self.link = link
         self.assets = load_assets()
@@ -144,6 +152,12 @@ class WebPage:
     @property
     def writable(self) -> bool:
         return self.config.writable
+
+    @property
+    def clock_offset_s(self) -> float:
+        """The wall clock at the daemon's clock time 0 (s since the epoch): a time of the status or of a bin plus
+        this is the time of day the record gives it."""
+        return float(self.mirror.hello.get("clock_offset_s") or 0.0)
 
     async def start(self) -> None:
         await self.server.start()
@@ -167,10 +181,12 @@ class WebPage:
         path = request.path
         if path == "/api/status":
             return json_response(200, {"status": status_json(self.mirror.status()), "writable": self.writable,
-                                       "page_commands": list(PAGE_COMMANDS) if self.writable else []})
+                                       "page_commands": list(PAGE_COMMANDS) if self.writable else [],
+                                       "clock_offset_s": self.clock_offset_s, "heater_max_W": self.heater_max_w})
         if path == "/api/history":
             history = self.mirror.history
-            return json_response(200, {"bins": list(history.bins), "events": list(history.events)})
+            return json_response(200, {"bins": list(history.bins), "events": list(history.events),
+                                       "clock_offset_s": self.clock_offset_s})
         if path == "/api/events":
             after = events_after(request)           # refused before the stream's head goes out
             return EventStream(lambda: self._frames(after))

@@ -54,6 +54,8 @@ class InterfaceSettings:
         The loop's period (s).
     cooler_rad_s : float
         The cooler's angular frequency in the controller's model (rad/s): the line's amplitude.
+    heater_max_w : float
+        R * I_max^2 (W): the top of the web page's heater chart.
     cryostat : str
         ``metrics.cryostat``.
     web, lakeshore336 : WebConfig, Lakeshore336Config or None
@@ -70,6 +72,7 @@ class InterfaceSettings:
     socket_path: Path
     period_s: float
     cooler_rad_s: float
+    heater_max_w: float = 0.5
     cryostat: str = ""
     web: WebConfig | None = None
     lakeshore336: Lakeshore336Config | None = None
@@ -87,7 +90,8 @@ class InterfaceSettings:
 def interface_settings(config: DaemonConfig, cooler_rad_s: float, lakeshore336_setup=None) -> InterfaceSettings:
     """The interfaces' settings from a daemon configuration."""
     return InterfaceSettings(socket_path=Path(config.control_socket.path), period_s=config.loop.period_s,
-                             cooler_rad_s=cooler_rad_s, cryostat=config.metrics.cryostat, web=config.web,
+                             cooler_rad_s=cooler_rad_s, heater_max_w=config.heater.max_power_w,
+                             cryostat=config.metrics.cryostat, web=config.web,
                              lakeshore336=config.lakeshore336, metrics_address=config.metrics.address,
                              alarm_hook=config.alarms.hook, lakeshore336_setup=lakeshore336_setup,
                              config_source=str(config.source or ""))

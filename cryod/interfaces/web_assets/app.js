@@ -1,12 +1,15 @@
-// cryod's live page: the status as `cryod ctl status` gives it, pushed by the daemon (server-sent
-// events), and the last hour in one-second bins drawn on canvases. Nothing is loaded from elsewhere.
+// cryod's live page: the status as `cryod ctl status` gives it, pushed by the interfaces process (server-sent
+// events), and the last hour in one-second bins drawn with uPlot (served from the package, like this file).
+// Times on the charts are the lab's local time of day: the daemon's clock plus its offset to the wall clock.
 "use strict";
 
 const HOUR_S = 3600;
-const view = { spanS: 600, endS: null };       // the charts' window; endS null: follow the newest bin
+const FOLD_AT = 160;                       // characters of an event shown before it is folded
+const view = { spanS: 600, follow: true };
 let bins = [];
-let latest = {};
-let drawPending = false;
+let clockOffsetS = 0;                      // wall clock (s since the epoch) at the daemon's clock time 0
+let heaterMaxW = null;                     // R * I_max^2: the top of the heater chart
+const charts = [];
 
 // -- numbers ---------------------------------------------------------------------------------------
 const FORMATS = {
@@ -16,6 +19,7 @@ const FORMATS = {
   microkelvin_unsigned: (v) => `${(v * 1e6).toFixed(1)} µK`,
   milliwatt: (v) => `${(v * 1e3).toFixed(3)} mW`,
   rate: (v) => (v === 0 ? "steps" : `${v} K/min`),
+  ratio: (v) => `${(100 * v).toFixed(0)} %`,
   seconds: (v) => `${v.toFixed(2)} s`,
   milliseconds: (v) => `${v.toFixed(2)} ms`,
   count: (v) => `${v}`,
@@ -30,196 +34,218 @@ function show(id, value) {
   element.textContent = missing ? "–" : FORMATS[element.dataset.format || "text"](value);
 }
 
+// The lab's time of day, on a 24-hour clock whatever the browser's language (a lab's logbook is kept so).
+function localTime(wallS, seconds = true) {
+  return new Date(wallS * 1000).toLocaleTimeString([], { hour: "2-digit", minute: "2-digit", hourCycle: "h23",
+                                                           ...(seconds ? { second: "2-digit" } : {}) });
+}
+
 function piPart(status) {
   if (status.pi_proportional_W === undefined) return null;
   return (status.pi_proportional_W ?? 0) + (status.pi_integral_W ?? 0);
 }
 
 function renderStatus(status) {
-  latest = status;
   const state = document.getElementById("state");
   state.textContent = status.state ?? "–";
   state.dataset.value = status.state ?? "";
   state.className = "state " + String(status.state ?? "").split(":")[0];
-  const error = status.T2_K != null && status.setpoint_K != null ? status.T2_K - status.setpoint_K : null;
   for (const key of ["T2_K", "T2_average_K", "setpoint_K", "target_K", "ramp_K_per_min", "T5_K", "heater_W",
-                     "ff_W", "line_amplitude_K", "ff_limit_K", "time_s", "overruns", "lateness_ms_p99"]) {
+                     "heater_mean_W", "ff_W", "line_amplitude_K", "ff_limit_K", "time_s", "overruns",
+                     "lateness_ms_p99"]) {
     show(key, status[key]);
   }
-  show("error_K", error);
+  show("error_K", status.T2_K != null && status.setpoint_K != null ? status.T2_K - status.setpoint_K : null);
   show("pi_W", piPart(status));
   show("last_fault", status.last_fault ?? "none");
+  show("wall_time", status.time_s != null ? localTime(status.time_s + clockOffsetS) : null);
   const newest = bins.length ? bins[bins.length - 1] : null;
   show("ff_band", newest && newest.ff_min_W !== null
     ? `${(newest.ff_min_W * 1e3).toFixed(1)} to ${(newest.ff_max_W * 1e3).toFixed(1)} mW` : null);
-  const meter = document.getElementById("line_meter");
-  if (status.line_amplitude_K != null && status.ff_limit_K) {
-    meter.value = status.line_amplitude_K / status.ff_limit_K;
-  }
+  const ratio = status.line_amplitude_K != null && status.ff_limit_K ? status.line_amplitude_K / status.ff_limit_K
+    : null;
+  show("line_ratio", ratio);
+  if (ratio !== null) document.getElementById("line_meter").value = ratio;
   const faults = document.getElementById("faults");
   const faulted = String(status.state ?? "").startsWith("fault") || status.state === "stopped";
   faults.hidden = !(faulted || status.last_fault);
   faults.textContent = status.last_fault ? `last fault: ${status.last_fault}` : (faulted ? status.state : "");
+  const warning = document.getElementById("setpoint_warning");
+  warning.hidden = !status.setpoint_warning;
+  warning.textContent = status.setpoint_warning ?? "";
   const alarms = document.getElementById("alarms");
   const raised = Array.isArray(status.alarms) ? status.alarms : [];
   alarms.hidden = raised.length === 0;
   alarms.replaceChildren(...raised.map((alarm) => {
-    const item = listItem(alarmText(alarm));
+    const item = document.createElement("li");
+    item.textContent = alarmText(alarm);
     if (alarm.name) item.dataset.alarm = alarm.name;
     return item;
   }));
   if (status.record_path !== undefined) show("record_path", status.record_path);
 }
 
-// An alarm of the status (cryod ctl status): its name, raised or latched, acknowledged or not, and its figure
-// when it was raised.
+// An alarm of the status: its name, raised or latched, acknowledged or not, and its figure when it was raised.
 function alarmText(alarm) {
   if (typeof alarm === "string") return alarm;
   const acknowledged = alarm.acknowledged ? ", acknowledged" : "";
   return `${alarm.name} ${alarm.state}${acknowledged}: ${alarm.raised_message || alarm.message}`;
 }
 
-function listItem(text) {
+// -- notes and events: one list, newest first, long ones folded ------------------------------------
+function eventItem(event) {
   const item = document.createElement("li");
-  item.textContent = text;
+  item.className = `event ${event.kind}`;
+  const when = document.createElement("time");
+  when.textContent = event.time_s === null ? "" : localTime(event.time_s + clockOffsetS);
+  const kind = document.createElement("span");
+  kind.className = "kind";
+  kind.textContent = `${event.kind}: `;
+  item.append(when, kind);
+  if (event.message.length <= FOLD_AT) {
+    item.append(event.message);
+  } else {
+    const folded = document.createElement("details");
+    const summary = document.createElement("summary");
+    summary.textContent = event.message.slice(0, FOLD_AT) + " …";
+    const whole = document.createElement("p");
+    whole.textContent = event.message;
+    folded.append(summary, whole);
+    item.append(folded);
+  }
   return item;
 }
 
 function addEvents(events) {
-  const notes = document.getElementById("notes");
   const list = document.getElementById("events");
-  for (const event of events) {
-    const when = event.time_s === null ? "" : `${event.time_s.toFixed(1)} s: `;
-    const target = event.kind === "note" ? notes : list;
-    target.prepend(listItem(`${when}${event.kind === "note" ? "" : event.kind + ": "}${event.message}`));
-    while (target.children.length > 50) target.lastChild.remove();
-  }
+  for (const event of events) list.prepend(eventItem(event));
+  while (list.children.length > 200) list.lastChild.remove();
 }
 
-// -- charts --------------------------------------------------------------------------------------
-const CHARTS = {
-  "chart-T2": { bands: [["T2_min_K", "T2_max_K", "#1f77b4"]], lines: [["setpoint_K", "#d62728"]], scale: 1 },
-  "chart-error": { bands: [["error_min", "error_max", "#2ca02c"]], lines: [], scale: 1e6, derived: true },
-  "chart-T5": { bands: [["T5_min_K", "T5_max_K", "#9467bd"]], lines: [["T5_mean_K", "#5b3a8c"]], scale: 1 },
-  "chart-heater": { bands: [["heater_min_W", "heater_max_W", "#ff7f0e"], ["ff_min_W", "ff_max_W", "#17becf"]],
-                    lines: [["pi_W", "#8c564b"]], scale: 1e3 },
-  "chart-line": { bands: [], lines: [["line_amplitude_K", "#1f77b4"], ["line_limit_K", "#d62728"]], scale: 1e6 },
-};
+// -- charts ----------------------------------------------------------------------------------------
+const mk = (v) => (v === null || v === undefined ? null : v * 1e3);
+const uk = (v) => (v === null || v === undefined ? null : v * 1e6);
+const diff = (a, b) => (a === null || b === null || a === undefined || b === undefined ? null : a - b);
 
-function value(bin, key) {
-  if (key === "error_min") return bin.setpoint_K === null || bin.T2_min_K === null ? null : bin.T2_min_K - bin.setpoint_K;
-  if (key === "error_max") return bin.setpoint_K === null || bin.T2_max_K === null ? null : bin.T2_max_K - bin.setpoint_K;
-  return bin[key];
+// Each chart: its title, the unit of its axis, its series (label, colour, how a bin gives its value) and the
+// bands filled between two of them (indexes into the series, counted from 1).
+const CHARTS = [
+  { id: "chart-T2", title: "T2 flange", unit: "K", digits: 5, series: [
+      ["T2 lowest in each second", "#9ecae1", (b) => b.T2_min_K],
+      ["T2 highest in each second", "#9ecae1", (b) => b.T2_max_K],
+      ["T2 mean", "#1f77b4", (b) => b.T2_mean_K, 2],
+      ["setpoint", "#d62728", (b) => b.setpoint_K, 1.5]], bands: [[2, 1, "rgba(31,119,180,0.18)"]] },
+  { id: "chart-error", title: "T2 minus the setpoint", unit: "µK", digits: 1, series: [
+      ["lowest in each second", "#a1d99b", (b) => uk(diff(b.T2_min_K, b.setpoint_K))],
+      ["highest in each second", "#a1d99b", (b) => uk(diff(b.T2_max_K, b.setpoint_K))],
+      ["mean", "#2ca02c", (b) => uk(diff(b.T2_mean_K, b.setpoint_K)), 2]], bands: [[2, 1, "rgba(44,160,44,0.18)"]] },
+  { id: "chart-heater", title: "Heater", unit: "mW", digits: 1, range: heaterRange, series: [
+      ["heater mean of each second", "#e6550d", (b) => mk(b.heater_mean_W), 2],
+      ["waveform range: lowest", "#fdae6b", (b) => mk(b.heater_min_W)],
+      ["waveform range: highest", "#fdae6b", (b) => mk(b.heater_max_W)],
+      ["PI's part", "#8c564b", (b) => mk(b.pi_W), 1.5]], bands: [[3, 2, "rgba(253,174,107,0.25)"]] },
+  { id: "chart-line", title: "Cooler line on T2 against its physical limit", unit: "µK", digits: 1, series: [
+      ["line (all harmonics)", "#1f77b4", (b) => uk(b.line_amplitude_K), 2],
+      ["physical limit", "#d62728", (b) => uk(b.line_limit_K), 1.5]], bands: [] },
+  { id: "chart-T5", title: "T5 cooler stage", unit: "K", digits: 4, series: [
+      ["T5 lowest in each second", "#c5b0d5", (b) => b.T5_min_K],
+      ["T5 highest in each second", "#c5b0d5", (b) => b.T5_max_K],
+      ["T5 mean", "#9467bd", (b) => b.T5_mean_K, 2]], bands: [[2, 1, "rgba(148,103,189,0.18)"]] },
+];
+
+// The heater's own range, from the waveform's lowest to R * I_max^2: PI's request beyond it (while the heater is
+// held at its top) is not drawn as if it were heat.
+function heaterRange(u, low, high) {
+  const top = heaterMaxW === null ? high : 1.05 * heaterMaxW * 1e3;
+  return [Math.min(0, low), Math.max(top, 1)];
 }
 
-function windowBins() {
-  if (!bins.length) return { shown: [], start: 0, end: 0 };
-  const end = view.endS === null ? bins[bins.length - 1].time_s + 1 : view.endS;
-  const start = end - view.spanS;
-  return { shown: bins.filter((bin) => bin.time_s >= start && bin.time_s < end), start, end };
+function chartData(chart) {
+  const times = bins.map((b) => b.time_s + clockOffsetS);
+  return [times, ...chart.series.map(([, , pick]) => bins.map((b) => { const v = pick(b); return v ?? null; }))];
 }
 
-function draw() {
-  drawPending = false;
-  const { shown, start, end } = windowBins();
-  show("window", bins.length ? `${((end - start) / 60).toFixed(1)} min up to ${end.toFixed(0)} s` : null);
-  for (const [id, chart] of Object.entries(CHARTS)) drawChart(document.getElementById(id), chart, shown, start, end);
+function chartWidth(element) {
+  return Math.max(320, element.clientWidth - 2);
 }
 
-function requestDraw() {
-  if (!drawPending) {
-    drawPending = true;
-    requestAnimationFrame(draw);
-  }
-}
-
-function drawChart(canvas, chart, shown, start, end) {
-  const ratio = window.devicePixelRatio || 1;
-  const width = canvas.clientWidth, height = canvas.clientHeight;
-  if (canvas.width !== Math.round(width * ratio)) canvas.width = Math.round(width * ratio);
-  if (canvas.height !== Math.round(height * ratio)) canvas.height = Math.round(height * ratio);
-  const context = canvas.getContext("2d");
-  context.setTransform(ratio, 0, 0, ratio, 0, 0);
-  context.clearRect(0, 0, width, height);
-  const left = 78, right = 10, top = 18, bottom = 18;
-  context.font = "11px sans-serif";
-  context.fillStyle = "#333";
-  context.fillText(canvas.dataset.title, left, 12);
-  const keys = [...chart.bands.flatMap(([low, high]) => [low, high]), ...chart.lines.map(([key]) => key)];
-  let low = Infinity, high = -Infinity;
-  for (const bin of shown) {
-    for (const key of keys) {
-      const v = value(bin, key);
-      if (v !== null && v !== undefined && isFinite(v)) { low = Math.min(low, v * chart.scale); high = Math.max(high, v * chart.scale); }
-    }
-  }
-  if (!isFinite(low)) { context.fillText("no data in this window yet", left, height / 2); return; }
-  if (high - low < 1e-12) { high += 0.5; low -= 0.5; }
-  const margin = (high - low) * 0.05;
-  low -= margin; high += margin;
-  const x = (t) => left + (t - start) / (end - start) * (width - left - right);
-  const y = (v) => top + (high - v * chart.scale) / (high - low) * (height - top - bottom);
-  context.strokeStyle = "#ccc";
-  context.strokeRect(left, top, width - left - right, height - top - bottom);
-  context.fillStyle = "#333";
-  context.fillText(high.toPrecision(7), 2, top + 8);
-  context.fillText(low.toPrecision(7), 2, height - bottom);
-  context.fillText(`${((end - start) / 60).toFixed(1)} min`, left, height - 4);
-  context.fillText("now", width - right - 24, height - 4);
-  for (const [lowKey, highKey, color] of chart.bands) {
-    context.fillStyle = color;
-    context.globalAlpha = 0.35;
-    for (const bin of shown) {
-      const a = value(bin, lowKey), b = value(bin, highKey);
-      if (a === null || b === null || a === undefined) continue;
-      const top_ = y(b), bottom_ = y(a);
-      context.fillRect(x(bin.time_s), top_, Math.max(1, x(bin.time_s + 1) - x(bin.time_s)), Math.max(1, bottom_ - top_));
-    }
-    context.globalAlpha = 1;
-  }
-  for (const [key, color] of chart.lines) {
-    context.strokeStyle = color;
-    context.beginPath();
-    let previous = null;                       // a gap in the bins (the daemon was not running) breaks the line
-    for (const bin of shown) {
-      const v = value(bin, key);
-      if (v === null || v === undefined) { previous = null; continue; }
-      const px = x(bin.time_s + 0.5), py = y(v);
-      if (previous !== null && bin.time_s - previous <= 1.5) context.lineTo(px, py); else context.moveTo(px, py);
-      previous = bin.time_s;
-    }
-    context.stroke();
-  }
-}
-
-function zoomable(canvas) {
-  canvas.addEventListener("wheel", (event) => {
-    event.preventDefault();
-    const { start, end } = windowBins();
-    const at = start + (event.offsetX - 78) / Math.max(1, canvas.clientWidth - 88) * (end - start);
-    const factor = event.deltaY > 0 ? 1.25 : 0.8;
-    const span = Math.min(HOUR_S, Math.max(10, view.spanS * factor));
-    view.endS = at + (end - at) * span / view.spanS;
-    view.spanS = span;
-    document.getElementById("follow").checked = false;
-    requestDraw();
-  }, { passive: false });
-  let dragging = null;
-  canvas.addEventListener("mousedown", (event) => { dragging = { x: event.clientX, end: windowBins().end }; });
-  window.addEventListener("mouseup", () => { dragging = null; });
-  canvas.addEventListener("mousemove", (event) => {
-    if (!dragging) return;
-    const seconds = (event.clientX - dragging.x) / Math.max(1, canvas.clientWidth - 88) * view.spanS;
-    view.endS = dragging.end - seconds;
-    document.getElementById("follow").checked = false;
-    requestDraw();
+function makeChart(chart) {
+  const holder = document.createElement("figure");
+  holder.id = chart.id;
+  document.getElementById("charts").append(holder);
+  const options = {
+    title: `${chart.title} (${chart.unit})`,
+    width: chartWidth(holder),
+    height: 230,
+    cursor: { drag: { x: true, y: false } },
+    scales: { x: { time: true }, ...(chart.range ? { y: { range: chart.range } } : {}) },
+    axes: [
+      { space: 90, grid: { stroke: "#eee" }, ticks: { stroke: "#ccc" },
+        values: (u, splits) => {
+          const span = u.scales.x.max - u.scales.x.min;
+          const labels = splits.map((v) => localTime(v, span < 900));
+          holder.dataset.timeAxis = labels.join(" ");   // what the axis shows, for a reader of the page's DOM
+          return labels;
+        } },
+      { label: chart.unit, size: 70, grid: { stroke: "#eee" }, ticks: { stroke: "#ccc" },
+        values: (u, splits) => splits.map((v) => v.toFixed(chart.digits)) },
+    ],
+    series: [
+      { label: "local time", value: (u, v) => (v === null ? "–" : localTime(v)) },
+      ...chart.series.map(([label, colour, , width]) => ({
+        label, stroke: colour, width: width ?? 1, spanGaps: false, points: { show: false },
+        value: (u, v) => (v === null || v === undefined ? "–" : `${v.toFixed(chart.digits + 1)} ${chart.unit}`),
+      })),
+    ],
+    bands: chart.bands.map(([high, low, fill]) => ({ series: [high, low], fill })),
+    hooks: {
+      setSelect: [(u) => {                 // a zoom by dragging: stop following the newest
+        if (u.select.width > 0) {
+          view.follow = false;
+          document.getElementById("follow").checked = false;
+        }
+      }],
+    },
+  };
+  const plot = new uPlot(options, chartData(chart), holder);
+  holder.addEventListener("dblclick", () => {
+    view.follow = true;
+    document.getElementById("follow").checked = true;
+    redraw();
   });
-  canvas.addEventListener("dblclick", () => { view.spanS = HOUR_S; view.endS = null; document.getElementById("follow").checked = true; requestDraw(); });
+  charts.push({ chart, plot, holder });
+}
+
+// The window shown while following: the last spanS seconds, or all there is when the history is shorter.
+function windowRange() {
+  if (!bins.length) return null;
+  const end = bins[bins.length - 1].time_s + 1 + clockOffsetS;
+  return { min: Math.max(end - view.spanS, bins[0].time_s + clockOffsetS), max: end };
+}
+
+function redraw() {
+  const range = windowRange();
+  for (const { chart, plot } of charts) {
+    plot.setData(chartData(chart), false);
+    if (range && view.follow) plot.setScale("x", range);
+    else plot.redraw();
+  }
+}
+
+let redrawPending = false;
+function requestRedraw() {
+  if (!redrawPending) {
+    redrawPending = true;
+    requestAnimationFrame(() => { redrawPending = false; redraw(); });
+  }
+}
+
+function resizeCharts() {
+  for (const { plot, holder } of charts) plot.setSize({ width: chartWidth(holder), height: 230 });
 }
 
 // -- control (only when the daemon allows it) --------------------------------------------------------
 async function sendCommand(line) {
-  const reply = document.getElementById("command_reply");
   try {
     const response = await fetch("/api/command", {
       method: "POST",
@@ -227,12 +253,11 @@ async function sendCommand(line) {
       body: JSON.stringify({ command: line }),
     });
     const answer = await response.json();
-    show("command_reply", `${line}: ${answer.ok ? "" : "refused: "}${answer.message}`);
+    show("command_reply", `${line}: ${answer.ok ? "" : `refused (${response.status}): `}${answer.message}`);
     if (answer.status) renderStatus(answer.status);
   } catch (error) {
     show("command_reply", `${line}: not sent (${error})`);
   }
-  reply.className = "";
 }
 
 function setUpControl(commands) {
@@ -256,24 +281,26 @@ async function start() {
   for (const button of document.querySelectorAll("button[data-span]")) {
     button.addEventListener("click", () => {
       view.spanS = Number(button.dataset.span);
-      view.endS = null;
+      view.follow = true;
       document.getElementById("follow").checked = true;
-      requestDraw();
+      redraw();
     });
   }
   document.getElementById("follow").addEventListener("change", (event) => {
-    view.endS = event.target.checked ? null : windowBins().end;
-    requestDraw();
+    view.follow = event.target.checked;
+    redraw();
   });
-  for (const id of Object.keys(CHARTS)) zoomable(document.getElementById(id));
-  window.addEventListener("resize", requestDraw);
   const [status, history] = await Promise.all([fetch("/api/status").then((r) => r.json()),
                                                fetch("/api/history").then((r) => r.json())]);
+  clockOffsetS = status.clock_offset_s ?? 0;
+  heaterMaxW = status.heater_max_W ?? null;
   bins = history.bins;
   addEvents(history.events);
   renderStatus(status.status);
   setUpControl(status.page_commands);
-  requestDraw();
+  for (const chart of CHARTS) makeChart(chart);
+  redraw();
+  new ResizeObserver(resizeCharts).observe(document.getElementById("charts"));
   // the stream starts after the last event the history gave: one folded in between is not lost
   const lastSeq = history.events.length ? history.events[history.events.length - 1].seq : 0;
   const events = new EventSource(`/api/events?after=${lastSeq}`);
@@ -286,11 +313,10 @@ async function start() {
       bins.push(...frame.bins);
       const oldest = bins[bins.length - 1].time_s - HOUR_S;
       while (bins.length && bins[0].time_s < oldest) bins.shift();
+      requestRedraw();
     }
     addEvents(frame.events);
     renderStatus(frame.status);
-    if (document.getElementById("follow").checked) view.endS = null;
-    requestDraw();
   };
 }
 

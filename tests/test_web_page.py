@@ -60,10 +60,12 @@ def request(daemon, method, path, body=None, headers=None, run_ticks=False):
 def test_the_page_its_status_and_history_are_served_with_a_strict_policy(tmp_path):
     with web_daemon(tmp_path) as daemon:
         code, page, headers = request(daemon, "GET", "/")
-        assert code == 200 and b"<canvas" in page and b"http" not in page.replace(b"http-equiv", b"")
+        assert code == 200 and b'id="charts"' in page and b"http" not in page.replace(b"http-equiv", b"")
         assert "default-src 'none'" in headers["Content-Security-Policy"]
-        for asset in ("/app.js", "/style.css", "/icon.svg"):
+        for asset in ("/app.js", "/style.css", "/icon.svg", "/uPlot.iife.min.js", "/uPlot.min.css",
+                      "/uPlot.LICENSE.txt"):                             # the charting library, served here
             assert request(daemon, "GET", asset)[0] == 200
+        assert b"MIT" in request(daemon, "GET", "/uPlot.LICENSE.txt")[1]
         code, answer, _ = request(daemon, "GET", "/api/status")
         status = send_command(daemon.socket_path, "status")["status"]
         assert answer["writable"] is False and answer["page_commands"] == []

@@ -43,6 +43,16 @@ def test_cryod_plot_draws_a_daemon_record_beside_it_and_keeps_an_existing_figure
     assert run.summary["ptc_line_rad_s"] == pytest.approx(daemon_rad_s, abs=2e-3)
     assert run.summary["feedforward_limit_bound"] == "floor"            # 113 mW of 500 mW at 5 K
     assert "a bigger heater does not help" in run.summary["feedforward_limit_explained"].lower()
+    # the heater panel's line is the heater's level, not the middle of the waveform's band: over the settled last
+    # two minutes its mean over cooler cycles is the record's mean power, the band's middle is far from it
+    from cryod.cli.plot import cycle_mean
+    late = record.time_s > record.time_s[-1] - 120.0
+    level = cycle_mean(record.time_s, record.heater_w, daemon_rad_s)[late]
+    mean_w = float(np.mean(record.heater_w[late]))
+    assert float(np.nanmean(level)) == pytest.approx(mean_w, rel=0.01)
+    assert float(np.nanmax(np.abs(level - mean_w))) < 0.1 * mean_w
+    middle = (np.min(record.heater_w[late]) + np.max(record.heater_w[late])) / 2
+    assert abs(middle - mean_w) > 0.2 * mean_w
     assert main(["plot", str(record_path)]) == 0
     figure = record_path.with_suffix(".png")
     assert capsys.readouterr().out.strip() == str(figure)

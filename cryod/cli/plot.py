@@ -143,6 +143,37 @@ def periodic_line_amplitudes(time_s: np.ndarray, flange_K: np.ndarray, rad_s: fl
     return np.array(centres), np.array(amplitudes), np.array(noises)
 
 
+def cycle_mean(time_s: np.ndarray, values: np.ndarray, rad_s: float) -> np.ndarray:
+    """``values`` averaged over the cooler cycles around each sample (a centred running mean over the samples of a
+    few whole cycles; NaN where they are not all there): the heater's level, without the feedforward's waveform,
+    which averages to nothing over whole cycles.
+
+    Examples
+    --------
+    >>> t = np.arange(200) * 0.08
+    >>> level = cycle_mean(t, 0.1 + 0.05 * np.sin(10.83 * t), 10.83)
+    >>> bool(np.nanmax(np.abs(level - 0.1)) < 0.01)
+    True
+    """
+    usable = np.isfinite(time_s) & np.isfinite(values)
+    result = np.full(values.shape, np.nan)
+    if usable.sum() < 3:
+        return result
+    step_s = float(np.median(np.diff(time_s[usable])))
+    samples_per_cycle = 2.0 * math.pi / rad_s / step_s
+    # whole cycles spanning a whole number of samples as nearly as a few cycles allow (7.25 samples a cycle at
+    # 80 ms: 4 cycles are 29.0), so that the waveform leaves no remainder in the mean
+    cycles = min(range(1, 9), key=lambda count: abs(count * samples_per_cycle - round(count * samples_per_cycle)))
+    width = max(1, int(round(cycles * samples_per_cycle)))
+    kernel = np.ones(width) / width
+    filled = np.where(usable, values, 0.0)
+    sums = np.convolve(filled, kernel, mode="same")
+    counts = np.convolve(usable.astype(float), kernel, mode="same")
+    whole = counts > 1.0 - 1e-9
+    result[whole] = sums[whole]
+    return result
+
+
 def _envelope(time_s: np.ndarray, values: np.ndarray, columns: int = COLUMNS):
     """Per pixel column: centre time, minimum and maximum of ``values`` (finite ones)."""
     usable = np.isfinite(time_s) & np.isfinite(values)
@@ -191,9 +222,11 @@ def plot_record(record, out: Path, nominal_rad_s: float = 10.83) -> Path:
     axes[1].set_ylabel("T5 (K)")
     axes[1].legend(loc="best", fontsize=8)
     th, lowh, highh = _envelope(time_s, record.heater_w)
-    axes[2].fill_between(th / scale, lowh * 1e3, highh * 1e3, color="tab:orange", alpha=0.5, lw=0,
-                         label="heater, band within a pixel")
-    axes[2].plot(th / scale, (lowh + highh) / 2 * 1e3, color="tab:orange", lw=0.8)
+    axes[2].fill_between(th / scale, lowh * 1e3, highh * 1e3, color="tab:orange", alpha=0.35, lw=0,
+                         label="heater, its range within a pixel (the feedforward's waveform)")
+    tm, mean_low, mean_high = _envelope(time_s, cycle_mean(time_s, record.heater_w, rad_s))
+    axes[2].plot(tm / scale, (mean_low + mean_high) / 2 * 1e3, color="tab:brown", lw=1.2,
+                 label="heater, mean over whole cooler cycles")
     axes[2].set_ylabel("heater (mW)")
     axes[2].legend(loc="best", fontsize=8)
     settled_rows = settled(time_s, record.flange_K, record.setpoint_K)

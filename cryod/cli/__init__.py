@@ -63,6 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
                                "the simulated clock slows when the machine cannot keep that pace (the speed "
                                "achieved is on the status line and in --json's achieved_speed)")
     simulate.add_argument("--json", action="store_true", help="print one summary object on stdout at the end")
+    simulate.add_argument("--pretty", action="store_true", help="with --json: indented, one key a line")
     simulate.add_argument("--window", type=positive, default=300.0, metavar="S",
                           help="length of the metrics window at the end, s (default 300)")
     simulate.add_argument("--setpoint", type=positive, default=None, metavar="K", help="setpoint in K (overrides the config)")
@@ -115,7 +116,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: Options of the dry run (``--simulate``), which mean nothing to the commands.
-SIMULATE_ONLY = ("config", "duration", "speed", "json", "window", "setpoint", "sim_model", "seed",
+SIMULATE_ONLY = ("config", "duration", "speed", "json", "pretty", "window", "setpoint", "sim_model", "seed",
                  "no_feedforward", "data_dir", "socket", "transport")
 
 
@@ -199,7 +200,8 @@ def _main(argv: list[str] | None) -> int:
 
         use_one_blas_thread()
         return run_simulation(DryRunOptions(
-            config=args.config, duration_s=args.duration, speed=args.speed, json=args.json, window_s=args.window,
+            config=args.config, duration_s=args.duration, speed=args.speed, json=args.json, pretty=args.pretty,
+            window_s=args.window,
             setpoint_K=args.setpoint, sim_model=args.sim_model, seed=args.seed, feedforward=not args.no_feedforward,
             data_dir=args.data_dir, socket=args.socket, transport=args.transport))
     if args.command == "run":

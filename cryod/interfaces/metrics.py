@@ -12,7 +12,8 @@ names follow Prometheus' conventions (base units, ``_total`` for counters)::
     cryod_setpoint_kelvin                  (absent while the loop has no setpoint)
     cryod_flange_error_kelvin              T2 minus the setpoint
     cryod_heater_power_watts               (absent when the heater's state is unknown)
-    cryod_ptc_line_amplitude_kelvin        the cooler line on T2
+    cryod_heater_level_watts               its power over the last 10 cooler cycles
+    cryod_ptc_line_amplitude_kelvin        the cooler line on T2 (harmonics 1-6 together)
     cryod_ptc_line_limit_kelvin            the least line any heater waveform can leave (feedforward)
     cryod_heater_pi_watts                  PI's part of the heater power
     cryod_heater_feedforward_watts         the feedforward waveform's part
@@ -92,6 +93,8 @@ class CryodCollector:
                 ("cryod_setpoint_kelvin", "setpoint_K", 1.0, "setpoint in use (ramp included)"),
                 ("cryod_flange_error_kelvin", "error_K", 1.0, "T2 minus the setpoint"),
                 ("cryod_heater_power_watts", "heater_W", 1.0, "heater power commanded and confirmed"),
+                ("cryod_heater_level_watts", "heater_mean_W", 1.0,
+                 "heater power over the last 10 cooler cycles (without the feedforward's waveform)"),
                 ("cryod_ptc_line_amplitude_kelvin", "line_amplitude_K", 1.0,
                  "amplitude of the cooler line on T2"),
                 ("cryod_ptc_line_limit_kelvin", "line_limit_K", 1.0,

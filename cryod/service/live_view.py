@@ -7,9 +7,10 @@ figures are computed when someone asks (:meth:`LiveView.snapshot`): the status
 line on the terminal (:mod:`cryod.service.status_line`) and the Prometheus
 endpoint (:mod:`cryod.service.metrics_export`), both on threads of their own.
 
-The cooler line's amplitude on T2 is the feedforward's own estimate
-(``ff_line_K``) when the feedforward runs, otherwise a least-squares fit at the
-cooler's frequency over the last :data:`LINE_WINDOW_S` of T2 readings.
+The cooler line's amplitude on T2 is its whole periodic part, harmonics 1 to 6
+together, as everywhere in cryod: the feedforward's own estimate (``ff_line_K``)
+when the feedforward runs, otherwise a least-squares fit of those harmonics of
+the cooler's frequency over the last :data:`LINE_WINDOW_S` of T2 readings.
 
 Examples
 --------
@@ -33,6 +34,7 @@ import threading
 import numpy as np
 
 from cryod.cooler.line_fit import fit_line
+from cryod.cooler.periodic import PERIODIC_HARMONICS
 from cryod.records.columns import Event, Row
 from cryod.service.daemon_status import RecentFigures
 
@@ -41,6 +43,8 @@ LINE_WINDOW_S = 20.0
 #: T2 is averaged over this much of the recent past (s): about 17 cooler periods, so the line
 #: (1.75 mK at most) leaves less than 20 µK in the average.
 AVERAGE_WINDOW_S = 10.0
+#: The harmonics of the cooler's frequency the line is made of (the measure of ``ptc_periodic_amplitude_K``).
+LINE_HARMONICS = tuple(range(1, PERIODIC_HARMONICS + 1))
 #: The heater's level is its power averaged over this many whole cooler cycles: what the setpoint costs,
 #: without the feedforward's waveform (which averages to nothing over whole cycles).
 HEATER_CYCLES = 10
@@ -107,7 +111,8 @@ class LiveView:
 
     # -- readers (any thread) -----------------------------------------------------------
     def line_amplitude_K(self) -> float:
-        """The cooler line's amplitude on T2 now (K), NaN until there is enough to say."""
+        """The cooler line's amplitude on T2 now (K): its whole periodic part, harmonics 1-6 together (the
+        measure of ``ptc_periodic_amplitude_K`` and of the feedforward's limit); NaN until there is enough."""
         row = self._row
         if row is not None:
             estimate = row.control.get("ff_line_K", math.nan)
@@ -117,7 +122,8 @@ class LiveView:
         usable = np.isfinite(times) & np.isfinite(flange)
         if usable.sum() < max(self._times.size // 2, 16):
             return math.nan
-        return float(fit_line(times[usable], flange[usable], self.line_rad_s).amplitude[0])
+        fitted = fit_line(times[usable], flange[usable], self.line_rad_s, orders=LINE_HARMONICS)
+        return float(np.sqrt(np.sum(np.asarray(fitted.amplitude) ** 2)))
 
     def flange_average_K(self) -> float:
         """T2 averaged over the last :data:`AVERAGE_WINDOW_S` (K), NaN until there is that much."""
@@ -166,7 +172,8 @@ class LiveView:
         row), ``state``, ``T2_K``, ``T2_average_K`` (over the last :data:`AVERAGE_WINDOW_S`),
         ``T5_K``, ``setpoint_K``, ``error_K`` (T2 minus the setpoint), ``heater_W``,
         ``line_amplitude_K``, ``lateness_ms``, ``faults`` (count by cause), ``last_fault``,
-        ``ticks``, ``overruns``, ``T2_ohm``, ``T5_ohm`` (the thermometers' resistances), ``pi_W``
+        ``ticks``, ``overruns``, ``T2_ohm``, ``T5_ohm`` (the thermometers' resistances), ``heater_mean_W`` (the
+        heater's power over the last whole cooler cycles), ``pi_W``
         (PI's part of the heater power), ``ff_W`` (the feedforward's), ``line_limit_K`` (the least line
         any heater waveform can leave at this setpoint), ``alarms`` (the names of the alarms raised or latched).
         """
@@ -182,7 +189,8 @@ class LiveView:
                     "T5_K": nan,
                     "setpoint_K": nan, "error_K": nan, "heater_W": nan, "line_amplitude_K": nan,
                     "lateness_ms": nan, "faults": self.faults(), "last_fault": self._last_fault,
-                    "ticks": 0, "overruns": 0, "T2_ohm": nan, "T5_ohm": nan, "pi_W": nan, "ff_W": nan,
+                    "ticks": 0, "overruns": 0, "T2_ohm": nan, "T5_ohm": nan, "heater_mean_W": nan, "pi_W": nan,
+                    "ff_W": nan,
                     "line_limit_K": nan}
         timing = self._timing() if self._timing is not None else {}
         control = row.control or {}
@@ -194,7 +202,7 @@ class LiveView:
                 "line_amplitude_K": self.line_amplitude_K(), "lateness_ms": row.lateness_ms,
                 "faults": self.faults(), "last_fault": self._last_fault,
                 "ticks": timing.get("ticks", self._next), "overruns": timing.get("overruns", 0),
-                "T2_ohm": row.T2_ohm, "T5_ohm": row.T5_ohm,
+                "T2_ohm": row.T2_ohm, "T5_ohm": row.T5_ohm, "heater_mean_W": self.heater_mean_W(),
                 "pi_W": (control["pi_proportional_W"] + control.get("pi_integral_W", 0.0)
                          if "pi_proportional_W" in control else nan),
                 "ff_W": control.get("ff_W", nan), "line_limit_K": control.get("ff_limit_K", nan)}

@@ -102,7 +102,9 @@ class DryRunOptions:
     speed : float or "max"
         Simulated seconds per real second; "max" runs on virtual time.
     json : bool
-        Print the summary as one JSON object.
+        Print the summary as one JSON object (on one line).
+    pretty : bool
+        With ``json``: indented, a key a line.
     window_s : float
         The summary's metrics window (s).
     setpoint_K : float, optional
@@ -122,6 +124,7 @@ class DryRunOptions:
     duration_s: float | None = None
     speed: float | str = 1.0
     json: bool = False
+    pretty: bool = False
     window_s: float = 300.0
     setpoint_K: float | None = None
     sim_model: Path | None = None
@@ -362,7 +365,7 @@ def run_simulation(args: DryRunOptions) -> int:
         print(f"cryod: {type(error).__name__}: {error}", file=sys.stderr)
         return 1
     if args.json:
-        print(json.dumps(rounded(finite_or_none(run.summary))))
+        print(json.dumps(rounded(finite_or_none(run.summary)), indent=2 if args.pretty else None))
     else:
         for key, value in run.summary.items():
             print(f"{key}: {readable_summary(key, value)}")

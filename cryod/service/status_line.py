@@ -1,7 +1,9 @@
 """A live status line on the terminal while the daemon runs.
 
 One line, redrawn twice a second by tqdm on its own thread: state, T2 and its
-error, T5, heater power, the cooler line's amplitude on T2, faults, alarms raised; for a run
+error, T5, the heater's level (while regulating its power over the last 10 cooler cycles, without
+the feedforward's waveform), the cooler line's amplitude on T2 (all its harmonics), faults,
+alarms raised; for a run
 of known length (``--duration``) a progress bar with the simulated time done
 and the time left. It is on only when the stream is a terminal: under systemd,
 in a pipe or a file, nothing is written.
@@ -56,6 +58,9 @@ def format_status(snapshot: dict) -> str:
     if math.isfinite(stage):
         parts.append(f"T5 {stage:.4f} K")
     heater = snapshot.get("heater_W", math.nan)
+    level = snapshot.get("heater_mean_W", math.nan)        # the heater's level, without the waveform
+    if math.isfinite(heater) and math.isfinite(level) and str(snapshot.get("state", "")).startswith("closed"):
+        heater = level
     parts.append(f"heater {heater * 1e3:.1f} mW" if math.isfinite(heater) else "heater UNKNOWN")
     line = snapshot.get("line_amplitude_K", math.nan)
     if math.isfinite(line):

@@ -482,3 +482,20 @@ def test_the_watchdog_is_fed_while_recovering(reference_model, curves, base_conf
     assert loop.run(duration_s=120.0, manage_gc=False) == 0
     assert loop.last_fault.cause == "instrument_timeout"
     assert np.max(np.diff(fed)) < 0.2 and len(fed) == pytest.approx(120.0 / 0.08, abs=2)
+
+
+def test_the_status_says_the_state_as_the_row_does(reference_model, curves, base_config):
+    """On the way up from 4.2 K the heater is held at its top: the rows say closed-limited, and so does the status
+    (ctl status, the web page, the 336 read it), not closed."""
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    seen = []
+
+    def measure():
+        if instruments.measurements == 100:             # the status as of the tick before this one
+            seen.append((loop.status.state, rows[-1].state))
+        return DirectInstruments.measure(instruments)
+
+    instruments.measure = measure
+    assert loop.run(duration_s=10.0, manage_gc=False) == 0
+    assert seen == [("closed-limited", "closed-limited")]
+    assert tick_rows(rows)[99].heater_W == pytest.approx(0.5)

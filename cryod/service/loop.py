@@ -114,7 +114,7 @@ class _Snapshot(NamedTuple):
     """
 
     time_s: float
-    state: LoopState
+    state: LoopState | str
     flange_K: float
     ptc_stage_K: float
     heater_w: float
@@ -427,7 +427,9 @@ class ControlLoop:
         # the target once a setpoint is asked for (also while holding for valid readings), the setpoint in use
         # only while regulating
         aiming = closed or self.regulator.mode is RegulatorMode.CLOSED
-        self._publish(_Snapshot(row.time_s, self.state, row.T2_K, row.T5_K, self.heater_w,
+        # the state as the row says it (``closed-limited`` while the heater is held at a bound): one word for
+        # the record, the status line, ctl status, the web page and the 336
+        self._publish(_Snapshot(row.time_s, row.state or self.state, row.T2_K, row.T5_K, self.heater_w,
                                 ramp.setpoint_K if closed else None, ramp.target_K if aiming else None,
                                 ramp.rate_K_per_min, self.last_fault, row.control, _given(ramp.target_K),
                                 self._zone()))

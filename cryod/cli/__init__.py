@@ -1,6 +1,7 @@
 """Command line of cryod.
 
     cryod run --config PATH [--check]           the service (--supply-off: only the heater supply to 0 A)
+    cryod init DIR --gpib|--prologix-usb|--prologix-lan ...   a new lab's configuration in a folder
     cryod --simulate [--config PATH] [...]      the same daemon on the simulated cryostat
     cryod simulate [...]                        the same as cryod --simulate
     cryod ctl [--socket PATH] COMMAND           talk to the running daemon (found by itself)
@@ -110,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
                                             if spec.from_socket)
     ctl.formatter_class = argparse.RawDescriptionHelpFormatter
     commands.add_parser("simulate", help="the same as cryod --simulate (its options follow)", add_help=False)
+    from cryod.cli import init
+
+    init.add_parser(commands)
     for name, _, summary in MODEL_TOOLS:      # listed here, loaded only when used (see main)
         commands.add_parser(name, help=summary, add_help=False)
     return parser
@@ -209,6 +213,10 @@ def _main(argv: list[str] | None) -> int:
         return _run_service(args)
     if args.command == "ctl":
         return _ctl(args)
+    if args.command == "init":
+        from cryod.cli import init
+
+        return init.run(args)
     parser.print_help(sys.stderr)
     return 2
 

@@ -1,11 +1,13 @@
 """The daemon's latest state for the eyes of the operator and the lab's monitoring.
 
 :class:`LiveView` is one more listener of the loop's rows and events (a row tap,
-like the data log). On the loop thread it only keeps references and writes two
+like the data log). On the loop thread it only keeps references and writes three
 numbers into a ring, so it costs the 80 ms cycle nothing worth measuring; the
 figures are computed when someone asks (:meth:`LiveView.snapshot`): the status
-line on the terminal (:mod:`cryod.service.status_line`) and the Prometheus
-endpoint (:mod:`cryod.service.metrics_export`), both on threads of their own.
+line on the terminal (:mod:`cryod.service.status_line`) and ``cryod ctl status``
+in the daemon; the interfaces process keeps one of its own, fed by the daemon's
+stream, for the web page, the 336 and the Prometheus endpoint
+(:mod:`cryod.interfaces.metrics`).
 
 The cooler line's amplitude on T2 is its whole periodic part, harmonics 1 to 6
 together, as everywhere in cryod: the feedforward's own estimate (``ff_line_K``)

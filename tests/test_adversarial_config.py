@@ -50,6 +50,20 @@ pytestmark = pytest.mark.slow
 
 #: What happened to each configuration, per category: printed at the end of the module.
 OUTCOMES: collections.Counter = collections.Counter()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def figures():
+    """The figures of this module's run, printed (with -s) once its tests are done, whichever of them ran."""
+    yield
+    categories = collections.defaultdict(collections.Counter)
+    for (category, outcome), count in OUTCOMES.items():
+        categories[category][outcome] += count
+    lines = []
+    for category, counts in categories.items():
+        total = sum(counts.values())
+        lines.append(f"{category}: {total}: " + "; ".join(f"{outcome} {count}" for outcome, count in counts.items()))
+    print("\n" + "\n".join(lines))
 #: Seconds a started daemon is given to run or to say it waits for its instruments.
 WAIT_S = 30.0
 RUNS = settings(max_examples=25, deadline=None, derandomize=True, database=None,
@@ -447,14 +461,3 @@ def test_setpoints_ramps_and_reloads_in_every_state(tmp_path_factory, first, fir
         OUTCOMES[("reloads", f"refused at {command.message.split(': ')[2]}")] += 1
 
 
-def test_zz_figures():
-    """The figures of this run (printed with -s)."""
-    categories = collections.defaultdict(collections.Counter)
-    for (category, outcome), count in OUTCOMES.items():
-        categories[category][outcome] += count
-    lines = []
-    for category, counts in categories.items():
-        total = sum(counts.values())
-        lines.append(f"{category}: {total}: " + "; ".join(f"{outcome} {count}" for outcome, count in counts.items()))
-    print("\n" + "\n".join(lines))
-    assert sum(OUTCOMES.values()) > 0

@@ -161,7 +161,8 @@ def test_a_loop_hung_in_an_instrument_call_is_stepped_over_the_heater_goes_off_a
         # ... until its setting is 0.5 s older than its readings (triggered up to a period and a reading
         # before the hang), a look of the watchdog (20 ms) and the supply's off later
         assert delay is not None and 0.5 - 0.08 - 0.05 <= delay < 0.5 + 0.25
-        assert "heater switched off from the watchdog's thread" in run.journal
+        run.wait_until(lambda: "heater switched off from the watchdog's thread" in run.journal,
+                       "the watchdog's line in the journal (written by the log's own thread)", 10.0)
         sent = run.send(signal.SIGUSR1)
         assert run.wait(30) == 138
         stepped_in = f"SIGUSR1 received; the loop did not stop within {grace_s:.3g} s: heater switched off from " \

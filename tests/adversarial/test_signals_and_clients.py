@@ -109,7 +109,8 @@ def test_a_signal_with_the_loop_hung_in_an_instrument_call(tmp_path, daemon, ben
     time.sleep(1.0)
     off_after_hang = delay_to_zero_s(bench.supply, hung_at)
     assert off_after_hang is not None and off_after_hang < 0.5 + 0.25
-    assert "heater switched off from the watchdog's thread" in run.journal
+    run.wait_until(lambda: "heater switched off from the watchdog's thread" in run.journal,
+                   "the watchdog's line in the journal (written by the log's own thread)", 10.0)
     sent = run.send(number)
     assert run.wait(30) == exit_code_for(number)
     assert delay_to_zero_s(bench.supply, sent) == 0.0            # off before the signal, and it stayed off

@@ -330,6 +330,7 @@ def test_a_hook_gets_the_details_in_its_environment_and_as_json(tmp_path):
     assert run_hook(failing, {}) == "exit 3: no mail server"
 
 
+@pytest.mark.system
 def test_a_hook_that_hangs_is_killed_and_never_holds_up_the_changes(tmp_path, caplog):
     marker = tmp_path / "child.pid"
     hanging = AlarmHook(("/bin/sh", "-c", f"sleep 60 & echo $! > {marker}; wait"), timeout_s=0.5,
@@ -384,6 +385,7 @@ def hook_in_a_child(command: list[str], timeout_s: float) -> dict:
     return json.loads(done.stdout)
 
 
+@pytest.mark.system
 def test_a_hook_that_writes_without_end_costs_its_runner_a_bounded_memory(tmp_path):
     """200 MB of output (the trial's 500 MB in the slow suite): read and dropped as it comes, the last 64 KiB held;
     the runner's peak stays within a few MB of a run of a quiet hook."""
@@ -393,6 +395,7 @@ def test_a_hook_that_writes_without_end_costs_its_runner_a_bounded_memory(tmp_pa
     assert flood["peak_MB"] - quiet["peak_MB"] < 5.0, (quiet, flood)
 
 
+@pytest.mark.system
 def test_a_hook_that_leaves_a_child_in_a_session_of_its_own_is_ended_with_it_at_its_timeout(tmp_path):
     """``setsid sleep & exit 0``: the sleep holds the hook's output open from a new session. The run ends at the
     timeout (not never), says why, and the sleep is killed with it."""
@@ -513,6 +516,7 @@ def test_an_alarm_in_the_daemon_is_said_everywhere_and_acknowledged_through_ever
         ["alarm ptc_stage_warm raised", "alarm ptc_stage_warm latched", "alarm ptc_stage_warm cleared"]
 
 
+@pytest.mark.system
 def test_the_web_page_shows_the_alarms_the_status_carries(tmp_path, browser):
     from cryod.config import WebConfig
     from tests.gated_daemon import GatedDaemon

@@ -62,6 +62,7 @@ def test_usage_errors_name_the_problem(arguments, message, capsys):
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.system
 def test_a_usage_error_is_exit_2_of_the_real_process():
     result = cryod("--simulate", "--speed", "max", "--setpoint", "50")
     assert result.returncode == 2
@@ -113,6 +114,7 @@ def test_a_per_user_directory_of_someone_else_is_refused(tmp_path, monkeypatch):
         simulation_socket()
 
 
+@pytest.mark.system
 def test_run_check_validates_without_instruments(tmp_path, capsys):
     text = (CONFIG / "cryod.yaml").read_text().replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/")
     lan = tmp_path / "lan.yaml"          # the instruments behind a LAN-to-GPIB gateway: no GPIB card binding needed
@@ -219,6 +221,7 @@ print(json.dumps([info["num_threads"] for info in threadpoolctl.threadpool_info(
 """
 
 
+@pytest.mark.system
 @pytest.mark.parametrize("chosen, expected", [(None, 1), ("2", min(2, os.cpu_count() or 1))])  # OpenBLAS: at most a thread per core
 def test_the_daemon_and_the_model_tools_use_one_blas_thread_unless_the_user_chose(chosen, expected):
     """Two OpenBLAS threads made cryod identify 1.7x slower on an hour (3.2x the CPU) and spin on the loop's cores:
@@ -232,6 +235,7 @@ def test_the_daemon_and_the_model_tools_use_one_blas_thread_unless_the_user_chos
     assert len(threads) == 2 and set(threads) == {expected}, output
 
 
+@pytest.mark.system
 def test_the_control_client_loads_no_blas():
     """``cryod ctl`` answers fast: importing the command line loads neither numpy nor scipy."""
     script = "import sys, cryod.cli; print('numpy' in sys.modules, 'scipy' in sys.modules)"

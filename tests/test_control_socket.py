@@ -316,6 +316,7 @@ def test_partial_undecodable_and_extra_lines_each_get_one_reply(served):
     assert loop.seen == [("setpoint", 5.5), ("setpoint", 6.0)]
 
 
+@pytest.mark.system
 def test_cryod_ctl_ends_quietly_when_its_reader_goes_away(served):
     """``cryod ctl status | head -2``: no BrokenPipeError traceback."""
     path, _, _ = served()

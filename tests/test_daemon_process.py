@@ -20,6 +20,9 @@ from cryod.records.record import read_record
 from cryod.service.control_socket import send_command
 from tests.conftest import CONFIG, REPOSITORY
 
+#: Processes, real sockets or real time: the second step of the suite (pytest -m system).
+pytestmark = pytest.mark.system
+
 
 def write_config(path: Path, proportional=10.0) -> Path:
     text = (CONFIG / "cryod.yaml").read_text()

@@ -160,6 +160,7 @@ print(failures)
 """
 
 
+@pytest.mark.system
 def test_a_write_that_fails_leaves_no_half_line_and_the_rows_before_it_untouched(tmp_path):
     """A file size limit (RLIMIT_FSIZE, 20 kB) reached inside a write: the write is cut back to where it began."""
     child = subprocess.run([sys.executable, "-c", FILE_SIZE_LIMITED, str(tmp_path)], cwd=REPOSITORY,
@@ -180,6 +181,7 @@ def _mounted_tmpfs(folder, size) -> bool:
     return mounted.returncode == 0
 
 
+@pytest.mark.system
 def test_a_disk_filled_by_another_program_still_takes_the_last_rows_and_the_stop_event(tmp_path):
     """A 4 MB tmpfs filled to the last byte by another writer: the log fails while the space it holds ahead of
     its record takes the rows that follow and the stop event (needs the right to mount a tmpfs)."""

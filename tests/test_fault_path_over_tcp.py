@@ -18,6 +18,9 @@ import pytest
 from cryod.instrument_waits import InstrumentWaits
 from tests.fault_drills import never_claims_zero_early, reading_delay_s, run_tcp_drill
 
+#: Processes, real sockets or real time: the second step of the suite (pytest -m system).
+pytestmark = pytest.mark.system
+
 #: Scheduling room on a loaded machine (s).
 ALLOWANCE_S = 0.5
 LARGEST_TIMEOUT_S = InstrumentWaits(0.08, 1.0).largest_timeout_s()

@@ -16,6 +16,9 @@ import pytest
 from cryod.interfaces import http_server
 from cryod.interfaces.http_server import EventStream, HttpServer, Response, host_of
 
+#: Processes, real sockets or real time: the second step of the suite (pytest -m system).
+pytestmark = pytest.mark.system
+
 
 class Served:
     """An HttpServer on 127.0.0.1 on an event loop of its own thread."""

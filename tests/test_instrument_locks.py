@@ -24,6 +24,9 @@ from tests.service_bench import BenchOverTcp, RunProcess, faults_of_its_own
 from tests.example_config import simulated_config
 from tests.fault_drills import FlakyOpener
 
+#: Processes, real sockets or real time: the second step of the suite (pytest -m system).
+pytestmark = pytest.mark.system
+
 
 @pytest.mark.parametrize("one, other", [
     ("GPIB0::12::INSTR", "gpib::12"),

@@ -160,6 +160,7 @@ def converse(daemon, messages: list[bytes], replies: int, timeout_s: float = 20.
     return result["lines"]
 
 
+@pytest.mark.system
 def test_setpoint_through_the_loops_limits_and_journaled_with_the_peer(tmp_path):
     with lakeshore_daemon(tmp_path) as daemon:
         lines = converse(daemon, [b"SETP 1,5.2\r\n", b"SETP? 1;*ESR?\r\n", b"SETP 1,50\r\n", b"SETP? 1;*ESR?\r\n"], 2)
@@ -172,6 +173,7 @@ def test_setpoint_through_the_loops_limits_and_journaled_with_the_peer(tmp_path)
                    and "(by Lake Shore 336 interface, 127.0.0.1:" in message for message in commands)
 
 
+@pytest.mark.system
 def test_a_read_only_interface_changes_nothing(tmp_path):
     with lakeshore_daemon(tmp_path, writable=False) as daemon:
         before = daemon.regulator_state()
@@ -180,6 +182,7 @@ def test_a_read_only_interface_changes_nothing(tmp_path):
         assert daemon.interfaces_journal().count("lakeshore336.writable is false") == 3
 
 
+@pytest.mark.system
 @pytest.mark.skipif(os.geteuid() != 0, reason="a client of another user needs root to start it")
 def test_writes_are_taken_only_from_users_that_may_use_the_control_socket(tmp_path):
     """uid 65534, outside the control socket's group (mode 0660, root's): its SETP and RANGE are refused (EXE), said
@@ -209,6 +212,7 @@ def test_writes_are_taken_only_from_users_that_may_use_the_control_socket(tmp_pa
         assert "(by Lake Shore 336 interface, 127.0.0.1:" in accepted and ", uid 0 (root)" in accepted
 
 
+@pytest.mark.system
 def test_garbage_long_lines_and_half_sent_commands_change_nothing(tmp_path):
     with lakeshore_daemon(tmp_path) as daemon:
         before = daemon.regulator_state()
@@ -223,6 +227,7 @@ def test_garbage_long_lines_and_half_sent_commands_change_nothing(tmp_path):
         assert daemon.loop.exit_code is None and daemon.gate.rows[-1].state.startswith("closed")
 
 
+@pytest.mark.system
 def test_idle_connections_however_many_never_keep_a_client_out(tmp_path):
     """The 16 places taken by connections that said something once and then nothing: one more takes the place of
     the one idle longest, and is served; so do 30 more."""
@@ -243,6 +248,7 @@ def test_idle_connections_however_many_never_keep_a_client_out(tmp_path):
                 connection.close()
 
 
+@pytest.mark.system
 def test_a_flood_of_queries_is_served_at_a_bounded_rate(tmp_path):
     with lakeshore_daemon(tmp_path) as daemon:
         daemon.gate.open()
@@ -258,6 +264,7 @@ def test_a_flood_of_queries_is_served_at_a_bounded_rate(tmp_path):
 
 
 # -- the real drivers, on the daemon held between ticks: their readings are the tick's ----------------
+@pytest.mark.system
 def test_pymeasure_and_qcodes_read_what_ctl_status_shows_at_the_same_tick(tmp_path):
     pymeasure_lakeshore = pytest.importorskip("pymeasure.instruments.lakeshore")
     qcodes_336 = pytest.importorskip("qcodes.instrument_drivers.Lakeshore")
@@ -314,6 +321,7 @@ def reading_was_a_tick_between(process, reading_K, before, after):
     return np.min(np.abs(record.flange_K[window] - reading_K)) < 1e-6
 
 
+@pytest.mark.system
 def test_pymeasure_reads_sets_and_waits_and_a_setpoint_above_the_limit_leaves_it(dry_run):
     from pymeasure.instruments.lakeshore import LakeShore3xx
 
@@ -342,6 +350,7 @@ def test_pymeasure_reads_sets_and_waits_and_a_setpoint_above_the_limit_leaves_it
     assert "command setpoint refused: setpoint 30 K refused: outside 3..20 K" in journal
 
 
+@pytest.mark.system
 def test_qcodes_station_reads_sets_and_waits_until_the_setpoint_is_reached(dry_run, caplog):
     from qcodes.instrument_drivers.Lakeshore import LakeshoreModel336
     from qcodes.station import Station

@@ -106,6 +106,7 @@ def run_in_pseudo_terminal(argv, cwd, runtime_dir, columns=0) -> tuple[int, str]
 SIMULATE = [sys.executable, "-m", "cryod.cli", "--simulate", "--duration", "300", "--speed", "max"]
 
 
+@pytest.mark.system
 def test_a_terminal_gets_a_live_status_line_with_progress_and_a_pipe_gets_none(tmp_path, runtime_dir):
     code, drawn = run_in_pseudo_terminal(SIMULATE, tmp_path, runtime_dir)          # a pseudo-terminal that says 0 columns
     assert code == 0
@@ -123,6 +124,7 @@ def test_a_terminal_gets_a_live_status_line_with_progress_and_a_pipe_gets_none(t
     assert "\r" not in piped.stderr and "left" not in piped.stderr
 
 
+@pytest.mark.system
 def test_the_metrics_endpoint_serves_live_state_and_faults_to_a_real_client(tmp_path):
     port = free_port()
     config = simulated_config(tmp_path)
@@ -201,6 +203,7 @@ def test_metrics_addresses_are_checked_and_a_busy_port_is_named():
             loop.run(first.stop())
 
 
+@pytest.mark.system
 def test_hundreds_of_idle_connections_to_the_metrics_cost_no_thread_each_and_a_scrape_still_answers():
     """prometheus_client's own server takes a thread per connection (800 idle ones: 808 threads); the endpoint
     takes none, and a scrape is still answered: the connection that has waited longest for its request gives way."""

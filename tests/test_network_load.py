@@ -17,6 +17,9 @@ from benchmarks.network_load import ClientLoad
 from cryod.service.control_socket import send_command
 from tests.dry_run_process import DryRunProcess, lab_config
 
+#: Processes, real sockets or real time: the second step of the suite (pytest -m system).
+pytestmark = pytest.mark.system
+
 
 def overruns(process) -> int:
     return send_command(process.socket, "status")["status"]["overruns"]

@@ -8,6 +8,9 @@ import cryod
 from drivers.paced_clock import PacedClock
 from cryod.service.status_line import format_status
 
+#: Processes, real sockets or real time: the second step of the suite (pytest -m system).
+pytestmark = pytest.mark.system
+
 
 class FakeWall:
     """Real time that moves only when slept or worked through."""

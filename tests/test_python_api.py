@@ -24,6 +24,7 @@ def test_import_cryod_exposes_the_documented_api_and_stays_light():
         cryod.regulate
 
 
+@pytest.mark.system
 def test_a_script_steps_the_setpoint_and_waits_until_stable(running_dry_run):
     flange = cryod.connect()
     assert flange.socket == running_dry_run.socket
@@ -82,6 +83,7 @@ def test_simulate_from_python_gives_the_summary_and_a_record_numpy_and_pandas_re
         cryod.simulate(10.0, setpoint_K=50.0, data_dir=tmp_path / "x", socket=tmp_path / "x.sock")
 
 
+@pytest.mark.system
 def test_operator_actions_reach_the_journal_and_the_record_with_who_sent_them(running_dry_run, tmp_path):
     import pwd
 

@@ -15,6 +15,9 @@ from cryod.service.commands import parse_command
 from tests.conftest import REPOSITORY
 from tests.scripted_daemon import ScriptedDaemon
 
+#: Processes, real sockets or real time: the second step of the suite (pytest -m system).
+pytestmark = pytest.mark.system
+
 
 @pytest.fixture
 def dry_run_speed():

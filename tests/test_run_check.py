@@ -20,6 +20,9 @@ from tests.example_config import EXAMPLE, config_file
 from tests.reload_drills import reloads_over_the_socket
 from tests.systemd_units import TEMPLATE, UNIT, unit_sections
 
+#: Processes, real sockets or real time: the second step of the suite (pytest -m system).
+pytestmark = pytest.mark.system
+
 #: The example's instruments behind a LAN-to-GPIB gateway, triggered one after the other.
 LAN = {"GPIB0::16::INSTR": "TCPIP0::10.0.0.2::1234::SOCKET", "GPIB0::17::INSTR": "TCPIP0::10.0.0.3::1234::SOCKET",
        "GPIB0::12::INSTR": "TCPIP0::10.0.0.4::1234::SOCKET", "trigger: gpib-group": "trigger: sequential"}

@@ -246,6 +246,7 @@ print(json.dumps({"exit": int(result.exit_code), "before": before, "after": os.s
 '''
 
 
+@pytest.mark.system
 def test_a_real_time_run_keeps_its_workers_at_normal_priority_and_gives_everything_back(tmp_path):
     """Threads the loop thread starts inherit its SCHED_FIFO: the feedforward's limit ran at the loop's
     priority, and the process stayed SCHED_FIFO with its memory locked after the run (tests, cryod.simulate)."""

@@ -23,6 +23,9 @@ from tests.conftest import REPOSITORY
 from tests.service_bench import BenchOverTcp, RunProcess, delay_to_zero_s, faults_of_its_own
 from tests.fault_drills import FaultDrill
 
+#: Processes, real sockets or real time: the second step of the suite (pytest -m system).
+pytestmark = pytest.mark.system
+
 #: Each kind: systemd's watchdog, the user signals, the terminal's quit, a timer, power failure, a real-time
 #: signal, and the two usual stops.
 SIGNALS = [signal.SIGABRT, signal.SIGUSR1, signal.SIGUSR2, signal.SIGQUIT, signal.SIGALRM, signal.SIGPWR,

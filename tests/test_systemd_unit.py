@@ -31,6 +31,7 @@ def test_unit_settings_the_daemon_relies_on(unit, directory):
     assert service["ExecStartPre"].endswith(" /run/lock/cryod") and service["ReadWritePaths"] == "/run/lock/cryod"
 
 
+@pytest.mark.system
 @pytest.mark.parametrize("unit, name", [(UNIT, "cryod.service"), (TEMPLATE, "cryod@k2-flange.service")])
 def test_systemd_analyze_verify_passes(tmp_path, unit, name):
     analyze = shutil.which("systemd-analyze")

@@ -23,6 +23,9 @@ from cryod.service.control_socket import send_command
 from tests.gated_daemon import GatedDaemon
 from tests.headless_browser import port_of, wait_until
 
+#: Processes, real sockets or real time: the second step of the suite (pytest -m system).
+pytestmark = pytest.mark.system
+
 TOKEN = "f3a9c1d27b4e8a6f0c5d9e2b1a7f4c3d"
 
 

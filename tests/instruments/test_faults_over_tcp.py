@@ -14,6 +14,9 @@ from drivers.transports import VisaTransport
 from simulated_hw.bench import SimulatedBench
 from simulated_hw.scpi_server import ScpiServer
 
+#: Processes, real sockets or real time: the second step of the suite (pytest -m system).
+pytestmark = pytest.mark.system
+
 #: The wait of the test that a silent DMM times out.
 TIMEOUT_S = 0.25
 #: The wait where a reply is expected: room for a loaded machine, never waited out when the DMM answers.

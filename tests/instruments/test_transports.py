@@ -85,6 +85,7 @@ def test_socket_dropped_connection_then_reopen(real_time_bench):
         transport.close()
 
 
+@pytest.mark.system
 def test_socket_closed_transport_and_unreachable_server(real_time_bench):
     with ScpiServer(real_time_bench.flange_dmm) as server:
         transport = VisaTransport(server.resource_name, timeout_s=REPLY_WAIT_S)

@@ -27,9 +27,8 @@ def fenced_block(path: Path, after: str, language: str) -> str:
 def test_the_readme_commands_and_the_experiment_script_against_a_paced_dry_run(tmp_path):
     runtime = tmp_path / "runtime"
     runtime.mkdir(mode=0o700)
-    bin_folder = str(Path(sys.executable).parent)
-    env = dict(os.environ, XDG_RUNTIME_DIR=str(runtime), PATH=f"{bin_folder}:{os.environ['PATH']}",
-               PYTHONPATH=str(REPOSITORY))
+    bin_folder = str(Path(sys.executable).parent)       # as `. .venv/bin/activate` puts it first; from tmp_path,
+    env = dict(os.environ, XDG_RUNTIME_DIR=str(runtime), PATH=f"{bin_folder}:{os.environ['PATH']}")  # not the checkout
     readme = REPOSITORY / "README.md"
     live = re.search(r"\(`(cryod simulate --speed \d+)`", readme.read_text()).group(1)
     stderr = open(tmp_path / "daemon.txt", "w")
@@ -44,8 +43,8 @@ def test_the_readme_commands_and_the_experiment_script_against_a_paced_dry_run(t
                     fenced_block(readme, "Beside a running dry run", "sh").splitlines() if line.strip()]
         outputs = []
         for command in commands:
-            if command.startswith("python3 "):
-                command = command.replace("python3 ", f"{sys.executable} ", 1)
+            if command.startswith("python "):           # the environment's python, as after activating it
+                command = command.replace("python ", f"{sys.executable} ", 1)
             done = subprocess.run(command, shell=True, cwd=tmp_path, env=env, capture_output=True, text=True,
                                   timeout=900)
             assert done.returncode == 0, (command, done.stderr)

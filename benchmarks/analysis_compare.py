@@ -1,6 +1,6 @@
 """Two runs of ``benchmarks/analysis_causes.py`` compared record by record: the same analyses, or what differs.
 
-Run: python3 benchmarks/analysis_compare.py FIRST.json SECOND.json [--outputs FIRST_DIR SECOND_DIR]
+Run: PYTHONPATH=. python3 benchmarks/analysis_compare.py FIRST.json SECOND.json [--outputs FIRST_DIR SECOND_DIR]
 
 Each run's ``--json`` results are compared record by record, every key but
 the times (``wall_s``, ``cpu_s``) and the outputs' directory; with
@@ -12,7 +12,7 @@ runs are typically the same plan on two checkouts' code::
 
     PYTHONPATH=. python3 benchmarks/analysis_causes.py --json this.json --outputs this
     PYTHONPATH=OTHER_CHECKOUT python3 benchmarks/analysis_causes.py --json other.json --outputs other
-    python3 benchmarks/analysis_compare.py this.json other.json --outputs this other
+    PYTHONPATH=. python3 benchmarks/analysis_compare.py this.json other.json --outputs this other
 
 Printed: one line per record that differs (which key or file, and for the
 ``--json`` objects the largest relative difference of a number), then a

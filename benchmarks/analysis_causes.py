@@ -1,7 +1,7 @@
 """How often ``cryod analyze`` names the right causes on records like real ones.
 
 Run: PYTHONPATH=. python3 benchmarks/analysis_causes.py [--records N] [--processes 2] [--seed S] [--json PATH]
-     [--only INDEXES]
+     [--only INDEXES] [--outputs DIR]
 
 Every record comes from a cryostat whose base parameters are off the shipped
 model's at random (each gain and time constant by up to +-5 %, the line's phase
@@ -37,11 +37,20 @@ user would; a multiprocessing pool of ``--processes`` (2 at most) shares the
 work. Printed: Markdown tables of the goals, per cause and protocol, the
 records that failed and why, and the analysis times (wall and CPU; the machine
 is shared).
+
+With ``--outputs DIR`` each record's analysis is also written as ``cryod
+analyze --no-figures`` writes it (``analysis.json``, the ``--json`` object;
+``report.md``; the extended model) into ``DIR/record-NNN/``, with the SHA-256
+of the columns analysed (``record.sha256``); the analysis is timed alone, as
+without. Two runs, one on another checkout's code (``PYTHONPATH=OTHER_CHECKOUT
+python3 benchmarks/analysis_causes.py ...``), are compared record by record by
+``benchmarks/analysis_compare.py``.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import multiprocessing
@@ -310,6 +319,8 @@ def _run_one(job: dict) -> dict:
         return {**job, "truths": truths, "named": [], "cause": f"error: {error}", "reason": repr(error),
                 "parameters": {}, "wall_s": time.perf_counter() - started, "cpu_s": time.process_time() - cpu}
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu
+    if job.get("outputs"):
+        write_outputs(analysis, data, shipped, Path(job["outputs"]) / f"record-{job['index']:03d}")
     named = {item.cause: _plain(item.fit.parameters) for item in analysis.causes} \
         if analysis.cause not in ("none", "unexplained") else {}
     generic = analysis.generic
@@ -325,6 +336,27 @@ def _run_one(job: dict) -> dict:
             "generic_gain": generic.score.gain.ratio if generic is not None else None,
             "generic_added": bool(generic is not None and generic.added),
             "remaining": bool(analysis.remaining is not None and analysis.remaining.present)}
+
+
+def write_outputs(analysis, data, shipped, folder: Path) -> None:
+    """What ``cryod analyze --no-figures`` writes for ``analysis`` (of ``data`` against ``shipped``), into
+    ``folder``, and the SHA-256 of the columns analysed (a difference between two runs then says whether the
+    record or its analysis differed). The command's writer is handed the analysis already made (its own call of
+    ``analyze`` answers with it), so the record is analysed once."""
+    from unittest import mock
+
+    import cryod.cli.analyze as command
+
+    folder.mkdir(parents=True, exist_ok=True)
+    digest = hashlib.sha256()
+    for column in (data.time_s, data.flange_K, data.ptc_stage_K, data.heater_w, data.setpoint_K,
+                   data.heater_change_s):
+        if column is not None:
+            digest.update(np.ascontiguousarray(column, dtype=float).tobytes())
+    (folder / "record.sha256").write_text(digest.hexdigest() + "\n", encoding="utf-8")
+    with mock.patch.object(command, "analyze", lambda *_: analysis):
+        command.analyse_and_write(data, shipped, Path(f"{folder.name}.csv"), ROOT / "config" / "model.yaml", folder,
+                                  figures=False)
 
 
 def _at_tolerance(analysis) -> list[str]:
@@ -471,11 +503,15 @@ def main() -> None:
     parser.add_argument("--json", default=None, help="also write every result to this JSON file")
     parser.add_argument("--only", default=None, metavar="INDEXES",
                         help="run only these records of the plan (comma-separated indexes)")
+    parser.add_argument("--outputs", default=None, metavar="DIR",
+                        help="also write each record's cryod analyze outputs (no figures) into DIR/record-NNN/")
     args = parser.parse_args()
     jobs = plan(args.records, args.seed)
     if args.only:
         wanted = {int(index) for index in args.only.split(",")}
         jobs = [job for job in jobs if job["index"] in wanted]
+    if args.outputs:
+        jobs = [{**job, "outputs": str(Path(args.outputs).resolve())} for job in jobs]
     processes = max(1, min(args.processes, 2))
     results = []
     started = time.perf_counter()

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from cryod.analysis.pipeline import Analysis, analyze
+from cryod.analysis.cause_search.results import Analysis
+from cryod.analysis.pipeline import analyze
 from cryod.analysis.record_data import RecordData
 from cryod.model import load_model
 from cryod.records.record import Record

@@ -257,7 +257,7 @@ def test_a_heater_15_percent_stronger_is_base_model_off_not_a_nonlinearity(tmp_p
 def test_a_parameter_is_beyond_the_recalibration_when_past_its_tolerance_by_three_standard_errors():
     """The rule of ``base_model_off``: the widened value past the usual tolerance (log factor 0.1) by at least
     three of its standard errors."""
-    from cryod.analysis.base_model_off import BEYOND_SIGMA, beyond_parameters
+    from cryod.analysis.cause_search.base_model_off import BEYOND_SIGMA, beyond_parameters
     from cryod.analysis.recalibration import structure_parameters
 
     model = base_model()

@@ -57,7 +57,7 @@ def test_clean_record_gives_none_with_the_recalibration(protocol):
     """Base parameters off by a few percent and nothing else: none, the recalibration reported and applied."""
     analysis = analysed_case("none", 1, protocol, DURATIONS_S[protocol])
     assert analysis.cause == "none", analysis.decision.reason
-    assert analysis.causes == [] and analysis.recalibrated
+    assert analysis.causes == () and analysis.recalibrated
     assert "parameters differ" in analysis.decision.reason
     assert analysis.decision.gain.ratio > 5.0 and analysis.decision.gain.extended < 1.05
     assert analysis.recalibration_gain.ratio == pytest.approx(analysis.decision.gain.ratio, rel=0.05)

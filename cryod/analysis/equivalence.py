@@ -14,7 +14,7 @@
   ``|F|``, a parameter the base model has (:func:`line_gain_stood_for`).
   Beyond the recalibration's 10 % that is a base model further off than the
   recalibration allows, and the verdict is ``base_model_off``
-  (:mod:`cryod.analysis.base_model_off`) with the link as its equivalent
+  (:mod:`cryod.analysis.cause_search.base_model_off`) with the link as its equivalent
   reading; within it, the link is reported as equivalent to that gain.
 * **The flange thermometer lagging, and a dead time with a link that
   differs.** A lag of T2's thermometer alone (the stage's not alike) delays

@@ -32,7 +32,7 @@ from cryod.analysis.decision import CANDIDATE_SIGMA  # noqa: E402
 from cryod.analysis.discrepancies import (  # noqa: E402
     CROSS_CORRELATION_LAGS, WHITENESS_LAGS, autocorrelation_at, cross_correlation_at,
 )
-from cryod.analysis.pipeline import Analysis  # noqa: E402
+from cryod.analysis.cause_search.results import Analysis  # noqa: E402
 from cryod.analysis.segments import find_steps  # noqa: E402
 from cryod.figure_files import folded_frequency, mark_cooler_harmonics, save_figure, thin  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402

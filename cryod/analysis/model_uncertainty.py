@@ -38,7 +38,7 @@ def model_uncertainty_check(analysis, draws: int = DEFAULT_DRAWS, seed: int | No
 
     Parameters
     ----------
-    analysis : cryod.analysis.pipeline.Analysis
+    analysis : cryod.analysis.cause_search.results.Analysis
     draws : int
     seed : int, optional
 

@@ -12,10 +12,10 @@ from cryod.analysis.decision import (
     CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, DISCREPANCY_FRACTION_OF_NOISE, DISCREPANCY_SIGMA,
     EXPLAINED_FRACTION,
 )
-from cryod.analysis.base_model_off import ADVICE
+from cryod.analysis.cause_search.base_model_off import ADVICE
 from cryod.analysis.discrepancies import Discrepancy
 from cryod.analysis.equivalence import equivalents, sentence
-from cryod.analysis.pipeline import Analysis
+from cryod.analysis.cause_search.results import Analysis
 from cryod.analysis.record_data import block_length_s, saturation_fraction
 from cryod.analysis.summary import format_parameters
 

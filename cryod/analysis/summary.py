@@ -35,7 +35,7 @@ import numpy as np
 
 from cryod.analysis.candidates import CANDIDATE_CAUSES
 from cryod.analysis.equivalence import equivalents
-from cryod.analysis.pipeline import Analysis
+from cryod.analysis.cause_search.results import Analysis
 
 #: The cause vocabulary of ``cryod analyze`` (DESIGN.md 4.3).
 CAUSES = ("none", *CANDIDATE_CAUSES, "unexplained", "base_model_off")

@@ -1,0 +1,130 @@
+"""Follow a path: name a first cause, then causes on top of it while one is needed.
+
+From a first choice (a candidate refitted jointly with the recalibration), a
+path names that cause and then, while the model with the causes named still
+shows a discrepancy, fits every cause not yet named on top of them and names
+the best when it removes 70 % of what is left
+(:func:`cryod.analysis.cause_search.rules.names_a_further_cause`). Each time
+a cause is named, the causes named before it are refitted with it (one that
+took part of what it explains gives it back), and an earlier cause it made
+unnecessary is left out (:mod:`cryod.analysis.cause_search.unneeded_causes`).
+A further cause that leaves a discrepancy must also add to the generic
+extension on the model without it
+(:func:`cryod.analysis.cause_search.generic_judgement.further_cause_comparison`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from cryod.analysis.cause_search.first_round import FirstRound
+from cryod.analysis.cause_search.generic_judgement import further_cause_comparison
+from cryod.analysis.cause_search.joint_refit import refit_jointly, settled, starting_path
+from cryod.analysis.cause_search.record_search import RecordSearch
+from cryod.analysis.cause_search.results import CausePath, JointFit, NamedCause
+from cryod.analysis.cause_search.rules import names_a_further_cause
+from cryod.analysis.cause_search.unneeded_causes import without_unneeded
+from cryod.analysis.decision import CandidateScore, gain_between, score_candidate
+from cryod.analysis.refinement import NamedEffect
+from cryod.model import CryostatModel
+
+
+@dataclass(frozen=True, kw_only=True)
+class NextCause:
+    """What the search found on top of a path's causes: the best candidate and the joint fits it was chosen from;
+    ``best`` is None when no candidate counts (or none was left to fit)."""
+
+    best: CandidateScore | None
+    refined: dict[str, JointFit]
+
+
+def follow_path(first: FirstRound, choice: CandidateScore, refined: dict[str, JointFit], most: int,
+                causes: tuple[str, ...] | None = None) -> CausePath:
+    """Name ``choice`` (the score of a candidate refitted jointly, whose joint fit is in ``refined``) first, then
+    causes on top of it while one counts and removes at least 70 % of what is left, ``most`` causes in all.
+
+    Every cause of the search (``causes``: those tried instead) is tried on top of those named, also one that made
+    the first round worse: with a much larger effect unnamed, a small one's fit takes that effect's misfit (a
+    thermometer's lag of 60 ms beside a heat capacity that removes 99.8 %), and only once the larger one is named
+    does it fit what it stands for. A further cause that leaves a discrepancy and adds less than a cause must to
+    the generic extension on the model without it is not named, and the path stops before it.
+    """
+    search = first.search
+    path = starting_path(first)
+    untried = tuple(search.scope.causes if causes is None else causes)
+    untried += () if choice.cause in untried else (choice.cause,)
+    best = choice
+    for round_index in range(most):
+        if round_index > 0:
+            found = next_cause(search, path, untried)
+            if found.best is None or not names_a_further_cause(found.best):
+                return path if found.best is None else _stopped_before(path, found.best)
+            best, refined = found.best, found.refined
+        if not best.counts:
+            break
+        named = cause_named(first, path, best, refined[best.cause])
+        untried = tuple(cause for cause in untried if cause != best.cause)
+        if round_index > 0 and named.remaining.present:
+            comparison = further_cause_comparison(first, path, named, best.cause)
+            if not comparison.causes_add:
+                return dataclasses.replace(path, reasons=path.reasons + (
+                    f"{best.cause} would remove {100.0 * best.explained_fraction:.1f} % of what is left but adds only "
+                    f"{comparison.added:.4g} ({comparison.significance:.1f} sigma) to the generic extension: not a "
+                    "further cause",))
+        path = named
+        if not path.remaining.present or len(path.causes) == most:
+            break
+    return path
+
+
+def _stopped_before(path: CausePath, best: CandidateScore) -> CausePath:
+    """``path`` with the reason it stops before ``best``: too little of what is left for a further cause."""
+    return dataclasses.replace(path, reasons=path.reasons + (
+        f"{best.cause} would remove {100.0 * best.explained_fraction:.1f} % of what is left, too little for a "
+        "further cause",))
+
+
+def next_cause(search: RecordSearch, path: CausePath, untried: tuple[str, ...]) -> NextCause:
+    """Every untried cause not yet in the path's model fitted on top of its causes, scored against it, and the
+    leading ones refitted jointly with the causes named (:func:`~cryod.analysis.cause_search.joint_refit.
+    refit_jointly`); the best of those (None when no candidate counts)."""
+    fits = search.fit_candidates(path.context, [cause for cause in untried
+                                                if cause not in path.context.base_model.effect_names()],
+                                 " (next cause)")
+    scores = {cause: score_candidate(path.context, fit, path.remaining) for cause, fit in fits.items()}
+    if not any(score.counts for score in scores.values()):
+        return NextCause(best=None, refined={})
+    choice = refit_jointly(search, path, fits, scores)
+    return NextCause(best=choice.decision.best, refined=choice.refined)
+
+
+def cause_named(first: FirstRound, path: CausePath, best: CandidateScore, joint: JointFit) -> CausePath:
+    """``path`` with ``best`` (whose joint fit is ``joint``) named on top of its causes: the causes named before
+    it with the numbers the joint fit gave them back, the path on the model the joint fit extends, and an earlier
+    cause the new one made unnecessary left out."""
+    fit, before = joint.fit, path.remaining
+    recalibrated_excess = first.recalibrated.excess
+    named = NamedCause(cause=best.cause, fit=fit, score=best, explained_fraction=best.improvement / recalibrated_excess,
+                       gain=gain_between(before.sum_of_squares, before.sum_of_squares - best.improvement, before.terms))
+    causes = refitted_causes(path.causes, joint.named_effects, fit.extended_model) + (named,)
+    reason = (f"{best.cause} removes {100.0 * best.improvement / recalibrated_excess:.1f} % "
+              f"({best.significance:.1f} sigma)")
+    extended = settled(first.search, dataclasses.replace(path, causes=causes, reasons=path.reasons + (reason,)),
+                       best.cause, joint)
+    return without_unneeded(first.search, extended) if len(extended.causes) > 1 else extended
+
+
+def refitted_causes(causes: tuple[NamedCause, ...], refitted: tuple[NamedEffect, ...], model: CryostatModel
+                    ) -> tuple[NamedCause, ...]:
+    """``causes`` with the numbers a joint fit gave back to those with an effect form (``refitted``, in their
+    order), their parameters read from ``model``, the joint fit's extended model."""
+    with_form = [named for named in causes if named.fit.effect is not None]
+    effects = dict(zip([id(named) for named in with_form], refitted))
+    return tuple(
+        dataclasses.replace(named, fit=dataclasses.replace(named.fit, effect=effects[id(named)].effect,
+                                                           parameters=effects[id(named)].effect.describe(model)))
+        if id(named) in effects else named for named in causes)
+
+
+__all__ = ["NextCause", "cause_named", "follow_path", "next_cause", "refitted_causes"]

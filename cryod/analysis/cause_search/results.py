@@ -1,0 +1,259 @@
+"""What the cause search's steps hand on: each a frozen dataclass, built by keyword.
+
+* :class:`NamedCause`: a cause added to the model, with what it brought.
+* :class:`JointFit`: a candidate refitted jointly with the recalibration and the causes named before it.
+* :class:`ReplayedModel`: a model, its replay of the record and what it leaves on the held-out blocks.
+* :class:`CausePath`: causes named one after another from a first choice, and where they leave the model.
+* :class:`Verdict`: what the search concludes (the decision, the causes, the extended model).
+* :class:`Analysis`: everything one analysis found, what the report, the figures and the JSON are made of.
+
+A step that changes one of these makes a new one (:func:`dataclasses.replace`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from cryod.analysis.candidates import CandidateFit, FitContext
+from cryod.analysis.decision import BaseDiscrepancy, CandidateScore, Decision, Gain
+from cryod.analysis.recalibration import RecalibratedBase, Recalibration
+from cryod.analysis.record_data import RecordData
+from cryod.analysis.refinement import NamedEffect
+from cryod.analysis.replay import Replay
+from cryod.cooler.line import PtcLine
+from cryod.model import CryostatModel
+
+
+@dataclass(frozen=True, kw_only=True)
+class NamedCause:
+    """A cause named in the record, with what it brought when it was added to the model.
+
+    Attributes
+    ----------
+    cause : str
+    fit : CandidateFit
+        Refitted jointly with the recalibration.
+    score : CandidateScore
+        Against the model it was added to.
+    explained_fraction : float
+        Its held-out improvement over the recalibrated model's excess.
+    gain : Gain
+        Held-out residual of the model before it and with it.
+    """
+
+    cause: str
+    fit: CandidateFit
+    score: CandidateScore
+    explained_fraction: float
+    gain: Gain
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointFit:
+    """A candidate refitted jointly with the recalibration (:func:`cryod.analysis.refinement.refine`).
+
+    Attributes
+    ----------
+    fit : CandidateFit
+        The candidate, refitted.
+    recalibration : RecalibratedBase
+        The recalibration refitted with it.
+    named_effects : tuple of NamedEffect
+        The causes named before it, their numbers refitted alongside.
+    """
+
+    fit: CandidateFit
+    recalibration: RecalibratedBase
+    named_effects: tuple[NamedEffect, ...]
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReplayedModel:
+    """A model, the record replayed with it, and what that replay leaves on the held-out blocks."""
+
+    model: CryostatModel
+    replay: Replay
+    remaining: BaseDiscrepancy
+
+
+@dataclass(frozen=True, kw_only=True)
+class CausePath:
+    """Causes named one after another from a first choice, and where they leave the model.
+
+    Attributes
+    ----------
+    causes : tuple of NamedCause
+        In the order they were named.
+    context : FitContext
+        On the model with these causes: where a further cause is fitted and judged.
+    remaining : BaseDiscrepancy
+        What the model with these causes still shows on the held-out blocks.
+    named_effects : tuple of NamedEffect
+        The causes' own numbers, refitted with the recalibration when a further cause is.
+    recalibration : RecalibratedBase
+        The recalibration as refitted with these causes.
+    reasons : tuple of str
+        What happened on the way, in words (the decision's reason is made of them).
+    """
+
+    causes: tuple[NamedCause, ...]
+    context: FitContext
+    remaining: BaseDiscrepancy
+    named_effects: tuple[NamedEffect, ...]
+    recalibration: RecalibratedBase
+    reasons: tuple[str, ...]
+
+    def replayed(self) -> ReplayedModel:
+        """The model with these causes, its replay and what it leaves."""
+        return ReplayedModel(model=self.context.base_model, replay=self.context.base_replay,
+                             remaining=self.remaining)
+
+    def cause_names(self) -> tuple[str, ...]:
+        return tuple(named.cause for named in self.causes)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Verdict:
+    """What the search concludes on one record.
+
+    Attributes
+    ----------
+    decision : Decision
+        The cause named and why.
+    recalibrated : bool
+        Whether the recalibration is part of the extended model.
+    causes : tuple of NamedCause
+        Every cause named, strongest first; empty for ``none`` and ``unexplained``.
+    final_model : CryostatModel
+        The extended model: the base model as given, recalibrated, or recalibrated with the causes named.
+    final_replay : Replay
+    remaining : BaseDiscrepancy
+        What the extended model still shows on the held-out blocks.
+    final_recalibration : Recalibration or None
+        The recalibration as refitted with the causes named.
+    generic : object or None
+        The generic extension the causes were weighed against, when they were
+        (:class:`cryod.analysis.generic_extension.GenericExtension`).
+    other_paths : tuple of dict
+        Readings of other causes that fit the record as well as those named (:mod:`cryod.analysis.equivalence`).
+    """
+
+    decision: Decision
+    recalibrated: bool
+    causes: tuple[NamedCause, ...] = ()
+    final_model: CryostatModel
+    final_replay: Replay
+    remaining: BaseDiscrepancy
+    final_recalibration: Recalibration | None = None
+    generic: object = None
+    other_paths: tuple[dict, ...] = ()
+
+
+@dataclass(frozen=True, kw_only=True)
+class Analysis:
+    """Everything one analysis found.
+
+    Attributes
+    ----------
+    data : RecordData
+    base_model : CryostatModel
+        The model as given.
+    base_line : PtcLine
+        The line measured in T5, in the base model's form.
+    base_replay : Replay
+        The record replayed with the base model as given.
+    noise_rms_K : tuple of float
+        Measured (T2, T5) noise.
+    fits : dict of str to CandidateFit
+        The candidates of the first round (on the recalibrated model).
+    scores : dict of str to CandidateScore
+    decision : Decision
+        The cause named and why; its ``base`` is the recalibrated model's discrepancy.
+    context : FitContext
+        Where the first round's candidates were fitted.
+    timings_s : dict of str to float
+        Wall time of each step, in the order they ran (the command adds its own).
+    recalibration : Recalibration or None
+        The recalibration of the base model alone.
+    recalibrated : bool
+        Whether the recalibration is part of the extended model (it is when the
+        base model as given shows a discrepancy).
+    recalibration_gain : Gain or None
+        Held-out residual of the base model as given and recalibrated.
+    causes : tuple of NamedCause
+        Every cause named, strongest (first added) first; empty for ``none``.
+    final_model : CryostatModel
+        The recalibrated model plus every cause named (the base model for ``none`` without recalibration).
+    final_replay : Replay
+    base_discrepancy : BaseDiscrepancy
+        The base model as given, on the held-out blocks.
+    final_recalibration : Recalibration or None
+        The recalibration as refitted with the causes named (what the extended model has).
+    remaining : BaseDiscrepancy or None
+        What the extended model (the causes named, or the recalibrated model when none is) still shows on the
+        held-out blocks, by the rule that calls for a cause.
+    beyond_recalibration : object or None
+        For ``base_model_off``: the parameters the record asks beyond the recalibration's tolerance
+        (:class:`cryod.analysis.cause_search.base_model_off.BeyondRecalibration`).
+    generic : object or None
+        The generic extension fitted on top of the extended model, when a discrepancy remains
+        (:class:`cryod.analysis.generic_extension.GenericExtension`).
+    residual_signature : object or None
+        What the extended model leaves, described (:class:`cryod.analysis.residual_signature.ResidualSignature`).
+    widened : Recalibration or None
+        The base model alone recalibrated with the wider tolerances of
+        :mod:`cryod.analysis.cause_search.base_model_off`, once a parameter reached its usual tolerance.
+    other_paths : tuple of dict
+        Readings of other causes that fit the record as well as the causes named
+        (:mod:`cryod.analysis.equivalence`; each with ``reading``, ``causes`` and ``told_apart_by``).
+    """
+
+    data: RecordData
+    base_model: CryostatModel
+    base_line: PtcLine
+    base_replay: Replay
+    noise_rms_K: tuple[float, float]
+    fits: dict[str, CandidateFit]
+    scores: dict[str, CandidateScore]
+    decision: Decision
+    context: FitContext
+    timings_s: dict[str, float] = field(default_factory=dict)
+    recalibration: Recalibration | None = None
+    recalibrated: bool = False
+    recalibration_gain: Gain | None = None
+    causes: tuple[NamedCause, ...] = ()
+    final_model: CryostatModel | None = None
+    final_replay: Replay | None = None
+    base_discrepancy: BaseDiscrepancy | None = None
+    final_recalibration: Recalibration | None = None
+    remaining: BaseDiscrepancy | None = None
+    beyond_recalibration: object = None
+    generic: object = None
+    residual_signature: object = None
+    widened: Recalibration | None = None
+    other_paths: tuple[dict, ...] = ()
+
+    @property
+    def cause(self) -> str:
+        return self.decision.cause
+
+    @property
+    def extended_model(self) -> CryostatModel:
+        """The recalibrated base model plus every cause named (the base model itself when nothing changed)."""
+        return self.final_model if self.final_model is not None else self.base_model
+
+    @property
+    def extended_replay(self) -> Replay:
+        return self.final_replay if self.final_replay is not None else self.base_replay
+
+    @property
+    def extended(self) -> bool:
+        """Whether the extended model differs from the base model."""
+        return self.extended_model is not self.base_model
+
+    @property
+    def cause_names(self) -> list[str]:
+        return [named.cause for named in self.causes]
+
+
+__all__ = ["Analysis", "CausePath", "JointFit", "NamedCause", "ReplayedModel", "Verdict"]

@@ -215,8 +215,10 @@ class DaemonClient:
                                 + (f" (last fault: {loop.last_fault})" if loop.last_fault else ""))
             setpoint, target = loop.setpoint_K, loop.target_K
             average = seen.recent.flange_average_K if seen.recent is not None else math.nan
-            ramping = setpoint is None or target is None or abs(setpoint - target) > 1e-9
-            error = None if ramping or not math.isfinite(average) or not seen.regulating else average - setpoint
+            error = None
+            if setpoint is not None and target is not None and abs(setpoint - target) <= 1e-9 \
+                    and math.isfinite(average) and seen.regulating:
+                error = average - setpoint              # settled on the target, not ramping
             if error is None or abs(error) > tolerance_K:
                 settled_since = None
             else:

@@ -27,8 +27,16 @@ from __future__ import annotations
 
 import math
 
-from cryod.alarms.conditions import (HEATER_AVERAGE_S, RecentValues, cooler_line_condition, covers,
-                                     deviation_condition, heater_condition, ptc_stage_condition, stability_condition)
+from cryod.alarms.conditions import (
+    HEATER_AVERAGE_S,
+    RecentValues,
+    cooler_line_condition,
+    covers,
+    deviation_condition,
+    heater_condition,
+    ptc_stage_condition,
+    stability_condition,
+)
 from cryod.alarms.latch import AlarmLatch, Condition, Transition
 from cryod.alarms.settings import ALARM_NAMES, MAX_WINDOW_S, AlarmsConfig
 from cryod.cooler.phase import CoolerPhaseTracker

@@ -25,8 +25,13 @@ import math
 import numpy as np
 
 from cryod.alarms.latch import Condition
-from cryod.alarms.settings import (CoolerLineLostAlarm, DeviationAlarm, HeaterNearTopAlarm, PtcStageWarmAlarm,
-                                   StabilityAlarm)
+from cryod.alarms.settings import (
+    CoolerLineLostAlarm,
+    DeviationAlarm,
+    HeaterNearTopAlarm,
+    PtcStageWarmAlarm,
+    StabilityAlarm,
+)
 from cryod.cooler.phase import CoolerPhase
 
 #: The heater power is averaged over this long for its alarm (s): about 17 cooler periods, so the

@@ -224,11 +224,11 @@ def _main(argv: list[str] | None) -> int:
 def _run_service(args) -> int:
     from cryod.service.daemon import Daemon, config_or_exit
     from cryod.service.instruments import instrument_addresses, open_instruments
-    from drivers.clock import MonotonicClock
     from cryod.service.logs import ServiceLogging
     from cryod.service.startup_checks import check_before_run
     from cryod.service.status_line import StatusLine
     from cryod.yaml_source import FileFormatError
+    from drivers.clock import MonotonicClock
 
     config = config_or_exit(args.run_config, sys.stderr)
     if config is None:
@@ -264,9 +264,9 @@ def _run_service(args) -> int:
 
 def _supply_off(config) -> int:
     """``cryod run --supply-off``: 0 done, 2 another cryod drives the supply, 4 the supply out of reach."""
-    from drivers.clock import MonotonicClock
     from cryod.service.instance_lock import InstrumentInUse
     from cryod.service.instruments import switch_supply_off
+    from drivers.clock import MonotonicClock
     from drivers.errors import InstrumentError
 
     ended = ", ".join(f"{name} {os.environ[name]}" for name in ("SERVICE_RESULT", "EXIT_CODE", "EXIT_STATUS")
@@ -340,9 +340,8 @@ def _ctl(args) -> int:
     if args.ctl_json:
         print(json.dumps(reply))
     elif reply.get("message") == "status" and reply.get("ok"):
-        from cryod.service.readable import readable
-
         from cryod.service.alarms import alarm_line
+        from cryod.service.readable import readable
 
         for key, value in reply["status"].items():
             if key == "time_s":

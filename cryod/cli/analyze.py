@@ -33,8 +33,8 @@ from cryod.analysis.slow_series import in_file_form
 from cryod.analysis.summary import json_summary, model_header
 from cryod.analysis.usability import check_usable
 from cryod.argument_types import not_negative
-from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
 from cryod.cli.output_files import listed_when_written
+from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
 from cryod.output_files import OutputFiles
 from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError
@@ -48,7 +48,7 @@ def analysis_files(figures: bool = True) -> list[str]:
     """The files an analysis writes into its directory (with the figures' when ``figures``)."""
     names = [SUMMARY_NAME, REPORT_NAME, EXTENDED_MODEL_NAME]
     if figures:
-        from cryod.analysis.figures import FIGURE_FILES      # matplotlib only when figures are wanted
+        from cryod.analysis.figures import FIGURE_FILES  # matplotlib only when figures are wanted
 
         names += FIGURE_FILES.values()
     return names
@@ -151,7 +151,7 @@ def analyse_and_write(data, model, record_path: Path, model_path: Path, out: Pat
     made = {}
     if figures:
         moment = time.perf_counter()
-        from cryod.analysis.figures import make_figures      # matplotlib only when figures are wanted
+        from cryod.analysis.figures import make_figures  # matplotlib only when figures are wanted
         made = make_figures(analysis, segments, out)
         analysis.timings_s["figures"] = time.perf_counter() - moment
     analysis.timings_s["total"] = time.perf_counter() - started

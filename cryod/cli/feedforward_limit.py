@@ -23,17 +23,25 @@ import sys
 import textwrap
 from pathlib import Path
 
-from cryod.cli.lab_inputs import InputsNotUsable, add_heater_arguments, lab_inputs
 from cryod.argument_types import not_negative, number, positive, setpoint_list
-
+from cryod.cli.lab_inputs import InputsNotUsable, add_heater_arguments, lab_inputs
 from cryod.config import EXAMPLE_CONFIG_PATH
 from cryod.control.feedforward.limit import (
-    DEFAULT_AVERAGING_TIME_S, MEASURES, REPORTED_HARMONICS, SWEEP_MAX_CURRENTS_A, SWEEP_RESISTANCES_OHM,
-    SWEEP_SETPOINTS_K, FeedforwardLimit, FeedforwardLimitError, SweepPoint, feedforward_limit, limit_changes,
+    DEFAULT_AVERAGING_TIME_S,
+    MEASURES,
+    REPORTED_HARMONICS,
+    SWEEP_MAX_CURRENTS_A,
+    SWEEP_RESISTANCES_OHM,
+    SWEEP_SETPOINTS_K,
+    FeedforwardLimit,
+    FeedforwardLimitError,
+    SweepPoint,
+    feedforward_limit,
+    limit_changes,
     limit_sweep,
 )
-from cryod.control.feedforward.limit_range import LimitRange, limit_range
 from cryod.control.feedforward.limit_binding import LimitBinding, limit_binding
+from cryod.control.feedforward.limit_range import LimitRange, limit_range
 from cryod.control.zone_commissioning import limits_across_range, model_at_temperature, model_of_zone
 from cryod.control.zones import zone_table_from
 from cryod.model import DEFAULT_MODEL_PATH, linearised_at

@@ -36,13 +36,13 @@ from pathlib import Path
 from cryod.analysis.record_data import analysed_stretch, read_record_data
 from cryod.analysis.summary import plain
 from cryod.argument_types import not_negative, number, positive, setpoint_list, speed
+from cryod.cli.output_files import listed_when_written
 from cryod.identification.experiment import ExperimentPlan
 from cryod.identification.fit import IdentificationError
 from cryod.identification.model_fit import ModelIdentification, identify_model
 from cryod.identification.record_check import describe, record_problems
 from cryod.identification.uncertainty import BOOTSTRAP_REPLICATES
 from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
-from cryod.cli.output_files import listed_when_written
 from cryod.output_files import OutputFiles, output_file_refusal
 from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError
@@ -210,8 +210,12 @@ def _acquire(args, config, base, plan: ExperimentPlan | None = None) -> tuple[in
                          "simulated_model": str(args.sim_model or config.simulation.model or DEFAULT_MODEL_PATH),
                          "simulation_seed": config.simulation.seed})
     else:
-        from cryod.service.instruments import (check_calibrations, check_instrument_locking, instrument_addresses,
-                                               open_instruments)
+        from cryod.service.instruments import (
+            check_calibrations,
+            check_instrument_locking,
+            instrument_addresses,
+            open_instruments,
+        )
 
         problem = check_calibrations(config) or check_instrument_locking(config)
         if problem:
@@ -241,8 +245,8 @@ def _acquire(args, config, base, plan: ExperimentPlan | None = None) -> tuple[in
 
 
 def _tuning_text(model, setpoint_K: float, config) -> str:
-    from cryod.control.tuning import TuningError, step_performance, suggest_gains
     from cryod.cli.tune import PAPER_GAINS, report
+    from cryod.control.tuning import TuningError, step_performance, suggest_gains
 
     heater_max_w = config.heater.max_power_w
     options = {"period_s": config.loop.period_s}

@@ -23,8 +23,8 @@ import os
 import sys
 from pathlib import Path
 
-from cryod.cli.lab_inputs import InputsNotUsable, add_heater_arguments, lab_inputs
 from cryod.argument_types import not_negative, number, positive
+from cryod.cli.lab_inputs import InputsNotUsable, add_heater_arguments, lab_inputs
 from cryod.config import EXAMPLE_CONFIG_PATH
 from cryod.control.pi import PiGains
 from cryod.control.tuning import StepPerformance, Tolerances, TuningError, step_performance, suggest_gains

@@ -22,13 +22,10 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
 import numpy as np  # noqa: E402
-from cryod.figure_files import save_figure, thin  # noqa: E402
 from scipy import ndimage  # noqa: E402
 
+from cryod.figure_files import save_figure, thin  # noqa: E402
 from cryod.identification.model_fit import ChannelResult, ModelIdentification  # noqa: E402
-
-
-
 
 
 def _period_average(values: np.ndarray, samples: int) -> np.ndarray:

@@ -32,9 +32,9 @@ import numpy as np
 from scipy import optimize
 
 from cryod.analysis.noise import white_noise_rms
-from cryod.cooler.line import PtcLine, measurable_orders
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replayer
+from cryod.cooler.line import PtcLine, measurable_orders
 from cryod.model import CryostatModel, OperatingPoint, SensorNoise
 from cryod.model.heater_path import HeaterPath
 from cryod.model.transfer_function import TransferFunction, first_order_link

@@ -33,7 +33,11 @@ from cryod.analysis.noise import white_noise_rms
 from cryod.analysis.record_data import RecordData
 from cryod.identification.fit import IdentificationError, prepared_records
 from cryod.identification.step_terms import (
-    ChannelRecord, StepChannel, StepFitError, TermSelection, select_terms,
+    ChannelRecord,
+    StepChannel,
+    StepFitError,
+    TermSelection,
+    select_terms,
 )
 from cryod.identification.uncertainty import BOOTSTRAP_BLOCK_S, BOOTSTRAP_REPLICATES, FitUncertainty, fit_uncertainty
 from cryod.model import CryostatModel, SensorNoise

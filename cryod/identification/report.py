@@ -78,7 +78,7 @@ def write_report(result: ModelIdentification, out: Path, *, model_path: Path, re
     """Write ``report.md`` into ``out``; returns its path."""
     out = Path(out)
     lines = ["# Commissioning report", ""]
-    lines += [f"- model written: `{model_path}`", f"- records: " + ", ".join(f"`{p}`" for p in record_paths)]
+    lines += [f"- model written: `{model_path}`", "- records: " + ", ".join(f"`{p}`" for p in record_paths)]
     if acquisition is not None:
         runner = acquisition.runner
         lines.append(f"- experiment: {acquisition.outcome}; phases "

@@ -28,7 +28,6 @@ from cryod.identification.fit import IdentificationError
 from cryod.identification.model_fit import ModelIdentification, identify_model
 from cryod.model import CryostatModel
 
-
 #: A fit about a setpoint leaving more than this many times T2's noise on T2 is refused: a fit that describes
 #: its record leaves about 1; the closed-loop fits about 24 K that do not describe theirs left 71 to 83.
 MAX_RESIDUAL_IN_NOISE = 30.0

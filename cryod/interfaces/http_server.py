@@ -251,6 +251,7 @@ class HttpServer:
     # -- one client ---------------------------------------------------------------------------
     async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
+        assert task is not None                 # a client is served in a task of its own
         if not self._make_room():
             self.counts["busy"] += 1
             await self._raw_refusal(writer, 503, f"busy: {len(self.places)} connections are being answered; "
@@ -317,6 +318,8 @@ class HttpServer:
                 break
             elif isinstance(event, h11.ConnectionClosed):
                 raise ConnectionError("the client closed")
+        if head is None:                        # h11 gives the head before the end of a message
+            raise ConnectionError("a message without a request head")
         target = head.target.decode("latin-1")
         path, _, query = target.partition("?")
         headers = {name.decode("latin-1").lower(): value.decode("latin-1") for name, value in head.headers}

@@ -157,6 +157,7 @@ class Lakeshore336Server:
 
     async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
+        assert task is not None                 # a client is served in a task of its own
         self._make_room()
         connection = self.connections[task] = _Connection(task, writer)
         sock = writer.get_extra_info("socket")

@@ -14,10 +14,10 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import math
-from typing import Callable
+from typing import Any, Callable
 
 from cryod.interfaces.history import History
-from cryod.records.columns import Row
+from cryod.records.columns import Event, Row
 from cryod.service.daemon_status import DaemonStatus, status_from_json
 from cryod.service.live_view import LiveView
 from cryod.service.stream import ROW_FIELDS
@@ -25,8 +25,8 @@ from cryod.service.stream import ROW_FIELDS
 
 def row_from(fields: dict) -> Row:
     """A stream's row as a :class:`Row` (nulls are NaN, as in the loop)."""
-    values = {name: (math.nan if fields.get(name) is None else fields[name]) for name in ROW_FIELDS
-              if name != "control"}
+    values: dict[str, Any] = {name: (math.nan if fields.get(name) is None else fields[name]) for name in ROW_FIELDS
+                              if name != "control"}
     control = {key: (math.nan if value is None else value) for key, value in (fields.get("control") or {}).items()}
     return Row(**values, control=control)
 
@@ -70,7 +70,7 @@ class DaemonMirror:
         for event in line.get("events") or []:
             self.history.add_event(event)
             if event["seq"] > self.last_seq:
-                self.view(_EventForView(event))         # faults since the start, for the metrics
+                self.view(Event(event["kind"], event["message"]))     # faults since the start, for the metrics
                 if event["seq"] > live_after:
                     self._act_on(event)
         self.last_seq = max(self.last_seq, live_after)
@@ -83,7 +83,7 @@ class DaemonMirror:
         for event in line.get("events") or []:
             self.history.add_event(event)
             if event["seq"] > self.last_seq:
-                self.view(_EventForView(event))
+                self.view(Event(event["kind"], event["message"]))
                 self._act_on(event)
         self._status(line.get("status"))
 
@@ -96,9 +96,10 @@ class DaemonMirror:
 
     def _rows(self, rows: list[dict], first: bool = False) -> None:
         last = self.history.bins[-1]["time_s"] if first and self.history.bins else None
+        taken = self.view.latest_row()
         for fields in rows:
             row = row_from(fields)
-            if first and self.view.latest_row() is not None and row.time_s <= self.view.latest_row().time_s:
+            if first and taken is not None and row.time_s <= taken.time_s:
                 continue                        # after a reconnection: rows already taken
             if last is not None and row.time_s < last:
                 continue
@@ -139,14 +140,6 @@ class DaemonMirror:
         """The daemon's clock as of the last row (s), NaN before the first."""
         row = self.view.latest_row()
         return math.nan if row is None else row.time_s
-
-
-class _EventForView:
-    """An event of the stream as the :class:`LiveView` counts faults from it."""
-
-    def __init__(self, event: dict):
-        self.kind = event["kind"]
-        self.message = event["message"]
 
 
 __all__ = ["DaemonMirror", "row_from"]

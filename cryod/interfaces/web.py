@@ -82,7 +82,7 @@ def allowed_hosts(config: WebConfig) -> set[str]:
     for name in (socket.gethostname(), socket.getfqdn()):
         names.add(name.lower())
         try:
-            names.update(info[4][0] for info in socket.getaddrinfo(name, None))
+            names.update(str(info[4][0]) for info in socket.getaddrinfo(name, None))
         except OSError:
             pass
     names.update(name.lower() for name in config.allowed_hosts)
@@ -237,6 +237,8 @@ class WebPage:
                         sender)
             raise _Refusal(403, "a command from another site's page is refused")
         try:
+            if self.config.token_file is None:  # the configuration refuses a writable page without one
+                raise ValueError("no web.token_file")
             token = read_token(self.config.token_file)
         except (TypeError, ValueError) as error:
             log.error("web page: commands refused: web.token_file: %s", error)

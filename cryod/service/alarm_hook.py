@@ -41,11 +41,11 @@ import subprocess
 import threading
 import time
 from dataclasses import dataclass
+from typing import Protocol
 
 from cryod.alarms.latch import Transition
 from cryod.alarms.settings import AlarmHook
 from cryod.service.process_tree import ProcessTree, become_subreaper
-from drivers.clock import Clock
 
 log = logging.getLogger("cryod.alarms")
 
@@ -139,9 +139,10 @@ def run_hook(hook: AlarmHook, details: dict[str, str]) -> str | None:
     tree = ProcessTree(process.pid)
     output = bytearray()
     ended, exited = False, False
+    assert process.stdin is not None and process.stdout is not None        # both asked for as pipes above
     try:
         _give(process.stdin, payload.encode("utf-8"))
-        ended = _read_until_done(process, tree, output, deadline)
+        ended = _read_until_done(process, process.stdout, tree, output, deadline)
     finally:
         exited = process.poll() is not None
         left = tree.end()
@@ -172,10 +173,10 @@ def _give(pipe, data: bytes) -> None:
             pass
 
 
-def _read_until_done(process: subprocess.Popen, tree: ProcessTree, output: bytearray, deadline: float) -> bool:
-    """Read the hook's output into ``output`` (its last :data:`OUTPUT_KEPT` bytes) until the hook has exited and
-    its output ended (True), or until ``deadline`` (False)."""
-    descriptor = process.stdout.fileno()
+def _read_until_done(process: subprocess.Popen, stdout, tree: ProcessTree, output: bytearray, deadline: float) -> bool:
+    """Read the hook's output (``stdout``) into ``output`` (its last :data:`OUTPUT_KEPT` bytes) until the hook has
+    exited and its output ended (True), or until ``deadline`` (False)."""
+    descriptor = stdout.fileno()
     os.set_blocking(descriptor, False)
     with selectors.DefaultSelector() as selector:
         selector.register(descriptor, selectors.EVENT_READ)
@@ -209,12 +210,18 @@ def _read_until_done(process: subprocess.Popen, tree: ProcessTree, output: bytea
                 del output[:-OUTPUT_KEPT]
 
 
+class TimeNow(Protocol):
+    """What the hook's schedule reads of a clock: the daemon's time now (s)."""
+
+    def now(self) -> float: ...
+
+
 class AlarmHookRunner:
     """The hook's thread: takes changes from the loop without blocking it, runs the hook as scheduled.
 
     Parameters
     ----------
-    clock : Clock
+    clock : TimeNow
         The daemon's clock (the intervals between runs are counted on it).
     cryostat : str
         The lab's name for this cryostat (``metrics.cryostat``), passed to the hook.
@@ -224,7 +231,7 @@ class AlarmHookRunner:
         ``runner(hook, details) -> problem or None`` (default :func:`run_hook`).
     """
 
-    def __init__(self, clock: Clock, cryostat: str = "", hook: AlarmHook | None = None, runner=run_hook):
+    def __init__(self, clock: TimeNow, cryostat: str = "", hook: AlarmHook | None = None, runner=run_hook):
         self.clock = clock
         self.cryostat = cryostat
         self.hook = hook

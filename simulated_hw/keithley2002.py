@@ -119,6 +119,8 @@ class Keithley2002Emulator(EmulatedInstrument):
         self._last_autozero_s = -math.inf
         self._timing_key: tuple | None = None
         self._timing: ReadingTiming | None = None
+        self._fixed_range_format_key: tuple | None = None
+        self._fixed_range_format = None
 
     # -- faults ------------------------------------------------------------------
     def inject_overflow(self, count: int = 1) -> None:
@@ -316,7 +318,7 @@ class Keithley2002Emulator(EmulatedInstrument):
         self._pending = _PendingAction(trigger_time_s, start, timing.ready_time_s(start))
         self._timer_due_s = trigger_time_s + self.trigger_timer_s
         if start <= self.clock.now() + TIME_TOLERANCE_S:
-            self._measure(self._pending)     # taken at the trigger instant, not when fetched
+            self._measure(self._pending, timing)     # taken at the trigger instant, not when fetched
 
     def _event(self, kind: str, line: int | None = None, time_s: float | None = None) -> None:
         """A trigger event of ``kind`` ('BUS', 'EXTERNAL', 'TLINK') arriving at ``time_s`` (default now)."""
@@ -373,11 +375,12 @@ class Keithley2002Emulator(EmulatedInstrument):
             return due
         return None
 
-    def _measure(self, action: _PendingAction) -> None:
-        """Take the reading of ``action`` (once), averaged over its conversions."""
+    def _measure(self, action: _PendingAction, timing: ReadingTiming | None = None) -> None:
+        """Take the reading of ``action`` (once), averaged over its conversions (``timing``: the settings', if known)."""
         if action.value_ohm is not None:
             return
-        flange_K, stage_K = self.cryostat.read_mean_temperatures(action.start_s, self.timing.signal_span_s)
+        span_s = (timing or self.timing).signal_span_s
+        flange_K, stage_K = self.cryostat.read_mean_temperatures(action.start_s, span_s)
         temperature_K = flange_K if self.thermometer == "flange" else stage_K
         resistance = float(self.calibration.resistance_ohm(temperature_K))
         if self.filter_enabled and self.filter_type == "MOVING":
@@ -416,6 +419,12 @@ class Keithley2002Emulator(EmulatedInstrument):
         return self._format(self._readings[-1])
 
     def _format(self, reading: _Reading) -> str:
+        if not self.autorange and "READING" in self.elements and not reading.overflow:
+            key = (self.elements, self.digits, self.range_ohm)
+            if key != self._fixed_range_format_key:
+                self._fixed_range_format = self._fixed_range_formatter()
+                self._fixed_range_format_key = key
+            return self._fixed_range_format(reading)
         units = "UNITS" in self.elements
         fields = []
         if "READING" in self.elements:
@@ -435,4 +444,28 @@ class Keithley2002Emulator(EmulatedInstrument):
         if "CHANNEL" in self.elements:
             fields.append("00" + ("INTCHAN" if units else ""))
         return ",".join(fields)
+
+    def _fixed_range_formatter(self):
+        """:meth:`_format` of a reading that is not an overflow on a fixed range, for the present elements and
+        resolution: the same text, the choices made once (every reading of a configured DMM goes through it)."""
+        units = "UNITS" in self.elements
+        resolution = self.range_ohm / (2 * 10 ** (self.digits - 1))
+        value_format = f"{{:+.{self.digits - 1}E}}" + ("N" if "STATUS" in self.elements else "") \
+            + ("OHM4W" if units else "")
+        parts = []
+        if "TIMESTAMP" in self.elements:
+            parts.append(lambda reading: f"{reading.timestamp_s:+012.6f}" + ("SECS" if units else ""))
+        if "RNUMBER" in self.elements:
+            number_suffix = "RDNG#" if units else ""
+            parts.append(lambda reading: f"{reading.number:+06d}{number_suffix}")
+        if "CHANNEL" in self.elements:
+            channel = "00" + ("INTCHAN" if units else "")
+            parts.append(lambda reading: channel)
+
+        def format_reading(reading: _Reading) -> str:
+            text = value_format.format(round(reading.value_ohm / resolution) * resolution)
+            if not parts:
+                return text
+            return ",".join([text] + [part(reading) for part in parts])
+        return format_reading
 

@@ -471,9 +471,10 @@ class Keithley2002(ScpiInstrument):
         last_miss_s = None
         with self.reporting_faults():
             while True:
-                reading = self.parse_reading(self.query(":FETCh?"))
-                if reading.reading_number is None or reading.reading_number != self.last_reading_number:
-                    self.last_reading_number = reading.reading_number
+                reply = self.query(":FETCh?")
+                resistance, reading_number, status, timestamp = self._parsed_reading(reply)
+                if reading_number is None or reading_number != self.last_reading_number:
+                    self.last_reading_number = reading_number
                     # the first reading after configuration is taken to start a NORMal autozero's 200 ms
                     # (its fetch was late on purpose, so its timing tells nothing)
                     if first_after_configuration:
@@ -483,14 +484,13 @@ class Keithley2002(ScpiInstrument):
                     else:
                         zero_seen = self._learn_timing(trigger_time_s, earliest, zero_expected, normal_autozero,
                                                        timing, last_miss_s)
-                    return DmmReading(reading.resistance_ohm, reading.reading_number, reading.status,
-                                      reading.timestamp_s, reading.reply,
+                    return DmmReading(resistance, reading_number, status, timestamp, reply,
                                       self._sample_time_s(trigger_time_s, zero_seen, timing))
                 last_miss_s = self.clock.now()
                 if self.clock.now() >= limit:
-                    raise InstrumentTimeout(self.label, f"no new reading (number {reading.reading_number} "
+                    raise InstrumentTimeout(self.label, f"no new reading (number {reading_number} "
                                                         f"again) {self.clock.now() - trigger_time_s:.3f} s "
-                                                        f"after the trigger", reply=reading.reply)
+                                                        f"after the trigger", reply=reply)
                 self.clock.sleep_until(self.clock.now() + self.fetch_poll_interval_s)
 
     def _sample_time_s(self, trigger_time_s: float, zero_seen: bool, timing: ReadingTiming) -> float:
@@ -537,6 +537,10 @@ class Keithley2002(ScpiInstrument):
 
     def parse_reading(self, reply: str) -> DmmReading:
         """A reading string with the configured elements; overflow and garbage are typed errors."""
+        return DmmReading(*self._parsed_reading(reply), reply)
+
+    def _parsed_reading(self, reply: str) -> tuple[float, int | None, str | None, float | None]:
+        """(resistance, reading number, status, time stamp) of a reading string (see :meth:`parse_reading`)."""
         fields = reply.split(",")
         if self._layout_key != self.elements:
             order = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
@@ -571,7 +575,7 @@ class Keithley2002(ScpiInstrument):
             if not match:
                 raise BadReply(self.label, "time stamp is not a number", reply=reply)
             timestamp = float(match.group(1))
-        return DmmReading(resistance, reading_number, status, timestamp, reply)
+        return resistance, reading_number, status, timestamp
 
     def shutdown(self) -> None:
         """Back to idle (``:ABORt``) and release the connection; best effort, never raises."""

@@ -56,6 +56,8 @@ class HeaterPath:
         self.input = 0.0
         self._hold_key: tuple[float, float] | None = None
         self._hold_coefficients: list = []
+        self._window_key: tuple[float, float] | None = None
+        self._window: tuple[list, list] = ([], [])
 
     def settle(self, value: float) -> None:
         """Put the path in steady state for a constant input ``value``."""
@@ -92,15 +94,27 @@ class HeaterPath:
         if duration_s <= 0.0:
             return self.output()
         u = self.input
-        exp = math.exp if self.all_real else cmath.exp
         total = self.direct * u * duration_s
-        for pole, residue, z in zip(self.poles, self.residues, self.state):
-            rate = pole / time_scale
-            a = exp(rate * duration_s)
-            integral = (a - 1.0) / rate * z + ((a - 1.0) / rate - duration_s) / pole * u
-            total += residue * integral
+        for residue, z, state_gain, input_gain in zip(self.residues, self.state, *self._window_gains(duration_s,
+                                                                                                      time_scale)):
+            total += residue * (state_gain * z + input_gain * u)
         total = total.real if isinstance(total, complex) else total
         return total / duration_s
+
+    def _window_gains(self, duration_s: float, time_scale: float) -> tuple[list, list]:
+        """Per pole, what the state and the input add to the integral over ``duration_s``: (a - 1) / rate and
+        ((a - 1) / rate - duration) / pole, a = exp(rate duration); kept while the window stays the same."""
+        key = (duration_s, time_scale)
+        if key != self._window_key:
+            exp = math.exp if self.all_real else cmath.exp
+            state_gains, input_gains = [], []
+            for pole in self.poles:
+                rate = pole / time_scale
+                a = exp(rate * duration_s)
+                state_gains.append((a - 1.0) / rate)
+                input_gains.append(((a - 1.0) / rate - duration_s) / pole)
+            self._window_key, self._window = key, (state_gains, input_gains)
+        return self._window
 
     def run(self, durations_s: np.ndarray, inputs: np.ndarray, kept_by: bytes | None = None) -> np.ndarray:
         """Outputs at the start of each interval and after the last one (vectorised).

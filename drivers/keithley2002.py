@@ -100,9 +100,25 @@ DEFAULT_ELEMENTS = (DataElement.READING, DataElement.STATUS, DataElement.READING
 
 _SOURCE_TOKENS = {source: source.value for source in TriggerSource}
 _ARM_SOURCE_TOKENS = {source: source.value for source in TriggerSource if source is not TriggerSource.TIMER}
+#: The fields of a reading string in the exact form the 2002 sends them (:func:`_exact_reply_pattern`).
+_EXACT_FIELDS = {
+    DataElement.READING: r"(?P<reading>[+-]?(?:\d+\.?\d*|\.\d+)(?:[Ee][+-]?\d+)?)(?P<status>[NR])?(?:OHM4W)?",
+    DataElement.TIMESTAMP: r"(?P<timestamp>[+-]?\d+(?:\.\d*)?)(?:SECS)?",
+    DataElement.READING_NUMBER: r"(?P<number>[+-]?\d+)(?:RDNG#)?",
+    DataElement.CHANNEL: r"[^,]*",
+}
 _READING_FIELD = re.compile(r"^([+-]?(?:\d+\.?\d*|\.\d+)(?:[Ee][+-]?\d+)?)([NOR])?(OHM4W)?$", re.IGNORECASE)
 _INTEGER_FIELD = re.compile(r"^([+-]?\d+)")
 _DECIMAL_FIELD = re.compile(r"^([+-]?\d+(?:\.\d*)?)")
+
+
+def _exact_reply_pattern(order: list[DataElement]) -> re.Pattern | None:
+    """One pattern for a whole reading string with the elements in ``order`` as the 2002 sends them: every
+    reply it matches, the field by field reading accepts with the same values (an overflow aside, which the
+    caller leaves to it); None without a READing element."""
+    if DataElement.READING not in order:
+        return None
+    return re.compile(",".join(_EXACT_FIELDS[element] for element in order))
 
 
 @dataclass(frozen=True)
@@ -298,6 +314,7 @@ class Keithley2002(ScpiInstrument):
         self._trigger_delay_s = 0.0
         self._timing_key: tuple | None = None
         self._timing: ReadingTiming | None = None
+        self._exact_reply: re.Pattern | None = None
         self._layout_key: tuple | None = None          # reading-string layout, kept until elements change
         self._layout: tuple = ()
         self.last_reading_number: int | None = None
@@ -540,15 +557,31 @@ class Keithley2002(ScpiInstrument):
         return DmmReading(*self._parsed_reading(reply), reply)
 
     def _parsed_reading(self, reply: str) -> tuple[float, int | None, str | None, float | None]:
-        """(resistance, reading number, status, time stamp) of a reading string (see :meth:`parse_reading`)."""
-        fields = reply.split(",")
+        """(resistance, reading number, status, time stamp) of a reading string (see :meth:`parse_reading`).
+
+        A reply in the exact form the 2002 sends (upper case, no spaces) is read with one pattern made for
+        the configured elements; any other goes through the field by field checks below, which accept it
+        (with the same values) or say what is wrong with it.
+        """
         if self._layout_key != self.elements:
             order = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
                                  DataElement.CHANNEL) if e in self.elements]
             self._layout = (order, *(order.index(e) if e in order else None
                                      for e in (DataElement.READING, DataElement.TIMESTAMP,
                                                DataElement.READING_NUMBER)))
+            self._exact_reply = _exact_reply_pattern(order)
             self._layout_key = self.elements
+        exact = self._exact_reply.fullmatch(reply) if self._exact_reply is not None else None
+        if exact is not None:
+            resistance = float(exact["reading"])
+            if resistance < OVERFLOW_MARKER and resistance > -OVERFLOW_MARKER:
+                order, _, timestamp_at, number_at = self._layout
+                return (resistance, int(exact["number"]) if number_at is not None else None, exact["status"],
+                        float(exact["timestamp"]) if timestamp_at is not None else None)
+        return self._parsed_field_by_field(reply)
+
+    def _parsed_field_by_field(self, reply: str) -> tuple[float, int | None, str | None, float | None]:
+        fields = reply.split(",")
         order, reading_at, timestamp_at, number_at = self._layout
         if len(fields) != len(order):
             raise BadReply(self.label, f"expected {len(order)} elements "

@@ -58,6 +58,8 @@ ARM_SOURCES = ("IMMediate", "BUS", "EXTernal", "TLINk", "HOLD", "MANual", "RTClo
 SCAN_SOURCES = ("IMMediate", "BUS", "EXTernal", "TLINk", "TIMer", "HOLD", "MANual")
 ELEMENTS = ("READing", "CHANnel", "RNUMber", "UNITs", "TIMEstamp", "STATus")
 THERMOMETERS = ("flange", "ptc_stage")
+#: Trigger sources that start device actions without an event (:meth:`Keithley2002Emulator.update`).
+FREE_RUNNING_SOURCES = ("IMMEDIATE", "TIMER")
 
 
 class ResistanceCurve(Protocol):
@@ -338,6 +340,11 @@ class Keithley2002Emulator(EmulatedInstrument):
     def bus_trigger(self, time_s: float | None = None) -> None:
         self._event("BUS", time_s=time_s)
 
+    def group_execute_trigger(self, time_s: float | None = None) -> None:
+        """The GPIB GET addressed to this DMM: a BUS trigger event (which brings the DMM to now first)."""
+        with self._lock:
+            self._event("BUS", time_s=time_s)
+
     def external_trigger(self, time_s: float | None = None) -> None:
         """A falling TTL edge on the rear EXTERNAL TRIGGER input (manual section 2.7.6)."""
         with self._lock:
@@ -350,6 +357,8 @@ class Keithley2002Emulator(EmulatedInstrument):
 
     def update(self) -> None:
         """Complete device actions whose time has come; start free-running ones (IMM, TIM)."""
+        if not self.initiated or (self._pending is None and self.trigger_source not in FREE_RUNNING_SOURCES):
+            return                           # idle, or waiting for a trigger event: nothing happens by itself
         now = self.clock.now()
         while self.initiated:
             if self._pending is None:

@@ -356,24 +356,32 @@ class CommandTable:
             return None
         replies: list[str] = []
         previous_path: list[str] = []
+        by_header = self._by_header
         try:
-            units = _split_outside_quotes(message.strip(), ";")
+            text = message.strip()
+            quoted = "'" in text or '"' in text
+            units = _split_outside_quotes(text, ";") if quoted else text.split(";")
             if len(units) == 1:
                 header, _, parameter_text = units[0].strip().partition(" ")
-                if header[:1] in ":*" and header in self._by_header and not parameter_text.strip():
-                    self._whole[message] = self._by_header[header]
+                if header[:1] in ":*" and header in by_header and not parameter_text.strip():
+                    self._whole[message] = by_header[header]
             for unit in units:
                 unit = unit.strip()
                 if not unit:
                     continue
                 header, _, parameter_text = unit.partition(" ")
-                if header[:1] in ":*" and header in self._by_header:     # an absolute header seen before
-                    handler, is_query = self._by_header[header]
+                known = by_header.get(header) if header[:1] in ":*" else None
+                if known is not None:            # an absolute header seen before
+                    handler, is_query = known
                     path = self._paths[header]
                     if path is not None:         # common (*) commands leave the path as it was
                         previous_path = path
-                    arguments = ([a.strip() for a in _split_outside_quotes(parameter_text, ",")]
-                                 if parameter_text.strip() else [])
+                    if not parameter_text.strip():
+                        arguments = []
+                    elif quoted:
+                        arguments = [a.strip() for a in _split_outside_quotes(parameter_text, ",")]
+                    else:
+                        arguments = [a.strip() for a in parameter_text.split(",")]
                     reply = handler(arguments)
                     if is_query and reply is not None:
                         replies.append(reply)

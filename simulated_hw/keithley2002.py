@@ -459,22 +459,18 @@ class Keithley2002Emulator(EmulatedInstrument):
         resolution: the same text, the choices made once (every reading of a configured DMM goes through it)."""
         units = "UNITS" in self.elements
         resolution = self.range_ohm / (2 * 10 ** (self.digits - 1))
-        value_format = f"{{:+.{self.digits - 1}E}}" + ("N" if "STATUS" in self.elements else "") \
-            + ("OHM4W" if units else "")
-        parts = []
+        # one format string for the whole reply: {0} the value, {1} the time stamp, {2} the reading number
+        fields = [f"{{0:+.{self.digits - 1}E}}" + ("N" if "STATUS" in self.elements else "")
+                  + ("OHM4W" if units else "")]
         if "TIMESTAMP" in self.elements:
-            parts.append(lambda reading: f"{reading.timestamp_s:+012.6f}" + ("SECS" if units else ""))
+            fields.append("{1:+012.6f}" + ("SECS" if units else ""))
         if "RNUMBER" in self.elements:
-            number_suffix = "RDNG#" if units else ""
-            parts.append(lambda reading: f"{reading.number:+06d}{number_suffix}")
+            fields.append("{2:+06d}" + ("RDNG#" if units else ""))
         if "CHANNEL" in self.elements:
-            channel = "00" + ("INTCHAN" if units else "")
-            parts.append(lambda reading: channel)
+            fields.append("00" + ("INTCHAN" if units else ""))
+        reply_format = ",".join(fields).format
 
         def format_reading(reading: _Reading) -> str:
-            text = value_format.format(round(reading.value_ohm / resolution) * resolution)
-            if not parts:
-                return text
-            return ",".join([text] + [part(reading) for part in parts])
+            return reply_format(round(reading.value_ohm / resolution) * resolution, reading.timestamp_s, reading.number)
         return format_reading
 

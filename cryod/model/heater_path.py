@@ -32,6 +32,10 @@ from cryod.model.kept_results import KeptResults, digest
 from cryod.model.transfer_function import TransferFunction
 
 
+#: Step lengths whose hold coefficients a path keeps (all forgotten when one more comes).
+HOLD_STEPS_KEPT = 64
+
+
 class HeaterPath:
     """A linear path driven by a piecewise-constant input, in modal form.
 
@@ -54,8 +58,9 @@ class HeaterPath:
         self.direct = float(form.direct)
         self.state = [0.0 * p for p in self.poles]
         self.input = 0.0
-        self._hold_key: tuple[float, float] | None = None
-        self._hold_coefficients: list = []
+        # the coefficients of the steps held lately, by (duration, time scale): a simulated loop's steps take a few
+        # dozen durations over and over
+        self._hold_coefficients: dict[tuple[float, float], list] = {}
         self._window_key: tuple[float, float] | None = None
         self._window: tuple[list, list] = ([], [])
 
@@ -72,14 +77,17 @@ class HeaterPath:
         if duration_s <= 0.0:
             return
         key = (duration_s, time_scale)
-        if key != self._hold_key:
+        coefficients = self._hold_coefficients.get(key)
+        if coefficients is None:
             exp = math.exp if self.all_real else cmath.exp
             decay = [exp(pole * duration_s / time_scale) for pole in self.poles]
-            self._hold_coefficients = [(a, (a - 1.0) / pole) for a, pole in zip(decay, self.poles)]
-            self._hold_key = key
+            coefficients = [(a, (a - 1.0) / pole) for a, pole in zip(decay, self.poles)]
+            if len(self._hold_coefficients) >= HOLD_STEPS_KEPT:
+                self._hold_coefficients.clear()
+            self._hold_coefficients[key] = coefficients
         u = self.input
         state = self.state
-        for i, (a, gain) in enumerate(self._hold_coefficients):
+        for i, (a, gain) in enumerate(coefficients):
             state[i] = a * state[i] + gain * u
 
     def output(self) -> float:

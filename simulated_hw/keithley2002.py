@@ -459,18 +459,24 @@ class Keithley2002Emulator(EmulatedInstrument):
         resolution: the same text, the choices made once (every reading of a configured DMM goes through it)."""
         units = "UNITS" in self.elements
         resolution = self.range_ohm / (2 * 10 ** (self.digits - 1))
-        # one format string for the whole reply: {0} the value, {1} the time stamp, {2} the reading number
-        fields = [f"{{0:+.{self.digits - 1}E}}" + ("N" if "STATUS" in self.elements else "")
-                  + ("OHM4W" if units else "")]
-        if "TIMESTAMP" in self.elements:
-            fields.append("{1:+012.6f}" + ("SECS" if units else ""))
-        if "RNUMBER" in self.elements:
-            fields.append("{2:+06d}" + ("RDNG#" if units else ""))
+        # one printf-style pattern for the whole reply (the same conversions as the format specs of _format): the
+        # value, then the time stamp and the reading number where they are among the elements
+        with_time, with_number = "TIMESTAMP" in self.elements, "RNUMBER" in self.elements
+        fields = [f"%+.{self.digits - 1}E" + ("N" if "STATUS" in self.elements else "") + ("OHM4W" if units else "")]
+        if with_time:
+            fields.append("%+012.6f" + ("SECS" if units else ""))
+        if with_number:
+            fields.append("%+06d" + ("RDNG#" if units else ""))
         if "CHANNEL" in self.elements:
             fields.append("00" + ("INTCHAN" if units else ""))
-        reply_format = ",".join(fields).format
+        pattern = ",".join(fields)
 
         def format_reading(reading: _Reading) -> str:
-            return reply_format(round(reading.value_ohm / resolution) * resolution, reading.timestamp_s, reading.number)
+            value = round(reading.value_ohm / resolution) * resolution
+            if with_number:
+                if with_time:
+                    return pattern % (value, reading.timestamp_s, reading.number)
+                return pattern % (value, reading.number)
+            return pattern % ((value, reading.timestamp_s) if with_time else (value,))
         return format_reading
 

@@ -47,6 +47,7 @@ import enum
 import math
 import re
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from drivers.clock import Clock
 from drivers.errors import BadReply, InstrumentError, InstrumentTimeout, OverflowReading
@@ -159,9 +160,10 @@ class FourWireSettings:
     line_sync: bool = False
 
 
-@dataclass(frozen=True)
-class DmmReading:
+class DmmReading(NamedTuple):
     """One reading as the 2002 sent it.
+
+    A named tuple: immutable, and made many times a second (a frozen dataclass costs four times as much to make).
 
     Attributes
     ----------

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 from drivers.keithley2002_timing import NORMAL_AUTOZERO_INTERVAL_S, ReadingTiming
 from simulated_hw.cryostat import SimulatedCryostat
@@ -68,15 +68,14 @@ class ResistanceCurve(Protocol):
     def resistance_ohm(self, temperature_K: float) -> float: ...
 
 
-@dataclass
-class _Reading:
+class _Reading(NamedTuple):
     value_ohm: float
     overflow: bool
     number: int
     timestamp_s: float
 
 
-@dataclass
+@dataclass(slots=True)
 class _PendingAction:
     trigger_time_s: float
     start_s: float

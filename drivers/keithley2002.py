@@ -484,10 +484,8 @@ class Keithley2002(ScpiInstrument):
         if first_after_configuration:         # after the longest the reading can take, whatever the DMM did
             first = max(first, trigger_time_s + timing.worst_case_delay_s + self.fetch_margin_s) \
                 + self.first_reading_margin_s
-        limit = (trigger_time_s + self.reading_delay_s + self.fetch_margin_s
-                 + (self.transport.timeout_s if timeout_s is None else timeout_s))
         self.clock.sleep_until(first)
-        last_miss_s = None
+        last_miss_s = limit = None
         with self.reporting_faults():
             while True:
                 reply = self.query(":FETCh?")
@@ -506,6 +504,9 @@ class Keithley2002(ScpiInstrument):
                     return DmmReading(resistance, reading_number, status, timestamp, reply,
                                       self._sample_time_s(trigger_time_s, zero_seen, timing))
                 last_miss_s = self.clock.now()
+                if limit is None:            # the reading was not there at once: how long it may still take
+                    limit = (trigger_time_s + self.reading_delay_s + self.fetch_margin_s
+                             + (self.transport.timeout_s if timeout_s is None else timeout_s))
                 if self.clock.now() >= limit:
                     raise InstrumentTimeout(self.label, f"no new reading (number {reading_number} "
                                                         f"again) {self.clock.now() - trigger_time_s:.3f} s "

@@ -62,8 +62,9 @@ class LiveView:
         self._timing = timing
         self._alarms = None
         size = max(int(LINE_WINDOW_S / self.period_s), 16)
-        self._times = np.full(size, np.nan)
-        self._flange = np.full(size, np.nan)
+        # plain lists: the loop writes one element a tick (cheaper than a numpy element); readers copy them to arrays
+        self._times = [math.nan] * size
+        self._flange = [math.nan] * size
         self._next = 0
         self._row: Row | None = None
         self._first_time_s: float | None = None
@@ -85,7 +86,7 @@ class LiveView:
         if type(item) is Row:
             if self._first_time_s is None:
                 self._first_time_s = item.time_s
-            index = self._next % self._times.size
+            index = self._next % len(self._times)
             sample = item.T2_sample_s
             self._times[index] = sample if sample == sample else item.time_s
             self._flange[index] = item.T2_K
@@ -107,15 +108,15 @@ class LiveView:
             estimate = row.control.get("ff_line_K", math.nan)
             if estimate == estimate and row.control.get("ff_scale", 0.0):
                 return float(estimate)
-        times, flange = self._times.copy(), self._flange.copy()
+        times, flange = np.array(self._times), np.array(self._flange)
         usable = np.isfinite(times) & np.isfinite(flange)
-        if usable.sum() < max(self._times.size // 2, 16):
+        if usable.sum() < max(times.size // 2, 16):
             return math.nan
         return float(fit_line(times[usable], flange[usable], self.line_rad_s).amplitude[0])
 
     def flange_average_K(self) -> float:
         """T2 averaged over the last :data:`AVERAGE_WINDOW_S` (K), NaN until there is that much."""
-        times, flange = self._times.copy(), self._flange.copy()
+        times, flange = np.array(self._times), np.array(self._flange)
         usable = np.isfinite(times) & np.isfinite(flange)
         if not usable.any():
             return math.nan

@@ -47,6 +47,7 @@ import enum
 import math
 import re
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from drivers.clock import Clock
 from drivers.errors import BadReply, InstrumentError, InstrumentTimeout, OverflowReading
@@ -100,9 +101,25 @@ DEFAULT_ELEMENTS = (DataElement.READING, DataElement.STATUS, DataElement.READING
 
 _SOURCE_TOKENS = {source: source.value for source in TriggerSource}
 _ARM_SOURCE_TOKENS = {source: source.value for source in TriggerSource if source is not TriggerSource.TIMER}
+#: The fields of a reading string in the exact form the 2002 sends them (:func:`_exact_reply_pattern`).
+_EXACT_FIELDS = {
+    DataElement.READING: r"(?P<reading>[+-]?(?:\d+\.?\d*|\.\d+)(?:[Ee][+-]?\d+)?)(?P<status>[NR])?(?:OHM4W)?",
+    DataElement.TIMESTAMP: r"(?P<timestamp>[+-]?\d+(?:\.\d*)?)(?:SECS)?",
+    DataElement.READING_NUMBER: r"(?P<number>[+-]?\d+)(?:RDNG#)?",
+    DataElement.CHANNEL: r"[^,]*",
+}
 _READING_FIELD = re.compile(r"^([+-]?(?:\d+\.?\d*|\.\d+)(?:[Ee][+-]?\d+)?)([NOR])?(OHM4W)?$", re.IGNORECASE)
 _INTEGER_FIELD = re.compile(r"^([+-]?\d+)")
 _DECIMAL_FIELD = re.compile(r"^([+-]?\d+(?:\.\d*)?)")
+
+
+def _exact_reply_pattern(order: list[DataElement]) -> re.Pattern | None:
+    """One pattern for a whole reading string with the elements in ``order`` as the 2002 sends them: every
+    reply it matches, the field by field reading accepts with the same values (an overflow aside, which the
+    caller leaves to it); None without a READing element."""
+    if DataElement.READING not in order:
+        return None
+    return re.compile(",".join(_EXACT_FIELDS[element] for element in order))
 
 
 @dataclass(frozen=True)
@@ -143,9 +160,10 @@ class FourWireSettings:
     line_sync: bool = False
 
 
-@dataclass(frozen=True)
-class DmmReading:
+class DmmReading(NamedTuple):
     """One reading as the 2002 sent it.
+
+    A named tuple: immutable, and made many times a second (a frozen dataclass costs four times as much to make).
 
     Attributes
     ----------
@@ -298,6 +316,7 @@ class Keithley2002(ScpiInstrument):
         self._trigger_delay_s = 0.0
         self._timing_key: tuple | None = None
         self._timing: ReadingTiming | None = None
+        self._exact_reply: re.Pattern | None = None
         self._layout_key: tuple | None = None          # reading-string layout, kept until elements change
         self._layout: tuple = ()
         self.last_reading_number: int | None = None
@@ -465,15 +484,14 @@ class Keithley2002(ScpiInstrument):
         if first_after_configuration:         # after the longest the reading can take, whatever the DMM did
             first = max(first, trigger_time_s + timing.worst_case_delay_s + self.fetch_margin_s) \
                 + self.first_reading_margin_s
-        limit = (trigger_time_s + self.reading_delay_s + self.fetch_margin_s
-                 + (self.transport.timeout_s if timeout_s is None else timeout_s))
         self.clock.sleep_until(first)
-        last_miss_s = None
+        last_miss_s = limit = None
         with self.reporting_faults():
             while True:
-                reading = self.parse_reading(self.query(":FETCh?"))
-                if reading.reading_number is None or reading.reading_number != self.last_reading_number:
-                    self.last_reading_number = reading.reading_number
+                reply = self.query(":FETCh?")
+                resistance, reading_number, status, timestamp = self._parsed_reading(reply)
+                if reading_number is None or reading_number != self.last_reading_number:
+                    self.last_reading_number = reading_number
                     # the first reading after configuration is taken to start a NORMal autozero's 200 ms
                     # (its fetch was late on purpose, so its timing tells nothing)
                     if first_after_configuration:
@@ -483,14 +501,16 @@ class Keithley2002(ScpiInstrument):
                     else:
                         zero_seen = self._learn_timing(trigger_time_s, earliest, zero_expected, normal_autozero,
                                                        timing, last_miss_s)
-                    return DmmReading(reading.resistance_ohm, reading.reading_number, reading.status,
-                                      reading.timestamp_s, reading.reply,
+                    return DmmReading(resistance, reading_number, status, timestamp, reply,
                                       self._sample_time_s(trigger_time_s, zero_seen, timing))
                 last_miss_s = self.clock.now()
+                if limit is None:            # the reading was not there at once: how long it may still take
+                    limit = (trigger_time_s + self.reading_delay_s + self.fetch_margin_s
+                             + (self.transport.timeout_s if timeout_s is None else timeout_s))
                 if self.clock.now() >= limit:
-                    raise InstrumentTimeout(self.label, f"no new reading (number {reading.reading_number} "
+                    raise InstrumentTimeout(self.label, f"no new reading (number {reading_number} "
                                                         f"again) {self.clock.now() - trigger_time_s:.3f} s "
-                                                        f"after the trigger", reply=reading.reply)
+                                                        f"after the trigger", reply=reply)
                 self.clock.sleep_until(self.clock.now() + self.fetch_poll_interval_s)
 
     def _sample_time_s(self, trigger_time_s: float, zero_seen: bool, timing: ReadingTiming) -> float:
@@ -537,14 +557,34 @@ class Keithley2002(ScpiInstrument):
 
     def parse_reading(self, reply: str) -> DmmReading:
         """A reading string with the configured elements; overflow and garbage are typed errors."""
-        fields = reply.split(",")
+        return DmmReading(*self._parsed_reading(reply), reply)
+
+    def _parsed_reading(self, reply: str) -> tuple[float, int | None, str | None, float | None]:
+        """(resistance, reading number, status, time stamp) of a reading string (see :meth:`parse_reading`).
+
+        A reply in the exact form the 2002 sends (upper case, no spaces) is read with one pattern made for
+        the configured elements; any other goes through the field by field checks below, which accept it
+        (with the same values) or say what is wrong with it.
+        """
         if self._layout_key != self.elements:
             order = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
                                  DataElement.CHANNEL) if e in self.elements]
             self._layout = (order, *(order.index(e) if e in order else None
                                      for e in (DataElement.READING, DataElement.TIMESTAMP,
                                                DataElement.READING_NUMBER)))
+            self._exact_reply = _exact_reply_pattern(order)
             self._layout_key = self.elements
+        exact = self._exact_reply.fullmatch(reply) if self._exact_reply is not None else None
+        if exact is not None:
+            resistance = float(exact["reading"])
+            if resistance < OVERFLOW_MARKER and resistance > -OVERFLOW_MARKER:
+                order, _, timestamp_at, number_at = self._layout
+                return (resistance, int(exact["number"]) if number_at is not None else None, exact["status"],
+                        float(exact["timestamp"]) if timestamp_at is not None else None)
+        return self._parsed_field_by_field(reply)
+
+    def _parsed_field_by_field(self, reply: str) -> tuple[float, int | None, str | None, float | None]:
+        fields = reply.split(",")
         order, reading_at, timestamp_at, number_at = self._layout
         if len(fields) != len(order):
             raise BadReply(self.label, f"expected {len(order)} elements "
@@ -571,7 +611,7 @@ class Keithley2002(ScpiInstrument):
             if not match:
                 raise BadReply(self.label, "time stamp is not a number", reply=reply)
             timestamp = float(match.group(1))
-        return DmmReading(resistance, reading_number, status, timestamp, reply)
+        return resistance, reading_number, status, timestamp
 
     def shutdown(self) -> None:
         """Back to idle (``:ABORt``) and release the connection; best effort, never raises."""

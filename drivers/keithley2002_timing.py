@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 #: Allowance for processing after the last A/D conversion (s); see the module notes.
 DEFAULT_PROCESSING_TIME_S = 0.002
@@ -46,6 +47,8 @@ NORMAL_AUTOZERO_INTERVAL_S = 0.2
 @dataclass(frozen=True)
 class ReadingTiming:
     """Timing-relevant settings of a 2002 measuring 4-wire resistance.
+
+    The times derived from them are computed once, when first asked (every reading asks several).
 
     Parameters
     ----------
@@ -79,16 +82,16 @@ class ReadingTiming:
     trigger_delay_s: float = 0.0
     processing_time_s: float = DEFAULT_PROCESSING_TIME_S
 
-    @property
+    @cached_property
     def line_period_s(self) -> float:
         return 1.0 / self.line_frequency_hz
 
-    @property
+    @cached_property
     def integration_time_s(self) -> float:
         """One integration: NPLC / line frequency (s)."""
         return self.nplc / self.line_frequency_hz
 
-    @property
+    @cached_property
     def conversion_time_s(self) -> float:
         """One A/D conversion with its offset-compensation and synchronous-zero phases (s)."""
         phases = 2 if self.offset_compensation else 1
@@ -96,12 +99,12 @@ class ReadingTiming:
             phases += 1
         return phases * self.integration_time_s
 
-    @property
+    @cached_property
     def measurement_span_s(self) -> float:
         """From the start of the first conversion to the end of the last (s)."""
         return self.conversions_per_reading * self.conversion_time_s
 
-    @property
+    @cached_property
     def signal_span_s(self) -> float:
         """From the start of the first signal integration to the end of the last (s).
 
@@ -132,12 +135,12 @@ class ReadingTiming:
         """When the reading whose integration starts at ``integration_start_s`` can be fetched."""
         return integration_start_s + self.measurement_span_s + self.processing_time_s
 
-    @property
+    @cached_property
     def earliest_delay_s(self) -> float:
         """Shortest time from trigger to an available reading (s): no autozero due, no line-sync wait."""
         return self.trigger_delay_s + self.measurement_span_s + self.processing_time_s
 
-    @property
+    @cached_property
     def worst_case_delay_s(self) -> float:
         """Longest time from trigger to an available reading (s): what a controller waits."""
         delay = self.trigger_delay_s + self.measurement_span_s + self.processing_time_s

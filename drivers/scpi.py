@@ -312,9 +312,12 @@ class ScpiInstrument:
         :attr:`examines_faults_at_once` is False, with the means to attach it later).
 
         (A plain class rather than a generator context manager: it wraps every
-        operation of every cycle.)
+        operation of every cycle; it holds nothing between uses, so one serves every operation.)
         """
-        return _ReportingFaults(self)
+        context = self.__dict__.get("_reporting_faults")
+        if context is None:
+            context = self._reporting_faults = _ReportingFaults(self)
+        return context
 
 
 class _ReportingFaults:

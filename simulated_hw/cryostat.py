@@ -27,6 +27,10 @@ from cryod.model import CryostatModel, cryostat_plant
 from drivers.clock import Clock
 
 
+#: Sensor-noise draws taken from the generator at once.
+NORMALS_PER_BLOCK = 1024
+
+
 class SimulatedCryostat:
     """Flange and PTC-stage thermometers and the heater of a simulated cryostat.
 
@@ -50,6 +54,8 @@ class SimulatedCryostat:
         self.clock = clock
         self.noise = noise
         self._random = np.random.default_rng(seed)
+        self._normals: list[float] = []
+        self._next_normal = 0
         self._lock = threading.Lock()
         self.plant = cryostat_plant(model, clock.now(), initial_heater_power_w)
         self._last_window: tuple | None = None
@@ -64,8 +70,18 @@ class SimulatedCryostat:
         if not self.noise:
             return flange_K, stage_K
         noise = self.model.sensor_noise
-        return (flange_K + noise.flange_thermometer_rms_K * self._random.standard_normal(),
-                stage_K + noise.ptc_stage_thermometer_rms_K * self._random.standard_normal())
+        return (flange_K + noise.flange_thermometer_rms_K * self._standard_normal(),
+                stage_K + noise.ptc_stage_thermometer_rms_K * self._standard_normal())
+
+    def _standard_normal(self) -> float:
+        """The generator's next standard normal draw: drawn a block at a time, the same numbers in the same
+        order as one at a time (numpy's generator fills a block draw by draw), at a fraction of the cost."""
+        if self._next_normal == len(self._normals):
+            self._normals = self._random.standard_normal(NORMALS_PER_BLOCK).tolist()
+            self._next_normal = 0
+        value = self._normals[self._next_normal]
+        self._next_normal += 1
+        return value
 
     def read_temperatures(self) -> tuple[float, float]:
         """(T2, T5) in K at the clock's now, with sensor noise."""

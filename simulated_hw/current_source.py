@@ -48,6 +48,8 @@ class EmulatedCurrentSource(EmulatedInstrument):
         super().__init__(cryostat.clock, identity)
         self.cryostat = cryostat
         self.heater_resistance_ohm = float(heater_resistance_ohm)
+        self._sources_current_only = all(getattr(type(self), name) is getattr(EmulatedCurrentSource, name)
+                                         for name in ("output_voltage_v", "output_current_a", "in_compliance"))
         self.output_blocked = False
         self.heater_open = False
         self.output_on = False
@@ -104,8 +106,16 @@ class EmulatedCurrentSource(EmulatedInstrument):
 
     @property
     def heater_power_w(self) -> float:
-        """Power dissipated in the heater (W)."""
-        return self.output_voltage_v * self.output_current_a
+        """Power dissipated in the heater (W): :attr:`output_voltage_v` times :attr:`output_current_a` (for a
+        supply that sources current as this class does, the same product with the compliance looked at once)."""
+        if not self._sources_current_only:
+            return self.output_voltage_v * self.output_current_a
+        if not self.output_on:
+            return 0.0
+        if self.in_compliance:
+            voltage = math.copysign(self.compliance_v, self.current_setpoint_a)
+            return voltage * (voltage / self.load_resistance_ohm)
+        return (self.current_setpoint_a * self.heater_resistance_ohm) * self.current_setpoint_a
 
     def apply_to_heater(self) -> None:
         """Give the cryostat the heater power of the present output state, from now on."""

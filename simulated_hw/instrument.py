@@ -82,15 +82,22 @@ class EmulatedInstrument:
     def __init__(self, clock: Clock, identity: str):
         self.clock = clock
         self.identity = identity
-        self.status = StatusModel(operation=lambda: self.operation_condition,
-                                  questionable=lambda: self.questionable_condition,
-                                  measurement=lambda: self.measurement_condition)
+        self.status = StatusModel(operation=self._condition_reader("operation_condition"),
+                                  questionable=self._condition_reader("questionable_condition"),
+                                  measurement=self._condition_reader("measurement_condition"))
         self.errors = self.status.errors
         self.faults = CommunicationFaults()
         self.commands = CommandTable()
         self._lock = threading.RLock()
         self._generation = 0
         self._register_common_commands()
+
+    def _condition_reader(self, name: str):
+        """What reads the condition register ``name`` of this instrument; None where it is this class's constant 0."""
+        condition = getattr(type(self), name)
+        if condition is getattr(EmulatedInstrument, name):
+            return None
+        return condition.fget.__get__(self)
 
     # -- connections ---------------------------------------------------------
     def open_session(self) -> int:
@@ -127,9 +134,12 @@ class EmulatedInstrument:
         """Execute one program message; its reply, or None when there is nothing to send."""
         with self._lock:
             self.update()
-            self.status.sample()
+            sampled = self.status.changing_registers
+            for register in sampled:
+                register.sample()
             reply = self.commands.execute(message, self.errors)
-            self.status.sample()
+            for register in sampled:
+                register.sample()
             if reply is None or self.faults.silent:
                 return None
             if self.faults.garbage_replies > 0:

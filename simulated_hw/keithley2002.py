@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 from drivers.keithley2002_timing import NORMAL_AUTOZERO_INTERVAL_S, ReadingTiming
 from simulated_hw.cryostat import SimulatedCryostat
@@ -58,6 +58,8 @@ ARM_SOURCES = ("IMMediate", "BUS", "EXTernal", "TLINk", "HOLD", "MANual", "RTClo
 SCAN_SOURCES = ("IMMediate", "BUS", "EXTernal", "TLINk", "TIMer", "HOLD", "MANual")
 ELEMENTS = ("READing", "CHANnel", "RNUMber", "UNITs", "TIMEstamp", "STATus")
 THERMOMETERS = ("flange", "ptc_stage")
+#: Trigger sources that start device actions without an event (:meth:`Keithley2002Emulator.update`).
+FREE_RUNNING_SOURCES = ("IMMEDIATE", "TIMER")
 
 
 class ResistanceCurve(Protocol):
@@ -66,15 +68,14 @@ class ResistanceCurve(Protocol):
     def resistance_ohm(self, temperature_K: float) -> float: ...
 
 
-@dataclass
-class _Reading:
+class _Reading(NamedTuple):
     value_ohm: float
     overflow: bool
     number: int
     timestamp_s: float
 
 
-@dataclass
+@dataclass(slots=True)
 class _PendingAction:
     trigger_time_s: float
     start_s: float
@@ -119,6 +120,8 @@ class Keithley2002Emulator(EmulatedInstrument):
         self._last_autozero_s = -math.inf
         self._timing_key: tuple | None = None
         self._timing: ReadingTiming | None = None
+        self._fixed_range_format_key: tuple | None = None
+        self._fixed_range_format = None
 
     # -- faults ------------------------------------------------------------------
     def inject_overflow(self, count: int = 1) -> None:
@@ -316,7 +319,7 @@ class Keithley2002Emulator(EmulatedInstrument):
         self._pending = _PendingAction(trigger_time_s, start, timing.ready_time_s(start))
         self._timer_due_s = trigger_time_s + self.trigger_timer_s
         if start <= self.clock.now() + TIME_TOLERANCE_S:
-            self._measure(self._pending)     # taken at the trigger instant, not when fetched
+            self._measure(self._pending, timing)     # taken at the trigger instant, not when fetched
 
     def _event(self, kind: str, line: int | None = None, time_s: float | None = None) -> None:
         """A trigger event of ``kind`` ('BUS', 'EXTERNAL', 'TLINK') arriving at ``time_s`` (default now)."""
@@ -336,6 +339,11 @@ class Keithley2002Emulator(EmulatedInstrument):
     def bus_trigger(self, time_s: float | None = None) -> None:
         self._event("BUS", time_s=time_s)
 
+    def group_execute_trigger(self, time_s: float | None = None) -> None:
+        """The GPIB GET addressed to this DMM: a BUS trigger event (which brings the DMM to now first)."""
+        with self._lock:
+            self._event("BUS", time_s=time_s)
+
     def external_trigger(self, time_s: float | None = None) -> None:
         """A falling TTL edge on the rear EXTERNAL TRIGGER input (manual section 2.7.6)."""
         with self._lock:
@@ -348,6 +356,8 @@ class Keithley2002Emulator(EmulatedInstrument):
 
     def update(self) -> None:
         """Complete device actions whose time has come; start free-running ones (IMM, TIM)."""
+        if not self.initiated or (self._pending is None and self.trigger_source not in FREE_RUNNING_SOURCES):
+            return                           # idle, or waiting for a trigger event: nothing happens by itself
         now = self.clock.now()
         while self.initiated:
             if self._pending is None:
@@ -373,11 +383,12 @@ class Keithley2002Emulator(EmulatedInstrument):
             return due
         return None
 
-    def _measure(self, action: _PendingAction) -> None:
-        """Take the reading of ``action`` (once), averaged over its conversions."""
+    def _measure(self, action: _PendingAction, timing: ReadingTiming | None = None) -> None:
+        """Take the reading of ``action`` (once), averaged over its conversions (``timing``: the settings', if known)."""
         if action.value_ohm is not None:
             return
-        flange_K, stage_K = self.cryostat.read_mean_temperatures(action.start_s, self.timing.signal_span_s)
+        span_s = (timing or self.timing).signal_span_s
+        flange_K, stage_K = self.cryostat.read_mean_temperatures(action.start_s, span_s)
         temperature_K = flange_K if self.thermometer == "flange" else stage_K
         resistance = float(self.calibration.resistance_ohm(temperature_K))
         if self.filter_enabled and self.filter_type == "MOVING":
@@ -416,6 +427,12 @@ class Keithley2002Emulator(EmulatedInstrument):
         return self._format(self._readings[-1])
 
     def _format(self, reading: _Reading) -> str:
+        if not self.autorange and "READING" in self.elements and not reading.overflow:
+            key = (self.elements, self.digits, self.range_ohm)
+            if key != self._fixed_range_format_key:
+                self._fixed_range_format = self._fixed_range_formatter()
+                self._fixed_range_format_key = key
+            return self._fixed_range_format(reading)
         units = "UNITS" in self.elements
         fields = []
         if "READING" in self.elements:
@@ -435,4 +452,30 @@ class Keithley2002Emulator(EmulatedInstrument):
         if "CHANNEL" in self.elements:
             fields.append("00" + ("INTCHAN" if units else ""))
         return ",".join(fields)
+
+    def _fixed_range_formatter(self):
+        """:meth:`_format` of a reading that is not an overflow on a fixed range, for the present elements and
+        resolution: the same text, the choices made once (every reading of a configured DMM goes through it)."""
+        units = "UNITS" in self.elements
+        resolution = self.range_ohm / (2 * 10 ** (self.digits - 1))
+        # one printf-style pattern for the whole reply (the same conversions as the format specs of _format): the
+        # value, then the time stamp and the reading number where they are among the elements
+        with_time, with_number = "TIMESTAMP" in self.elements, "RNUMBER" in self.elements
+        fields = [f"%+.{self.digits - 1}E" + ("N" if "STATUS" in self.elements else "") + ("OHM4W" if units else "")]
+        if with_time:
+            fields.append("%+012.6f" + ("SECS" if units else ""))
+        if with_number:
+            fields.append("%+06d" + ("RDNG#" if units else ""))
+        if "CHANNEL" in self.elements:
+            fields.append("00" + ("INTCHAN" if units else ""))
+        pattern = ",".join(fields)
+
+        def format_reading(reading: _Reading) -> str:
+            value = round(reading.value_ohm / resolution) * resolution
+            if with_number:
+                if with_time:
+                    return pattern % (value, reading.timestamp_s, reading.number)
+                return pattern % (value, reading.number)
+            return pattern % ((value, reading.timestamp_s) if with_time else (value,))
+        return format_reading
 

@@ -311,6 +311,8 @@ class CommandTable:
         self._found: dict[tuple[tuple[str, ...], bool], Handler | None] = {}
         self._by_header: dict[str, tuple[Handler, bool]] = {}   # exact absolute header text -> handler
         self._paths: dict[str, list[str] | None] = {}
+        # whole messages of one absolute header without parameters seen before (``:INITiate``, ``:FETCh?``)
+        self._whole: dict[str, tuple[Handler, bool]] = {}
         #: Replies of the message being executed that are waiting to be sent (IEEE 488.2 MAV).
         self.pending_replies = 0
 
@@ -320,6 +322,7 @@ class CommandTable:
         self._found.clear()
         self._by_header.clear()
         self._paths.clear()
+        self._whole.clear()
 
     def _find(self, parts: list[str], is_query: bool) -> Handler:
         key = (tuple(part.upper() for part in parts), is_query)
@@ -338,22 +341,47 @@ class CommandTable:
         The first error goes to ``errors`` and ends the message: the units after it are
         not executed (the manuals' command execution rules, module docstring).
         """
+        self.pending_replies = 0
+        whole = self._whole.get(message)
+        if whole is not None:        # the same text always means the same command, and it has no parameters
+            handler, is_query = whole
+            try:
+                reply = handler([])
+            except ScpiError as error:
+                errors.push(error.code, error.message)
+                return None
+            if is_query and reply is not None:
+                self.pending_replies = 1
+                return reply
+            return None
         replies: list[str] = []
         previous_path: list[str] = []
-        self.pending_replies = 0
+        by_header = self._by_header
         try:
-            for unit in _split_outside_quotes(message.strip(), ";"):
+            text = message.strip()
+            quoted = "'" in text or '"' in text
+            units = _split_outside_quotes(text, ";") if quoted else text.split(";")
+            if len(units) == 1:
+                header, _, parameter_text = units[0].strip().partition(" ")
+                if header[:1] in ":*" and header in by_header and not parameter_text.strip():
+                    self._whole[message] = by_header[header]
+            for unit in units:
                 unit = unit.strip()
                 if not unit:
                     continue
                 header, _, parameter_text = unit.partition(" ")
-                if header[:1] in ":*" and header in self._by_header:     # an absolute header seen before
-                    handler, is_query = self._by_header[header]
+                known = by_header.get(header) if header[:1] in ":*" else None
+                if known is not None:            # an absolute header seen before
+                    handler, is_query = known
                     path = self._paths[header]
                     if path is not None:         # common (*) commands leave the path as it was
                         previous_path = path
-                    arguments = ([a.strip() for a in _split_outside_quotes(parameter_text, ",")]
-                                 if parameter_text.strip() else [])
+                    if not parameter_text.strip():
+                        arguments = []
+                    elif quoted:
+                        arguments = [a.strip() for a in _split_outside_quotes(parameter_text, ",")]
+                    else:
+                        arguments = [a.strip() for a in parameter_text.split(",")]
                     reply = handler(arguments)
                     if is_query and reply is not None:
                         replies.append(reply)

@@ -101,27 +101,35 @@ class RegisterSet:
 
     Parameters
     ----------
-    condition : callable returning int
-        The condition register as the instrument's state makes it now.
+    condition : callable returning int, or None
+        The condition register as the instrument's state makes it now; None for
+        one that the instrument never sets (always 0: nothing to sample).
 
     The event register latches the bits that went from 0 to 1 in the
     condition (positive transitions, the SCPI default); the instrument's
     condition is sampled on every program message and on every read.
     """
 
-    def __init__(self, condition: Callable[[], int] = lambda: 0):
+    def __init__(self, condition: Callable[[], int] | None = None):
         self._condition = condition
         self._last_condition = 0
         self.event = 0
         self.enable = 0
 
     @property
+    def is_constant(self) -> bool:
+        """The condition is always 0: sampling it can latch nothing."""
+        return self._condition is None
+
+    @property
     def condition(self) -> int:
-        return self._condition() & REGISTER_MASK
+        return 0 if self._condition is None else self._condition() & REGISTER_MASK
 
     def sample(self) -> None:
         """Latch the condition's rising edges into the event register."""
-        condition = self.condition
+        if self._condition is None:
+            return
+        condition = self._condition() & REGISTER_MASK
         self.event |= condition & ~self._last_condition
         self._last_condition = condition
 
@@ -144,22 +152,24 @@ class StatusModel:
     Parameters
     ----------
     operation, questionable, measurement : callable returning int, optional
-        The condition registers of the three SCPI register sets (0 by default).
+        The condition registers of the three SCPI register sets (None, the default: always 0).
     """
 
-    def __init__(self, *, operation: Callable[[], int] = lambda: 0,
-                 questionable: Callable[[], int] = lambda: 0,
-                 measurement: Callable[[], int] = lambda: 0):
+    def __init__(self, *, operation: Callable[[], int] | None = None,
+                 questionable: Callable[[], int] | None = None,
+                 measurement: Callable[[], int] | None = None):
         self.errors = StatusErrorQueue(self)
         self.event_status = POWER_ON       # the instrument has just been switched on
         self.event_status_enable = 0
         self.service_request_enable = 0
         self.registers = {"OPERATION": RegisterSet(operation), "QUESTIONABLE": RegisterSet(questionable),
                           "MEASUREMENT": RegisterSet(measurement)}
+        #: The register sets whose condition can change (the others are always 0: sampling them latches nothing).
+        self.changing_registers = tuple(register for register in self.registers.values() if not register.is_constant)
 
     def sample(self) -> None:
         """Latch condition changes (called on every program message)."""
-        for register in self.registers.values():
+        for register in self.changing_registers:
             register.sample()
 
     def read_event_status(self) -> int:

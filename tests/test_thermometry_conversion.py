@@ -195,3 +195,40 @@ def test_scalar_calls_are_fast_enough_for_every_reading():
         times_us = benchmark.scalar_call_times_us(load_calibration(CALIBRATION_DATA / name), calls=300, repeats=5,
                                                      timer=time.thread_time)
         assert max(times_us.values()) < 50.0, (name, times_us)
+
+
+# ---------------------------------------------------------------------------
+# one reading at a time: the breakpoint table, numpy's arithmetic to the last bit
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["X186279.340", "X207058.340"])
+def test_one_reading_converts_as_numpy_interp_does_to_the_last_bit(curves, name):
+    """The loop converts one float a tick through the breakpoint table; the value is exactly the one
+    :func:`numpy.interp` gives (the array call), and a simulated DMM's temperature back to a resistance
+    exactly what numpy gave for one numpy scalar."""
+    curve = curves[name]
+    random = np.random.default_rng(7)
+    low, high = curve.resistance_range_ohm
+    resistances = np.exp(random.uniform(np.log(low), np.log(high), 20000))
+    resistances[:len(curve.breakpoint_sensor_units)] = 10.0 ** curve.breakpoint_sensor_units   # on breakpoints
+    one_at_a_time = np.array([curve.temperature_K(float(r)) for r in resistances])
+    assert np.array_equal(one_at_a_time, curve.temperature_K(resistances))
+    temperatures = random.uniform(*curve.temperature_range_K, 20000)
+    x = np.interp(np.asarray(temperatures), curve._y_increasing, curve._x_by_y)
+    numpy_scalars = [float(10.0 ** np.float64(value)) for value in x]
+    assert [curve.resistance_ohm(float(t)) for t in temperatures] == numpy_scalars
+    assert [curve.resistance_ohm(np.float64(t)) for t in temperatures[:100]] == numpy_scalars[:100]
+
+
+@pytest.mark.parametrize("name", ["X186279.340", "X207058.340"])
+def test_one_reading_is_refused_or_taken_at_the_edges_as_an_array_is(curves, name):
+    curve = curves[name]
+    low, high = curve.resistance_range_ohm
+    for value in (low, high, low * (1 - 1e-13), high * (1 + 1e-13)):
+        assert curve.temperature_K(float(value)) == curve.temperature_K(np.array([value]))[0]
+    for value in (low * (1 - 1e-11), high * (1 + 1e-11), float("nan"), float("inf"), 0.0, -1.0):
+        with pytest.raises(OutOfCalibrationRange):
+            curve.temperature_K(float(value))
+    low_K, high_K = curve.temperature_range_K
+    for value in (low_K * (1 - 1e-11), high_K * (1 + 1e-11), float("nan")):
+        with pytest.raises(OutOfCalibrationRange):
+            curve.resistance_ohm(float(value))

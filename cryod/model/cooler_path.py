@@ -131,6 +131,8 @@ class CoolerPath:
         self._components_and_rotations = [(c, cmath.exp(1j * c.phase_rad)) for c in drive.components]
         self._cache_key: tuple[float, float] | None = None
         self._cache: list[complex] = []
+        self._window_key: tuple[float, float, float] | None = None
+        self._window: list[tuple] = []
 
     def output_phasors(self, frequency, time_scale=1.0) -> list:
         """Complex output amplitude of each component (K), for the angular frequency given.
@@ -194,8 +196,19 @@ class CoolerPath:
             return self.value(elapsed_s, time_scale)
         rotor, frequency = self.drive.cycle.rotor(elapsed_s)
         total = 0.0
-        for order, phasor in self._rotated_phasors(frequency, time_scale):
-            angular = order * frequency
+        for order, phasor, turn, divisor in self._window_factors(frequency, time_scale, duration_s):
             start = phasor * rotor ** order
-            total += (start * (cmath.exp(1j * angular * duration_s) - 1.0) / (1j * angular)).real
+            total += (start * turn / divisor).real
         return total / duration_s
+
+    def _window_factors(self, frequency: float, time_scale: float, duration_s: float) -> list[tuple]:
+        """(order, rotated phasor, exp(j w duration) - 1, j w) of each component, for :meth:`mean_value`;
+        kept while the frequency, the time scale and the window stay (a DMM's window is the same every reading)."""
+        key = (frequency, time_scale, duration_s)
+        if key != self._window_key:
+            factors = []
+            for order, phasor in self._rotated_phasors(frequency, time_scale):
+                angular = order * frequency
+                factors.append((order, phasor, cmath.exp(1j * angular * duration_s) - 1.0, 1j * angular))
+            self._window_key, self._window = key, factors
+        return self._window

@@ -32,6 +32,10 @@ from cryod.model.kept_results import KeptResults, digest
 from cryod.model.transfer_function import TransferFunction
 
 
+#: Step lengths whose hold coefficients a path keeps (all forgotten when one more comes).
+HOLD_STEPS_KEPT = 64
+
+
 class HeaterPath:
     """A linear path driven by a piecewise-constant input, in modal form.
 
@@ -54,8 +58,11 @@ class HeaterPath:
         self.direct = float(form.direct)
         self.state = [0.0 * p for p in self.poles]
         self.input = 0.0
-        self._hold_key: tuple[float, float] | None = None
-        self._hold_coefficients: list = []
+        # the coefficients of the steps held lately, by (duration, time scale): a simulated loop's steps take a few
+        # dozen durations over and over
+        self._hold_coefficients: dict[tuple[float, float], list] = {}
+        self._window_key: tuple[float, float] | None = None
+        self._window: tuple[list, list] = ([], [])
 
     def settle(self, value: float) -> None:
         """Put the path in steady state for a constant input ``value``."""
@@ -70,14 +77,17 @@ class HeaterPath:
         if duration_s <= 0.0:
             return
         key = (duration_s, time_scale)
-        if key != self._hold_key:
+        coefficients = self._hold_coefficients.get(key)
+        if coefficients is None:
             exp = math.exp if self.all_real else cmath.exp
             decay = [exp(pole * duration_s / time_scale) for pole in self.poles]
-            self._hold_coefficients = [(a, (a - 1.0) / pole) for a, pole in zip(decay, self.poles)]
-            self._hold_key = key
+            coefficients = [(a, (a - 1.0) / pole) for a, pole in zip(decay, self.poles)]
+            if len(self._hold_coefficients) >= HOLD_STEPS_KEPT:
+                self._hold_coefficients.clear()
+            self._hold_coefficients[key] = coefficients
         u = self.input
         state = self.state
-        for i, (a, gain) in enumerate(self._hold_coefficients):
+        for i, (a, gain) in enumerate(coefficients):
             state[i] = a * state[i] + gain * u
 
     def output(self) -> float:
@@ -92,15 +102,27 @@ class HeaterPath:
         if duration_s <= 0.0:
             return self.output()
         u = self.input
-        exp = math.exp if self.all_real else cmath.exp
         total = self.direct * u * duration_s
-        for pole, residue, z in zip(self.poles, self.residues, self.state):
-            rate = pole / time_scale
-            a = exp(rate * duration_s)
-            integral = (a - 1.0) / rate * z + ((a - 1.0) / rate - duration_s) / pole * u
-            total += residue * integral
+        for residue, z, state_gain, input_gain in zip(self.residues, self.state, *self._window_gains(duration_s,
+                                                                                                      time_scale)):
+            total += residue * (state_gain * z + input_gain * u)
         total = total.real if isinstance(total, complex) else total
         return total / duration_s
+
+    def _window_gains(self, duration_s: float, time_scale: float) -> tuple[list, list]:
+        """Per pole, what the state and the input add to the integral over ``duration_s``: (a - 1) / rate and
+        ((a - 1) / rate - duration) / pole, a = exp(rate duration); kept while the window stays the same."""
+        key = (duration_s, time_scale)
+        if key != self._window_key:
+            exp = math.exp if self.all_real else cmath.exp
+            state_gains, input_gains = [], []
+            for pole in self.poles:
+                rate = pole / time_scale
+                a = exp(rate * duration_s)
+                state_gains.append((a - 1.0) / rate)
+                input_gains.append(((a - 1.0) / rate - duration_s) / pole)
+            self._window_key, self._window = key, (state_gains, input_gains)
+        return self._window
 
     def run(self, durations_s: np.ndarray, inputs: np.ndarray, kept_by: bytes | None = None) -> np.ndarray:
         """Outputs at the start of each interval and after the last one (vectorised).

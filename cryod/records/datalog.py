@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
+import math
 import queue
 import shutil
 import tempfile
@@ -72,6 +73,11 @@ MAX_BATCH = 1000
 #: After a batch of this many rows (the loop runs faster than real time), pause this long.
 BATCH_PAUSE_AT = 50
 BATCH_PAUSE_S = 0.05
+#: Woken again this soon (real time, s) after the last wake, the writer pauses too: rows come faster than real
+#: time, and waking it for each one (a system call in the loop's put, then the two threads taking turns at the
+#: interpreter lock) would cost the loop more than writing them. In service rows come a period apart.
+QUICK_WAKE_S = 0.01
+SECONDS_PER_DAY = 86400.0
 #: Longest time between two checks of the free space and of the file's path (s).
 DISK_CHECK_INTERVAL_S = 1.0
 #: The next check comes before the free space, falling at the rate last seen, loses 1/FREE_SPACE_SHARE of the room
@@ -159,6 +165,7 @@ class DataLog:
         self._next_check_s = -float("inf")              # clock time (the rows') of the next check
         self._last_free: tuple[float, int] | None = None   # (clock time, free bytes) at the last check
         self._left_out: list[float] = []         # clock times of rows not written (no room, no file)
+        self._last_day: tuple[float, float, str] = (math.inf, -math.inf, "")   # see _utc_day
         self.compress_finished = compress_finished
         self._compressing: threading.Thread | None = None
 
@@ -217,6 +224,7 @@ class DataLog:
     def _run(self) -> None:
         try:
             stopping = False
+            woken_s = -float("inf")
             while not stopping:
                 try:
                     batch = [self._queue.get(timeout=self.fsync_interval_s / 2)]
@@ -225,6 +233,7 @@ class DataLog:
                         self._check_disk()
                     self._sync_if_due(force=self._dirty)
                     continue
+                previous_wake_s, woken_s = woken_s, time.monotonic()
                 # everything already queued goes out with one write: in service that is one row per
                 # period; when the loop runs faster than real time (--speed max) it saves a thread
                 # switch per row
@@ -246,7 +255,7 @@ class DataLog:
                     self._take(item)
                 self._write_pending()
                 self._sync_if_due()
-                if len(batch) >= BATCH_PAUSE_AT and not stopping:
+                if not stopping and (len(batch) >= BATCH_PAUSE_AT or woken_s - previous_wake_s < QUICK_WAKE_S):
                     time.sleep(BATCH_PAUSE_S)      # let rows gather instead of waking for each one
             self._look_at_file(at_path=True)   # rows in a file deleted just before the stop are not lost
         except BaseException as error:          # a bug: the log must not stop unnoticed
@@ -263,8 +272,7 @@ class DataLog:
     def _take(self, item: Row | Event) -> None:
         match item:
             case Row():
-                day = dt.datetime.fromtimestamp(self.monotonic_to_wall(item.time_s), dt.timezone.utc) \
-                    .strftime("%Y-%m-%d")
+                day = self._utc_day(self.monotonic_to_wall(item.time_s))
                 if day != self._day:
                     self._write_pending()
                     self._open(day, item.time_s - self.period_s)
@@ -280,6 +288,18 @@ class DataLog:
                 self._pending.append(item)
             case _:
                 raise TypeError(f"the data log takes rows and events, not {type(item).__name__}")
+
+    def _utc_day(self, wall_s: float) -> str:
+        """The UTC date (``YYYY-MM-DD``) of ``wall_s`` (s since the epoch); the last one's kept with the span of
+        wall times certainly in it (a millisecond inside its midnights, where rounding cannot move a time)."""
+        low, high, day = self._last_day
+        if low <= wall_s < high:
+            return day
+        day = dt.datetime.fromtimestamp(wall_s, dt.timezone.utc).strftime("%Y-%m-%d")
+        midnight = math.floor(wall_s / SECONDS_PER_DAY) * SECONDS_PER_DAY
+        if dt.datetime.fromtimestamp(midnight, dt.timezone.utc).strftime("%Y-%m-%d") == day:
+            self._last_day = (midnight + 1e-3, midnight + SECONDS_PER_DAY - 1e-3, day)
+        return day
 
     def _write_pending(self) -> None:
         """Write what was taken into the current file, after a look at the file."""

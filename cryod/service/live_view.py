@@ -72,9 +72,10 @@ class LiveView:
         self._timing = timing
         self._alarms = None
         size = max(int(LINE_WINDOW_S / self.period_s), 16)
-        self._times = np.full(size, np.nan)
-        self._flange = np.full(size, np.nan)
-        self._heater = np.full(size, np.nan)
+        # plain lists: the loop writes one element a tick (cheaper than a numpy element); readers copy them to arrays
+        self._times = [math.nan] * size
+        self._flange = [math.nan] * size
+        self._heater = [math.nan] * size
         self._next = 0
         self._row: Row | None = None
         self._first_time_s: float | None = None
@@ -96,7 +97,7 @@ class LiveView:
         if type(item) is Row:
             if self._first_time_s is None:
                 self._first_time_s = item.time_s
-            index = self._next % self._times.size
+            index = self._next % len(self._times)
             sample = item.T2_sample_s
             self._times[index] = sample if sample == sample else item.time_s
             self._flange[index] = item.T2_K
@@ -120,16 +121,16 @@ class LiveView:
             estimate = row.control.get("ff_line_K", math.nan)
             if estimate == estimate and row.control.get("ff_scale", 0.0):
                 return float(estimate)
-        times, flange = self._times.copy(), self._flange.copy()
+        times, flange = np.array(self._times), np.array(self._flange)
         usable = np.isfinite(times) & np.isfinite(flange)
-        if usable.sum() < max(self._times.size // 2, 16):
+        if usable.sum() < max(times.size // 2, 16):
             return math.nan
         fitted = fit_line(times[usable], flange[usable], self.line_rad_s, orders=LINE_HARMONICS)
         return float(np.sqrt(np.sum(np.asarray(fitted.amplitude) ** 2)))
 
     def flange_average_K(self) -> float:
         """T2 averaged over the last :data:`AVERAGE_WINDOW_S` (K), NaN until there is that much."""
-        times, flange = self._times.copy(), self._flange.copy()
+        times, flange = np.array(self._times), np.array(self._flange)
         usable = np.isfinite(times) & np.isfinite(flange)
         if not usable.any():
             return math.nan
@@ -142,7 +143,7 @@ class LiveView:
     def heater_mean_W(self) -> float:
         """The heater power averaged over the last :data:`HEATER_CYCLES` whole cooler cycles (W), NaN until
         there are that many."""
-        times, heater = self._times.copy(), self._heater.copy()
+        times, heater = np.array(self._times), np.array(self._heater)
         usable = np.isfinite(times) & np.isfinite(heater)
         if not usable.any():
             return math.nan

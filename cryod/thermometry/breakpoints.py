@@ -40,6 +40,7 @@ import numpy as np
 from scipy.interpolate import make_interp_spline
 
 from cryod.thermometry.curve import CalibrationCurve
+from cryod.thermometry.linear_table import LinearTable
 
 LN10 = math.log(10.0)
 
@@ -127,6 +128,9 @@ class BreakpointCurve(CalibrationCurve):
         self._y_increasing = y if rising else y[::-1].copy()
         self._x_by_y = x if rising else x[::-1].copy()
         self._dx_dy = make_interp_spline(self._y_increasing, self._x_by_y, k=1).derivative()
+        # one reading at a time (the loop's, a simulated DMM's): the same lines, without numpy's arrays
+        self._y_of_x = LinearTable(x, y)
+        self._x_of_y = LinearTable(self._y_increasing, self._x_by_y)
         reading_limits = (10.0 ** x[0], 10.0 ** x[-1]) if data_format.units_are_log10 else (x[0], x[-1])
         super().__init__(source=source, sensor_model=sensor_model, serial_number=serial_number,
                          sensor_unit=data_format.sensor_unit, sensor_unit_ranges=[reading_limits],
@@ -145,10 +149,20 @@ class BreakpointCurve(CalibrationCurve):
         y = np.interp(x, self._x, self._y)
         return 10.0 ** y if self.data_format.temperature_is_log10 else y
 
+    def _temperature_K_of_one(self, reading: float) -> float:
+        x = float(np.log10(reading)) if self.data_format.units_are_log10 else reading
+        y = self._y_of_x(x)
+        return 10.0 ** y if self.data_format.temperature_is_log10 else y
+
     # temperature -> reading
     def _sensor_units(self, temperature_K):
         y = np.log10(temperature_K) if self.data_format.temperature_is_log10 else temperature_K
         x = np.interp(y, self._y_increasing, self._x_by_y)
+        return 10.0 ** x if self.data_format.units_are_log10 else x
+
+    def _sensor_units_of_one(self, temperature_K: float) -> float:
+        y = float(np.log10(temperature_K)) if self.data_format.temperature_is_log10 else temperature_K
+        x = self._x_of_y(y)
         return 10.0 ** x if self.data_format.units_are_log10 else x
 
     def _sensor_units_per_K(self, temperature_K):

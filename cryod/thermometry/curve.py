@@ -75,6 +75,8 @@ class CalibrationCurve:
         self.calibrated_temperature_ranges_K = sorted((float(low), float(high)) for low, high in temperature_ranges_K)
         self._sensor_unit_windows = _windows(self.calibrated_sensor_unit_ranges)
         self._temperature_windows = _windows(self.calibrated_temperature_ranges_K)
+        self._sensor_unit_range = self.sensor_unit_range
+        self._temperature_range_K = self.temperature_range_K
 
     # -- ranges -------------------------------------------------------------
     @property
@@ -128,14 +130,20 @@ class CalibrationCurve:
             Any value outside the calibrated resistance range (or NaN).
         """
         self._require_resistance("temperature_K")
+        if isinstance(resistance_ohm, float):        # one reading, as the loop converts each tick
+            return self._convert_one(float(resistance_ohm), self._sensor_unit_windows, "ohm", self._temperature_K_of_one,
+                                     self._temperature_range_K)
         return self._convert(resistance_ohm, self._sensor_unit_windows, "ohm", self._temperature_K,
-                             self.temperature_range_K)
+                             self._temperature_range_K)
 
     def resistance_ohm(self, temperature_K):
         """Resistance in ohm at a temperature in K (scalar or array, like :meth:`temperature_K`)."""
         self._require_resistance("resistance_ohm")
+        if isinstance(temperature_K, float):         # one temperature, as a simulated DMM reads each tick
+            return self._convert_one(float(temperature_K), self._temperature_windows, "K", self._sensor_units_of_one,
+                                     self._sensor_unit_range)
         return self._convert(temperature_K, self._temperature_windows, "K", self._sensor_units,
-                             self.sensor_unit_range)
+                             self._sensor_unit_range)
 
     def sensitivity_ohm_per_K(self, temperature_K):
         """dR/dT in ohm/K at a temperature in K (negative for a Cernox)."""
@@ -155,6 +163,14 @@ class CalibrationCurve:
     def _sensor_units_per_K(self, temperature_K):
         """d(reading)/dT for temperatures known to be inside the calibrated range."""
         raise NotImplementedError
+
+    def _temperature_K_of_one(self, reading: float) -> float:
+        """:meth:`_temperature_K` of one float, the same value; a subclass with a cheaper way for one overrides it."""
+        return float(self._temperature_K(reading))
+
+    def _sensor_units_of_one(self, temperature_K: float) -> float:
+        """:meth:`_sensor_units` of one float, the same value (see :meth:`_temperature_K_of_one`)."""
+        return float(self._sensor_units(temperature_K))
 
     # -- machinery ----------------------------------------------------------
     def _require_resistance(self, what: str) -> None:
@@ -191,6 +207,16 @@ class CalibrationCurve:
             raise self._out_of_range(unit, float(outside.flat[0]), windows, int(outside.size))
         result = np.asarray(function(values), dtype=float)
         return result if result_range is None else np.clip(result, *result_range)
+
+    def _convert_one(self, value: float, windows: list[tuple[float, float, float, float]], unit: str,
+                     function: Callable[[float], float], result_range: tuple[float, float]) -> float:
+        """:meth:`_convert` of one float: the same checks, edges and result, without arrays."""
+        for low, high, accepted_low, accepted_high in windows:
+            if accepted_low <= value <= accepted_high:
+                result = function(low if value < low else high if value > high else value)
+                low, high = result_range
+                return low if result < low else high if result > high else result
+        raise self._out_of_range(unit, value, windows, 1)
 
     def _out_of_range(self, unit: str, value: float, windows, count: int) -> OutOfCalibrationRange:
         ranges = [(low, high) for low, high, _, _ in windows]

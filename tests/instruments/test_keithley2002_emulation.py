@@ -215,3 +215,34 @@ def test_emulated_timing_is_the_driver_timing(bench, clock):
 def test_emulator_rejects_an_unknown_thermometer(bench, flange_curve):
     with pytest.raises(ValueError, match="thermometer"):
         Keithley2002Emulator(bench.cryostat, "sample", flange_curve)
+
+
+def test_a_fixed_range_reading_string_is_the_manuals_format_for_every_element_layout(bench):
+    """The simulated 2002 formats a reading on a fixed range with one pattern made per configuration: the
+    text is the manual's (value at the range's resolution, status, units, time stamp, reading number,
+    channel) for every layout of elements and every resolution."""
+    import itertools
+
+    from simulated_hw.keithley2002 import ELEMENTS, _Reading
+    emulator = bench.flange_dmm
+    emulator.autorange, emulator.range_ohm = False, 2e4
+    for count in range(1, len(ELEMENTS) + 1):
+        for chosen in itertools.combinations([element.upper() for element in ELEMENTS], count):
+            if "READING" not in chosen:
+                continue
+            emulator.elements = tuple(element.upper() for element in ELEMENTS if element.upper() in chosen)
+            units = "UNITS" in chosen
+            for digits in (4, 7, 8, 9):
+                emulator.digits = digits
+                resolution = 2e4 / (2 * 10 ** (digits - 1))
+                for value, number in ((2754.1734, 0), (711.83, 42), (19999.9, 99999), (0.0001, 7)):
+                    reading = _Reading(value, False, number, 12.3456789)
+                    fields = [f"{round(value / resolution) * resolution:+.{digits - 1}E}"
+                              + ("N" if "STATUS" in chosen else "") + ("OHM4W" if units else "")]
+                    if "TIMESTAMP" in chosen:
+                        fields.append(f"{reading.timestamp_s:+012.6f}" + ("SECS" if units else ""))
+                    if "RNUMBER" in chosen:
+                        fields.append(f"{number:+06d}" + ("RDNG#" if units else ""))
+                    if "CHANNEL" in chosen:
+                        fields.append("00" + ("INTCHAN" if units else ""))
+                    assert emulator._format(reading) == ",".join(fields)

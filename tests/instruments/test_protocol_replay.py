@@ -509,3 +509,36 @@ def test_2400_compliance_is_a_fault(clock):
         heater = supply_2400(transport, clock)
         with pytest.raises(HeaterCompliance):
             heater.set_current_a(0.010)
+
+
+@pytest.mark.parametrize("elements", [DEFAULT_ELEMENTS, (DataElement.READING,),
+                                      (DataElement.READING, DataElement.STATUS, DataElement.UNITS,
+                                       DataElement.TIMESTAMP, DataElement.READING_NUMBER, DataElement.CHANNEL)])
+def test_2002_reading_strings_read_alike_in_the_exact_form_and_field_by_field(clock, elements):
+    """The driver reads a reply in the 2002's exact form with one pattern: every reply gives the values the
+    field-by-field reading gives, or the same error."""
+    with expected_protocol([("*IDN?", IDN_2002)]) as transport:
+        meter = dmm(transport, clock)
+    meter.elements = elements
+    units = DataElement.UNITS in elements
+    replies = []
+    for value in ("+2.754170E+03", "-1.5E-02", "+9.9E37", "1e999", "+2.7E+03", ".5", "7.", "nan", "+2,7E+03"):
+        for status in ("N", "R", "O", "n", ""):
+            for number in ("+00042", "-7", "x"):
+                fields = [value + status + ("OHM4W" if units else "")]
+                if DataElement.TIMESTAMP in elements:
+                    fields.append("+0012.500000" + ("SECS" if units else ""))
+                if DataElement.READING_NUMBER in elements:
+                    fields.append(number + ("RDNG#" if units else ""))
+                if DataElement.CHANNEL in elements:
+                    fields.append("00INTCHAN")
+                replies += [",".join(fields), " " + ",".join(fields), ",".join(fields) + ",extra"]
+
+    def read(way, reply):
+        try:
+            return way(reply)
+        except Exception as error:       # noqa: BLE001 - the error is what is compared
+            return type(error), str(error)
+
+    for reply in replies:
+        assert read(meter._parsed_reading, reply) == read(meter._parsed_field_by_field, reply), reply

@@ -1,6 +1,7 @@
 """The feedforward: a heater waveform locked to the cooler that cancels its line on the flange.
 
-* the ``feedforward`` control term, its estimator and its waveform: :mod:`~cryod.control.feedforward.term`;
+* the ``feedforward`` control term and its waveform: :mod:`~cryod.control.feedforward.term`; its learner, a
+  Kalman filter of T2's part synchronous with the cooler: :mod:`~cryod.control.feedforward.synchronous_estimator`;
   the estimator and the learning steps on a worker thread: :mod:`~cryod.control.feedforward.learning_worker`;
 * the plant at the cooler's harmonics: from the model (:mod:`~cryod.control.feedforward.harmonic_plant`),
   as learned (:mod:`~cryod.control.feedforward.plant_learner`, :mod:`~cryod.control.feedforward.plant_probe`),
@@ -20,6 +21,7 @@ How it works and why, with the results: docs/feedforward.md. The term's names ar
 control terms' table (:data:`cryod.control.terms.TERM_TYPES`) and users import them from.
 """
 
-from cryod.control.feedforward.term import FeedforwardSettings, FeedforwardTerm, SynchronousEstimator
+from cryod.control.feedforward.synchronous_estimator import SynchronousEstimator
+from cryod.control.feedforward.term import FeedforwardSettings, FeedforwardTerm
 
 __all__ = ["FeedforwardSettings", "FeedforwardTerm", "SynchronousEstimator"]

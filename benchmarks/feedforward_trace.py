@@ -9,7 +9,8 @@ cannot follow), on a script that visits each state: locking, fading in, probing,
 tracking; switched off and on; the loop's cycles late and on time again; the cooler stopped (the
 lock lost) and back; a gap in the loop; a divergence, its fade-out and the wait before the retry
 (with late cycles during the wait); a second divergence switched off while it fades out; reloads
-(another learning gain, margin, controller's model; off and on through ``enabled``); another zone.
+(another learning gain, margin, controller's model; off and on through ``enabled``; no probe); another
+zone; the loop open for a while and closed again.
 
 Every tick writes the term's output, its record columns and its events (``repr``, so every bit of
 every float), every 2 s its status text (``describe()``), and at the end ``learning_summary()``.
@@ -47,8 +48,9 @@ def trace(out) -> None:
     term.start(None, 0.113)
     run = {"time_s": 0.0, "answer": np.zeros(settings.harmonics, dtype=complex), "ticks": 0}
 
-    def feed(seconds, cooler=True, plant=None, skip_s=0.0):
-        """Ticks for ``seconds``; ``skip_s`` leaves a gap in the loop before the first."""
+    def feed(seconds, cooler=True, plant=None, skip_s=0.0, closed=True):
+        """Ticks for ``seconds``; ``skip_s`` leaves a gap in the loop before the first; ``closed`` False: the
+        loop open (manual power: the term conditions T2 but plays nothing)."""
         orders = np.arange(1, term.settings.harmonics + 1)
         run["time_s"] += skip_s
         for k in range(int(round(seconds / PERIOD))):
@@ -59,8 +61,9 @@ def trace(out) -> None:
                                  5.0 + 1.7e-3 * math.cos(OMEGA * t - 1.1) + played_K, stage_K, 5.0,
                                  output_time_s=t + 0.03)
             tick = term.condition(tick)
-            output_w = term.update(tick)
-            term.limit(0.113 + output_w, min(0.113 + output_w, 0.5))
+            output_w = term.update(tick) if closed else 0.0
+            if closed:
+                term.limit(0.113 + output_w, min(0.113 + output_w, 0.5))
             response = term.plant if plant is None else plant
             run["answer"] = response * (term.coefficients + term.probe) * (term.scale if output_w else 0.0)
             out.write(f"{t!r} {output_w!r} {term.column_values()!r} {term.take_events()!r}\n")
@@ -114,6 +117,11 @@ def trace(out) -> None:
     feed(10.0)
     term.reconfigure(dataclasses.replace(settings, enabled=True), 0.5)
     feed(20.0)
+    feed(5.0, closed=False)
+    term.start(None, 0.113)
+    feed(20.0)
+    term.reconfigure(dataclasses.replace(settings, probe_amplitude_K=0.0), 0.5)
+    feed(40.0)
     out.write(repr(term.learning_summary()) + "\n")
     term.close()
 

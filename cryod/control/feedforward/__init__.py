@@ -3,10 +3,12 @@
 * the ``feedforward`` control term and its waveform: :mod:`~cryod.control.feedforward.term`; its learner, a
   Kalman filter of T2's part synchronous with the cooler: :mod:`~cryod.control.feedforward.synchronous_estimator`;
   the estimator and the learning steps on a worker thread: :mod:`~cryod.control.feedforward.learning_worker`;
+  its states, the events between them and what it does in each: :mod:`~cryod.control.feedforward.state_machine`;
 * the plant at the cooler's harmonics: from the model (:mod:`~cryod.control.feedforward.harmonic_plant`),
   as learned (:mod:`~cryod.control.feedforward.plant_learner`, :mod:`~cryod.control.feedforward.plant_probe`),
   the learning step in its metric (:mod:`~cryod.control.feedforward.learned_projection`), the guard against
-  a learning that diverges (:mod:`~cryod.control.feedforward.divergence_guard`), the power the heater could
+  a learning that diverges (:mod:`~cryod.control.feedforward.divergence_guard`) and the wait before it
+  learns again (:mod:`~cryod.control.feedforward.divergence_retry`), the power the heater could
   not play (:mod:`~cryod.control.feedforward.unplayed_power`), what the learning says
   (:mod:`~cryod.control.feedforward.learning_report`);
 * the physical limit: the best waveform within the heater's bounds

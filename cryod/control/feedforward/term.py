@@ -25,7 +25,11 @@ cryostat it is on"); here, where each part lives. Every tick the term
    (:mod:`cryod.control.feedforward.learned_projection`), under a guard that
    steps back from a learning that makes T2 worse
    (:mod:`cryod.control.feedforward.divergence_guard`);
-5. fades the waveform out without lock or when switched off, and in again.
+5. moves between its states (:mod:`cryod.control.feedforward.state_machine`,
+   one table): the waveform fades in once the cooler's phase is locked, and
+   out when switched off, without the lock, while the loop's cycles are late
+   and after a divergence, when learning waits before it starts again
+   (:mod:`cryod.control.feedforward.divergence_retry`).
 
 The term rides on the feedback (``rides_on_feedback``): the regulator adds it
 after PI's sum has been held within the heater's range, so a clipped waveform
@@ -63,6 +67,7 @@ import numpy as np
 
 from cryod.control.feedforward.bounded_waveform import waveform_values
 from cryod.control.feedforward.divergence_guard import DivergenceGuard
+from cryod.control.feedforward.divergence_retry import LONGEST_RETRY_S, DivergenceRetry
 from cryod.control.feedforward.learning_worker import LearningWorker
 from cryod.control.feedforward.limit import REPORTED_HARMONICS
 from cryod.control.feedforward.harmonic_plant import plant_at_harmonics
@@ -73,6 +78,7 @@ from cryod.control.feedforward.limit_binding import limit_binding, measured_agai
 from cryod.control.feedforward.limit_follower import LimitFollower
 from cryod.control.feedforward.plant_learner import LearnedPlant
 from cryod.control.feedforward.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
+from cryod.control.feedforward.state_machine import BEHAVIOURS, FeedforwardEvent, FeedforwardState, next_state, verdict
 from cryod.control.feedforward.synchronous_estimator import DEFAULT_PERIOD_S, SynchronousEstimator
 from cryod.control.terms import ControlTerm, TickInputs
 from cryod.control.feedforward.unplayed_power import UnplayedPower
@@ -99,8 +105,6 @@ BOUND_POINTS = 48
 SETTING_DELAY_TOLERANCE_S = 0.002
 #: Learning steps in a row that make a divergence (:class:`~cryod.control.feedforward.divergence_guard.DivergenceGuard`).
 DIVERGENCE_STEPS = 5
-#: The wait before learning again after a divergence doubles with each one in a row, up to this (s).
-LONGEST_RETRY_S = 3600.0
 #: Smoothing of PI's power for the mean power the setpoint needs (s), and of T2's distance from the setpoint.
 MEAN_POWER_TIME_S = 60.0
 SETTLING_TIME_S = 20.0
@@ -236,10 +240,9 @@ class FeedforwardTerm(ControlTerm):
         self.guard = DivergenceGuard(DIVERGENCE_STEPS)
         self.report = LearningReport()
         self._pi_alone: tuple[float, float] | None = None   # (line with no waveform played (K), T5's amplitude then)
-        self._diverged: str | None = None       # why the waveform is fading out after a divergence
-        self._divergences = 0                   # in a row (reset once learning holds)
-        self.divergences = 0                    # since start
-        self._learn_again_s = -math.inf         # no learning before this after a divergence
+        self.retry = DivergenceRetry()          # the divergences, and when learning may start again
+        #: Where the feedforward is (:mod:`cryod.control.feedforward.state_machine`).
+        self.state = FeedforwardState.WAITING_FOR_LOCK if settings.enabled else FeedforwardState.OFF
         self._time_s = 0.0
         self._probe_column = math.nan           # T2's answer to the probe being played (NaN: off)
         self._plant_known_for_limit = False     # the plant at the line known well enough for the learned limit
@@ -414,26 +417,36 @@ class FeedforwardTerm(ControlTerm):
 
     def start(self, tick: TickInputs, present_output: float) -> None:
         self.scale = 0.0            # the waveform fades in: closing the loop stays bumpless
+        self._move(FeedforwardEvent.LOOP_CLOSED)
+
+    def _move(self, event: FeedforwardEvent) -> FeedforwardState:
+        """Take ``event`` (:func:`~cryod.control.feedforward.state_machine.next_state`); the state left."""
+        left, self.state = self.state, next_state(self.state, event)
+        return left
 
     def update(self, tick: TickInputs) -> float:
         self._played = True
         self._output_time_s = tick.output_time_s
         self._time_s = tick.time_s
         locked = self.phase is not None and self.phase.locked
-        learning = self._diverged is None and tick.time_s >= self._learn_again_s
-        wanted = 1.0 if (self.switched_on and locked and learning and self.on_time) else 0.0
+        self._move(verdict(self.switched_on, self.on_time, locked, self.retry.pending(tick.time_s)))
+        plays = BEHAVIOURS[self.state].plays
+        wanted = 1.0 if plays else 0.0
         fade = self.settings.fade_time_s
         step = tick.dt_s / fade if fade > 0.0 else 1.0
         self.scale = min(self.scale + step, wanted) if wanted > self.scale else max(self.scale - step, wanted)
-        if self._diverged is not None and self.scale <= 0.0:
-            self._reset_learning(tick.time_s)
+        if plays and self.scale >= 1.0:
+            self._move(FeedforwardEvent.FADED_IN)
+        elif not plays and self.scale <= 0.0:
+            if self._move(FeedforwardEvent.FADED_OUT) is FeedforwardState.DIVERGED:
+                self._reset_learning(tick.time_s)
         if locked and (self.switched_on or self.scale > 0.0):
             if self._next_update_s is None:
                 self._next_update_s = tick.time_s + self.settings.update_interval_s
             elif tick.time_s >= self._next_update_s:
                 self._next_update_s += self.settings.update_interval_s
                 self._follow_mean(abs(tick.setpoint_K - tick.flange_feedback_K))
-                self._ask_for_step(learning and self.switched_on and self.on_time)
+                self._ask_for_step(plays)
         self.limits.follow(tick.time_s, tick.setpoint_K, self.output_max, self.settings.period_s,
                            self.setting_delay_s, self._learned_limit_inputs)
         if self.scale <= 0.0 or self.phase is None:
@@ -585,11 +598,11 @@ class FeedforwardTerm(ControlTerm):
         if not self.on_time:
             lines.append("the loop's cycles are late many in a row: the waveform fades out and learning pauses "
                          "until they keep their deadlines again")
-        if self._diverged is not None:
-            lines.append(f"learning diverged ({self._diverged}): fading out")
-        elif self._time_s < self._learn_again_s:
+        if self.retry.reason is not None:
+            lines.append(f"learning diverged ({self.retry.reason}): fading out")
+        elif self.retry.pending(self._time_s):
             lines.append(f"learning diverged {self.divergences} time(s); starts again in "
-                         f"{self._learn_again_s - self._time_s:.0f} s")
+                         f"{self.retry.learn_again_s - self._time_s:.0f} s")
         elif self.divergences:
             lines.append(f"learning diverged {self.divergences} time(s) since start, reset each time")
         limit = self.physical_limit
@@ -634,6 +647,11 @@ class FeedforwardTerm(ControlTerm):
                                        f"the probe could tell within its share of the heater's room)")
         return text
 
+    @property
+    def divergences(self) -> int:
+        """Learning divergences since the start."""
+        return self.retry.count
+
     def line_amplitude_K(self) -> float:
         """T2's synchronous part as estimated at the last learning step (K; NaN before there is one)."""
         return self._estimate.line_amplitude_K
@@ -674,12 +692,14 @@ class FeedforwardTerm(ControlTerm):
         result = self.worker.result(self._pending_step)
         self._pending_step = None
         self._estimate = result
-        if result.coefficients is not None and self._diverged is None:
+        plant = result.learned
+        if result.coefficients is not None:      # a step that moves the waveform: asked while it played
             self._coefficients, self._probe = result.coefficients, result.probe
             self.probe_state = result.probe_state
             self._set_played()
-        plant = result.learned
-        playing = result.coefficients is not None and self._diverged is None and result.probe_cost_K > 0.0
+            self._move(FeedforwardEvent.PROBE_PLAYS if np.any(self._probe) else
+                       FeedforwardEvent.PLANT_KNOWN if plant.learned[0] else FeedforwardEvent.PLANT_UNKNOWN)
+        playing = result.coefficients is not None and result.probe_cost_K > 0.0
         self._probe_column = result.probe_cost_K if playing else math.nan     # empty when off
         self._plant_known_for_limit = bool(plant.learned[0] and plant.relative_spread[0] < LIMIT_PLANT_SPREAD)
         if result.ready:
@@ -691,7 +711,7 @@ class FeedforwardTerm(ControlTerm):
         amplitude = self.phase.amplitude_K if self.phase is not None else math.nan
         if not np.any(self._coefficients):
             self._pi_alone = (float(np.sqrt(np.sum(np.abs(result.line) ** 2))), amplitude)
-        if self._diverged is not None or self.scale < 1.0 or not np.any(self._coefficients):
+        if not BEHAVIOURS[self.state].guard_watches or not np.any(self._coefficients):
             self.guard.clear()
             return
         if self._pi_alone is not None and math.isfinite(amplitude) and self._pi_alone[1] > 0.0:
@@ -700,18 +720,12 @@ class FeedforwardTerm(ControlTerm):
             pi_alone = float(np.sqrt(np.sum(np.abs(result.line) ** 2)))
         reason = self.guard.observe(result.residual_K, pi_alone)
         if reason is not None:
-            self._diverged = reason
-            self._divergences += 1
-            self.divergences += 1
-            self.report.diverged(reason, self._retry_s())
-
-    def _retry_s(self) -> float:
-        return min(self.settings.retry_after_s * 2.0 ** (self._divergences - 1), LONGEST_RETRY_S)
+            self._move(FeedforwardEvent.DIVERGED)
+            self.report.diverged(reason, self.retry.tripped(reason, self.settings.retry_after_s))
 
     def _reset_learning(self, time_s: float) -> None:
         """The waveform has faded out after a divergence: the model's plant again, learning later."""
-        self._learn_again_s = time_s + self._retry_s()
-        self._diverged = None
+        self.retry.faded_out(time_s, self.settings.retry_after_s)
         self._coefficients = np.zeros_like(self._coefficients)
         self._probe = np.zeros_like(self._probe)
         self._set_played()
@@ -728,6 +742,7 @@ class FeedforwardTerm(ControlTerm):
         self._take_step_result()        # a step computed at the previous operating point is taken first
         self._pi_alone = None
         self._forget_learned_plant()
+        self._move(FeedforwardEvent.PLANT_FORGOTTEN)
         self.report.zone_entered(index, self.settings.model_source)
 
     def _forget_learned_plant(self) -> None:
@@ -744,7 +759,7 @@ class FeedforwardTerm(ControlTerm):
         """What the learned limit is computed from, once the plant at the line is learned and T2 has settled at the
         setpoint; else None."""
         if not (self._plant_known_for_limit and self._setpoint_distance_K < SETTLED_K and self.mean_power_w is not None
-                and self._estimate.ready and self._time_s >= self._learn_again_s):
+                and self._estimate.ready and not self.retry.pending(self._time_s)):
             return None
         return LearnedLimitInputs(self.learned_plant, self._estimate.line.copy(), self.mean_power_w, self.output_max, setpoint_K,
                                   self.settings.period_s, self.setting_delay_s)

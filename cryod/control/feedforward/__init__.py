@@ -24,6 +24,7 @@ control terms' table (:data:`cryod.control.terms.TERM_TYPES`) and users import t
 """
 
 from cryod.control.feedforward.synchronous_estimator import SynchronousEstimator
-from cryod.control.feedforward.term import FeedforwardSettings, FeedforwardTerm
+from cryod.control.feedforward.settings import FeedforwardSettings
+from cryod.control.feedforward.term import FeedforwardTerm
 
 __all__ = ["FeedforwardSettings", "FeedforwardTerm", "SynchronousEstimator"]

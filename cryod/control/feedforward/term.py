@@ -39,53 +39,38 @@ setpoint in use comes from :mod:`cryod.control.feedforward.limit_follower`;
 what the learning finds goes to the journal and the record through
 :mod:`cryod.control.feedforward.learning_report`.
 
-Configuration, section ``control.feedforward`` (optional; reloadable, bumpless)::
-
-    feedforward:
-      enabled: true              # cryod ctl feedforward on|off switches it without a reload
-      harmonics: 6
-      update_interval_s: 2.0     # the waveform steps this often
-      memory_s: 60.0             # the line estimate may drift over this
-      learning_gain: 0.5         # fraction of the way to the estimated best waveform per step
-      fade_time_s: 5.0
-      margin_W: 0.001            # kept from 0 W and from R I_max^2
-      minimum_cooler_amplitude_K: 0.01
-      probe_amplitude_K: 1.0e-4  # T2's answer to the probe at each harmonic probed (0: no probe)
-      plant_precision: 0.03      # the probe stops at a harmonic once its plant is known this well (relative)
-      retry_after_s: 120.0       # after a divergence, learning starts again this much later
-      model: null                # the controller's model (null: the shipped model)
+Its configuration, the section ``control.feedforward``: :mod:`cryod.control.feedforward.settings`.
 """
 
 from __future__ import annotations
 
 import cmath
 import math
-from dataclasses import dataclass, replace
-from pathlib import Path
+from dataclasses import replace
 
 import numpy as np
 
 from cryod.control.feedforward.bounded_waveform import waveform_values
 from cryod.control.feedforward.divergence_guard import DivergenceGuard
-from cryod.control.feedforward.divergence_retry import LONGEST_RETRY_S, DivergenceRetry
+from cryod.control.feedforward.divergence_retry import DivergenceRetry
 from cryod.control.feedforward.learning_worker import LearningWorker
 from cryod.control.feedforward.limit import REPORTED_HARMONICS
 from cryod.control.feedforward.harmonic_plant import plant_at_harmonics
 from cryod.control.feedforward.learned_limit import LearnedLimitInputs
-from cryod.control.feedforward.learned_projection import learning_step
+from cryod.control.feedforward.learning_step import BOUND_POINTS, LearningStep, StepResult
 from cryod.control.feedforward.learning_report import LearningReport
 from cryod.control.feedforward.limit_binding import limit_binding, measured_against_limit
 from cryod.control.feedforward.limit_follower import LimitFollower
 from cryod.control.feedforward.plant_learner import LearnedPlant
-from cryod.control.feedforward.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
+from cryod.control.feedforward.settings import FeedforwardSettings, settings_from
+from cryod.control.feedforward.plant_probe import ProbeState
 from cryod.control.feedforward.state_machine import BEHAVIOURS, FeedforwardEvent, FeedforwardState, next_state, verdict
-from cryod.control.feedforward.synchronous_estimator import DEFAULT_PERIOD_S, SynchronousEstimator
+from cryod.control.feedforward.synchronous_estimator import SynchronousEstimator
 from cryod.control.terms import ControlTerm, TickInputs
 from cryod.control.feedforward.unplayed_power import UnplayedPower
 from cryod.cooler.phase import CoolerPhaseTracker
-from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
 from cryod.records.columns import Column
-from cryod.yaml_source import FileFormatError, Section
+from cryod.yaml_source import Section
 
 #: After a gap in the loop (a fault, start-up), T2's readings are left out this long (s).
 SETTLE_S = 1.0
@@ -98,9 +83,6 @@ CHANGE_SETTLE_S = 0.5
 CHANGE_SETTLE_ABOVE_K = 20e-6
 #: Smoothing of the feedback terms' power, the level the waveform rides on (s).
 BASE_TIME_S = 2.0
-#: Phases of a cooler period at which the waveform is held within the heater's bounds (and, shrunk if
-#: needed, on a grid eight times finer); 48 costs the 5 K optimum 0.2 % against 128, at a third of the time.
-BOUND_POINTS = 48
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
 SETTING_DELAY_TOLERANCE_S = 0.002
 #: Learning steps in a row that make a divergence (:class:`~cryod.control.feedforward.divergence_guard.DivergenceGuard`).
@@ -114,68 +96,6 @@ SETTLED_K = 2e-4
 APPROACHING_K = 2e-3
 #: The learned limit needs the plant at the line known to this (relative standard deviation).
 LIMIT_PLANT_SPREAD = 0.1
-
-
-@dataclass(frozen=True)
-class FeedforwardSettings:
-    """The ``control.feedforward`` section.
-
-    Attributes
-    ----------
-    enabled : bool
-        On at start (``cryod ctl feedforward on|off`` switches it while running).
-    harmonics : int
-        Harmonics of the cooler frequency in the waveform and the residual.
-    update_interval_s : float
-        The waveform steps this often (s).
-    memory_s : float
-        Memory of the estimate of T2's synchronous part (s).
-    learning_gain : float
-        Fraction of the way to the estimated best waveform taken per step (0 to 1).
-    fade_time_s : float
-        Fade in and out (s).
-    margin_W : float
-        Distance kept from 0 W and from R I_max^2 (W).
-    minimum_cooler_amplitude_K : float
-        T5 oscillation below this counts as no cooler signal (K).
-    probe_amplitude_K : float
-        T2's answer to the probe at each harmonic probed (K; 0: no probe).
-    plant_precision : float
-        The probe stops at a harmonic once its plant is known this well (relative standard deviation).
-    retry_after_s : float
-        After a divergence, learning starts again this much later (s; doubling for each in a row).
-    model : CryostatModel
-        The controller's model (plant response at each harmonic).
-    model_source : str
-        Where the model came from.
-    period_s : float
-        Loop period (s): the hold of each heater setting.
-    """
-
-    enabled: bool = True
-    harmonics: int = 6
-    update_interval_s: float = 2.0
-    memory_s: float = 60.0
-    learning_gain: float = 0.5
-    fade_time_s: float = 5.0
-    margin_W: float = 0.001
-    minimum_cooler_amplitude_K: float = 0.01
-    probe_amplitude_K: float = 100e-6
-    plant_precision: float = 0.03
-    retry_after_s: float = 120.0
-    model: CryostatModel | None = None
-    model_source: str = "shipped model"
-    period_s: float = DEFAULT_PERIOD_S
-
-    @property
-    def controller_model(self) -> CryostatModel:
-        return self.model if self.model is not None else load_model(DEFAULT_MODEL_PATH)
-
-    @property
-    def probe(self) -> ProbeSettings:
-        return ProbeSettings(amplitude_K=self.probe_amplitude_K, precision=self.plant_precision,
-                             noise_K=self.controller_model.sensor_noise.flange_thermometer_rms_K,
-                             readings_per_s=1.0 / self.period_s)
 
 
 class FeedforwardTerm(ControlTerm):
@@ -253,37 +173,8 @@ class FeedforwardTerm(ControlTerm):
     # -- configuration ---------------------------------------------------------------
     @staticmethod
     def settings_from(section: Section | None) -> FeedforwardSettings:
-        """The ``control.feedforward`` section (defaults when absent)."""
-        if section is None:
-            return FeedforwardSettings(model=load_model(DEFAULT_MODEL_PATH))
-        defaults = FeedforwardSettings()
-        model_path = section.text("model", None)
-        try:
-            model = load_model(_resolve(model_path, section.source)) if model_path else load_model(DEFAULT_MODEL_PATH)
-        except FileFormatError as error:
-            raise section.error("model", f"controller model not usable: {error}") from None
-        settings = FeedforwardSettings(
-            enabled=section.flag("enabled", defaults.enabled),
-            harmonics=section.number("harmonics", defaults.harmonics, minimum=1, maximum=12, integer=True),
-            update_interval_s=section.number("update_interval_s", defaults.update_interval_s, minimum=0.5,
-                                             maximum=60.0),
-            memory_s=section.number("memory_s", defaults.memory_s, minimum=2.0, maximum=3600.0),
-            learning_gain=section.number("learning_gain", defaults.learning_gain, minimum=0.0,
-                                         exclusive_minimum=True, maximum=1.0),
-            fade_time_s=section.number("fade_time_s", defaults.fade_time_s, minimum=0.0, maximum=600.0),
-            margin_W=section.number("margin_W", defaults.margin_W, minimum=0.0, maximum=1.0),
-            minimum_cooler_amplitude_K=section.number("minimum_cooler_amplitude_K",
-                                                      defaults.minimum_cooler_amplitude_K, minimum=0.0,
-                                                      exclusive_minimum=True),
-            probe_amplitude_K=section.number("probe_amplitude_K", defaults.probe_amplitude_K, minimum=0.0,
-                                             maximum=1e-3),
-            plant_precision=section.number("plant_precision", defaults.plant_precision, minimum=0.001,
-                                           maximum=0.2),
-            retry_after_s=section.number("retry_after_s", defaults.retry_after_s, minimum=10.0,
-                                         maximum=LONGEST_RETRY_S),
-            model=model, model_source=model_path or "shipped model")
-        section.finish()
-        return settings
+        """The ``control.feedforward`` section (defaults when absent: :mod:`~cryod.control.feedforward.settings`)."""
+        return settings_from(section)
 
     def _configure(self, settings: FeedforwardSettings) -> None:
         self.settings = settings
@@ -675,7 +566,7 @@ class FeedforwardTerm(ControlTerm):
             return
         self._step_id += 1
         scale = self._applied_scale
-        self.worker.step(self._step_id, _LearningStep(
+        self.worker.step(self._step_id, LearningStep(
             plant=self.plant.copy(), coefficients=self._coefficients.copy(), effect=self._effect().copy(),
             waveform_effect=self.plant * self._coefficients * scale, learning=learning,
             gain=self.settings.learning_gain, base_w=self.other_terms_w, low_w=self.settings.margin_W,
@@ -770,87 +661,3 @@ def _resized(values: np.ndarray, harmonics: int) -> np.ndarray:
     count = min(harmonics, values.size)
     kept[:count] = values[:count]
     return kept
-
-
-@dataclass(frozen=True, eq=False)
-class StepResult:
-    """What a learning step found: the estimate, the plant learned, and the new waveform and probe (None: no step
-    taken)."""
-
-    ready: bool
-    line: np.ndarray
-    learned: LearnedPlant
-    line_amplitude_K: float
-    residual_K: float
-    coefficients: np.ndarray | None
-    probe: np.ndarray | None
-    probe_state: ProbeState | None
-    probe_cost_K: float
-
-    @property
-    def raw_correction(self) -> np.ndarray:
-        return self.learned.correction
-
-    @property
-    def correction(self) -> np.ndarray:
-        """The correction where learned, 1 elsewhere."""
-        return np.where(self.learned.learned, self.learned.correction, 1.0)
-
-    @classmethod
-    def empty(cls, model_plant: np.ndarray) -> "StepResult":
-        zeros = np.zeros(len(model_plant), dtype=complex)
-        return cls(False, zeros, LearnedPlant.from_model(model_plant).prepared(), math.nan, math.nan, None, None, None,
-                   0.0)
-
-
-@dataclass(frozen=True, eq=False)
-class _LearningStep:
-    """A learning step as the worker computes it, from values taken on the loop's thread."""
-
-    plant: np.ndarray
-    coefficients: np.ndarray
-    effect: np.ndarray
-    waveform_effect: np.ndarray
-    learning: bool
-    gain: float
-    base_w: float
-    low_w: float
-    high_w: float
-    probe_state: ProbeState
-    probe: ProbeSettings
-    interval_s: float
-    frequency_rad_s: float
-    before: LearnedPlant | None
-    approaching: bool
-
-    def __call__(self, estimator: SynchronousEstimator) -> StepResult:
-        ready = estimator.ready
-        learned = estimator.learned_plant(self.plant, self.frequency_rad_s).confirmed_against(self.before).prepared()
-        line_K = residual_K = math.nan
-        if ready:
-            line_K = _amplitude(estimator.synchronous(self.effect))
-            residual_K = _amplitude(estimator.synchronous(self.waveform_effect))     # without the probe
-        coefficients = probe = state = None
-        cost = 0.0
-        if ready and self.learning:
-            room = min(self.base_w - self.low_w, self.high_w - self.base_w)
-            state, probe = next_probe(self.probe_state, learned, room, self.interval_s, self.probe, self.approaching)
-            reserved = float(np.sum(np.abs(probe)))
-            coefficients = learning_step(self.coefficients, estimator.line, learned, self.gain, self.base_w,
-                                         self.low_w + reserved, self.high_w - reserved, BOUND_POINTS)
-            cost = probe_cost_K(probe, learned.plant)
-            # no second difference may span the step: the readings before it decided it, and their noise
-            # would look like the plant's answer to it
-            estimator.forget_last()
-        return StepResult(ready, estimator.line.copy(), learned, line_K, residual_K, coefficients, probe, state, cost)
-
-
-def _amplitude(phasors: np.ndarray) -> float:
-    return float(np.sqrt(np.sum(phasors.real ** 2 + phasors.imag ** 2)))
-
-
-def _resolve(path: str, config_source: str) -> Path:
-    candidate = Path(path).expanduser()
-    if not candidate.is_absolute() and config_source and not config_source.startswith("<"):
-        candidate = Path(config_source).resolve().parent / candidate
-    return candidate

@@ -50,20 +50,18 @@ from dataclasses import replace
 
 import numpy as np
 
-from cryod.control.feedforward.bounded_waveform import waveform_values
 from cryod.control.feedforward.divergence_guard import DivergenceGuard
 from cryod.control.feedforward.divergence_retry import DivergenceRetry
 from cryod.control.feedforward.learning_worker import LearningWorker
-from cryod.control.feedforward.limit import REPORTED_HARMONICS
 from cryod.control.feedforward.harmonic_plant import plant_at_harmonics
 from cryod.control.feedforward.learned_limit import LearnedLimitInputs
-from cryod.control.feedforward.learning_step import BOUND_POINTS, LearningStep, StepResult
+from cryod.control.feedforward.learning_step import LearningStep, StepResult
 from cryod.control.feedforward.learning_report import LearningReport
-from cryod.control.feedforward.limit_binding import limit_binding, measured_against_limit
 from cryod.control.feedforward.limit_follower import LimitFollower
 from cryod.control.feedforward.plant_learner import LearnedPlant
 from cryod.control.feedforward.settings import FeedforwardSettings, settings_from
 from cryod.control.feedforward.plant_probe import ProbeState
+from cryod.control.feedforward.status_text import FeedforwardStatus, read_only, status_text
 from cryod.control.feedforward.state_machine import BEHAVIOURS, FeedforwardEvent, FeedforwardState, next_state, verdict
 from cryod.control.feedforward.synchronous_estimator import SynchronousEstimator
 from cryod.control.terms import ControlTerm, TickInputs
@@ -457,86 +455,26 @@ class FeedforwardTerm(ControlTerm):
         """The plant as the last learning step knew it."""
         return self._estimate.learned
 
-    def describe(self) -> str:
-        """The feedforward's state in a few lines (``cryod ctl feedforward status``)."""
-        phase = self.phase
-        lines = [f"feedforward {'on' if self.switched_on else 'off'}, waveform at {100 * self.scale:.0f} % "
-                 f"(fade {self.settings.fade_time_s:g} s)"]
-        if phase is None:
-            lines.append("cooler phase: not tracked (off, or no reading yet)")
-        else:
-            lines.append(f"cooler phase {'locked' if phase.locked else 'NOT locked'}: {phase.frequency_rad_s:.4f} rad/s "
-                         f"({phase.frequency_rad_s / (2 * math.pi):.4f} Hz), T5 line {1e3 * phase.amplitude_K:.1f} mK")
-        line = self.line_amplitude_K()
-        if math.isfinite(line):
-            harmonics = ", ".join(f"{1e6 * abs(value):.1f}" for value in self._synchronous_list())
-            lines.append(f"T2's part synchronous with the cooler: {1e6 * line:.1f} µK (harmonics 1-"
-                         f"{self.settings.harmonics}: {harmonics} µK); without the waveform it would be "
-                         f"{1e6 * float(np.sqrt(np.sum(np.abs(self._estimate.line) ** 2))):.1f} µK")
-        amplitude = np.abs(self.coefficients)
-        values = waveform_values(self._played_coefficients, self.other_terms_w or 0.0, BOUND_POINTS)
-        lines.append(f"waveform: {', '.join(f'{1e3 * a:.1f}' for a in amplitude)} mW per harmonic, "
-                     f"{1e3 * values.min():.1f} to {1e3 * values.max():.1f} mW with the probe and the "
-                     f"{1e3 * (self.other_terms_w or 0.0):.1f} mW from PI, within {1e3 * self.settings.margin_W:g} mW "
-                     f"of 0 and {1e3 * self.output_max:.0f} mW")
-        plant = self.learned_plant
-        lines.append(f"plant, heater to T2's readings (model: {self.settings.model_source}; "
-                     f"{'learned' if plant.learned.any() else 'nothing learned yet'}):")
-        lines.append(plant.describe())
-        if plant.differences_said():
-            lines.append(plant.differences_said())
-        lines.append(self._describe_probe())
-        if not self.on_time:
-            lines.append("the loop's cycles are late many in a row: the waveform fades out and learning pauses "
-                         "until they keep their deadlines again")
-        if self.retry.reason is not None:
-            lines.append(f"learning diverged ({self.retry.reason}): fading out")
-        elif self.retry.pending(self._time_s):
-            lines.append(f"learning diverged {self.divergences} time(s); starts again in "
-                         f"{self.retry.learn_again_s - self._time_s:.0f} s")
-        elif self.divergences:
-            lines.append(f"learning diverged {self.divergences} time(s) since start, reset each time")
-        limit = self.physical_limit
-        if limit is None:
-            lines.append("physical limit: not computed yet (the daemon computes it for the setpoint in use)")
-        else:
-            source = ("from the learned plant and line, and the mean power PI found" if self.limits.source == "learned"
-                      else "from the controller's model")
-            lines.append(f"physical limit at {limit.setpoint_K:g} K ({source}): {1e6 * limit.ptc_periodic_limit_K:.1f} "
-                         f"µK of the {1e6 * limit.open_line_K:.1f} µK line; {limit.limited_by}-limited (authority "
-                         f"{limit.authority:.2f}: the heater can put {1e3 * limit.largest_line_power_W:.0f} mW at the "
-                         f"line of the {1e3 * limit.line_power_needed_W:.0f} mW needed around "
-                         f"{1e3 * limit.mean_heater_power_W:.0f} mW); predicted best "
-                         f"{1e6 * limit.predicted_best_residual_K:.1f} µK")
-            lines.append("what binds it: " + limit_binding(limit, self.limit_changes).explanation)
-            if self.limit_changes:
-                lines.append("what would change it: " + "; ".join(change.describe() for change in self.limit_changes)
-                             + " (R I_max^2 x 2: R x 2 or I_max x 1.41; more: cryod feedforward-limit)")
-            synchronous = self._synchronous_list()[:REPORTED_HARMONICS]
-            if synchronous and math.isfinite(line):
-                measured = float(np.sqrt(np.sum(np.abs(synchronous) ** 2)))
-                lines.append("T2 now against the limit: " + measured_against_limit(
-                    measured, limit.ptc_periodic_limit_K, limit.noise_floor_K,
-                    "the learned plant" if self.limits.source == "learned" else "the model"))
-        return "\n".join(lines)
+    def status_snapshot(self) -> FeedforwardStatus:
+        """What ``cryod ctl feedforward status`` says, taken now: values, immutable objects and read-only copies
+        (on the loop's thread; the words: :func:`~cryod.control.feedforward.status_text.status_text`)."""
+        estimate, settings = self._estimate, self.settings
+        return FeedforwardStatus(
+            switched_on=self.switched_on, scale=self.scale, fade_time_s=settings.fade_time_s,
+            harmonics=settings.harmonics, cooler=self.phase, line_amplitude_K=estimate.line_amplitude_K,
+            synchronous_K=tuple(self._synchronous_list()), line_K=read_only(estimate.line),
+            coefficients_W=read_only(self._coefficients), played_W=read_only(self._played_coefficients),
+            base_W=self.other_terms_w or 0.0, margin_W=settings.margin_W, maximum_W=self.output_max,
+            model_source=settings.model_source, plant=estimate.learned, probe_state=self.probe_state,
+            probe_W=read_only(self._probe), probe_cost_K=estimate.probe_cost_K,
+            plant_precision=settings.plant_precision, cycles_on_time=self.on_time, divergence=self.retry.reason,
+            divergences=self.retry.count, retry_in_s=self.retry.learn_again_s - self._time_s,
+            limit=self.limits.limit, limit_from=self.limits.source, limit_changes=self.limits.changes)
 
-    def _describe_probe(self) -> str:
-        probing = [index + 1 for index, on in enumerate(self.probe_state.probing) if on]
-        cost = self._estimate.probe_cost_K
-        short = self.probe_state.given_up()
-        playing = [index + 1 for index, value in enumerate(self._probe) if value]
-        if playing and cost > 0.0:
-            text = (f"probe: {1e3 * abs(self._probe[playing[0] - 1]):.1f} mW at harmonic {playing[0]}, moving T2 by "
-                    f"{1e6 * cost:.1f} µK (to learn the plant to {100 * self.settings.plant_precision:g} %; "
-                    f"harmonics {', '.join(map(str, probing))} to go)")
-        elif probing:
-            text = (f"probe: waiting (harmonics {', '.join(map(str, probing))} to go: no room now, or a plant too "
-                    f"weak for the room there is)")
-        else:
-            text = f"probe: off (plant known to {100 * self.settings.plant_precision:g} %" + \
-                (")" if not short else f" where it could be; harmonics {', '.join(map(str, short))} left at what "
-                                       f"the probe could tell within its share of the heater's room)")
-        return text
+    def describe(self) -> str:
+        """The feedforward's state in a few lines (``cryod ctl feedforward status``), put in words here: the daemon
+        words :meth:`status_snapshot` off the loop's thread."""
+        return status_text(self.status_snapshot())
 
     @property
     def divergences(self) -> int:

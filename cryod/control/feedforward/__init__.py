@@ -1,9 +1,17 @@
 """The feedforward: a heater waveform locked to the cooler that cancels its line on the flange.
 
-* the ``feedforward`` control term and its waveform: :mod:`~cryod.control.feedforward.term`; its learner, a
-  Kalman filter of T2's part synchronous with the cooler: :mod:`~cryod.control.feedforward.synchronous_estimator`;
-  the estimator and the learning steps on a worker thread: :mod:`~cryod.control.feedforward.learning_worker`;
-  its states, the events between them and what it does in each: :mod:`~cryod.control.feedforward.state_machine`;
+* the ``feedforward`` control term: :mod:`~cryod.control.feedforward.term`; its settings
+  (:mod:`~cryod.control.feedforward.settings`), its record columns (:mod:`~cryod.control.feedforward.record_columns`);
+  its states, the events between them and what it does in each (:mod:`~cryod.control.feedforward.state_machine`);
+  what the heater plays (:mod:`~cryod.control.feedforward.played_waveform`) on the power it rides on
+  (:mod:`~cryod.control.feedforward.power_levels`); the words of ``cryod ctl feedforward status``, from a
+  snapshot (:mod:`~cryod.control.feedforward.status_text`);
+* its learner, a Kalman filter of T2's part synchronous with the cooler
+  (:mod:`~cryod.control.feedforward.synchronous_estimator`), on a worker thread
+  (:mod:`~cryod.control.feedforward.learning_worker`), fed the readings it takes
+  (:mod:`~cryod.control.feedforward.reading_feed`); a learning step as the worker computes it
+  (:mod:`~cryod.control.feedforward.learning_step`) and as the loop's thread asks, takes and judges it
+  (:mod:`~cryod.control.feedforward.learning_steps`);
 * the plant at the cooler's harmonics: from the model (:mod:`~cryod.control.feedforward.harmonic_plant`),
   as learned (:mod:`~cryod.control.feedforward.plant_learner`, :mod:`~cryod.control.feedforward.plant_probe`),
   the learning step in its metric (:mod:`~cryod.control.feedforward.learned_projection`), the guard against

@@ -45,7 +45,7 @@ class DivergenceRetry:
         return min(retry_after_s * 2.0 ** (self.count - 1), LONGEST_RETRY_S)
 
     def tripped(self, reason: str, retry_after_s: float) -> float:
-        """The guard tripped for ``reason``: counted and kept while the waveform fades out; the wait that follows (s)."""
+        """The guard tripped for ``reason``: counted, kept while the waveform fades out; the wait that follows (s)."""
         self.reason = reason
         self.count += 1
         return self.wait_s(retry_after_s)

@@ -1,7 +1,7 @@
 """What ``cryod ctl feedforward status`` says, in words, from a snapshot of the feedforward.
 
-The loop's thread only takes the snapshot (:class:`FeedforwardStatus`, built by
-:meth:`cryod.control.feedforward.FeedforwardTerm.status_snapshot`: plain values, immutable
+The loop's thread only takes the snapshot (:class:`FeedforwardStatus`, :meth:`FeedforwardStatus.of` the
+term, through :meth:`cryod.control.feedforward.FeedforwardTerm.status_snapshot`: plain values, immutable
 objects and read-only copies of a few small arrays, a few microseconds); the words are put
 together from it on another thread (:func:`status_text`: the waveform's extremes over a period,
 the plant per harmonic, what binds the physical limit, a tenth of a millisecond and more), so a
@@ -117,6 +117,22 @@ class FeedforwardStatus:
     limit_from: str | None
     limit_changes: tuple
 
+    @classmethod
+    def of(cls, term) -> "FeedforwardStatus":
+        """The snapshot of a :class:`~cryod.control.feedforward.FeedforwardTerm` now (on the loop's thread)."""
+        steps, settings, waveform, estimate = term.steps, term.settings, term.waveform, term.steps.estimate
+        return cls(
+            switched_on=term.switched_on, scale=term.scale, fade_time_s=settings.fade_time_s,
+            harmonics=settings.harmonics, cooler=term.phase, line_amplitude_K=estimate.line_amplitude_K,
+            synchronous_K=tuple(steps.synchronous(waveform.effect(term.plant))), line_K=read_only(estimate.line),
+            coefficients_W=read_only(waveform.coefficients), played_W=read_only(waveform.played),
+            base_W=term.levels.other_terms_w or 0.0, margin_W=settings.margin_W, maximum_W=term.output_max,
+            model_source=settings.model_source, plant=estimate.learned, probe_state=steps.probe_state,
+            probe_W=read_only(waveform.probe), probe_cost_K=estimate.probe_cost_K,
+            plant_precision=settings.plant_precision, cycles_on_time=term.on_time, divergence=steps.retry.reason,
+            divergences=steps.retry.count, retry_in_s=steps.retry.learn_again_s - term.time_s,
+            limit=term.limits.limit, limit_from=term.limits.source, limit_changes=term.limits.changes)
+
 
 def status_text(status: FeedforwardStatus) -> str:
     """The feedforward's state in a few lines (``cryod ctl feedforward status``)."""
@@ -182,7 +198,8 @@ def _limit(status: FeedforwardStatus) -> list[str]:
     if limit is None:
         return ["physical limit: not computed yet (the daemon computes it for the setpoint in use)"]
     learned = status.limit_from == "learned"
-    source = "from the learned plant and line, and the mean power PI found" if learned else "from the controller's model"
+    source = ("from the learned plant and line, and the mean power PI found" if learned
+              else "from the controller's model")
     lines = [f"physical limit at {limit.setpoint_K:g} K ({source}): {1e6 * limit.ptc_periodic_limit_K:.1f} "
              f"µK of the {1e6 * limit.open_line_K:.1f} µK line; {limit.limited_by}-limited (authority "
              f"{limit.authority:.2f}: the heater can put {1e3 * limit.largest_line_power_W:.0f} mW at the "

@@ -162,6 +162,23 @@ def test_the_status_is_worded_from_a_snapshot_that_does_not_change_after(referen
     term.close()
 
 
+@pytest.mark.parametrize("harmonics", [4, 8])
+def test_a_reload_with_another_number_of_harmonics_keeps_the_waveform_and_goes_on(reference_model, harmonics):
+    """Fewer or more harmonics on a reload: the waveform keeps the ones both have, the learning starts again
+    with the new number, and the loop goes on (what the readings answer is taken at the new number too)."""
+    settings = FeedforwardSettings(model=reference_model)
+    term = FeedforwardTerm(settings, 0.5)
+    term.start(None, 0.113)
+    feed(term, 40.0)
+    kept = term.coefficients[:min(harmonics, 6)].copy()
+    term.reconfigure(dataclasses.replace(settings, harmonics=harmonics), 0.5)
+    assert np.array_equal(term.coefficients[:min(harmonics, 6)], kept) and term.coefficients.size == harmonics
+    outputs = feed(term, 30.0, 40.0)
+    assert np.all(np.isfinite(outputs)) and term.scale == 1.0 and term.phase.locked
+    assert len(term.learned_plant.model) == harmonics
+    term.close()
+
+
 def test_a_reload_keeps_what_was_learned(reference_model):
     settings = FeedforwardSettings(model=reference_model)
     term = FeedforwardTerm(settings, 0.5)

@@ -85,8 +85,11 @@ class PlayedWaveform:
         self._refresh()
 
     def resize(self, harmonics: int) -> None:
-        """Keep what is played, as far as it goes, for another number of harmonics."""
+        """Keep what is played, as far as it goes, for another number of harmonics (and what the readings answer:
+        the effect of what was played last tick is taken at the new number too)."""
+        heard = resized(self.heard, harmonics)
         self.set(resized(self.coefficients, harmonics), resized(self.probe, harmonics))
+        self.heard = heard
 
     def clear(self) -> None:
         """Nothing to play (the learning starts again from the model's plant)."""

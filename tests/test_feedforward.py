@@ -141,6 +141,44 @@ def test_the_waveform_fades_in_and_out_with_the_lock_and_on_command(reference_mo
     assert not term.phase.locked and term.scale == 0.0 and np.all(lost[-10:] == 0.0)
 
 
+def test_the_status_is_worded_from_a_snapshot_that_does_not_change_after(reference_model):
+    """``cryod ctl feedforward status``'s words come from a snapshot the loop's thread takes: worded later, on
+    another thread, they are the words of the instant it was taken, whatever the term has done since."""
+    from cryod.control.feedforward.status_text import status_text
+
+    term = FeedforwardTerm(FeedforwardSettings(model=reference_model), 0.5)
+    term.start(None, 0.113)
+    feed(term, 40.0)
+    snapshot, then = term.status_snapshot(), term.describe()
+    assert status_text(snapshot) == then
+    with pytest.raises(ValueError):                             # its arrays are its own, read-only copies
+        snapshot.played_W[0] = 0.0
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        snapshot.scale = 0.0
+    term.switch(False)
+    feed(term, 10.0, 40.0)
+    assert status_text(snapshot) == then and term.describe() != then
+    assert then.startswith("feedforward on, waveform at 100 %") and term.describe().startswith("feedforward off")
+    term.close()
+
+
+@pytest.mark.parametrize("harmonics", [4, 8])
+def test_a_reload_with_another_number_of_harmonics_keeps_the_waveform_and_goes_on(reference_model, harmonics):
+    """Fewer or more harmonics on a reload: the waveform keeps the ones both have, the learning starts again
+    with the new number, and the loop goes on (what the readings answer is taken at the new number too)."""
+    settings = FeedforwardSettings(model=reference_model)
+    term = FeedforwardTerm(settings, 0.5)
+    term.start(None, 0.113)
+    feed(term, 40.0)
+    kept = term.coefficients[:min(harmonics, 6)].copy()
+    term.reconfigure(dataclasses.replace(settings, harmonics=harmonics), 0.5)
+    assert np.array_equal(term.coefficients[:min(harmonics, 6)], kept) and term.coefficients.size == harmonics
+    outputs = feed(term, 30.0, 40.0)
+    assert np.all(np.isfinite(outputs)) and term.scale == 1.0 and term.phase.locked
+    assert len(term.learned_plant.model) == harmonics
+    term.close()
+
+
 def test_a_reload_keeps_what_was_learned(reference_model):
     settings = FeedforwardSettings(model=reference_model)
     term = FeedforwardTerm(settings, 0.5)

@@ -2,6 +2,7 @@
 
 import dataclasses
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -467,6 +468,60 @@ def test_feedforward_commands_fade_it_out_and_in_and_report(reference_model, cur
     assert "what would change it: setpoint 4.5 K:" in status and "setpoint 5.5 K:" in status
     assert "µK" in status and " uK" not in status                  # one spelling of micro
     assert any(event.text.startswith("command: feedforward accepted") for event in events)
+
+
+def test_the_feedforward_status_is_put_in_words_off_the_loops_thread(reference_model, curves, base_config,
+                                                                      monkeypatch):
+    """The loop's thread takes the snapshot; the words are put together on another thread, and the command is
+    answered, journaled and recorded with them after the tick, as every command is."""
+    import threading
+
+    from cryod.control.feedforward import status_text as words_module
+
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    threads = {}
+    original_words, original_measure = words_module.status_text, instruments.measure
+
+    def words(snapshot):
+        threads["words"] = threading.current_thread()
+        return original_words(snapshot)
+
+    def measure():
+        if instruments.measurements == 1000:
+            threads["loop"] = threading.current_thread()
+            threads["answer"] = loop.submit(Command("feedforward", "status"))
+        return original_measure()
+
+    monkeypatch.setattr(words_module, "status_text", words)
+    instruments.measure = measure
+    assert loop.run(duration_s=90.0, manage_gc=False) == 0
+    answer = threads["answer"]
+    assert threads["words"] is not threads["loop"] and answer.ok and "cooler phase locked" in answer.message
+    recorded = [event for event in events if event.kind == "command"]
+    assert [event.message for event in recorded] == [f"feedforward accepted: {answer.message}"]
+
+
+def test_a_status_whose_words_are_late_is_refused_not_waited_for(reference_model, curves, base_config,
+                                                                 monkeypatch):
+    from cryod.control.feedforward import status_text as words_module
+    from cryod.service import loop as loop_module
+
+    loop, instruments, cryostat, rows, events = make_loop(reference_model, curves, base_config)
+    release, answers, original_measure = threading.Event(), {}, instruments.measure
+
+    def measure():
+        if instruments.measurements == 500:
+            answers["late"] = loop.submit(Command("feedforward", "status"))
+        if instruments.measurements == 510:
+            release.set()                               # the words' thread gets on after the refusal
+        return original_measure()
+
+    monkeypatch.setattr(words_module, "status_text", lambda snapshot: release.wait(60.0) and "never read")
+    monkeypatch.setattr(loop_module, "WORDS_WAIT_S", 0.0)
+    instruments.measure = measure
+    assert loop.run(duration_s=60.0, manage_gc=False) == 0
+    assert not answers["late"].ok and "its words were not ready" in answers["late"].message
+    assert any(event.text.startswith("command: feedforward refused: feedforward not answered") for event in events)
 
 
 def test_the_watchdog_is_fed_while_recovering(reference_model, curves, base_config):

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Callable
 from cryod.argument_types import plain_decimal, shown
 from cryod.control.ramp import MIN_RATE_K_PER_MIN, rate_refusal
 from cryod.control.regulator import RegulatorMode
+from cryod.service.answer_words import SnapshotAnswer
 
 if TYPE_CHECKING:
     from cryod.service.loop import ControlLoop
@@ -185,7 +186,9 @@ def _modulate(loop: "ControlLoop", value) -> str:
             f"{modulation.angular_frequency_rad_s:g} rad/s")
 
 
-def _feedforward(loop: "ControlLoop", value: str) -> str:
+def _feedforward(loop: "ControlLoop", value: str) -> str | SnapshotAnswer:
+    from cryod.control.feedforward.status_text import status_text     # numpy: not for cryod ctl's import
+
     term = loop.regulator.term("feedforward")
     if term is None:
         raise CommandRefused("this daemon has no feedforward term")
@@ -195,7 +198,7 @@ def _feedforward(loop: "ControlLoop", value: str) -> str:
         return (f"feedforward {value}: fading {'in' if value == 'on' else 'out'} over "
                 f"{term.settings.fade_time_s:g} s" + ("" if value == "off" or locked
                                                         else " once the cooler's phase is locked (a few seconds)"))
-    return term.describe()
+    return SnapshotAnswer(term.status_snapshot(), status_text)     # words off the loop's thread
 
 
 def _note(loop: "ControlLoop", value) -> str:
@@ -252,8 +255,10 @@ class CommandSpec:
     help : str
     apply : callable or None
         ``apply(loop, value) -> message``, run on the loop thread; raises
-        :class:`CommandRefused`. None: answered by the socket itself (``status``) or the daemon
-        (``alarms``: :class:`cryod.service.alarms.AlarmMonitor`).
+        :class:`CommandRefused`. The message is the answer's text, or, for a command that only reads
+        (``feedforward status``), a :class:`~cryod.service.answer_words.SnapshotAnswer` the loop has put
+        in words off its thread (:mod:`cryod.service.answer_words`). None: answered by the socket itself
+        (``status``) or the daemon (``alarms``: :class:`cryod.service.alarms.AlarmMonitor`).
     from_socket : bool
         Offered on the control socket (``modulate`` is for ``cryod identify --acquire`` only).
     parse : callable
@@ -270,7 +275,7 @@ class CommandSpec:
     name: str
     argument: str | None
     help: str
-    apply: Callable[["ControlLoop", object], str] | None
+    apply: Callable[["ControlLoop", object], str | SnapshotAnswer] | None
     from_socket: bool = True
     parse: Callable[[str], object] = plain_decimal
     word_counts: tuple[int, ...] | None = None
@@ -354,8 +359,9 @@ def parse_command(line: str) -> Command:
     return Command(spec.name, value, line=f"{spec.name} {text}")
 
 
-def apply_command(loop: "ControlLoop", command: Command) -> tuple[bool, str]:
-    """Carry out ``command`` on the loop (loop thread, tick boundary): (accepted, message)."""
+def apply_command(loop: "ControlLoop", command: Command) -> tuple[bool, str | SnapshotAnswer]:
+    """Carry out ``command`` on the loop (loop thread, tick boundary): (accepted, message: the answer's text, or a
+    snapshot to put in words off the loop's thread)."""
     spec = COMMANDS.get(command.name)
     if spec is None or spec.apply is None:
         return False, f"unknown command {command.name!r}"

@@ -28,6 +28,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
+from concurrent.futures import Future, TimeoutError as FutureTimeout
 from typing import Callable, NamedTuple, Protocol
 
 from cryod.config import DaemonConfig, located_error
@@ -35,6 +36,7 @@ from cryod.control.regulator import HeaterPowerOutput, Regulator, RegulatorMode
 from cryod.control.setpoint_reach import setpoint_warning
 from cryod.control.terms import term_columns
 from cryod.records.columns import TIME_DECIMALS, Event, Row, RowSchema, loop_schema
+from cryod.service.answer_words import WORDS_WAIT_S, AnswerWords, SnapshotAnswer
 from cryod.service.commands import Command, CommandRefused, apply_command
 from cryod.service.daemon_status import LoopStatus
 from cryod.service.fault_episodes import FaultEpisodes
@@ -184,6 +186,8 @@ class ControlLoop:
         # appended by any thread, taken by the loop's (deque's append and popleft are atomic)
         self.commands: collections.deque[Command] = collections.deque()
         self._answers: list[tuple[Command, bool, str]] = []
+        self._words = AnswerWords()         # answers taken as a snapshot, put in words off this thread
+        self._wording: list[tuple[Command, bool, Future]] = []
         self.exit_code: int | None = None
         self._stop_reason: str | None = None
         self._stop_as: tuple[int, FaultCause] = (ExitCode.OK, FaultCause.STOP_REQUESTED)
@@ -281,6 +285,7 @@ class ControlLoop:
             raise
         finally:
             self._answer_commands()
+            self._words.close()
             self.regulator.close()
             if manage_gc:
                 self._gc.stop()
@@ -678,8 +683,12 @@ class ControlLoop:
         self._event("command", message + sender)
         log.warning("command %s%s", message, sender)
 
-    def _record_command(self, command: Command, ok: bool, message: str) -> None:
-        """The command's event, journal line and answer (sent after the tick)."""
+    def _record_command(self, command: Command, ok: bool, message: str | SnapshotAnswer) -> None:
+        """The command's event, journal line and answer (sent after the tick); an answer taken as a snapshot is
+        put in words off this thread first (:mod:`cryod.service.answer_words`), and recorded after the tick."""
+        if isinstance(message, SnapshotAnswer):
+            self._wording.append((command, ok, self._words.put(message)))
+            return
         sender = f" (by {command.sender})" if command.sender else ""
         self._event("command", f"{command.name} {'accepted' if ok else 'refused'}: {message}{sender}")
         if command.name != "reload":              # the daemon's reload says it in the journal itself
@@ -688,7 +697,16 @@ class ControlLoop:
         self._answers.append((command, ok, message))
 
     def _answer_commands(self) -> None:
-        """Answer the commands applied this tick, now that its status is published."""
+        """Answer the commands applied this tick, now that its status is published (those taken as a snapshot
+        once in words: recorded now, or refused when the words are not there within :data:`WORDS_WAIT_S`)."""
+        wording, self._wording = self._wording, []
+        for command, ok, words in wording:
+            try:
+                text = words.result(WORDS_WAIT_S)
+            except FutureTimeout:
+                ok, text = False, (f"{command.name} not answered: its words were not ready within "
+                                   f"{1e3 * WORDS_WAIT_S:g} ms of the tick (the machine is overloaded); ask again")
+            self._record_command(command, ok, text)
         answers, self._answers = self._answers, []
         for command, ok, message in answers:
             command.answer(ok, message)

@@ -9,11 +9,15 @@ cryostat it is on"); here, where each part lives. Every tick the term
 
 1. tracks the cooler's phase from T5 (:mod:`cryod.cooler.phase`);
 2. estimates T2's part synchronous with the cooler, split into the line and
-   the waveform's effect (:class:`SynchronousEstimator`, fed on a worker
-   thread: :mod:`cryod.control.feedforward.learning_worker`), and gives the
-   feedback terms T2 without it, so PI does not chase the line;
+   the waveform's effect (the learner, a Kalman filter:
+   :mod:`cryod.control.feedforward.synchronous_estimator`, fed on a worker
+   thread: :mod:`cryod.control.feedforward.learning_worker`, with the readings
+   of :mod:`cryod.control.feedforward.reading_feed`), and gives the feedback
+   terms T2 without it, so PI does not chase the line;
 3. plays the waveform ``Re(sum_n u_n exp(j n phase))`` (no mean, harmonics 1
-   to N) at the phase of the middle of the coming hold, its effect measured in
+   to N) at the phase of the middle of the coming hold
+   (:mod:`cryod.control.feedforward.played_waveform`), riding on PI's power
+   (:mod:`cryod.control.feedforward.power_levels`), its effect measured in
    the plant as the loop samples it
    (:mod:`cryod.control.feedforward.harmonic_plant`) and as learned
    (:mod:`cryod.control.feedforward.plant_learner`, with a small probe where
@@ -21,10 +25,15 @@ cryostat it is on"); here, where each part lives. Every tick the term
    :mod:`cryod.control.feedforward.plant_probe`);
 4. every ``update_interval_s``, steps the waveform toward cancelling the line
    and projects it onto what the heater can play
-   (:mod:`cryod.control.feedforward.learned_projection`), under a guard that
-   steps back from a learning that makes T2 worse
+   (:mod:`cryod.control.feedforward.learning_step`, on the worker;
+   :mod:`cryod.control.feedforward.learning_steps`, on the loop's thread),
+   under a guard that steps back from a learning that makes T2 worse
    (:mod:`cryod.control.feedforward.divergence_guard`);
-5. fades the waveform out without lock or when switched off, and in again.
+5. moves between its states (:mod:`cryod.control.feedforward.state_machine`,
+   one table): the waveform fades in once the cooler's phase is locked, and
+   out when switched off, without the lock, while the loop's cycles are late
+   and after a divergence, when learning waits before it starts again
+   (:mod:`cryod.control.feedforward.divergence_retry`).
 
 The term rides on the feedback (``rides_on_feedback``): the regulator adds it
 after PI's sum has been held within the heater's range, so a clipped waveform
@@ -32,363 +41,41 @@ never stops PI integrating; what the heater could not play is followed by
 :mod:`cryod.control.feedforward.unplayed_power`. The physical limit at the
 setpoint in use comes from :mod:`cryod.control.feedforward.limit_follower`;
 what the learning finds goes to the journal and the record through
-:mod:`cryod.control.feedforward.learning_report`.
+:mod:`cryod.control.feedforward.learning_report`; its record columns are
+:mod:`cryod.control.feedforward.record_columns`, the words of
+``cryod ctl feedforward status`` :mod:`cryod.control.feedforward.status_text`.
 
-The estimator is a Kalman filter written out here rather than taken from a
-library (filterpy, statsmodels' state-space models). Its update is a few lines
-of numpy; what makes it this estimator is around the update: the regressors
-built at each reading from the cooler's phase and the waveform's modelled
-effect, the second differences that remove T2's slow part, a batch of them per
-update, a plant correction that drifts in proportion to its own size, the
-learned plant kept when the controller's model changes and forgotten on
-demand, and its covariance read back per harmonic as the readings give it. A
-general filter would hold the state and the matrices and leave all of that
-here; statsmodels fits a record afterwards, while this one takes the readings
-one at a time as the loop makes them.
-
-Configuration, section ``control.feedforward`` (optional; reloadable, bumpless)::
-
-    feedforward:
-      enabled: true              # cryod ctl feedforward on|off switches it without a reload
-      harmonics: 6
-      update_interval_s: 2.0     # the waveform steps this often
-      memory_s: 60.0             # the line estimate may drift over this
-      learning_gain: 0.5         # fraction of the way to the estimated best waveform per step
-      fade_time_s: 5.0
-      margin_W: 0.001            # kept from 0 W and from R I_max^2
-      minimum_cooler_amplitude_K: 0.01
-      probe_amplitude_K: 1.0e-4  # T2's answer to the probe at each harmonic probed (0: no probe)
-      plant_precision: 0.03      # the probe stops at a harmonic once its plant is known this well (relative)
-      retry_after_s: 120.0       # after a divergence, learning starts again this much later
-      model: null                # the controller's model (null: the shipped model)
+Its configuration, the section ``control.feedforward``: :mod:`cryod.control.feedforward.settings`.
 """
 
 from __future__ import annotations
 
 import cmath
 import math
-from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
-from cryod.control.feedforward.bounded_waveform import waveform_values
-from cryod.control.feedforward.divergence_guard import DivergenceGuard
-from cryod.control.feedforward.learning_worker import LearningWorker
-from cryod.control.feedforward.limit import REPORTED_HARMONICS
 from cryod.control.feedforward.harmonic_plant import plant_at_harmonics
 from cryod.control.feedforward.learned_limit import LearnedLimitInputs
-from cryod.control.feedforward.learned_projection import learning_step
-from cryod.control.feedforward.learning_report import LearningReport
-from cryod.control.feedforward.limit_binding import limit_binding, measured_against_limit
+from cryod.control.feedforward.learning_steps import LearningSteps
 from cryod.control.feedforward.limit_follower import LimitFollower
-from cryod.control.feedforward.plant_learner import PRIOR_SPREAD, LearnedPlant
-from cryod.control.feedforward.plant_probe import ProbeSettings, ProbeState, next_probe, probe_cost_K
-from cryod.control.terms import ControlTerm, TickInputs
+from cryod.control.feedforward.plant_learner import LearnedPlant
+from cryod.control.feedforward.plant_probe import ProbeState
+from cryod.control.feedforward.played_waveform import PlayedWaveform, faded, harmonic_sum
+from cryod.control.feedforward.power_levels import PowerLevels
+from cryod.control.feedforward.reading_feed import ReadingFeed
+from cryod.control.feedforward.record_columns import COLUMNS
+from cryod.control.feedforward.settings import FeedforwardSettings, settings_from
+from cryod.control.feedforward.state_machine import (BEHAVIOURS, FeedforwardEvent, FeedforwardState, next_state,
+                                                     verdict)
+from cryod.control.feedforward.status_text import FeedforwardStatus, status_text
+from cryod.control.feedforward.synchronous_estimator import SynchronousEstimator
 from cryod.control.feedforward.unplayed_power import UnplayedPower
+from cryod.control.terms import ControlTerm, TickInputs
 from cryod.cooler.phase import CoolerPhaseTracker
-from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, load_model
-from cryod.records.columns import Column
-from cryod.yaml_source import FileFormatError, Section
 
-#: Loop period the plant response assumes when the settings do not say (s).
-DEFAULT_PERIOD_S = 0.08
-#: After a gap in the loop (a fault, start-up), T2's readings are left out this long (s).
-SETTLE_S = 1.0
-#: After a change of what the heater plays (a learning step, the probe turning), T2's readings are left out this
-#: long (s): a thermometer that lags or a heater that acts late answers the old waveform and the new one mixed for
-#: a while, and taking those readings as the new one's answer would bias the plant learned by the change.
-CHANGE_SETTLE_S = 0.5
-#: ... when the change moves T2 by more than this (K, through the model's plant): a change of a few microkelvin (a
-#: converged waveform following the line's noise) mixes nothing that matters against the readings' noise.
-CHANGE_SETTLE_ABOVE_K = 20e-6
-#: Smoothing of the feedback terms' power, the level the waveform rides on (s).
-BASE_TIME_S = 2.0
-#: Second differences the estimator takes into one update of its filter.
-BATCH = 4
-#: Phases of a cooler period at which the waveform is held within the heater's bounds (and, shrunk if
-#: needed, on a grid eight times finer); 48 costs the 5 K optimum 0.2 % against 128, at a third of the time.
-BOUND_POINTS = 48
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
 SETTING_DELAY_TOLERANCE_S = 0.002
-#: Learning steps in a row that make a divergence (:class:`~cryod.control.feedforward.divergence_guard.DivergenceGuard`).
-DIVERGENCE_STEPS = 5
-#: The wait before learning again after a divergence doubles with each one in a row, up to this (s).
-LONGEST_RETRY_S = 3600.0
-#: Smoothing of PI's power for the mean power the setpoint needs (s), and of T2's distance from the setpoint.
-MEAN_POWER_TIME_S = 60.0
-SETTLING_TIME_S = 20.0
-#: T2 is taken as settled at the setpoint (its mean power the one the setpoint needs) within this (K) ...
-SETTLED_K = 2e-4
-#: ... and as still on its way to it (the probe may be larger) beyond this (K).
-APPROACHING_K = 2e-3
-#: The learned limit needs the plant at the line known to this (relative standard deviation).
-LIMIT_PLANT_SPREAD = 0.1
-
-
-@dataclass(frozen=True)
-class FeedforwardSettings:
-    """The ``control.feedforward`` section.
-
-    Attributes
-    ----------
-    enabled : bool
-        On at start (``cryod ctl feedforward on|off`` switches it while running).
-    harmonics : int
-        Harmonics of the cooler frequency in the waveform and the residual.
-    update_interval_s : float
-        The waveform steps this often (s).
-    memory_s : float
-        Memory of the estimate of T2's synchronous part (s).
-    learning_gain : float
-        Fraction of the way to the estimated best waveform taken per step (0 to 1).
-    fade_time_s : float
-        Fade in and out (s).
-    margin_W : float
-        Distance kept from 0 W and from R I_max^2 (W).
-    minimum_cooler_amplitude_K : float
-        T5 oscillation below this counts as no cooler signal (K).
-    probe_amplitude_K : float
-        T2's answer to the probe at each harmonic probed (K; 0: no probe).
-    plant_precision : float
-        The probe stops at a harmonic once its plant is known this well (relative standard deviation).
-    retry_after_s : float
-        After a divergence, learning starts again this much later (s; doubling for each in a row).
-    model : CryostatModel
-        The controller's model (plant response at each harmonic).
-    model_source : str
-        Where the model came from.
-    period_s : float
-        Loop period (s): the hold of each heater setting.
-    """
-
-    enabled: bool = True
-    harmonics: int = 6
-    update_interval_s: float = 2.0
-    memory_s: float = 60.0
-    learning_gain: float = 0.5
-    fade_time_s: float = 5.0
-    margin_W: float = 0.001
-    minimum_cooler_amplitude_K: float = 0.01
-    probe_amplitude_K: float = 100e-6
-    plant_precision: float = 0.03
-    retry_after_s: float = 120.0
-    model: CryostatModel | None = None
-    model_source: str = "shipped model"
-    period_s: float = DEFAULT_PERIOD_S
-
-    @property
-    def controller_model(self) -> CryostatModel:
-        return self.model if self.model is not None else load_model(DEFAULT_MODEL_PATH)
-
-    @property
-    def probe(self) -> ProbeSettings:
-        return ProbeSettings(amplitude_K=self.probe_amplitude_K, precision=self.plant_precision,
-                             noise_K=self.controller_model.sensor_noise.flange_thermometer_rms_K,
-                             readings_per_s=1.0 / self.period_s)
-
-
-class SynchronousEstimator:
-    """T2's part synchronous with the cooler, split into the cooler's line and the waveform's effect.
-
-    Model of T2 at each reading (phase ``theta`` of the cooler)::
-
-        T2 = slow part + Re(sum_n (L_n + k_n z_n) exp(j n theta)) + noise
-
-    with ``L_n`` the cooler's line (it does not change when the waveform does),
-    ``z_n`` the waveform's effect through the controller's model (its
-    coefficient times the model's plant response, known) and ``k_n`` the
-    correction of the model's plant response (1 when the model is right).
-
-    Second differences of successive readings remove the slow part (what is
-    left, its curvature, is a thousandth of the line and not synchronous). A
-    Kalman filter estimates ``L`` and ``k``, each a slow random walk: the line
-    by about ``line_drift_K`` per ``memory_s`` (a cooler frequency wandering by
-    a percent changes T2's line by a percent), the plant's correction by
-    :data:`CORRECTION_DRIFT_PER_HOUR` of itself per hour. ``k`` is learned only
-    from readings where what the heater plays changes (the waveform coming in
-    and learning, the probe) and is kept between them; it starts at 1 with a
-    spread of ``correction_spread`` on each part, so any phase is possible.
-    What is learned, with its covariance, is read as a
-    :class:`~cryod.control.feedforward.plant_learner.LearnedPlant`, which decides where it
-    is known well enough to be used.
-
-    Parameters
-    ----------
-    harmonics : int
-    noise_K : float
-        T2's reading noise (K rms), for the filter's measurement noise.
-    memory_s : float
-        Time over which the line may change by about ``line_drift_K`` (s).
-    period_s : float
-        Typical interval between readings (s).
-    correction_spread : float
-        Prior spread of each part of ``k`` around 1.
-    line_drift_K : float
-        How much the line may change over ``memory_s`` (K).
-    """
-
-    #: The correction of the plant may drift by about this fraction of itself per hour.
-    CORRECTION_DRIFT_PER_HOUR = 0.02
-
-    def __init__(self, harmonics: int, noise_K: float = 20e-6, memory_s: float = 60.0,
-                 period_s: float = DEFAULT_PERIOD_S, correction_spread: float = PRIOR_SPREAD,
-                 line_drift_K: float = 20e-6):
-        self.harmonics = harmonics
-        self.memory_s = memory_s
-        self.period_s = period_s
-        self.orders = np.arange(1, harmonics + 1)
-        self.size = 4 * harmonics
-        n = 2 * harmonics
-        line_scale = 3e-3           # K: a line of mK at most
-        steps = memory_s / period_s
-        self._correction_drift = self.CORRECTION_DRIFT_PER_HOUR ** 2 * period_s / 3600.0
-        self._process = np.concatenate([np.full(n, line_drift_K ** 2 / steps), np.full(n, self._correction_drift)])
-        self._line_variance = line_scale ** 2
-        self._correction_variance = correction_spread ** 2
-        self.covariance = np.diag(np.concatenate([np.full(n, line_scale ** 2), np.full(n, correction_spread ** 2)]))
-        self.state = np.concatenate([np.zeros(n), np.ones(harmonics), np.zeros(harmonics)])
-        self.measurement_variance = 6.0 * noise_K ** 2     # second difference of white noise
-        self._history: list[tuple[np.ndarray, float]] = []     # the last two readings' regressors and T2
-        self._pending: list[tuple[np.ndarray, float]] = []     # a second difference waiting for its pair
-        self.samples = 0
-        self._covariance_diagonal = self.covariance.reshape(-1)[::self.size + 1]
-
-    @property
-    def line(self) -> np.ndarray:
-        n = self.harmonics
-        return self.state[:n] + 1j * self.state[n:2 * n]
-
-    @property
-    def raw_correction(self) -> np.ndarray:
-        """The filter's estimate of ``k_n`` as it stands, trusted or not (K/K, complex)."""
-        n = self.harmonics
-        return self.state[2 * n:3 * n] + 1j * self.state[3 * n:]
-
-    def _blocks(self, first: int) -> np.ndarray:
-        """(harmonics, 2, 2): the covariance of the real and imaginary parts of the state from ``first`` on."""
-        n = self.harmonics
-        real, imaginary = np.arange(first, first + n), np.arange(first + n, first + 2 * n)
-        c = self.covariance
-        return np.stack([np.stack([c[real, real], c[real, imaginary]], axis=-1),
-                         np.stack([c[imaginary, real], c[imaginary, imaginary]], axis=-1)], axis=-2)
-
-    @property
-    def correction_covariance(self) -> np.ndarray:
-        """(harmonics, 2, 2): the covariance of (Re k_n, Im k_n), as the filter states it."""
-        return self._blocks(2 * self.harmonics)
-
-    def _as_the_readings_give(self, covariance: np.ndarray, prior_variance: float,
-                              frequency_rad_s: float | None) -> np.ndarray:
-        """A block covariance as the readings give it (see :meth:`learned_plant`): the information the readings
-        brought corrected by the second differences' misstatement at each harmonic; the prior's kept."""
-        if frequency_rad_s is None:
-            return covariance
-        gain = (2.0 - 2.0 * np.cos(self.orders * frequency_rad_s * self.period_s)) ** 2 / 6.0
-        prior = np.eye(2) / prior_variance
-        information = np.linalg.inv(covariance) - prior
-        information = 0.5 * (information + np.swapaxes(information, 1, 2))
-        values, vectors = np.linalg.eigh(information)
-        information = np.einsum("nij,nj,nkj->nik", vectors, np.maximum(values, 0.0), vectors)
-        return np.linalg.inv(prior + information / np.maximum(gain, 1e-3)[:, None, None])
-
-    def learned_plant(self, model_plant: np.ndarray, frequency_rad_s: float | None = None) -> LearnedPlant:
-        """What is learned of the plant, against the model's ``model_plant`` (K/W per harmonic).
-
-        The filter takes the second differences as independent, each with six times the readings'
-        noise variance; they are not (consecutive ones share readings), and what that misstates depends
-        on the harmonic: a second difference passes harmonic n by ``2 - 2 cos(n omega T)`` and its noise
-        by the same at that frequency, so the estimate is as good as a fit to the readings themselves,
-        while the filter's covariance says it is ``(2 - 2 cos(n omega T))**2 / 6`` times as good (12
-        times worse at the fundamental, 2.3 times better at the third harmonic, at 80 ms). The
-        information the readings brought is corrected by that factor (``frequency_rad_s``, the cooler's;
-        none: as the filter has it); the prior's is kept.
-        """
-        covariance = self._as_the_readings_give(self.correction_covariance, self._correction_variance,
-                                                frequency_rad_s)
-        return LearnedPlant(np.asarray(model_plant, dtype=complex), self.raw_correction.copy(), covariance)
-
-    @property
-    def correction(self) -> np.ndarray:
-        """The plant correction at each harmonic where the readings tell it better than the model's
-        assumed error (:data:`~cryod.control.feedforward.plant_learner.MODEL_ERROR`), else 1: the model's."""
-        return np.where(self.learned_plant(np.ones(self.harmonics)).learned, self.raw_correction, 1.0)
-
-    def reset_correction(self) -> None:
-        """Forget what was learned of the plant: the model's again, with the prior's spread."""
-        n = self.harmonics
-        self.state[2 * n:3 * n], self.state[3 * n:] = 1.0, 0.0
-        self.covariance[2 * n:, :] = 0.0
-        self.covariance[:, 2 * n:] = 0.0
-        self._covariance_diagonal[2 * n:] = self._correction_variance
-
-    def rescale_correction(self, factor: np.ndarray) -> None:
-        """The model's plant changed by ``1 / factor`` at each harmonic: keep the learned plant (``k *= factor``)."""
-        n = self.harmonics
-        factor = np.asarray(factor, dtype=complex)
-        transform = np.eye(self.size)
-        index = np.arange(n)
-        real, imaginary = 2 * n + index, 3 * n + index
-        transform[real, real], transform[real, imaginary] = factor.real, -factor.imag
-        transform[imaginary, real], transform[imaginary, imaginary] = factor.imag, factor.real
-        self.state = transform @ self.state
-        self.covariance[:] = transform @ self.covariance @ transform.T
-
-    def regressors(self, phase: float, effect: np.ndarray) -> np.ndarray:
-        """[cos, -sin of each harmonic, Re and -Im of each effect turned by the phase] at one reading."""
-        rotors = np.exp(1j * self.orders * phase)
-        turned = effect * rotors
-        row = np.empty(self.size)
-        n = self.harmonics
-        row[:n], row[n:2 * n], row[2 * n:3 * n], row[3 * n:] = rotors.real, -rotors.imag, turned.real, -turned.imag
-        return row
-
-    def synchronous(self, effect: np.ndarray) -> np.ndarray:
-        """T2's synchronous part per harmonic as estimated now, ``L_n + k_n z_n`` (K, complex)."""
-        return self.line + self.raw_correction * effect
-
-    def add(self, phase: float, flange_K: float, effect: np.ndarray) -> None:
-        """One T2 reading at its phase, with the waveform's modelled effect ``effect`` (K per harmonic)."""
-        self._history.append((self.regressors(phase, effect), flange_K))
-        if len(self._history) < 3:
-            return
-        (row0, y0), (row1, y1), (row2, y2) = self._history
-        del self._history[0]
-        self._pending.append((row2 - 2.0 * row1 + row0, y2 - 2.0 * y1 + y0))
-        self.samples += 1
-        if len(self._pending) == BATCH:
-            self._update_batch()
-
-    def _update_batch(self) -> None:
-        """The filter's update with BATCH second differences at once (a fraction of the cost per reading
-        of one at a time, the same information): covariance grown by as many steps of drift, then the gain."""
-        observed = np.array([x for x, _ in self._pending])      # BATCH x size
-        differences = np.array([d for _, d in self._pending])
-        self._pending.clear()
-        covariance = self.covariance
-        n = self.harmonics
-        size = np.maximum(np.abs(self.raw_correction), 0.05) ** 2      # the correction drifts relative to itself
-        self._process[2 * n:3 * n] = self._process[3 * n:] = self._correction_drift * size
-        self._covariance_diagonal += len(differences) * self._process      # a strided view of the diagonal
-        px = covariance @ observed.T                            # size x BATCH
-        innovation_covariance = observed @ px
-        innovation_covariance.reshape(-1)[::len(differences) + 1] += self.measurement_variance
-        gain = np.linalg.solve(innovation_covariance, px.T).T   # size x BATCH (symmetric system)
-        self.state += gain @ (differences - observed @ self.state)
-        covariance -= gain @ px.T
-        covariance += covariance.T                              # kept symmetric against rounding
-        covariance *= 0.5
-
-    @property
-    def ready(self) -> bool:
-        """Enough readings for a first estimate."""
-        return self.samples >= 8 * self.harmonics
-
-    def forget_last(self) -> None:
-        """Do not difference the next reading against the last ones (a gap: the lock was lost)."""
-        self._history.clear()
-        if self._pending:                    # what is waiting for a full batch: its update now
-            self._update_batch()
 
 
 class FeedforwardTerm(ControlTerm):
@@ -397,107 +84,33 @@ class FeedforwardTerm(ControlTerm):
     name = "feedforward"
     required = False
     rides_on_feedback = True
-    columns = (
-        Column("ff_W", "W", "feedforward heater part (locked to the cooler)", "{:.6e}"),
-        Column("ff_phase_rad", "rad", "cooler phase at the T2 reading (T5's fundamental is A cos(phase))",
-               "{:.4f}"),
-        Column("ff_frequency_rad_s", "rad/s", "cooler angular frequency tracked from T5", "{:.5f}"),
-        Column("ff_locked", "", "1 when the phase tracker is locked to the cooler", "{:.0f}"),
-        Column("ff_line_K", "K", "amplitude of T2's part synchronous with the cooler as estimated at the last "
-                                 "learning step (sqrt of the sum of the harmonics' squared amplitudes)", "{:.4e}"),
-        Column("ff_scale", "", "fade of the waveform, 0 (off) to 1 (on)", "{:.3f}"),
-        Column("ff_limit_K", "K", "the physical limit at this setpoint: the least synchronous T2 any heater "
-                                  "waveform can leave (feedforward-limit; empty until computed)", "{:.3e}"),
-        Column("ff_authority", "", "largest fundamental the heater can give over the one the line needs "
-                                   "(below 1: authority-limited)", "{:.3f}"),
-        Column("ff_limit_from", "", "what ff_limit_K and ff_authority were computed from: model (the controller's "
-                                    "model) or learned (the plant and line learned, the mean power PI found)"),
-        Column("ff_probe_K", "K", "T2's answer to the probe (harmonics together), empty when it is off; the "
-                                  "learned plant itself is in the record's feedforward events", "{:.2e}"),
-    )
+    columns = COLUMNS
 
     def __init__(self, settings: FeedforwardSettings, output_max: float):
         self.output_max = output_max
         self.switched_on = settings.enabled
-        #: The loop's cycles keep their deadlines (:meth:`follow_timing`): the waveform may play and learn.
-        self.on_time = True
-        self.scale = 0.0
-        self._coefficients = np.zeros(settings.harmonics, dtype=complex)
-        self._probe = np.zeros(settings.harmonics, dtype=complex)
-        self._set_played()
-        self._heard_coefficients = self._played_coefficients    # what the readings answer: nothing played yet
+        self.on_time = True                 # the loop's cycles keep their deadlines (follow_timing)
+        #: Where the feedforward is (:mod:`cryod.control.feedforward.state_machine`).
+        self.state = FeedforwardState.WAITING_FOR_LOCK if settings.enabled else FeedforwardState.OFF
+        self.scale = 0.0                    # the fade: 0 (out) to 1 (full)
+        self.waveform = PlayedWaveform(settings.harmonics)
+        self.steps = LearningSteps(settings.harmonics)
+        self.readings = ReadingFeed()
+        self.levels = PowerLevels()
         #: The plant at each harmonic as the loop samples it (K/W), from the controller's model.
         self.plant: np.ndarray | None = None
         self.tracker: CoolerPhaseTracker | None = None
-        self.worker: LearningWorker | None = None         # the estimator and the learning steps
-        self._estimate: StepResult | None = None           # what the last learning step returned
-        self._step_id = 0
-        self._pending_step: int | None = None
+        self.phase = None                   # the cooler's phase at this tick (None: not tracked)
         self.setting_delay_s = 0.0
-        self.other_terms_w: float | None = None      # the feedback terms' power, smoothed
-        self.mean_power_w: float | None = None       # ... smoothed over MEAN_POWER_TIME_S
-        self._setpoint_distance_K = math.inf          # T2's distance from the setpoint, smoothed
         self.output_w = 0.0
-        self.phase = None
+        self.time_s = 0.0                   # the last closed-loop tick's
         self._flange_phase_rad = math.nan
-        self._applied_scale = 0.0           # the scale of the waveform the heater played last tick
-        self._held_since_s = -math.inf      # when the loop last had a gap (the heater held off)
-        self._changed_at_s = -math.inf      # when the heater began to play a new waveform or probe
-        self._played = False                # update() ran last tick: the heater played the waveform
+        self._updated = False               # update() ran last tick: the heater played the waveform
         self._output_time_s = 0.0           # when this tick's power takes effect
-        self.unplayed: UnplayedPower | None = None      # the power held back at the heater's bounds
-        self._next_update_s: float | None = None
-        self._in_gap = False                # the worker was told of a gap since the last reading
-        self._synchronous_cache = None
-        self.probe_state: ProbeState = ProbeState.start(settings.harmonics)
-        self.guard = DivergenceGuard(DIVERGENCE_STEPS)
-        self.report = LearningReport()
-        self._pi_alone: tuple[float, float] | None = None   # (line with no waveform played (K), T5's amplitude then)
-        self._diverged: str | None = None       # why the waveform is fading out after a divergence
-        self._divergences = 0                   # in a row (reset once learning holds)
-        self.divergences = 0                    # since start
-        self._learn_again_s = -math.inf         # no learning before this after a divergence
-        self._time_s = 0.0
-        self._probe_column = math.nan           # T2's answer to the probe being played (NaN: off)
-        self._plant_known_for_limit = False     # the plant at the line known well enough for the learned limit
-        #: The physical limit at the setpoint in use, from the model or from what was learned.
-        self.limits: LimitFollower | None = None
+        self.limits: LimitFollower | None = None        # the physical limit at the setpoint in use
         self._configure(settings)
 
-    # -- configuration ---------------------------------------------------------------
-    @staticmethod
-    def settings_from(section: Section | None) -> FeedforwardSettings:
-        """The ``control.feedforward`` section (defaults when absent)."""
-        if section is None:
-            return FeedforwardSettings(model=load_model(DEFAULT_MODEL_PATH))
-        defaults = FeedforwardSettings()
-        model_path = section.text("model", None)
-        try:
-            model = load_model(_resolve(model_path, section.source)) if model_path else load_model(DEFAULT_MODEL_PATH)
-        except FileFormatError as error:
-            raise section.error("model", f"controller model not usable: {error}") from None
-        settings = FeedforwardSettings(
-            enabled=section.flag("enabled", defaults.enabled),
-            harmonics=section.number("harmonics", defaults.harmonics, minimum=1, maximum=12, integer=True),
-            update_interval_s=section.number("update_interval_s", defaults.update_interval_s, minimum=0.5,
-                                             maximum=60.0),
-            memory_s=section.number("memory_s", defaults.memory_s, minimum=2.0, maximum=3600.0),
-            learning_gain=section.number("learning_gain", defaults.learning_gain, minimum=0.0,
-                                         exclusive_minimum=True, maximum=1.0),
-            fade_time_s=section.number("fade_time_s", defaults.fade_time_s, minimum=0.0, maximum=600.0),
-            margin_W=section.number("margin_W", defaults.margin_W, minimum=0.0, maximum=1.0),
-            minimum_cooler_amplitude_K=section.number("minimum_cooler_amplitude_K",
-                                                      defaults.minimum_cooler_amplitude_K, minimum=0.0,
-                                                      exclusive_minimum=True),
-            probe_amplitude_K=section.number("probe_amplitude_K", defaults.probe_amplitude_K, minimum=0.0,
-                                             maximum=1e-3),
-            plant_precision=section.number("plant_precision", defaults.plant_precision, minimum=0.001,
-                                           maximum=0.2),
-            retry_after_s=section.number("retry_after_s", defaults.retry_after_s, minimum=10.0,
-                                         maximum=LONGEST_RETRY_S),
-            model=model, model_source=model_path or "shipped model")
-        section.finish()
-        return settings
+    settings_from = staticmethod(settings_from)     # the control.feedforward section, validated (settings.py)
 
     def _configure(self, settings: FeedforwardSettings) -> None:
         self.settings = settings
@@ -510,28 +123,18 @@ class FeedforwardTerm(ControlTerm):
         if self.limits is None:
             self.limits = LimitFollower(model)
         self.limits.use_model(model)
-        self._orders = np.arange(1, harmonics + 1)
-        self.unplayed = UnplayedPower(model)
+        self.readings.unplayed = UnplayedPower(model)
         previous_plant = self.plant
-        self.plant = plant_at_harmonics(model, self._orders, settings.period_s, self.setting_delay_s)
-        self._effect_cache = None
-        if self._coefficients.size != harmonics:                    # keep what was learned, as far as it goes
-            self._coefficients, self._probe = _resized(self._coefficients, harmonics), _resized(self._probe, harmonics)
-            self._set_played()
-            self.probe_state = ProbeState.start(harmonics)
-        worker = self.worker
-        if worker is None or worker.estimator.harmonics != harmonics or worker.estimator.memory_s != settings.memory_s:
-            if worker is not None:
-                self._take_step_result()
-                worker.close()
-            self.worker = LearningWorker(SynchronousEstimator(harmonics, model.sensor_noise.flange_thermometer_rms_K,
-                                                              settings.memory_s, settings.period_s))
-            self._estimate = StepResult.empty(self.plant)
-        elif previous_plant is not None and previous_plant.size == harmonics and \
-                not np.allclose(previous_plant, self.plant, rtol=1e-12, atol=0.0):
-            # another controller's model: the cryostat did not change, so neither does the plant learned
-            factor = previous_plant / self.plant
-            self.worker.apply(lambda estimator: estimator.rescale_correction(factor))
+        self.plant = plant_at_harmonics(model, np.arange(1, harmonics + 1), settings.period_s, self.setting_delay_s)
+        if self.waveform.coefficients.size != harmonics:            # keep what was learned, as far as it goes
+            self.waveform.resize(harmonics)
+            self.steps.probe_state = ProbeState.start(harmonics)
+        if self.steps.needs_estimator(harmonics, settings.memory_s):
+            self._take_step()
+            self.steps.use_estimator(SynchronousEstimator(harmonics, model.sensor_noise.flange_thermometer_rms_K,
+                                                          settings.memory_s, settings.period_s), self.plant)
+        else:
+            self.steps.keep_learned_plant(previous_plant, self.plant)
 
     def reconfigure(self, settings: FeedforwardSettings, output_max: float) -> None:
         """A reload: new settings, keeping the lock, the learned plant and the learned waveform (bumpless)."""
@@ -542,23 +145,32 @@ class FeedforwardTerm(ControlTerm):
 
     def close(self) -> None:
         """End the learning thread and the limit's (the regulator closes its terms when the loop stops)."""
-        if self.worker is not None:
-            self.worker.close()
+        self.steps.close()
         self.limits.close()
+
+    # -- what the operator and the loop say ---------------------------------------------
+    def switch(self, on: bool) -> None:
+        """``cryod ctl feedforward on|off``: fade in or out."""
+        self.switched_on = bool(on)
 
     def follow_timing(self, on_time: bool) -> None:
         """Late cycles in a row put the waveform's phase and the learning's inputs in doubt: the waveform fades
         out and learning pauses until the cycles keep their deadlines again, then it fades back in."""
         self.on_time = bool(on_time)
 
-    def switch(self, on: bool) -> None:
-        """``cryod ctl feedforward on|off``: fade in or out."""
-        self.switched_on = bool(on)
+    def enter_zone(self, index: int) -> None:
+        """The setpoint in use moved into zone ``index`` (from 0), whose model :meth:`reconfigure` has just taken:
+        another operating point, so the learned plant starts again from that model with the prior's spread (the
+        probe, the learned limit and PI alone's line too); the waveform plays on, no bump. Said as an event."""
+        self._take_step()               # a step computed at the previous operating point is taken first
+        self.steps.zone_entered(index, self.settings, self.plant)
+        self.limits.forget_learned()
+        self._move(FeedforwardEvent.PLANT_FORGOTTEN)
 
-    @property
-    def phase_locked(self) -> bool:
-        """Whether the cooler's phase is tracked and locked now (the waveform plays only then)."""
-        return self.phase is not None and self.phase.locked
+    def _move(self, event: FeedforwardEvent) -> FeedforwardState:
+        """Take ``event`` (:func:`~cryod.control.feedforward.state_machine.next_state`); the state left."""
+        left, self.state = self.state, next_state(self.state, event)
+        return left
 
     # -- the cycle ---------------------------------------------------------------------
     def condition(self, tick: TickInputs) -> TickInputs:
@@ -566,15 +178,16 @@ class FeedforwardTerm(ControlTerm):
         T2 without its estimated synchronous part (PI must not chase the line)."""
         # the step asked for last tick, before this reading goes in: the readings from here on are the
         # new waveform's (applied later, T2's transient at the change would be taken for the plant's answer)
-        self._take_step_result()
-        if not self._played:                    # the loop was open last tick: no waveform reached the heater
-            self._applied_scale = 0.0
-        self._played = False
+        self._take_step()
+        if not self._updated:                   # the loop was open last tick: no waveform reached the heater
+            self.waveform.scale_played = 0.0
+        self._updated = False
+        worker = self.steps.worker
         if not (self.switched_on or self.scale > 0.0):
             # off: PI alone, as without this term, at no cost to the loop (the cooler is not even tracked;
             # switched on, it locks again within seconds)
             if self.phase is not None:
-                self._gap()
+                self.readings.gap(worker)
                 self.tracker.reset()
                 self.phase = None
             return tick
@@ -582,177 +195,118 @@ class FeedforwardTerm(ControlTerm):
         self._follow_setting_delay(tick.output_time_s - tick.flange_time_s)
         flange_phase = self._flange_phase_rad = phase.phase_at(tick.flange_time_s)
         if not phase.locked:
-            self._gap()
+            self.readings.gap(worker)
             return tick
-        effect = self._effect()
-        if tick.dt_s > 1.5 * self.settings.period_s:
-            self._held_since_s = phase.time_s       # a gap: the loop held the heater off (a fault, start-up)
-            self.unplayed.reset()
-        if phase.time_s - self._held_since_s < SETTLE_S or tick.flange_time_s - self._changed_at_s < CHANGE_SETTLE_S:
-            # after a gap the heater did not play the waveform the estimator assumes, and after a change it played
-            # the old and the new: wait until T2 has settled
-            self._gap()
-        else:
-            self._in_gap = False
-            # where the total was held at a bound, T2 as if the heater had played what was asked
-            self.worker.reading(flange_phase, tick.flange_K - self.unplayed.at(tick.flange_time_s), effect)
-        if not self._estimate.ready:
+        effect = self.waveform.effect(self.plant)
+        self.readings.take(worker, tick, phase, flange_phase, effect, self.settings.period_s)
+        if not self.steps.estimate.ready:
             return tick
         # PI sees T2 without its synchronous part, as much of it as the waveform has faded in
-        rotor = cmath.exp(1j * flange_phase)
-        value, power = 0.0, 1.0 + 0j
-        for phasor in self._synchronous_list():
-            power *= rotor
-            value += (phasor * power).real
+        value = harmonic_sum(self.steps.synchronous(effect), cmath.exp(1j * flange_phase))
         return tick.with_feedback(tick.flange_feedback_K - self.scale * value)
-
-    def _gap(self) -> None:
-        if not self._in_gap:
-            self._in_gap = True
-            self.worker.gap()
-
-    def _synchronous_list(self) -> list[complex]:
-        """``L_n + k_n z_n`` of the last step's estimate for the waveform now, as plain complex (cached)."""
-        effect = self._effect()
-        cache = self._synchronous_cache
-        if cache is None or cache[0] is not self._estimate or cache[1] is not effect:
-            phasors = self._estimate.line + self._estimate.learned.correction * effect
-            cache = self._synchronous_cache = (self._estimate, effect, [complex(value) for value in phasors])
-        return cache[2]
 
     def _follow_setting_delay(self, delay_s: float) -> None:
         """The plant response depends on how long after T2's sample the heater is set: follow it."""
         delay_s = min(max(delay_s, 0.0), 0.99 * self.settings.period_s)
         if abs(delay_s - self.setting_delay_s) > SETTING_DELAY_TOLERANCE_S:
             self.setting_delay_s = delay_s
-            self._effect_cache = None
-            self.plant = plant_at_harmonics(self.settings.controller_model, self._orders, self.settings.period_s,
-                                            delay_s)
+            self.plant = plant_at_harmonics(self.settings.controller_model, np.arange(1, self.settings.harmonics + 1),
+                                            self.settings.period_s, delay_s)
 
     def start(self, tick: TickInputs, present_output: float) -> None:
         self.scale = 0.0            # the waveform fades in: closing the loop stays bumpless
+        self._move(FeedforwardEvent.LOOP_CLOSED)
 
     def update(self, tick: TickInputs) -> float:
-        self._played = True
+        self._updated = True
         self._output_time_s = tick.output_time_s
-        self._time_s = tick.time_s
+        self.time_s = tick.time_s
         locked = self.phase is not None and self.phase.locked
-        learning = self._diverged is None and tick.time_s >= self._learn_again_s
-        wanted = 1.0 if (self.switched_on and locked and learning and self.on_time) else 0.0
-        fade = self.settings.fade_time_s
-        step = tick.dt_s / fade if fade > 0.0 else 1.0
-        self.scale = min(self.scale + step, wanted) if wanted > self.scale else max(self.scale - step, wanted)
-        if self._diverged is not None and self.scale <= 0.0:
-            self._reset_learning(tick.time_s)
-        if locked and (self.switched_on or self.scale > 0.0):
-            if self._next_update_s is None:
-                self._next_update_s = tick.time_s + self.settings.update_interval_s
-            elif tick.time_s >= self._next_update_s:
-                self._next_update_s += self.settings.update_interval_s
-                self._follow_mean(abs(tick.setpoint_K - tick.flange_feedback_K))
-                self._ask_for_step(learning and self.switched_on and self.on_time)
+        self._move(verdict(self.switched_on, self.on_time, locked, self.steps.retry.pending(tick.time_s)))
+        plays = BEHAVIOURS[self.state].plays
+        self.scale = faded(self.scale, 1.0 if plays else 0.0, tick.dt_s, self.settings.fade_time_s)
+        if plays and self.scale >= 1.0:
+            self._move(FeedforwardEvent.FADED_IN)
+        elif not plays and self.scale <= 0.0:
+            if self._move(FeedforwardEvent.FADED_OUT) is FeedforwardState.DIVERGED:
+                self._start_again_later()
+        if locked and (self.switched_on or self.scale > 0.0) and self.steps.due(tick.time_s,
+                                                                                 self.settings.update_interval_s):
+            self.levels.follow_mean(abs(tick.setpoint_K - tick.flange_feedback_K), self.settings.update_interval_s)
+            self.steps.ask(self.settings, self.plant, self.waveform, self.levels, self.output_max,
+                           self.phase.frequency_rad_s, moves=plays)
         self.limits.follow(tick.time_s, tick.setpoint_K, self.output_max, self.settings.period_s,
                            self.setting_delay_s, self._learned_limit_inputs)
         if self.scale <= 0.0 or self.phase is None:
-            self.output_w = self._applied_scale = 0.0
+            self.output_w = self.waveform.scale_played = 0.0
             return 0.0
-        phase = self.phase.phase_at(tick.output_time_s + 0.5 * self.settings.period_s)  # middle of the hold
-        rotor = cmath.exp(1j * phase)
-        value, power = 0.0, 1.0 + 0j
-        for coefficient in self._coefficient_list:           # plain complex: a numpy scalar per term is slow
-            power *= rotor
-            value += (coefficient * power).real
-        self._applied_scale = self.scale
-        if self._heard_coefficients is not self._played_coefficients:
-            value += self._energy_kept(rotor)
-            change_K = float(np.sum(np.abs(self.plant * (self._played_coefficients - self._heard_coefficients))))
-            if change_K > CHANGE_SETTLE_ABOVE_K:
-                self._changed_at_s = tick.output_time_s
-            self._heard_coefficients = self._played_coefficients    # what the next readings answer
+        rotor = cmath.exp(1j * self.phase.phase_at(tick.output_time_s + 0.5 * self.settings.period_s))  # mid-hold
+        value, change_K = self.waveform.play(rotor, self.phase.frequency_rad_s * self.settings.period_s, self.plant,
+                                             self.scale)
+        self.readings.heater_changed(tick.output_time_s, change_K)
         self.output_w = self.scale * value
         return self.output_w
 
-    def _energy_kept(self, rotor: complex) -> float:
-        """The power to add for one tick where the waveform changes, so that the energy it delivers goes on as
-        if it had always been the new one (W).
+    def limit(self, requested: float, applied: float) -> None:
+        self.levels.follow_others(requested - self.output_w, self.settings.period_s)
+        self.readings.unplayed.set(self._output_time_s, applied - requested)
 
-        A held waveform ``Re sum_n u_n exp(j n phase_k)`` delivers, summed over the ticks, a bounded
-        oscillation plus a constant; changing ``u`` at tick K moves that constant by
-        ``T Re sum_n (u_n - u'_n) exp(j n phase_K) / (exp(j n omega T) - 1)``, which depends on where in the
-        period the change falls: a kick of energy the flange integrates into T2's mean (a few microkelvin for
-        a change of a milliwatt, every learning step, below 0.1 Hz). This gives it back."""
-        advance = self.phase.frequency_rad_s * self.settings.period_s
-        turn = cmath.exp(1j * advance)
-        power, step, kept = 1.0 + 0j, 1.0 + 0j, 0.0
-        for new, old in zip(self._played_coefficients, self._heard_coefficients):
-            power *= rotor
-            step *= turn
-            kept += ((new - old) * power / (step - 1.0)).real
-        return kept
+    # -- learning (the worker computes, the loop takes the result at the next tick) ---------
+    def _take_step(self) -> None:
+        """Apply the step asked for last tick (waiting for the worker if it is behind), and move on what it found."""
+        cooler_K = self.phase.amplitude_K if self.phase is not None else math.nan
+        for event in self.steps.take(self.waveform, BEHAVIOURS[self.state].guard_watches, cooler_K, self.time_s,
+                                     self.settings.retry_after_s):
+            self._move(event)
+
+    def _start_again_later(self) -> None:
+        """The waveform is out after a divergence: nothing played, the model's plant again, learning later."""
+        self.steps.retry.faded_out(self.time_s, self.settings.retry_after_s)
+        self.waveform.clear()
+        self.steps.forget_plant(self.settings.harmonics, self.plant)
+        self.limits.forget_learned()
+
+    def _learned_limit_inputs(self, setpoint_K: float) -> LearnedLimitInputs | None:
+        return self.steps.learned_limit_inputs(self.levels, self.time_s, setpoint_K, self.output_max,
+                                               self.settings.period_s, self.setting_delay_s)
+
+    # -- what it shows -------------------------------------------------------------------
+    def take_events(self) -> tuple[tuple[int, str], ...]:
+        """What the learning found since the last tick: (logging level, text) pairs for the journal and the data log."""
+        return self.steps.report.take()
+
+    def column_values(self) -> tuple[float, ...]:
+        phase, probe = self.phase, self.steps.probe_column
+        limit, authority, source = self.limits.columns
+        if phase is None:
+            return self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale, limit, authority, source, probe
+        return (self.output_w, self._flange_phase_rad, phase.frequency_rad_s, 1.0 if phase.locked else 0.0,
+                self.steps.estimate.line_amplitude_K, self.scale, limit, authority, source, probe)
+
+    @property
+    def phase_locked(self) -> bool:
+        """Whether the cooler's phase is tracked and locked now (the waveform plays only then)."""
+        return self.phase is not None and self.phase.locked
 
     @property
     def coefficients(self) -> np.ndarray:
         """The waveform's complex amplitudes ``u_n`` (W), n = 1..harmonics (the probe not included)."""
-        return self._coefficients
-
-    @coefficients.setter
-    def coefficients(self, values) -> None:
-        self._coefficients = np.asarray(values, dtype=complex)
-        self._set_played()
+        return self.waveform.coefficients
 
     @property
     def probe(self) -> np.ndarray:
         """The probe's complex amplitudes (W) per harmonic, played with the waveform."""
-        return self._probe
+        return self.waveform.probe
 
-    def _set_played(self) -> None:
-        """What the heater plays from the next output on: the waveform and the probe."""
-        self._played_coefficients = self._coefficients + self._probe
-        self._coefficient_list = [complex(value) for value in self._played_coefficients]
+    @property
+    def learned_plant(self) -> LearnedPlant:
+        """The plant as the last learning step knew it."""
+        return self.steps.estimate.learned
 
-    def _effect(self) -> np.ndarray:
-        """What the heater played last tick through the model, its effect on T2 (K per harmonic): a new waveform
-        taken at this tick's start is played from this tick's output on, and the reading now still answers the
-        one before (attributing it the new one would bias the plant learned by the change)."""
-        scale = self._applied_scale
-        heard = self._heard_coefficients
-        cache = self._effect_cache
-        if cache is None or cache[0] != scale or cache[1] is not heard:
-            cache = self._effect_cache = (scale, heard, self.plant * heard * scale)
-        return cache[2]
-
-    def limit(self, requested: float, applied: float) -> None:
-        others = requested - self.output_w
-        if self.other_terms_w is None:
-            self.other_terms_w = others
-        else:       # the other terms' power, smoothed over about 2 s: the level the waveform rides on
-            self.other_terms_w += (others - self.other_terms_w) * min(self.settings.period_s / BASE_TIME_S, 1.0)
-        self.unplayed.set(self._output_time_s, applied - requested)
-
-    def _follow_mean(self, distance_K: float) -> None:
-        """At every learning step: PI's mean power and T2's distance from the setpoint, smoothed (for the learned
-        limit: T2 settled at the setpoint, and the mean power that holds it)."""
-        interval = self.settings.update_interval_s
-        if self.other_terms_w is not None:
-            self.mean_power_w = self.other_terms_w if self.mean_power_w is None else \
-                self.mean_power_w + (self.other_terms_w - self.mean_power_w) * min(interval / MEAN_POWER_TIME_S, 1.0)
-        if not math.isfinite(self._setpoint_distance_K):
-            self._setpoint_distance_K = distance_K
-        elif math.isfinite(distance_K):
-            self._setpoint_distance_K += (distance_K - self._setpoint_distance_K) * min(interval / SETTLING_TIME_S, 1.0)
-
-    def take_events(self) -> tuple[tuple[int, str], ...]:
-        """What the learning found since the last tick: (logging level, text) pairs for the journal and the data log."""
-        return self.report.take()
-
-    def column_values(self) -> tuple[float, ...]:
-        phase = self.phase
-        limit, authority, source = self.limits.columns
-        if phase is None:
-            return (self.output_w, math.nan, math.nan, 0.0, math.nan, self.scale, limit, authority, source,
-                    self._probe_column)
-        return (self.output_w, self._flange_phase_rad, phase.frequency_rad_s, 1.0 if phase.locked else 0.0,
-                self._estimate.line_amplitude_K, self.scale, limit, authority, source, self._probe_column)
+    @property
+    def divergences(self) -> int:
+        """Learning divergences since the start."""
+        return self.steps.retry.count
 
     @property
     def physical_limit(self):
@@ -760,299 +314,14 @@ class FeedforwardTerm(ControlTerm):
         learned once it is, else from the model; None until the setpoint has been steady a few seconds."""
         return self.limits.limit
 
-    @property
-    def limit_changes(self) -> tuple:
-        """The limit if the setpoint moved by 0.5 K either way, or R I_max^2 doubled (LimitChange)."""
-        return self.limits.changes
-
-    @property
-    def learned_plant(self) -> LearnedPlant:
-        """The plant as the last learning step knew it."""
-        return self._estimate.learned
+    def status_snapshot(self) -> FeedforwardStatus:
+        """What ``cryod ctl feedforward status`` says, as values taken now (words: ``status_text``)."""
+        return FeedforwardStatus.of(self)
 
     def describe(self) -> str:
-        """The feedforward's state in a few lines (``cryod ctl feedforward status``)."""
-        phase = self.phase
-        lines = [f"feedforward {'on' if self.switched_on else 'off'}, waveform at {100 * self.scale:.0f} % "
-                 f"(fade {self.settings.fade_time_s:g} s)"]
-        if phase is None:
-            lines.append("cooler phase: not tracked (off, or no reading yet)")
-        else:
-            lines.append(f"cooler phase {'locked' if phase.locked else 'NOT locked'}: {phase.frequency_rad_s:.4f} rad/s "
-                         f"({phase.frequency_rad_s / (2 * math.pi):.4f} Hz), T5 line {1e3 * phase.amplitude_K:.1f} mK")
-        line = self.line_amplitude_K()
-        if math.isfinite(line):
-            harmonics = ", ".join(f"{1e6 * abs(value):.1f}" for value in self._synchronous_list())
-            lines.append(f"T2's part synchronous with the cooler: {1e6 * line:.1f} µK (harmonics 1-"
-                         f"{self.settings.harmonics}: {harmonics} µK); without the waveform it would be "
-                         f"{1e6 * float(np.sqrt(np.sum(np.abs(self._estimate.line) ** 2))):.1f} µK")
-        amplitude = np.abs(self.coefficients)
-        values = waveform_values(self._played_coefficients, self.other_terms_w or 0.0, BOUND_POINTS)
-        lines.append(f"waveform: {', '.join(f'{1e3 * a:.1f}' for a in amplitude)} mW per harmonic, "
-                     f"{1e3 * values.min():.1f} to {1e3 * values.max():.1f} mW with the probe and the "
-                     f"{1e3 * (self.other_terms_w or 0.0):.1f} mW from PI, within {1e3 * self.settings.margin_W:g} mW "
-                     f"of 0 and {1e3 * self.output_max:.0f} mW")
-        plant = self.learned_plant
-        lines.append(f"plant, heater to T2's readings (model: {self.settings.model_source}; "
-                     f"{'learned' if plant.learned.any() else 'nothing learned yet'}):")
-        lines.append(plant.describe())
-        if plant.differences_said():
-            lines.append(plant.differences_said())
-        lines.append(self._describe_probe())
-        if not self.on_time:
-            lines.append("the loop's cycles are late many in a row: the waveform fades out and learning pauses "
-                         "until they keep their deadlines again")
-        if self._diverged is not None:
-            lines.append(f"learning diverged ({self._diverged}): fading out")
-        elif self._time_s < self._learn_again_s:
-            lines.append(f"learning diverged {self.divergences} time(s); starts again in "
-                         f"{self._learn_again_s - self._time_s:.0f} s")
-        elif self.divergences:
-            lines.append(f"learning diverged {self.divergences} time(s) since start, reset each time")
-        limit = self.physical_limit
-        if limit is None:
-            lines.append("physical limit: not computed yet (the daemon computes it for the setpoint in use)")
-        else:
-            source = ("from the learned plant and line, and the mean power PI found" if self.limits.source == "learned"
-                      else "from the controller's model")
-            lines.append(f"physical limit at {limit.setpoint_K:g} K ({source}): {1e6 * limit.ptc_periodic_limit_K:.1f} "
-                         f"µK of the {1e6 * limit.open_line_K:.1f} µK line; {limit.limited_by}-limited (authority "
-                         f"{limit.authority:.2f}: the heater can put {1e3 * limit.largest_line_power_W:.0f} mW at the "
-                         f"line of the {1e3 * limit.line_power_needed_W:.0f} mW needed around "
-                         f"{1e3 * limit.mean_heater_power_W:.0f} mW); predicted best "
-                         f"{1e6 * limit.predicted_best_residual_K:.1f} µK")
-            lines.append("what binds it: " + limit_binding(limit, self.limit_changes).explanation)
-            if self.limit_changes:
-                lines.append("what would change it: " + "; ".join(change.describe() for change in self.limit_changes)
-                             + " (R I_max^2 x 2: R x 2 or I_max x 1.41; more: cryod feedforward-limit)")
-            synchronous = self._synchronous_list()[:REPORTED_HARMONICS]
-            if synchronous and math.isfinite(line):
-                measured = float(np.sqrt(np.sum(np.abs(synchronous) ** 2)))
-                lines.append("T2 now against the limit: " + measured_against_limit(
-                    measured, limit.ptc_periodic_limit_K, limit.noise_floor_K,
-                    "the learned plant" if self.limits.source == "learned" else "the model"))
-        return "\n".join(lines)
-
-    def _describe_probe(self) -> str:
-        probing = [index + 1 for index, on in enumerate(self.probe_state.probing) if on]
-        cost = self._estimate.probe_cost_K
-        short = self.probe_state.given_up()
-        playing = [index + 1 for index, value in enumerate(self._probe) if value]
-        if playing and cost > 0.0:
-            text = (f"probe: {1e3 * abs(self._probe[playing[0] - 1]):.1f} mW at harmonic {playing[0]}, moving T2 by "
-                    f"{1e6 * cost:.1f} µK (to learn the plant to {100 * self.settings.plant_precision:g} %; "
-                    f"harmonics {', '.join(map(str, probing))} to go)")
-        elif probing:
-            text = (f"probe: waiting (harmonics {', '.join(map(str, probing))} to go: no room now, or a plant too "
-                    f"weak for the room there is)")
-        else:
-            text = f"probe: off (plant known to {100 * self.settings.plant_precision:g} %" + \
-                (")" if not short else f" where it could be; harmonics {', '.join(map(str, short))} left at what "
-                                       f"the probe could tell within its share of the heater's room)")
-        return text
-
-    def line_amplitude_K(self) -> float:
-        """T2's synchronous part as estimated at the last learning step (K; NaN before there is one)."""
-        return self._estimate.line_amplitude_K
+        """The feedforward's state in a few lines (``cryod ctl feedforward status``; the daemon words it elsewhere)."""
+        return status_text(self.status_snapshot())
 
     def learning_summary(self) -> dict:
         """What was learned, for ``--json``: the plant per harmonic, the limit reported and where it came from."""
-        limit = self.physical_limit
-        return {"feedforward_plant": self.learned_plant.summary(),
-                "feedforward_plant_differences": self.learned_plant.differences(),
-                "feedforward_reported_limit_K": None if limit is None else limit.ptc_periodic_limit_K,
-                "feedforward_reported_authority": None if limit is None else limit.authority,
-                "feedforward_limit_from": self.limits.source,
-                "feedforward_probe_K": self._estimate.probe_cost_K,
-                "feedforward_divergences": self.divergences,
-                "feedforward_setting_delay_s": self.setting_delay_s}
-
-    # -- learning (the worker computes, the loop takes the result at the next tick) ---------
-    def _ask_for_step(self, learning: bool) -> None:
-        """Hand the worker what a learning step needs, as values, to compute after the readings so far."""
-        if self.other_terms_w is None:
-            return
-        self._step_id += 1
-        scale = self._applied_scale
-        self.worker.step(self._step_id, _LearningStep(
-            plant=self.plant.copy(), coefficients=self._coefficients.copy(), effect=self._effect().copy(),
-            waveform_effect=self.plant * self._coefficients * scale, learning=learning,
-            gain=self.settings.learning_gain, base_w=self.other_terms_w, low_w=self.settings.margin_W,
-            high_w=self.output_max - self.settings.margin_W, probe_state=self.probe_state,
-            probe=self.settings.probe, interval_s=self.settings.update_interval_s,
-            frequency_rad_s=self.phase.frequency_rad_s, before=self._estimate.learned,
-            approaching=self._setpoint_distance_K > APPROACHING_K))
-        self._pending_step = self._step_id
-
-    def _take_step_result(self) -> None:
-        """Apply the step asked for last tick (waiting for the worker if it is behind)."""
-        if self._pending_step is None:
-            return
-        result = self.worker.result(self._pending_step)
-        self._pending_step = None
-        self._estimate = result
-        if result.coefficients is not None and self._diverged is None:
-            self._coefficients, self._probe = result.coefficients, result.probe
-            self.probe_state = result.probe_state
-            self._set_played()
-        plant = result.learned
-        playing = result.coefficients is not None and self._diverged is None and result.probe_cost_K > 0.0
-        self._probe_column = result.probe_cost_K if playing else math.nan     # empty when off
-        self._plant_known_for_limit = bool(plant.learned[0] and plant.relative_spread[0] < LIMIT_PLANT_SPREAD)
-        if result.ready:
-            self._judge(result)
-
-    def _judge(self, result: "StepResult") -> None:
-        """After a step: PI alone's line, the guard, what to report."""
-        self.report.step(self._time_s, result.learned, self.probe_state.given_up())
-        amplitude = self.phase.amplitude_K if self.phase is not None else math.nan
-        if not np.any(self._coefficients):
-            self._pi_alone = (float(np.sqrt(np.sum(np.abs(result.line) ** 2))), amplitude)
-        if self._diverged is not None or self.scale < 1.0 or not np.any(self._coefficients):
-            self.guard.clear()
-            return
-        if self._pi_alone is not None and math.isfinite(amplitude) and self._pi_alone[1] > 0.0:
-            pi_alone = self._pi_alone[0] * amplitude / self._pi_alone[1]
-        else:
-            pi_alone = float(np.sqrt(np.sum(np.abs(result.line) ** 2)))
-        reason = self.guard.observe(result.residual_K, pi_alone)
-        if reason is not None:
-            self._diverged = reason
-            self._divergences += 1
-            self.divergences += 1
-            self.report.diverged(reason, self._retry_s())
-
-    def _retry_s(self) -> float:
-        return min(self.settings.retry_after_s * 2.0 ** (self._divergences - 1), LONGEST_RETRY_S)
-
-    def _reset_learning(self, time_s: float) -> None:
-        """The waveform has faded out after a divergence: the model's plant again, learning later."""
-        self._learn_again_s = time_s + self._retry_s()
-        self._diverged = None
-        self._coefficients = np.zeros_like(self._coefficients)
-        self._probe = np.zeros_like(self._probe)
-        self._set_played()
-        self._forget_learned_plant()
-
-    def enter_zone(self, index: int) -> None:
-        """The setpoint in use moved into zone ``index`` (from 0), whose model :meth:`reconfigure` has just taken.
-
-        The plant learned belongs to the operating point it was learned at; the zone's model is the
-        commissioned one for the new point, so the learned plant starts again from it, with the prior's
-        spread: the probe starts again, the learned limit and the line PI alone left are forgotten. The
-        waveform plays on (dropping it would be a bump) and is learned from there. Said as an event.
-        """
-        self._take_step_result()        # a step computed at the previous operating point is taken first
-        self._pi_alone = None
-        self._forget_learned_plant()
-        self.report.zone_entered(index, self.settings.model_source)
-
-    def _forget_learned_plant(self) -> None:
-        """The model's plant again, with the prior's spread; the probe from its start, no learned limit."""
-        self.worker.apply(SynchronousEstimator.reset_correction)
-        self.probe_state = ProbeState.start(self.settings.harmonics)
-        self.guard.clear()
-        self.limits.forget_learned()
-        self._estimate = replace(self._estimate, learned=LearnedPlant.from_model(self.plant).prepared())
-        self._plant_known_for_limit = False
-        self._probe_column = math.nan
-
-    def _learned_limit_inputs(self, setpoint_K: float) -> LearnedLimitInputs | None:
-        """What the learned limit is computed from, once the plant at the line is learned and T2 has settled at the
-        setpoint; else None."""
-        if not (self._plant_known_for_limit and self._setpoint_distance_K < SETTLED_K and self.mean_power_w is not None
-                and self._estimate.ready and self._time_s >= self._learn_again_s):
-            return None
-        return LearnedLimitInputs(self.learned_plant, self._estimate.line.copy(), self.mean_power_w, self.output_max, setpoint_K,
-                                  self.settings.period_s, self.setting_delay_s)
-
-
-def _resized(values: np.ndarray, harmonics: int) -> np.ndarray:
-    kept = np.zeros(harmonics, dtype=complex)
-    count = min(harmonics, values.size)
-    kept[:count] = values[:count]
-    return kept
-
-
-@dataclass(frozen=True, eq=False)
-class StepResult:
-    """What a learning step found: the estimate, the plant learned, and the new waveform and probe (None: no step
-    taken)."""
-
-    ready: bool
-    line: np.ndarray
-    learned: LearnedPlant
-    line_amplitude_K: float
-    residual_K: float
-    coefficients: np.ndarray | None
-    probe: np.ndarray | None
-    probe_state: ProbeState | None
-    probe_cost_K: float
-
-    @property
-    def raw_correction(self) -> np.ndarray:
-        return self.learned.correction
-
-    @property
-    def correction(self) -> np.ndarray:
-        """The correction where learned, 1 elsewhere."""
-        return np.where(self.learned.learned, self.learned.correction, 1.0)
-
-    @classmethod
-    def empty(cls, model_plant: np.ndarray) -> "StepResult":
-        zeros = np.zeros(len(model_plant), dtype=complex)
-        return cls(False, zeros, LearnedPlant.from_model(model_plant).prepared(), math.nan, math.nan, None, None, None,
-                   0.0)
-
-
-@dataclass(frozen=True, eq=False)
-class _LearningStep:
-    """A learning step as the worker computes it, from values taken on the loop's thread."""
-
-    plant: np.ndarray
-    coefficients: np.ndarray
-    effect: np.ndarray
-    waveform_effect: np.ndarray
-    learning: bool
-    gain: float
-    base_w: float
-    low_w: float
-    high_w: float
-    probe_state: ProbeState
-    probe: ProbeSettings
-    interval_s: float
-    frequency_rad_s: float
-    before: LearnedPlant | None
-    approaching: bool
-
-    def __call__(self, estimator: SynchronousEstimator) -> StepResult:
-        ready = estimator.ready
-        learned = estimator.learned_plant(self.plant, self.frequency_rad_s).confirmed_against(self.before).prepared()
-        line_K = residual_K = math.nan
-        if ready:
-            line_K = _amplitude(estimator.synchronous(self.effect))
-            residual_K = _amplitude(estimator.synchronous(self.waveform_effect))     # without the probe
-        coefficients = probe = state = None
-        cost = 0.0
-        if ready and self.learning:
-            room = min(self.base_w - self.low_w, self.high_w - self.base_w)
-            state, probe = next_probe(self.probe_state, learned, room, self.interval_s, self.probe, self.approaching)
-            reserved = float(np.sum(np.abs(probe)))
-            coefficients = learning_step(self.coefficients, estimator.line, learned, self.gain, self.base_w,
-                                         self.low_w + reserved, self.high_w - reserved, BOUND_POINTS)
-            cost = probe_cost_K(probe, learned.plant)
-            # no second difference may span the step: the readings before it decided it, and their noise
-            # would look like the plant's answer to it
-            estimator.forget_last()
-        return StepResult(ready, estimator.line.copy(), learned, line_K, residual_K, coefficients, probe, state, cost)
-
-
-def _amplitude(phasors: np.ndarray) -> float:
-    return float(np.sqrt(np.sum(phasors.real ** 2 + phasors.imag ** 2)))
-
-
-def _resolve(path: str, config_source: str) -> Path:
-    candidate = Path(path).expanduser()
-    if not candidate.is_absolute() and config_source and not config_source.startswith("<"):
-        candidate = Path(config_source).resolve().parent / candidate
-    return candidate
+        return self.steps.summary(self.limits, self.setting_delay_s)

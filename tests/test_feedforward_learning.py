@@ -249,17 +249,34 @@ def test_entering_another_zone_starts_the_learned_plant_again_from_the_zones_mod
 # ---------------------------------------------------------------------------
 # warnings said on settled data only
 # ---------------------------------------------------------------------------
+def _setpoint_changes(model, controller, changes, seed, spacing_s=400.0):
+    """A run through ``changes`` setpoint changes between 5.0 and 5.8 K, ``spacing_s`` apart: long enough for T2 to
+    settle and for the report's settled time to pass at each."""
+    setpoints = [5.0 + 0.2 * ((index * 7) % 5) for index in range(changes + 1)]
+    return run_program(model, [Segment(spacing_s * index, setpoint_K=value) for index, value in enumerate(setpoints)],
+                       spacing_s * (changes + 1), gains=GAINS, heater_max_w=0.5, seed=seed,
+                       initial_heater_power_w=mean_heater_power_w(model, 5.0),
+                       more_terms=(("feedforward", FeedforwardSettings(model=controller)),))
+
+
 @pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow), pytest.param(3, marks=pytest.mark.slow)])
 def test_setpoint_changes_on_the_cryostat_the_model_describes_give_no_warning(reference_model, seed):
-    """Eight setpoint changes between 5.0 and 5.8 K, five minutes apart, on the cryostat the controller's model
-    describes: what the learning finds while T2 ramps is the transient, and no difference is said."""
-    setpoints = [5.0 + 0.2 * ((index * 7) % 5) for index in range(9)]
-    run = run_program(reference_model, [Segment(300.0 * index, setpoint_K=value) for index, value in enumerate(setpoints)],
-                      2700.0, gains=GAINS, heater_max_w=0.5, seed=seed,
-                      initial_heater_power_w=mean_heater_power_w(reference_model, 5.0),
-                      more_terms=(("feedforward", FeedforwardSettings(model=reference_model)),))
-    assert len(events(run, "plant learned at the line")) >= 1
+    """Twenty setpoint changes on the cryostat the controller's model describes: what the learning finds while
+    T2 ramps is the transient, and no difference is said."""
+    run = _setpoint_changes(reference_model, reference_model, 20, seed)
+    assert len(events(run, "learned plant: harmonic 1")) >= 10
     assert events(run, "the heater reaches T2") == [] and events(run, "agrees with the model") == []
+
+
+def test_a_heater_weaker_than_the_model_is_said_once_with_its_numbers(reference_model):
+    """The same changes on a cryostat whose heater reaches T2 0.7x as strongly: said once T2 has settled at
+    the first setpoint, as 1.4x weaker at the line; not again at every change."""
+    run = _setpoint_changes(cryostat(reference_model, gain=0.7), reference_model, 5, seed=1)
+    said = events(run, "the heater reaches T2")
+    assert 1 <= len(said) <= 2 and said[0][0] < 400.0
+    assert all(text.startswith("the heater reaches T2 1.4x weaker than the model at the line; ")
+               and text.endswith(": re-commission with cryod identify --acquire") for _, _, _, text in said)
+    assert events(run, "agrees with the model") == []
 
 
 def _plant_at(gain_ratio, phase_deg=0.0):

@@ -64,11 +64,11 @@ def test_epics_reads_the_example_access_security_file_and_not_a_broken_one(tmp_p
     check = ("import ctypes, sys\n"
              "from epicscorelibs.ioc import Com\n"
              "Com.asInitFile.argtypes = (ctypes.c_char_p, ctypes.c_char_p)\n"
-             "sys.exit(Com.asInitFile(sys.argv[1].encode(), None))\n")
+             "sys.exit(1 if Com.asInitFile(sys.argv[1].encode(), None) else 0)\n")
     result = subprocess.run([sys.executable, "-c", check, str(CONTRIB / "cryod.acf")], capture_output=True, text=True,
                             timeout=60)
     assert result.returncode == 0, result.stdout + result.stderr
     broken = tmp_path / "broken.acf"
-    broken.write_text((CONTRIB / "cryod.acf").read_text().replace("RULE(1, READ)", "RULE(1, REED)", 1))
+    broken.write_text((CONTRIB / "cryod.acf").read_text().replace("RULE(1, READ)", "RULE(1, READ", 1))
     result = subprocess.run([sys.executable, "-c", check, str(broken)], capture_output=True, text=True, timeout=60)
     assert result.returncode != 0

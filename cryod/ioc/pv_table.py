@@ -62,8 +62,8 @@ class PV:
 
 
 READINGS = (
-    PV("T2", "ai", "K", 6, "flange temperature (the control thermometer), at each row of the loop", per_row=True),
-    PV("T5", "ai", "K", 5, "the cooler's second stage, at each row", per_row=True),
+    PV("T2", "ai", "K", 6, "flange temperature (the control thermometer)", per_row=True),
+    PV("T5", "ai", "K", 5, "the cooler's second stage", per_row=True),
     PV("T2_AVG", "ai", "K", 6, "T2 averaged over the last 10 s (17 cooler periods)"),
     PV("HEATER", "ai", "W", 6, "heater power set at this row (PI's part plus the feedforward's)", per_row=True),
     PV("HEATER_PI", "ai", "W", 6, "PI's part of HEATER (proportional plus integral)", per_row=True),

@@ -173,8 +173,14 @@ def run(config_path: Path | None, socket_path: Path | None) -> int:
     try:
         if socket_path is None and config_path is not None:
             socket_path = load_config(config_path).control_socket.path
-        if socket_path is None:
-            socket_path = find_daemon_socket()
+        deadline = time.monotonic() + CONNECT_WAIT_S
+        while socket_path is None:               # a daemon started at the same time makes its socket soon
+            try:
+                socket_path = find_daemon_socket()
+            except ConnectionError as error:
+                if time.monotonic() > deadline:
+                    raise IocError(str(error), 3) from None
+                time.sleep(1.0)
         first = wait_for_daemon(Path(socket_path))
         config = ioc_configuration(config_path, first.get("hello") or {})
     except IocError as error:

@@ -17,6 +17,7 @@ import time
 
 import pytest
 
+from tests.conftest import REPOSITORY
 from tests.ioc_bench import EPICS_ENVIRONMENT, IocProcess, ioc_lab_config
 
 epics = pytest.importorskip("epics")
@@ -206,3 +207,39 @@ def test_the_ioc_killed_and_started_again_leaves_the_daemon_regulating(bench):
     assert after["overruns"] == before["overruns"], (before["overruns"], after["overruns"])
     assert abs(pv("HEATER_MEAN").get(use_monitor=False) - level_before) < 0.01      # the heater's level as it was
     assert not re.search(r"command \S+ (accepted|refused)", dry_run.journal()[journal_before:])  # nothing asked
+
+
+@pytest.mark.slow
+def test_the_labs_access_security_file_decides_who_writes(tmp_path):
+    """contrib/epics/cryod.acf as ioc.access_security_file: this test's user is not among its operators, so
+    EPICS refuses the put (no write access) and the daemon never hears of it; reads go on."""
+    import getpass
+    import shutil
+
+    acf = tmp_path / "cryod.acf"
+    shutil.copy(REPOSITORY / "contrib" / "epics" / "cryod.acf", acf)
+    assert getpass.getuser() not in ("alice", "bob", "cryod")
+    prefix = "CRYOACF:"
+    config = ioc_lab_config(tmp_path, prefix=prefix)
+    text = config.read_text().replace("stable_hold_s: 5}", "stable_hold_s: 5, access_security_file: cryod.acf}")
+    config.write_text(text)
+    dry_run = DryRunProcess(tmp_path, config, "--speed", "10", "--duration", "100000", interfaces=False)
+    ioc = None
+    try:
+        wait_until(lambda: daemon_status(dry_run.socket).get("state", "").startswith("closed"), what="regulation")
+        ioc = IocProcess(tmp_path, dry_run.socket, prefix)
+        assert "the lab's access security file" in ioc.journal()
+        setpoint = epics.get_pv(prefix + "SETPOINT")
+        assert setpoint.wait_for_connection(10) and math.isfinite(epics.caget(prefix + "T2", timeout=5))
+        assert setpoint.write_access is False
+        held = daemon_status(dry_run.socket)["target_K"]
+        try:
+            setpoint.put(5.3, wait=True, timeout=5)       # pyepics may say so or raise; EPICS refuses it either way
+        except Exception:
+            pass
+        time.sleep(1.0)
+        assert daemon_status(dry_run.socket)["target_K"] == held and "command setpoint" not in dry_run.journal()
+    finally:
+        if ioc is not None:
+            ioc.stop()
+        dry_run.stop()

@@ -33,6 +33,7 @@ import logging
 import math
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
 from cryod.interfaces.daemon_link import DaemonLink
@@ -104,7 +105,13 @@ class SettingRecords:
         self.mirror = mirror
         self.identity = identity
         self.message = message
-        self._echo_thread: int | None = None
+        #: The thread that shows on RAMP and HEATER_OFF what the daemon holds (its puts send no command), and
+        #: the one that looks whether a newer put waits on SETPOINT: both may wait for a record a put holds while
+        #: the daemon answers it, which the event loop (every reading's update) must never do.
+        self._echo = ThreadPoolExecutor(1, thread_name_prefix="cryod-ioc-echo")
+        self._echo_thread = self._echo.submit(threading.get_ident).result()
+        self._looks = ThreadPoolExecutor(1, thread_name_prefix="cryod-ioc-rpro")
+        self._echoing: dict[str, object] = {}
         status = mirror.status()
         target = status.loop.target_K if status.loop.target_K is not None else status.loop.last_target_K
         if target is None:
@@ -227,7 +234,8 @@ class SettingRecords:
                     return
             elif time.monotonic() > shown_by:
                 return
-            if self.setpoint.get_field("RPRO") not in ("0", "NO"):
+            newer = await asyncio.get_running_loop().run_in_executor(self._looks, self.setpoint.get_field, "RPRO")
+            if newer not in ("0", "NO"):
                 return                                # a newer put waits for this one
             try:
                 await asyncio.wait_for(changed.wait(), 1.0)
@@ -236,18 +244,22 @@ class SettingRecords:
 
     # -- following the daemon ----------------------------------------------------------------
     def follow(self, status: DaemonStatus) -> None:
-        """Show what the daemon holds on RAMP and HEATER_OFF when it changed by another way (the event loop's
+        """Show what the daemon holds on RAMP and HEATER_OFF when it changed by another way (handed to the echo
         thread; no command goes out)."""
         if status.waiting_for is not None:
             return
         for record, value in ((self.ramp, status.loop.ramp_K_per_min),
                               (self.heater_off, self._held_heater_off(status))):
-            if record.get() != value:
-                self._echo_thread = threading.get_ident()
-                try:
-                    record.set(value)
-                finally:
-                    self._echo_thread = None
+            if record.get() != value and self._echoing.get(record.name) != value:
+                self._echoing[record.name] = value
+                self._echo.submit(self._show, record, value)
+
+    def _show(self, record, value) -> None:
+        """On the echo thread: ``value`` on ``record`` (its validate sees the echo thread and sends nothing)."""
+        try:
+            record.set(value)
+        finally:
+            self._echoing.pop(record.name, None)
 
 
 def _hold(record, value) -> None:

@@ -56,7 +56,12 @@ def bench(tmp_path_factory):
     try:
         wait_until(lambda: daemon_status(dry_run.socket).get("state", "").startswith("closed"), what="regulation")
         ioc = IocProcess(folder, dry_run.socket, PREFIX)
-        wait_until(lambda: pv("STABLE").get(timeout=5) == 1, timeout_s=120, what="STABLE at the start setpoint")
+        try:
+            wait_until(lambda: pv("STABLE").get(timeout=5) == 1, timeout_s=120, what="STABLE at the start setpoint")
+        except AssertionError as error:
+            raise AssertionError(f"{error}; STABLE connected {pv('STABLE').connected}, T2_AVG "
+                                 f"{pv('T2_AVG').get(timeout=5)}, daemon {daemon_status(dry_run.socket)}; "
+                                 f"IOC: {ioc.journal()[-1500:]}") from None
         yield dry_run, ioc
     finally:
         if ioc is not None:

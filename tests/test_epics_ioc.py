@@ -59,7 +59,10 @@ def bench(tmp_path_factory):
         try:
             wait_until(lambda: pv("STABLE").get(timeout=5) == 1, timeout_s=120, what="STABLE at the start setpoint")
         except AssertionError as error:
-            raise AssertionError(f"{error}; STABLE connected {pv('STABLE').connected}, T2_AVG "
+            raise AssertionError(f"{error}; STABLE connected {pv('STABLE').connected}, STABLE {pv('STABLE').get()} "
+                                 f"(without the monitor {pv('STABLE').get(use_monitor=False)}), STABLE_FOR "
+                                 f"{pv('STABLE_FOR').get(use_monitor=False)}, STATE {pv('STATE').get(as_string=True)}, "
+                                 f"T2_AVG "
                                  f"{pv('T2_AVG').get(timeout=5)}, daemon {daemon_status(dry_run.socket)}; "
                                  f"IOC: {ioc.journal()[-1500:]}") from None
         yield dry_run, ioc

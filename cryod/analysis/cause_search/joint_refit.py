@@ -56,12 +56,12 @@ def joint_fit(search: RecordSearch, recalibration: RecalibratedBase, fit: Candid
 
 
 def refit_jointly(search: RecordSearch, path: CausePath, fits: dict[str, CandidateFit],
-                  scores: dict[str, CandidateScore]) -> JointChoice:
-    """Refit the leading candidates (:func:`~cryod.analysis.cause_search.rules.leading_candidates`) jointly with
-    the recalibration and the causes named so far on ``path``, score them against the path's model and apply the
-    rules to them."""
+                  scores: dict[str, CandidateScore], causes: list[str] | None = None) -> JointChoice:
+    """Refit the leading candidates (:func:`~cryod.analysis.cause_search.rules.leading_candidates`; ``causes``:
+    these instead) jointly with the recalibration and the causes named so far on ``path``, score them against the
+    path's model and apply the rules to them."""
     refined = {cause: joint_fit(search, path.recalibration, fits[cause], path.named_effects)
-               for cause in leading_candidates(scores)}
+               for cause in (leading_candidates(scores) if causes is None else causes)}
     refitted = {cause: joint.fit for cause, joint in refined.items()}
     context = path.context
     decision = decide(path.remaining, [score_candidate(context, fit, path.remaining) for fit in refitted.values()],

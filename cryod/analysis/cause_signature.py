@@ -9,7 +9,9 @@ blocks, each thermometer in units of its noise:
 
 * ``line``: in each held-out block, the least-squares fit of cos and sin of k times the cooler's phase, k each
   order the sampling can tell (up to 5); its sum of squares. Noise alone gives 2 per order, block and
-  thermometer.
+  thermometer. A block where the heater itself moves at the line by more than :data:`HEATER_AT_LINE_W` (a
+  modulation at the line, a feedforward's waveform) is left out: there a heater-path cause changes the line too
+  (a 45 s dead time on an identification record moved the line band enough for a link of gain 62 to take it).
 * ``slow``: in each held-out block, the means over windows of two line periods (which cancel the line and its
   harmonics), each squared times its number of samples. Noise alone gives 1 per window and thermometer.
 
@@ -41,6 +43,11 @@ HEATER_PATH_CAUSES = ("dead_time", "heater_nonlinearity", "heat_capacity_tempera
 BANDS = ("line", "slow")
 #: Line periods in one window of the slow band.
 SLOW_WINDOW_PERIODS = 2.0
+#: A held-out block whose heater moves at the line by more than this amplitude (W) is left out of the line band:
+#: through the heater's path to T2 at the line (7.13 mK/W on the shipped model) 5 mW is 36 µK, 2 % of the
+#: cooler's 1.73 mK line on T2; a PI holding 5 K moves the heater there by about 0.7 mW (0.4 W/K times 1.7 mK),
+#: the identification protocol's modulation by 15 mW, a feedforward by tens of mW.
+HEATER_AT_LINE_W = 5e-3
 
 
 def band_of(cause: str) -> str:
@@ -71,7 +78,7 @@ class BandExcess:
 @dataclass(frozen=True, kw_only=True)
 class BandLayout:
     """What a band's sums are taken over: the held-out blocks' samples, an orthonormal basis of the line's orders
-    at the cooler's phase in each, the slow band's windows."""
+    at the cooler's phase in each (None where the heater moves at the line), the slow band's windows."""
 
     blocks: tuple[np.ndarray, ...]
     line_bases: tuple[np.ndarray, ...]
@@ -89,8 +96,10 @@ class BandLayout:
         blocks = tuple(part for part in np.split(indexes, breaks) if part.size > 8)
         phase = line.phase_rad(data.elapsed_s)
         orders = measurable_orders(line.angular_frequency_rad_s, data.sample_interval_s)
-        line_bases = tuple(np.linalg.qr(np.column_stack([f(order * phase[block]) for order in orders
-                                                         for f in (np.cos, np.sin)]))[0] for block in blocks)
+        line_bases = tuple(
+            None if _heater_at_line(data.heater_w[block], phase[block]) > HEATER_AT_LINE_W else
+            np.linalg.qr(np.column_stack([f(order * phase[block]) for order in orders for f in (np.cos, np.sin)]))[0]
+            for block in blocks)
         samples = max(2, int(round(SLOW_WINDOW_PERIODS * 2.0 * math.pi / line.angular_frequency_rad_s
                                    / data.sample_interval_s)))
         windows = tuple(block[:block.size // samples * samples].reshape(-1, samples) for block in blocks
@@ -103,6 +112,8 @@ class BandLayout:
         total, terms = 0.0, 0
         if band == "line":
             for block, basis in zip(self.blocks, self.line_bases):
+                if basis is None:
+                    continue
                 for residual in residuals:
                     projection = basis.T @ residual[block]
                     total += float(projection @ projection)
@@ -117,6 +128,13 @@ class BandLayout:
 
     def bands(self, replay) -> dict[str, BandExcess]:
         return {band: self.band(replay, band) for band in BANDS}
+
+
+def _heater_at_line(heater_w: np.ndarray, phase: np.ndarray) -> float:
+    """The amplitude (W) of the heater's fundamental at the cooler's line in one block."""
+    columns = np.column_stack([np.cos(phase), np.sin(phase), np.ones(phase.size)])
+    solution = np.linalg.lstsq(columns, heater_w, rcond=None)[0]
+    return float(np.hypot(solution[0], solution[1]))
 
 
 def share_at_signature(cause: str, before: dict[str, BandExcess], after: dict[str, BandExcess]) -> float:

@@ -34,7 +34,7 @@ they apply in :mod:`cryod.analysis.cause_search.rules`:
 from __future__ import annotations
 
 from cryod.analysis.candidates import CANDIDATE_CAUSES
-from cryod.analysis.cause_search.bounds import examine_bounds
+from cryod.analysis.cause_search.bounds import examine_bounds, merged_evidence
 from cryod.analysis.cause_search.base_model_off import (
     WIDER_RECALIBRATION, explained_by_widening, judged_beyond_recalibration, widened_recalibration,
 )
@@ -111,7 +111,7 @@ def name_causes(first: FirstRound, most: int) -> Verdict:
         return no_cause_counts(first)
     read = read_the_other_way_round(first, followed) if most > 1 else ReadPath(path=followed.path)
     path, at_bound = examine_bounds(first, read.path)
-    return judge(first, path, read.other_paths, at_bound)
+    return judge(first, path, read.other_paths, merged_evidence(read.path.at_bound, at_bound))
 
 
 def _analysis(first: FirstRound, verdict: Verdict, widened: Recalibration | None = None) -> Analysis:

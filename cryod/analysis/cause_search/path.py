@@ -23,12 +23,11 @@ from dataclasses import dataclass
 from cryod.analysis.cause_search.first_round import FirstRound
 from cryod.analysis.cause_search.generic_judgement import further_cause_comparison
 from cryod.analysis.cause_search.joint_judgement import next_cause
-from cryod.analysis.cause_search.joint_refit import settled, starting_path
+from cryod.analysis.cause_search.bounds import examine_bounds
+from cryod.analysis.cause_search.joint_refit import refitted_causes, settled, starting_path
 from cryod.analysis.cause_search.results import CausePath, FurtherCandidate, JointFit, NamedCause
 from cryod.analysis.cause_search.unneeded_causes import without_unneeded
 from cryod.analysis.decision import CandidateScore, gain_between
-from cryod.analysis.refinement import NamedEffect
-from cryod.model import CryostatModel
 
 
 def follow_path(first: FirstRound, choice: CandidateScore, refined: dict[str, JointFit], most: int,
@@ -56,6 +55,9 @@ def follow_path(first: FirstRound, choice: CandidateScore, refined: dict[str, Jo
         if not best.counts:
             break
         named = cause_named(first, path, best, refined[best.cause])
+        if round_index == 0:
+            examined, evidence = examine_bounds(first, named)
+            named = dataclasses.replace(examined, at_bound=evidence)
         untried = tuple(cause for cause in untried if cause != best.cause)
         if round_index > 0 and named.remaining.present:
             comparison = further_cause_comparison(first, path, named, best.cause)
@@ -102,18 +104,6 @@ def cause_named(first: FirstRound, path: CausePath, best: CandidateScore, joint:
     extended = settled(first.search, dataclasses.replace(path, causes=causes, reasons=path.reasons + (reason,),
                                                          further=()), best.cause, joint)
     return without_unneeded(first.search, extended, first.bands) if len(extended.causes) > 1 else extended
-
-
-def refitted_causes(causes: tuple[NamedCause, ...], refitted: tuple[NamedEffect, ...], model: CryostatModel
-                    ) -> tuple[NamedCause, ...]:
-    """``causes`` with the numbers a joint fit gave back to those with an effect form (``refitted``, in their
-    order), their parameters read from ``model``, the joint fit's extended model."""
-    with_form = [named for named in causes if named.fit.effect is not None]
-    effects = dict(zip([id(named) for named in with_form], refitted))
-    return tuple(
-        dataclasses.replace(named, fit=dataclasses.replace(named.fit, effect=effects[id(named)].effect,
-                                                           parameters=effects[id(named)].effect.describe(model)))
-        if id(named) in effects else named for named in causes)
 
 
 __all__ = ["cause_named", "follow_path", "refitted_causes"]

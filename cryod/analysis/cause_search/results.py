@@ -177,6 +177,8 @@ class CausePath:
         What happened on the way, in words (the decision's reason is made of them).
     further : tuple of FurtherCandidate
         The candidates last judged on top of these causes and not named (what would explain what is left).
+    at_bound : tuple of BoundEvidence
+        The first cause's numbers found at an edge of their range when it was named, re-examined.
     """
 
     causes: tuple[NamedCause, ...]
@@ -186,6 +188,7 @@ class CausePath:
     recalibration: RecalibratedBase
     reasons: tuple[str, ...]
     further: tuple[FurtherCandidate, ...] = ()
+    at_bound: tuple["BoundEvidence", ...] = ()
 
     def replayed(self) -> ReplayedModel:
         """The model with these causes, its replay and what it leaves."""

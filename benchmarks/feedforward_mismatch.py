@@ -308,7 +308,7 @@ def _cell(case: dict) -> str:
 
 
 def tables(results: dict) -> str:
-    """The markdown tables of docs/feedforward.md."""
+    """The markdown tables of docs/explanation/feedforward.md."""
     cases = results["cases"]
     lines = []
     for resistance in sorted({case["heater_ohm"] for case in cases}, reverse=True):

@@ -83,7 +83,7 @@ def test_disturbance_outside_the_list_is_unexplained(disturbance, protocol):
     assert analysis.decision.base.present
 
 
-#: Catalog cases at the edge of what a record with its base parameters off can tell (docs/analysis.md, Limits):
+#: Catalog cases at the edge of what a record with its base parameters off can tell (docs/explanation/analysis-method.md, Limits):
 #: what the analysis names instead of the hidden cause, and why.
 KNOWN_LIMITS = {
     ("dead_time", "pi_only", 0): ([], "a 0.2 s dead time on a PI-only record is, within the noise, a fraction of a "
@@ -91,7 +91,7 @@ KNOWN_LIMITS = {
     ("sensor_lag", "pi_only", 0): (["link_dynamics"], "at the line alone a 0.03 s lag and a link whose gain matches "
                                                       "within the recalibration's 10 % are a tie on a PI-only record"),
 }
-#: Links the analysis names whose time constant a record cannot fix (docs/analysis.md, Limits): w tau = 6.5, the
+#: Links the analysis names whose time constant a record cannot fix (docs/explanation/analysis-method.md, Limits): w tau = 6.5, the
 #: line's phase near -pi/2 fixes g/tau, and a 0.05 rad error of the base phase moves tau by a fifth or more.
 LINE_FIXES_ONLY_G_OVER_TAU = {("link_dynamics", "identification", 2), ("link_dynamics", "pi_only", 2)}
 EVERY_CASE = [(cause, protocol, magnitude) for cause in sorted(MAGNITUDES) for protocol in ("identification", "pi_only")
@@ -228,7 +228,7 @@ def test_two_effects_at_once_are_both_named(causes, protocol):
     _check_both_found(analysis, truths)
 
 
-#: A pair a PI-only record cannot tell (docs/analysis.md, Limits): with little heater content at the line, a link
+#: A pair a PI-only record cannot tell (docs/explanation/analysis-method.md, Limits): with little heater content at the line, a link
 #: that differs plus a longer dead time stands in for a lagging thermometer plus a dead time.
 PAIR_LIMITS = {
     (("dead_time", "sensor_lag"), "pi_only"): {"link_dynamics", "dead_time"},

@@ -17,6 +17,9 @@ windows) stays within 2x of its final value; the CPU per tick of the loop's own 
 feedforward against PI alone (benchmarks/loop_cpu.py, best of --repeat runs of each), and of the whole
 process (the learning worker and the data log's writer included, one run).
 Writes the figures of docs/explanation/feedforward.md and prints the tables.
+
+Results: ``benchmarks/results/feedforward.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

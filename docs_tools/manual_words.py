@@ -13,7 +13,6 @@ Run ``python -m docs_tools.manual_words`` for the count of each page.
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 from docs_tools.reference_tables import REPOSITORY, expand
 

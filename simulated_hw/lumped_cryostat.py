@@ -1,6 +1,6 @@
 """An independent simulated cryostat: a lumped thermal network integrated in time, for benchmarking the analysis.
 
-``cryod analyze`` fits effects of :mod:`cryod.model` (docs/model.md, "Optional effects"), and the project's own
+``cryod analyze`` fits effects of :mod:`cryod.model` (docs/explanation/cryostat-model.md, "Optional effects"), and the project's own
 records (:mod:`simulated_hw.measurement_programs`) are made by the same model family, so they share the analysis'
 blind spots: an effect there has exactly the form the analysis fits. This module makes records another way, with
 nothing of :mod:`cryod.model` (it imports numpy only): the cryostat is a network of heat capacities and thermal

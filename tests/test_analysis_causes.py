@@ -83,7 +83,7 @@ def test_disturbance_outside_the_list_is_unexplained(disturbance, protocol):
     assert analysis.decision.base.present
 
 
-#: Catalog cases at the edge of what a record with its base parameters off can tell (docs/analysis.md, Limits): the
+#: Catalog cases at the edge of what a record with its base parameters off can tell (docs/explanation/analysis-method.md, Limits): the
 #: verdicts any draw of the noise may give (the hidden cause, or what it cannot be told from), and why. Which one a
 #: draw gives is the noise's, so the test takes each on several seeds and asks only for one of these.
 KNOWN_LIMITS = {
@@ -96,7 +96,7 @@ KNOWN_LIMITS = {
 }
 #: The draws of the noise each known limit is taken on.
 KNOWN_LIMIT_SEEDS = (2, 3, 5)
-#: Links the analysis names whose time constant a record cannot fix (docs/analysis.md, Limits): w tau = 6.5, the
+#: Links the analysis names whose time constant a record cannot fix (docs/explanation/analysis-method.md, Limits): w tau = 6.5, the
 #: line's phase near -pi/2 fixes g/tau, and a 0.05 rad error of the base phase moves tau by a fifth or more.
 LINE_FIXES_ONLY_G_OVER_TAU = {("link_dynamics", "identification", 2), ("link_dynamics", "pi_only", 2)}
 EVERY_CASE = [(cause, protocol, magnitude) for cause in sorted(MAGNITUDES) for protocol in ("identification", "pi_only")
@@ -234,7 +234,7 @@ def test_two_effects_at_once_are_both_named(causes, protocol):
     _check_both_found(analysis, truths)
 
 
-#: A pair a PI-only record cannot tell (docs/analysis.md, Limits): with little heater content at the line, a link
+#: A pair a PI-only record cannot tell (docs/explanation/analysis-method.md, Limits): with little heater content at the line, a link
 #: that differs plus a longer dead time stands in for a lagging thermometer plus a dead time.
 PAIR_LIMITS = {
     (("dead_time", "sensor_lag"), "pi_only"): {"link_dynamics", "dead_time"},

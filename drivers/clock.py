@@ -122,7 +122,7 @@ def clock_for_speed(speed: float | str) -> Clock:
     if speed == "max":
         return VirtualClock()
     if speed > 1.0:
-        from drivers.paced_clock import PacedClock      # it builds on VirtualClock, defined above
+        from drivers.paced_clock import PacedClock  # it builds on VirtualClock, defined above
 
         return PacedClock(speed)
     return MonotonicClock() if speed == 1.0 else ScaledClock(speed)

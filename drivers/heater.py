@@ -43,7 +43,13 @@ from typing import NamedTuple
 
 from drivers.clock import Clock
 from drivers.errors import (
-    BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterOutputOff, HeaterRefused, InstrumentError,
+    BadReply,
+    ConnectionLost,
+    HeaterCompliance,
+    HeaterLimitRefused,
+    HeaterOutputOff,
+    HeaterRefused,
+    InstrumentError,
 )
 from drivers.heater_limits import current_for_power_a, largest_power_w
 from drivers.scpi import Control, ScpiInstrument, on_off, parse_bool

@@ -42,7 +42,6 @@ Examples
 
 from __future__ import annotations
 
-
 import enum
 import math
 import re
@@ -52,14 +51,23 @@ from typing import NamedTuple
 from drivers.clock import Clock
 from drivers.errors import BadReply, InstrumentError, InstrumentTimeout, OverflowReading
 from drivers.keithley2002_timing import NORMAL_AUTOZERO_INTERVAL_S, ReadingTiming
+from drivers.scpi import (
+    Control,
+    ScpiInstrument,
+    count_or_infinite,
+    integer,
+    number,
+    on_off,
+    one_of,
+    parse_bool,
+    parse_count,
+    parse_token,
+)
+from drivers.transports.base import Transport
 
 #: How much earlier the lower bound of a learned reading time moves after a fetch that got the reading
 #: at once (s): small against the 2 ms poll, so a drift of the mains phase is followed.
 LINE_SYNC_LEARNING_STEP_S = 0.00025
-from drivers.scpi import (Control, ScpiInstrument, count_or_infinite, integer, number, on_off, one_of,
-                          parse_bool, parse_count, parse_token)
-from drivers.transports.base import Transport
-
 #: Largest reading the 2002 sends for a real value; +9.9E37 is its overflow marker.
 OVERFLOW_MARKER = 9.9e37
 #: Highest 4-wire range (2 MOhm) and its 5 % over-range (manual 2.4.3: 4-wire up to 2.1 MOhm).

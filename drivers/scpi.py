@@ -42,8 +42,14 @@ from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Mapping
 
 from drivers.clock import Clock
-from drivers.errors import (BadReply, ConnectionLost, IdentityMismatch, InstrumentError,
-                            InstrumentReportedError, QueueEntry)
+from drivers.errors import (
+    BadReply,
+    ConnectionLost,
+    IdentityMismatch,
+    InstrumentError,
+    InstrumentReportedError,
+    QueueEntry,
+)
 from drivers.transports.base import Transport
 
 #: More entries than an instrument's queue holds (the 2002's holds 10): a safety stop.

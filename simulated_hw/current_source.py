@@ -24,7 +24,6 @@ import math
 from simulated_hw.cryostat import SimulatedCryostat
 from simulated_hw.instrument import EmulatedInstrument
 
-
 #: Output changes :attr:`EmulatedCurrentSource.delivered_w` keeps.
 DELIVERED_LOG_LENGTH = 100_000
 

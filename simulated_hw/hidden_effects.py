@@ -22,8 +22,15 @@ import math
 import numpy as np
 
 from cryod.model import (
-    CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, OperatingPoint,
-    CoolerFrequencyDrift, CoolerHarmonic, SensorLag,
+    CoolerFrequencyDrift,
+    CoolerHarmonic,
+    CryostatModel,
+    DeadTime,
+    HeatCapacityTemperature,
+    HeaterNonlinearity,
+    LinkDynamics,
+    OperatingPoint,
+    SensorLag,
 )
 
 #: Per cause: (what to put in the model, {fitted parameter: true value}) for three magnitudes.

@@ -37,8 +37,16 @@ import time
 from dataclasses import dataclass
 
 from drivers.clock import Clock
-from simulated_hw.scpi import (CommandTable, ErrorQueue, PARAMETER_NOT_ALLOWED, TRIGGER_IGNORED,
-                               parse_boolean, parse_number, scpi_error, single_argument)
+from simulated_hw.scpi import (
+    PARAMETER_NOT_ALLOWED,
+    TRIGGER_IGNORED,
+    CommandTable,
+    ErrorQueue,
+    parse_boolean,
+    parse_number,
+    scpi_error,
+    single_argument,
+)
 from simulated_hw.status import REGISTER_MASK, StatusModel
 
 

@@ -43,9 +43,18 @@ from typing import NamedTuple, Protocol
 from drivers.keithley2002_timing import NORMAL_AUTOZERO_INTERVAL_S, ReadingTiming
 from simulated_hw.cryostat import SimulatedCryostat
 from simulated_hw.instrument import EmulatedInstrument, boolean_setting, on_off
-from simulated_hw.scpi import (DATA_CORRUPT_OR_STALE, ILLEGAL_PARAMETER_VALUE, INIT_IGNORED,
-                               SETTINGS_CONFLICT, TRIGGER_IGNORED, parse_choice, parse_number,
-                               scpi_error, short_form, single_argument)
+from simulated_hw.scpi import (
+    DATA_CORRUPT_OR_STALE,
+    ILLEGAL_PARAMETER_VALUE,
+    INIT_IGNORED,
+    SETTINGS_CONFLICT,
+    TRIGGER_IGNORED,
+    parse_choice,
+    parse_number,
+    scpi_error,
+    short_form,
+    single_argument,
+)
 
 #: 4-wire ranges of the 2002 (ohm); each reads up to 105 % of full scale.
 FOUR_WIRE_RANGES_OHM = (20.0, 200.0, 2e3, 2e4, 2e5, 2e6)

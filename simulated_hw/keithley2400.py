@@ -52,11 +52,19 @@ from __future__ import annotations
 
 import math
 
-from simulated_hw.current_source import EmulatedCurrentSource
 from simulated_hw.cryostat import SimulatedCryostat
+from simulated_hw.current_source import EmulatedCurrentSource
 from simulated_hw.instrument import boolean_setting, on_off
-from simulated_hw.scpi import (ILLEGAL_PARAMETER_VALUE, ScpiError, parse_boolean, parse_choice, parse_number,
-                               scpi_error, short_form, single_argument)
+from simulated_hw.scpi import (
+    ILLEGAL_PARAMETER_VALUE,
+    ScpiError,
+    parse_boolean,
+    parse_choice,
+    parse_number,
+    scpi_error,
+    short_form,
+    single_argument,
+)
 
 OUTPUT_BLOCKED = (802, "OUTPUT blocked by output enable")
 NOT_WITH_OUTPUT_OFF = (803, "Not permitted with OUTPUT off")

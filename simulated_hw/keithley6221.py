@@ -23,8 +23,8 @@ bit clear; the manual gives no error-queue number for it, so none is queued.
 
 from __future__ import annotations
 
-from simulated_hw.current_source import EmulatedCurrentSource
 from simulated_hw.cryostat import SimulatedCryostat
+from simulated_hw.current_source import EmulatedCurrentSource
 from simulated_hw.instrument import boolean_setting, on_off
 from simulated_hw.scpi import parse_boolean, parse_choice, parse_number, short_form
 

@@ -33,9 +33,9 @@ from typing import Callable
 
 import numpy as np
 
+from cryod.control.closed_loop import Segment, run_program
 from cryod.control.pi import PiGains
 from cryod.model import CryostatModel
-from cryod.control.closed_loop import Segment, run_program
 
 #: Heater of the simulated records: 25 ohm, 100 mA limit, so at most 0.25 W.
 HEATER_RESISTANCE_OHM = 25.0

@@ -35,7 +35,6 @@ from cryod.control.terms import ControlTerm, TickInputs
 from cryod.records.columns import Column
 from cryod.yaml_source import Section
 
-
 #: Largest Kp (W/K) and Ki (W/(K s)) a configuration takes.
 MAX_GAIN = 1000.0
 

@@ -48,9 +48,9 @@ from scipy import optimize
 from cryod.control.closed_loop import Segment, run_program
 from cryod.control.feedforward.harmonic_plant import line_at_harmonics
 from cryod.control.pi import MAX_GAIN, PiGains
+from cryod.cooler.periodic import periodic_amplitudes
 from cryod.model import CryostatModel
 from cryod.model.dynamics import flange_transfer_functions
-from cryod.cooler.periodic import periodic_amplitudes
 
 #: T2 is judged averaged over this many cooler periods (the line itself is not a settling error).
 AVERAGED_PERIODS = 4

@@ -38,14 +38,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage, optimize
-
-from scipy import interpolate
+from scipy import interpolate, ndimage, optimize
 
 from cryod.cooler.line_fit import wrap_phase
 from cryod.cooler.phase import CoolerPhaseTracker
-from cryod.model import CryostatModel, CoolerFrequencyDrift, CoolerHarmonic
-from cryod.model.cooler_cycle import MeasuredCoolerCycle, CoolerCycle
+from cryod.model import CoolerFrequencyDrift, CoolerHarmonic, CryostatModel
+from cryod.model.cooler_cycle import CoolerCycle, MeasuredCoolerCycle
 
 #: Search band of the cooler's fundamental (rad/s): 0.3 Hz up to the Nyquist frequency.
 LOWEST_LINE_ANGULAR_FREQUENCY = 2.0 * math.pi * 0.3

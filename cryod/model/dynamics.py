@@ -40,10 +40,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cryod.model.cooler_path import CoolerDrive, CoolerPath
 from cryod.model.heater_path import HeaterPath
 from cryod.model.kept_results import KeptResults, digest
 from cryod.model.parameters import CryostatModel
-from cryod.model.cooler_path import CoolerDrive, CoolerPath
 from cryod.model.transfer_function import TransferFunction
 
 

@@ -31,7 +31,6 @@ import numpy as np
 from cryod.model.kept_results import KeptResults, digest
 from cryod.model.transfer_function import TransferFunction
 
-
 #: Step lengths whose hold coefficients a path keeps (all forgotten when one more comes).
 HOLD_STEPS_KEPT = 64
 

@@ -23,9 +23,25 @@ from pathlib import Path
 import yaml
 
 from cryod.model.parameters import (
-    PICKUP_THERMOMETERS, CryostatModel, DeadTime, Disturbance, Effects, HeatCapacityTemperature, HeaterNonlinearity,
-    HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, CoolerAmplitudeModulation, CoolerFrequencyDrift,
-    CoolerHarmonic, CoolerSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
+    PICKUP_THERMOMETERS,
+    CoolerAmplitudeModulation,
+    CoolerFrequencyDrift,
+    CoolerHarmonic,
+    CoolerSource,
+    CryostatModel,
+    DeadTime,
+    Disturbance,
+    Effects,
+    HeatCapacityTemperature,
+    HeaterNonlinearity,
+    HeaterPathCorrection,
+    LinkDynamics,
+    OperatingPoint,
+    Pickup,
+    PtcStageDrift,
+    SensorLag,
+    SensorNoise,
+    SlowProcess,
 )
 from cryod.model.temperature_laws import TemperatureDependence
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError

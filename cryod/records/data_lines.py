@@ -33,8 +33,14 @@ from typing import Callable, Collection, Iterator
 
 import numpy as np
 
-from cryod.records.bounds import (MAX_DATA_LINE_CHARACTERS, MAX_EVENT_CHARACTERS, MAX_LINES, MAX_TEXT_CHARACTERS,
-                                  NOT_A_RECORD, size_text)
+from cryod.records.bounds import (
+    MAX_DATA_LINE_CHARACTERS,
+    MAX_EVENT_CHARACTERS,
+    MAX_LINES,
+    MAX_TEXT_CHARACTERS,
+    NOT_A_RECORD,
+    size_text,
+)
 from cryod.records.columns import REQUIRED
 
 #: Lines converted at a time: about 300 kB of daemon text, 4 MB while split into fields.

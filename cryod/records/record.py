@@ -38,8 +38,16 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from cryod.records.bounds import (MAX_COLUMNS, MAX_DATA_LINE_CHARACTERS, MAX_HEADER_CHARACTERS,
-                                  MAX_HEADER_LINE_CHARACTERS, MAX_LINES, MAX_TEXT_CHARACTERS, NOT_A_RECORD, size_text)
+from cryod.records.bounds import (
+    MAX_COLUMNS,
+    MAX_DATA_LINE_CHARACTERS,
+    MAX_HEADER_CHARACTERS,
+    MAX_HEADER_LINE_CHARACTERS,
+    MAX_LINES,
+    MAX_TEXT_CHARACTERS,
+    NOT_A_RECORD,
+    size_text,
+)
 from cryod.records.columns import REQUIRED, format_field
 from cryod.records.data_lines import DataLineError, read_data_lines
 from cryod.regular_files import NotARegularFile, open_regular_file, regular_file_status

@@ -187,7 +187,7 @@ def _modulate(loop: "ControlLoop", value) -> str:
 
 
 def _feedforward(loop: "ControlLoop", value: str) -> str | SnapshotAnswer:
-    from cryod.control.feedforward.status_text import status_text     # numpy: not for cryod ctl's import
+    from cryod.control.feedforward.status_text import status_text  # numpy: not for cryod ctl's import
 
     term = loop.regulator.term("feedforward")
     if term is None:

@@ -42,8 +42,8 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from cryod.service.commands import Command, parse_command, wait_for
 from cryod.service.async_clients import ClientsThread, ConnectionBook, loop_answer
+from cryod.service.commands import Command, parse_command, wait_for
 from cryod.service.stream import StreamHub, finite_or_none
 
 log = logging.getLogger("cryod.control")

@@ -39,10 +39,11 @@ from cryod import __version__
 from cryod.config import DaemonConfig, load_config, located_error
 from cryod.control.setpoint_reach import controller_model
 from cryod.instrument_waits import InstrumentWaits
-from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
+from cryod.records.datalog import DataLog
 from cryod.service.alarms import AlarmMonitor
 from cryod.service.commands import Command, wait_for
+from cryod.service.control_socket import ControlSocketServer
 from cryod.service.daemon_status import DaemonStatus, status_json
 from cryod.service.faults import ExitCode, Fault, FaultCause
 from cryod.service.heater_guard import HeaterGuard
@@ -50,15 +51,19 @@ from cryod.service.instance_lock import AlreadyRunning, InstanceLock, Instrument
 from cryod.service.interfaces_process import InterfacesProcess, interface_settings
 from cryod.service.lakeshore336 import Lakeshore336Setup
 from cryod.service.live_view import LiveView
-from cryod.service.stream import StreamHub, StreamTap
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
-from cryod.service.reading_watchdog import ReadingWatchdog
-from cryod.service.realtime import RealtimeSession
-from cryod.service.control_socket import ControlSocketServer
 from cryod.service.notes import write_note
 from cryod.service.notify import SystemdNotifier
-from cryod.service.stop_signals import (REQUESTED_STOP_SIGNALS, SignalWatch, exit_code_for,
-                                        install_thread_exception_hook, signal_received)
+from cryod.service.reading_watchdog import ReadingWatchdog
+from cryod.service.realtime import RealtimeSession
+from cryod.service.stop_signals import (
+    REQUESTED_STOP_SIGNALS,
+    SignalWatch,
+    exit_code_for,
+    install_thread_exception_hook,
+    signal_received,
+)
+from cryod.service.stream import StreamHub, StreamTap
 from cryod.yaml_source import FileFormatError
 from drivers.clock import Clock
 from drivers.errors import IdentityMismatch, InstrumentError

@@ -45,8 +45,17 @@ from enum import IntEnum, StrEnum
 
 from cryod.service.heater_guard import HeaterSwitchedOff
 from drivers.errors import (
-    BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterOutputOff, HeaterRefused, IdentityMismatch,
-    InstrumentError, InstrumentReportedError, InstrumentTimeout, OverflowReading,
+    BadReply,
+    ConnectionLost,
+    HeaterCompliance,
+    HeaterLimitRefused,
+    HeaterOutputOff,
+    HeaterRefused,
+    IdentityMismatch,
+    InstrumentError,
+    InstrumentReportedError,
+    InstrumentTimeout,
+    OverflowReading,
 )
 
 

@@ -33,11 +33,20 @@ from drivers.heater import HeaterSupply
 from drivers.keithley2002 import FourWireSettings, Keithley2002, TriggerSource
 from drivers.keithley2400 import Keithley2400
 from drivers.keithley6221 import Keithley6221
-from drivers.pair_triggers import (GpibGroupTrigger, HardwareTrigger, PairTrigger, PrologixGroupTrigger,
-                                   SequentialTrigger)
+from drivers.pair_triggers import (
+    GpibGroupTrigger,
+    HardwareTrigger,
+    PairTrigger,
+    PrologixGroupTrigger,
+    SequentialTrigger,
+)
 from drivers.thermometer_pair import PairReading, ThermometerPair
-from drivers.transports.addresses import (canonical_prologix, canonical_prologix_adapter, canonical_resource,
-                                         canonical_serial_port)
+from drivers.transports.addresses import (
+    canonical_prologix,
+    canonical_prologix_adapter,
+    canonical_resource,
+    canonical_serial_port,
+)
 from drivers.transports.base import Transport
 from drivers.transports.prologix import PrologixAdapter
 from drivers.transports.visa import VisaTransport, resource_manager

@@ -28,7 +28,8 @@ from __future__ import annotations
 import collections
 import logging
 import math
-from concurrent.futures import Future, TimeoutError as FutureTimeout
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Callable, NamedTuple, Protocol
 
 from cryod.config import DaemonConfig, located_error

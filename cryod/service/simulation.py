@@ -33,24 +33,24 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.clock import clock_for_speed
-from drivers.paced_clock import PacedClock
 from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config, located_error
+from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit, limit_changes
+from cryod.control.feedforward.limit_binding import limit_binding
+from cryod.model import DEFAULT_MODEL_PATH, linearised_at, load_model
+from cryod.records.columns import Event, Row
+from cryod.records.metrics import regulation_metrics
 from cryod.service.daemon import Daemon
 from cryod.service.discovery import simulation_socket
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
-from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit, limit_changes
-from cryod.control.feedforward.limit_binding import limit_binding
-from cryod.records.columns import Event, Row
-from cryod.records.metrics import regulation_metrics
-from cryod.model import DEFAULT_MODEL_PATH, linearised_at, load_model
-from cryod.service.stream import finite_or_none
 from cryod.service.logs import ServiceLogging
 from cryod.service.readable import readable, rounded
 from cryod.service.status_line import StatusLine
+from cryod.service.stream import finite_or_none
 from cryod.yaml_source import FileFormatError
+from drivers.clock import clock_for_speed
 from drivers.keithley2002 import TriggerSource
+from drivers.paced_clock import PacedClock
 from drivers.pair_triggers import GpibGroupTrigger, HardwareTrigger, PrologixGroupTrigger, SequentialTrigger
 from drivers.transports.prologix import PrologixAdapter
 from drivers.transports.visa import VisaTransport

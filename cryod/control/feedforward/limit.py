@@ -44,7 +44,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.control.feedforward.bounded_waveform import (
-    best_bounded_waveform, largest_fundamental, residual_lower_bound, waveform_values,
+    best_bounded_waveform,
+    largest_fundamental,
+    residual_lower_bound,
+    waveform_values,
 )
 from cryod.control.feedforward.harmonic_plant import line_at_harmonics
 from cryod.model import CryostatModel, TransferFunction

@@ -66,8 +66,7 @@ from cryod.control.feedforward.power_levels import PowerLevels
 from cryod.control.feedforward.reading_feed import ReadingFeed
 from cryod.control.feedforward.record_columns import COLUMNS
 from cryod.control.feedforward.settings import FeedforwardSettings, settings_from
-from cryod.control.feedforward.state_machine import (BEHAVIOURS, FeedforwardEvent, FeedforwardState, next_state,
-                                                     verdict)
+from cryod.control.feedforward.state_machine import BEHAVIOURS, FeedforwardEvent, FeedforwardState, next_state, verdict
 from cryod.control.feedforward.status_text import FeedforwardStatus, status_text
 from cryod.control.feedforward.synchronous_estimator import SynchronousEstimator
 from cryod.control.feedforward.unplayed_power import UnplayedPower

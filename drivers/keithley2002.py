@@ -402,7 +402,7 @@ class Keithley2002(ScpiInstrument):
         """Timing of a triggered reading with the present configuration (kept until it changes)."""
         s = self.settings
         key = (s, self.line_frequency_hz, self._trigger_delay_s)
-        if key != self._timing_key:
+        if self._timing is None or key != self._timing_key:
             repeat = s.filter_count if (s.filter_count > 1 and s.filter_type is FilterType.REPEATING) else 1
             self._timing = ReadingTiming(nplc=s.nplc, line_frequency_hz=self.line_frequency_hz,
                                          offset_compensation=s.offset_compensation, autozero=s.autozero,
@@ -575,7 +575,7 @@ class Keithley2002(ScpiInstrument):
         (with the same values) or say what is wrong with it.
         """
         if self._layout_key != self.elements:
-            order = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
+            order: list[DataElement] = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
                                  DataElement.CHANNEL) if e in self.elements]
             self._layout = (order, *(order.index(e) if e in order else None
                                      for e in (DataElement.READING, DataElement.TIMESTAMP,

@@ -152,8 +152,8 @@ class TransferFunction:
         return complex(value) if np.ndim(value) == 0 else value
 
     # -- algebra ------------------------------------------------------------
-    def __mul__(self, other: "TransferFunction") -> "TransferFunction":
-        """Series connection ``self * other``."""
+    def __mul__(self, other: "TransferFunction | float") -> "TransferFunction":
+        """Series connection ``self * other``; a number scales the gain."""
         if isinstance(other, (int, float)):
             return TransferFunction(tuple(float(other) * c for c in self.numerator), self.denominator)
         return TransferFunction(

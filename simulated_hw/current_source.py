@@ -152,6 +152,10 @@ class EmulatedCurrentSource(EmulatedInstrument):
         self.apply_to_heater()
         return not refused
 
+    def clear_output(self, args: list[str]) -> None:
+        """``:SOURce:CLEar``: output off."""
+        self.turn_output(False)
+
     def set_current(self, current_a: float) -> None:
         self.current_setpoint_a = current_a
         self.apply_to_heater()

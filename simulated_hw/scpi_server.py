@@ -25,7 +25,7 @@ from __future__ import annotations
 import select
 import socket
 import threading
-from typing import Protocol
+from typing import Protocol, Self
 
 #: How often a connection thread looks at the stop flag and the device's session (s).
 POLL_INTERVAL_S = 0.01
@@ -49,13 +49,13 @@ class ThreadedTcpServer:
             raise RuntimeError("server is not started")
         return self._listener.getsockname()[1]
 
-    def start(self) -> "ThreadedTcpServer":
+    def start(self) -> Self:
         listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         listener.bind((self.host, self._requested_port))
         listener.listen(8)
         self._listener = listener
-        self._spawn(self._accept_loop)
+        self._spawn(self._accept_loop, listener)
         return self
 
     def stop(self) -> None:
@@ -68,7 +68,7 @@ class ThreadedTcpServer:
         for thread in self._threads:
             thread.join(timeout=2.0)
 
-    def __enter__(self):
+    def __enter__(self) -> Self:
         return self.start()
 
     def __exit__(self, *exc_info) -> None:
@@ -93,13 +93,13 @@ class ThreadedTcpServer:
         self._threads.append(thread)
         thread.start()
 
-    def _accept_loop(self) -> None:
+    def _accept_loop(self, listener: socket.socket) -> None:
         while not self._stopping.is_set():
             try:
-                ready, _, _ = select.select([self._listener], [], [], POLL_INTERVAL_S * 10)
+                ready, _, _ = select.select([listener], [], [], POLL_INTERVAL_S * 10)
                 if not ready:
                     continue
-                connection, _ = self._listener.accept()
+                connection, _ = listener.accept()
             except (OSError, ValueError):
                 return
             connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)

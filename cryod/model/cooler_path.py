@@ -129,7 +129,7 @@ class CoolerPath:
         self.input_is_heat = input_is_heat
         self._components_and_rotations = [(c, cmath.exp(1j * c.phase_rad)) for c in drive.components]
         self._cache_key: tuple[float, float] | None = None
-        self._cache: list[complex] = []
+        self._cache: list[tuple[int, complex]] = []
         self._window_key: tuple[float, float, float] | None = None
         self._window: list[tuple] = []
 

@@ -216,8 +216,8 @@ class TransferFunction:
     @functools.cached_property
     def _modal_form(self) -> ModalForm:
         lead = self.denominator[0]
-        denominator = np.asarray(self.denominator) / lead
-        numerator = np.asarray(self.numerator) / lead
+        denominator: np.ndarray = np.asarray(self.denominator) / lead
+        numerator: np.ndarray = np.asarray(self.numerator) / lead
         direct = 0.0
         if len(numerator) == len(denominator):
             direct = float(numerator[0])

@@ -552,7 +552,8 @@ def measured_cycle(elapsed_s, stage_signal_K, nominal_rad_s: float) -> MeasuredC
     spline = interpolate.make_lsq_spline(t[first:], (phase - ramp)[first:], knot_vector, k=order)
     smoothed = ramp + spline(t, extrapolate=True)
     smoothed_frequency = slope + spline.derivative()(t, extrapolate=True)
-    centres, corrections = [], []
+    centres: list[float] = []
+    corrections: list[float] = []
     for start in np.arange(t[0], t[-1], PHASE_CORRECTION_WINDOW_S):
         window = (t >= start) & (t < start + PHASE_CORRECTION_WINDOW_S)
         if np.count_nonzero(window) < 40:
@@ -564,9 +565,9 @@ def measured_cycle(elapsed_s, stage_signal_K, nominal_rad_s: float) -> MeasuredC
         solution, *_ = np.linalg.lstsq(np.column_stack(columns), values[window], rcond=None)
         centres.append(float(local_t.mean()))
         corrections.append(math.atan2(-solution[3], solution[2]))     # A cos(phase + d) = A cos d cos - A sin d sin
-    corrections = np.unwrap(np.asarray(corrections))
+    unwrapped = np.unwrap(np.asarray(corrections))
     if len(centres) >= 4:
-        correction = interpolate.CubicSpline(centres, corrections - corrections.mean(), extrapolate=True)
+        correction = interpolate.CubicSpline(centres, unwrapped - unwrapped.mean(), extrapolate=True)
         smoothed = smoothed + correction(t)
         smoothed_frequency = smoothed_frequency + correction.derivative()(t)
     start_phase, start_frequency = smoothed[0], smoothed_frequency[0]

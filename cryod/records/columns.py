@@ -198,7 +198,7 @@ class RowSchema:
         loop the data log's thread can afford at 12.5 rows a second and far faster in simulation.
         """
         control = row.control
-        fields = []
+        fields: list[str] = []
         append = fields.append
         for name, on_row, is_time, pattern, float_format in self._plan:
             value = getattr(row, name) if on_row else control.get(name)

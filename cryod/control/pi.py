@@ -189,8 +189,10 @@ class PiTerm(ControlTerm):
         self.controller = PiController(gains, 0.0, output_max)
 
     @staticmethod
-    def settings_from(section: Section) -> PiGains:
-        """The gains from ``control.pi``."""
+    def settings_from(section: Section | None) -> PiGains:
+        """The gains from ``control.pi`` (a required section: never None from :func:`term_settings_from`)."""
+        if section is None:
+            raise TypeError("control.pi is a required section")
         gains = PiGains(section.number("proportional_W_per_K", minimum=0.0, maximum=MAX_GAIN),
                         section.number("integral_W_per_K_s", minimum=0.0, maximum=MAX_GAIN))
         section.finish()

@@ -141,7 +141,7 @@ class HardwareTrigger:
             raise ValueError(f"a hardware trigger reaches EXTERNAL or TRIGGER_LINK inputs, not {dmm_input}")
         self.output = output
         self.clock = clock
-        self.dmm_trigger_source = dmm_input
+        self.dmm_trigger_source: TriggerSource = dmm_input
         self.link_input_line = link_input_line
 
     def fire(self) -> TriggerEvent:

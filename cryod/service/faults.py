@@ -87,6 +87,10 @@ class FaultCause(StrEnum):
         Reopening the instruments' connections may clear it.
     """
 
+    recoverable: bool
+    exit_code: ExitCode
+    reconnect: bool
+
     def __new__(cls, value: str, recoverable: bool, exit_code: ExitCode, reconnect: bool = False):
         member = str.__new__(cls, value)
         member._value_ = value
@@ -185,7 +189,7 @@ class ReadingChecks:
         self.flange_max_K = flange_max_K
         self.ptc_stage_max_K = ptc_stage_max_K
         self.max_repeated_readings = max_repeated_readings
-        self._last = (None, None)
+        self._last: tuple[float | None, float | None] = (None, None)
         self._repeats = [0, 0]
 
     def check_resistances(self, flange_ohm: float, ptc_stage_ohm: float) -> Fault | None:

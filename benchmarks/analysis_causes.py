@@ -492,6 +492,10 @@ def tables(results: list[dict]) -> str:
         cpu = np.array([item["cpu_s"] for item in items])
         lines.append(f"| {kind} | {protocol} | {len(items)} | {np.median(wall):.1f} / {wall.max():.1f} | "
                      f"{np.median(cpu):.1f} / {cpu.max():.1f} |")
+    slowest = sorted(results, key=lambda item: -item["cpu_s"])[:3]
+    lines += ["", "The slowest three (CPU): " + "; ".join(
+        f"record {item['index']} ({item['kind']}, {item['protocol']}, {' + '.join(item['causes']) or item.get('outside') or item.get('off') or 'clean'}) "
+        f"{item['cpu_s']:.1f} s" for item in slowest) + "."]
     return "\n".join(lines)
 
 

@@ -247,6 +247,90 @@ def test_entering_another_zone_starts_the_learned_plant_again_from_the_zones_mod
 
 
 # ---------------------------------------------------------------------------
+# warnings said on settled data only
+# ---------------------------------------------------------------------------
+def _setpoint_changes(model, controller, changes, seed, spacing_s=400.0):
+    """A run through ``changes`` setpoint changes between 5.0 and 5.8 K, ``spacing_s`` apart: long enough for T2 to
+    settle and for the report's settled time to pass at each."""
+    setpoints = [5.0 + 0.2 * ((index * 7) % 5) for index in range(changes + 1)]
+    return run_program(model, [Segment(spacing_s * index, setpoint_K=value) for index, value in enumerate(setpoints)],
+                       spacing_s * (changes + 1), gains=GAINS, heater_max_w=0.5, seed=seed,
+                       initial_heater_power_w=mean_heater_power_w(model, 5.0),
+                       more_terms=(("feedforward", FeedforwardSettings(model=controller)),))
+
+
+@pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow), pytest.param(3, marks=pytest.mark.slow)])
+def test_setpoint_changes_on_the_cryostat_the_model_describes_give_no_warning(reference_model, seed):
+    """Twenty setpoint changes on the cryostat the controller's model describes: what the learning finds while
+    T2 ramps is the transient, and no difference is said."""
+    run = _setpoint_changes(reference_model, reference_model, 20, seed)
+    assert len(events(run, "learned plant: harmonic 1")) >= 10
+    assert events(run, "the heater reaches T2") == [] and events(run, "agrees with the model") == []
+
+
+def test_a_heater_weaker_than_the_model_is_said_once_with_its_numbers(reference_model):
+    """The same changes on a cryostat whose heater reaches T2 0.7x as strongly: said once T2 has settled at
+    the first setpoint, as 1.4x weaker at the line; not again at every change."""
+    run = _setpoint_changes(cryostat(reference_model, gain=0.7), reference_model, 5, seed=1)
+    said = events(run, "the heater reaches T2")
+    assert 1 <= len(said) <= 2 and said[0][0] < 400.0
+    assert all(text.startswith("the heater reaches T2 1.4x weaker than the model at the line; ")
+               and text.endswith(": re-commission with cryod identify --acquire") for _, _, _, text in said)
+    assert events(run, "agrees with the model") == []
+
+
+def _plant_at(gain_ratio, phase_deg=0.0):
+    model = np.array([7.36e-3 * np.exp(-2.0j), 4.06e-3 * np.exp(-2.4j)])
+    correction = np.full(2, gain_ratio * np.exp(1j * math.radians(phase_deg)))
+    return LearnedPlant(model, correction, np.tile(np.eye(2) * 1e-4, (2, 1, 1)))
+
+
+def _warnings(report):
+    return [text for level, text in report.take() if level == logging.WARNING]
+
+
+def test_a_difference_is_said_once_t2_has_been_at_its_setpoint_and_the_difference_has_held():
+    from cryod.control.feedforward.learning_report import DIFFERING_FOR_S, SETTLED_FOR_S, LearningReport
+
+    report = LearningReport()
+    for time_s in np.arange(0.0, 600.0, 2.0):                       # ramping: never said, however long
+        report.step(time_s, _plant_at(0.7), [], settled=False)
+    assert _warnings(report) == []
+    for time_s in np.arange(600.0, 600.0 + SETTLED_FOR_S, 2.0):   # settled, not yet for long enough
+        report.step(time_s, _plant_at(0.7), [], settled=True)
+    assert _warnings(report) == []
+    report.step(600.0 + SETTLED_FOR_S, _plant_at(0.7), [], settled=True)
+    assert _warnings(report) == ["the heater reaches T2 1.4x weaker than the model at the line; 1.4x weaker at "
+                                 "harmonic 2: re-commission with cryod identify --acquire"]
+    fresh = LearningReport()                                        # settled, but the difference only just appeared
+    for time_s in np.arange(0.0, 400.0, 2.0):
+        fresh.step(time_s, _plant_at(0.7 if time_s >= 300.0 else 1.0), [], settled=True)
+        if time_s < 300.0 + DIFFERING_FOR_S:
+            assert _warnings(fresh) == []
+    assert len(_warnings(fresh)) == 1
+
+
+def test_a_difference_is_said_again_when_the_plant_moved_not_when_its_last_digit_wobbles():
+    from cryod.control.feedforward.learning_report import SAY_AGAIN_S, LearningReport
+
+    report = LearningReport()
+    wobbling = [0.69, 0.72, 0.67, 0.74] * 100                      # 1.4x, 1.4x, 1.5x, 1.4x weaker ...
+    for index, ratio in enumerate(wobbling):
+        report.step(2.0 * index, _plant_at(ratio), [], settled=True)
+    assert len(_warnings(report)) == 1
+    time_s = 2.0 * len(wobbling)
+    report.step(time_s, _plant_at(0.5, phase_deg=-40.0), [], settled=True)     # it moved: said again
+    assert _warnings(report) == ["the heater reaches T2 2.0x weaker and 40 degrees later than the model at the "
+                                 "line; 2.0x weaker and 40 degrees later at harmonic 2: re-commission with cryod "
+                                 "identify --acquire"]
+    report.step(time_s + SAY_AGAIN_S / 2, _plant_at(0.3), [], settled=True)    # moved again, but too soon
+    assert _warnings(report) == []
+    for later_s in np.arange(time_s + SAY_AGAIN_S / 2, time_s + 2 * SAY_AGAIN_S, 2.0):
+        report.step(later_s, _plant_at(1.0), [], settled=True)                   # agrees again, once that has held
+    assert [text for _, text in report.take()] == ["the learned plant agrees with the model within its uncertainty"]
+
+
+# ---------------------------------------------------------------------------
 # the parts
 # ---------------------------------------------------------------------------
 def test_the_learned_plant_is_used_once_known_better_than_the_models_error_at_any_phase():
@@ -342,7 +426,7 @@ def test_the_daemon_reports_what_it_learned_in_the_record_the_journal_and_its_su
     model = cryostat(reference_model, gain=0.6, dead_time_s=math.radians(90.0) / OMEGA)
     path = save_model(model, tmp_path / "cryostat.yaml")
     journal = io.StringIO()
-    run = simulate(600.0, 6.0, sim_model=path, seed=2, data_dir=tmp_path / "data", socket=tmp_path / "c.sock",
+    run = simulate(900.0, 6.0, sim_model=path, seed=2, data_dir=tmp_path / "data", socket=tmp_path / "c.sock",
                    log_stream=journal)
     summary = run.summary
     record = read_record(summary["log_path"])

@@ -727,8 +727,9 @@ class ControlLoop:
         """
         restart = self.config.restart_needed_for(new)
         if restart:
+            ioc = "; the IOC reads ioc at its own start: systemctl restart cryod-ioc" if "ioc" in restart else ""
             return located_error(new, restart[0], f"changes to {', '.join(restart)} need a restart "
-                                                  f"(systemctl restart cryod)")
+                                                  f"(systemctl restart cryod{ioc})")
         refusal = self.regulator.refusal(new.control)
         if refusal is not None:
             return located_error(new, *refusal)

@@ -146,7 +146,7 @@ class LearningSteps:
         self._pending = self._step_id
 
     def take(self, waveform: PlayedWaveform, at_full: bool, cooler_amplitude_K: float, time_s: float,
-             retry_after_s: float) -> tuple[FeedforwardEvent, ...]:
+             retry_after_s: float, settled: bool = True) -> tuple[FeedforwardEvent, ...]:
         """The step asked for last (waiting for the worker if it is behind): its waveform and probe played from
         the next output on (a step that moves them), and judged; what it found, as the state machine's events.
 
@@ -162,6 +162,8 @@ class LearningSteps:
             Now (s), for the report.
         retry_after_s : float
             The wait after a first divergence (s).
+        settled : bool
+            T2 at its setpoint: the report says a difference from the model only on settled data.
 
         Returns
         -------
@@ -186,15 +188,15 @@ class LearningSteps:
             events = (FeedforwardEvent.PROBE_PLAYS if np.any(result.probe) else
                       FeedforwardEvent.PLANT_KNOWN if plant.learned[0] else FeedforwardEvent.PLANT_UNKNOWN),
         if result.ready and self._judge(result, time_s, waveform.coefficients, cooler_amplitude_K, at_full,
-                                        retry_after_s):
+                                        retry_after_s, settled):
             events += FeedforwardEvent.DIVERGED,
         return events
 
     def _judge(self, result: StepResult, time_s: float, coefficients: np.ndarray, cooler_amplitude_K: float,
-               at_full: bool, retry_after_s: float) -> bool:
+               at_full: bool, retry_after_s: float, settled: bool) -> bool:
         """After a ready step: what to report, PI alone's line, and the guard's verdict when the waveform was
         ``at_full``; whether it tripped (counted, reported, the wait set going)."""
-        self.report.step(time_s, result.learned, self.probe_state.given_up())
+        self.report.step(time_s, result.learned, self.probe_state.given_up(), settled)
         playing = np.any(coefficients)
         if not playing:
             self.pi_alone = (float(np.sqrt(np.sum(np.abs(result.line) ** 2))), cooler_amplitude_K)

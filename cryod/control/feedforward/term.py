@@ -260,7 +260,7 @@ class FeedforwardTerm(ControlTerm):
         """Apply the step asked for last tick (waiting for the worker if it is behind), and move on what it found."""
         cooler_K = self.phase.amplitude_K if self.phase is not None else math.nan
         for event in self.steps.take(self.waveform, BEHAVIOURS[self.state].guard_watches, cooler_K, self.time_s,
-                                     self.settings.retry_after_s):
+                                     self.settings.retry_after_s, self.levels.settled):
             self._move(event)
 
     def _start_again_later(self) -> None:

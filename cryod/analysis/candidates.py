@@ -51,15 +51,21 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize
 
-from cryod.cooler.line import PtcLine, measurable_orders
 from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD, LINK_PARAMETERS, RecalibratedBase
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import LinearBasis, Replay, Replayer
+from cryod.cooler.line import PtcLine, measurable_orders
 from cryod.model import (
-    EFFECT_NAMES, CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, SensorLag,
+    EFFECT_NAMES,
+    CryostatModel,
+    DeadTime,
+    HeatCapacityTemperature,
+    HeaterNonlinearity,
+    LinkDynamics,
+    SensorLag,
 )
-from cryod.model.dynamics import flange_transfer_functions
 from cryod.model.cooler_path import CoolerDrive, CoolerPath
+from cryod.model.dynamics import flange_transfer_functions
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError, first_order_link
 
 #: A PTC-stage thermometer lag shifting the line by less than this (rad) is taken as none: 1e-4 rad of a

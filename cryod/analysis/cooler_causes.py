@@ -40,7 +40,7 @@ from scipy import ndimage, signal
 from cryod.analysis.candidates import CandidateFit, EffectForm, FitContext, scalar_search
 from cryod.analysis.decision import CANDIDATE_MINIMUM_IMPROVEMENT
 from cryod.analysis.slow_series import correlation_time_s, slow_splines
-from cryod.model import CryostatModel, CoolerAmplitudeModulation, PtcStageDrift
+from cryod.model import CoolerAmplitudeModulation, CryostatModel, PtcStageDrift
 
 #: Periods of the amplitude modulation searched: from this many seconds to this many record durations.
 SHORTEST_MODULATION_PERIOD_S = 60.0

@@ -26,16 +26,19 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
 import numpy as np  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 from scipy import ndimage, signal  # noqa: E402
 
+from cryod.analysis.cause_search.results import Analysis  # noqa: E402
 from cryod.analysis.decision import CANDIDATE_SIGMA  # noqa: E402
 from cryod.analysis.discrepancies import (  # noqa: E402
-    CROSS_CORRELATION_LAGS, WHITENESS_LAGS, autocorrelation_at, cross_correlation_at,
+    CROSS_CORRELATION_LAGS,
+    WHITENESS_LAGS,
+    autocorrelation_at,
+    cross_correlation_at,
 )
-from cryod.analysis.cause_search.results import Analysis  # noqa: E402
 from cryod.analysis.segments import find_steps  # noqa: E402
 from cryod.figure_files import folded_frequency, mark_cooler_harmonics, save_figure, thin  # noqa: E402
-from matplotlib.patches import Patch  # noqa: E402
 
 COLOURS = {"measured": "black", "base": "tab:red", "extended": "tab:blue"}
 SEGMENT_COLOURS = {"closed loop": "tab:green", "hold": "tab:gray", "modulated": "tab:orange"}

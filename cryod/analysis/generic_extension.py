@@ -47,7 +47,11 @@ import numpy as np
 
 from cryod.analysis.candidates import CandidateFit, FitContext
 from cryod.analysis.decision import (
-    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, CandidateScore, score_candidate, significance,
+    CANDIDATE_MINIMUM_IMPROVEMENT,
+    CANDIDATE_SIGMA,
+    CandidateScore,
+    score_candidate,
+    significance,
 )
 from cryod.analysis.residual_signature import NOT_AT_HARMONICS, spectral_peaks
 from cryod.analysis.slow_series import correlation_time_s, slow_splines

@@ -63,8 +63,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize
 
-from cryod.cooler.line import PtcLine
 from cryod.analysis.replay import LinearBasis, Replay, Replayer, flange_mode_columns, stage_release_response
+from cryod.cooler.line import PtcLine
 from cryod.model import CryostatModel
 from cryod.model.transfer_function import TransferFunction
 

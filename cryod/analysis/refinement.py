@@ -24,9 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.analysis.candidates import CandidateFit, EffectForm
-from cryod.cooler.line import PtcLine
 from cryod.analysis.recalibration import RecalibratedBase, linear_basis
 from cryod.analysis.replay import LinearBasis, Replay, Replayer, flange_mode_columns, stage_release_response
+from cryod.cooler.line import PtcLine
 from cryod.model import CryostatModel
 
 #: Gauss-Newton steps at most, and the relative change (of each number's step) that counts as converged.

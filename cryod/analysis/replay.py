@@ -39,13 +39,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import optimize
 
-from cryod.cooler.line import PtcLine, estimate_ptc_line, measured_cycle
 from cryod.analysis.record_data import RecordData
+from cryod.cooler.line import PtcLine, estimate_ptc_line, measured_cycle
 from cryod.model import CryostatModel, OperatingPoint
 from cryod.model.dynamics import flange_transfer_functions, simulate, stage_transfer_functions
 from cryod.model.kept_results import KeptResults, digest
 from cryod.model.transfer_function import TransferFunction
-
 
 #: Free decays and release responses of the last models' paths over the last records (the analysis replays one
 #: record through many models that share their heater paths).

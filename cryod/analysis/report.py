@@ -8,15 +8,18 @@ from pathlib import Path
 
 import numpy as np
 
-from cryod.analysis.decision import (
-    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, DISCREPANCY_FRACTION_OF_NOISE, DISCREPANCY_SIGMA,
-    EXPLAINED_FRACTION,
-)
 from cryod.analysis.cause_search.base_model_off import ADVICE
 from cryod.analysis.cause_search.bounds import stays_text
+from cryod.analysis.cause_search.results import Analysis
+from cryod.analysis.decision import (
+    CANDIDATE_MINIMUM_IMPROVEMENT,
+    CANDIDATE_SIGMA,
+    DISCREPANCY_FRACTION_OF_NOISE,
+    DISCREPANCY_SIGMA,
+    EXPLAINED_FRACTION,
+)
 from cryod.analysis.discrepancies import Discrepancy
 from cryod.analysis.equivalence import equivalents, sentence
-from cryod.analysis.cause_search.results import Analysis
 from cryod.analysis.record_data import block_length_s, saturation_fraction
 from cryod.analysis.summary import format_parameters
 

@@ -38,9 +38,9 @@ import math
 import numpy as np
 from scipy import optimize
 
-from cryod.cooler.line_fit import fit_line
-from cryod.cooler.line import coarse_line_frequency
 from cryod.analysis.record_data import RecordData
+from cryod.cooler.line import coarse_line_frequency
+from cryod.cooler.line_fit import fit_line
 from cryod.records.record import RecordFormatError
 
 #: At least this fraction of the rows must have both temperatures.

@@ -15,8 +15,17 @@ import math
 
 from softioc import builder
 
-from cryod.ioc.alarm_severity import (INVALID, MAJOR, NO_ALARM, STAT_COMM, STAT_NONE, STAT_STATE, STAT_UDF,
-                                      STATE_SEVERITY, pv_alarms)
+from cryod.ioc.alarm_severity import (
+    INVALID,
+    MAJOR,
+    NO_ALARM,
+    STAT_COMM,
+    STAT_NONE,
+    STAT_STATE,
+    STAT_UDF,
+    STATE_SEVERITY,
+    pv_alarms,
+)
 from cryod.ioc.pv_table import PV, READINGS, STATES
 from cryod.records.columns import Row
 from cryod.service.daemon_status import DaemonStatus

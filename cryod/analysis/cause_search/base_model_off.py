@@ -64,7 +64,11 @@ from cryod.analysis.cause_search.rules import asks_beyond_its_causes, widened_mo
 from cryod.analysis.decision import Decision, base_discrepancy, gain_between, significance
 from cryod.analysis.equivalence import LINE_GAIN, as_link, line_gain_stood_for
 from cryod.analysis.recalibration import (
-    RecalibratedParameter, Recalibration, Tolerances, recalibrate, structure_parameters,
+    RecalibratedParameter,
+    Recalibration,
+    Tolerances,
+    recalibrate,
+    structure_parameters,
 )
 from cryod.analysis.refinement import refine
 from cryod.analysis.replay import Replay, Replayer

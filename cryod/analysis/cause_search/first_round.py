@@ -23,11 +23,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.analysis.candidates import CandidateFit, FitContext
-from cryod.analysis.cause_signature import BandLayout
 from cryod.analysis.cause_search.record_search import ModelPoint, RecordSearch
 from cryod.analysis.cause_search.rules import NOISE_FROM_FITS
+from cryod.analysis.cause_signature import BandLayout
 from cryod.analysis.decision import (
-    BaseDiscrepancy, CandidateScore, Decision, Gain, base_discrepancy, decide, gain_between, score_candidate,
+    BaseDiscrepancy,
+    CandidateScore,
+    Decision,
+    Gain,
+    base_discrepancy,
+    decide,
+    gain_between,
+    score_candidate,
 )
 from cryod.analysis.noise import white_noise_rms
 from cryod.analysis.recalibration import Recalibration, recalibrate

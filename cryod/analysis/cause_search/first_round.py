@@ -201,8 +201,9 @@ def judging_noise(recalibrated: RecalibratedRecord, fits: dict[str, CandidateFit
         fit.replay for fit in closest]
     lines = [replayed.base_line, replayed.base_line, context.base_line] + [fit.line for fit in closest]
     data = replayed.search.data
-    return tuple(min(measured_noise(data, replay, line)[channel] for replay, line in zip(replays, lines))
-                 for channel in (0, 1))
+    flange, stage = (min(measured_noise(data, replay, line)[channel] for replay, line in zip(replays, lines))
+                     for channel in (0, 1))
+    return flange, stage
 
 
 def rank_candidates(recalibrated: RecalibratedRecord) -> FirstRound:

@@ -94,7 +94,7 @@ class ChannelRecord:
     heater_change_s: np.ndarray | None = None
     valid: np.ndarray | None = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         self._responses: dict[float, np.ndarray] = {}
         self.time_s = np.asarray(self.time_s, dtype=float)
         self.heater_w = np.asarray(self.heater_w, dtype=float)

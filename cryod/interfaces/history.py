@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import collections
 import math
+from typing import Callable
 
 from cryod.records.columns import Row
 
@@ -98,7 +99,7 @@ class History:
         The cooler line's amplitude on T2 now (K), written into each bin as it is completed.
     """
 
-    def __init__(self, line_amplitude_K=lambda: math.nan):
+    def __init__(self, line_amplitude_K: Callable[[], float] = lambda: math.nan) -> None:
         self.line_amplitude_K = line_amplitude_K
         self.bins: collections.deque = collections.deque(maxlen=int(SPAN_S / BIN_S))
         self.events: collections.deque = collections.deque(maxlen=EVENTS_KEPT)

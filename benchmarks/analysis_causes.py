@@ -45,6 +45,9 @@ of the columns analysed (``record.sha256``); the analysis is timed alone, as
 without. Two runs, one on another checkout's code (``PYTHONPATH=OTHER_CHECKOUT
 python3 benchmarks/analysis_causes.py ...``), are compared record by record by
 ``benchmarks/analysis_compare.py``.
+
+Results: ``benchmarks/results/analysis_causes.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

@@ -171,7 +171,7 @@ def tables(results: list[dict], command: str) -> str:
     """The Markdown of the results file: goals, every record, CPU per record."""
     lines = ["# `cryod analyze` on records of an independent simulator", "",
              "Made by `benchmarks/analysis_independent.py` (the module doc says what the records are); "
-             "the method: docs/analysis.md, section 6b.", "", "    " + command, ""]
+             "the method: docs/explanation/analysis-method.md.", "", "    " + command, ""]
     by_kind = defaultdict(list)
     for result in results:
         by_kind[result["kind"]].append(result)

@@ -22,6 +22,9 @@ monitor: the wall time it arrived less its timestamp, which the IOC takes from t
 instant (the row's ``time_s`` plus the stream's ``clock_offset_s``). It prints one JSON line per run
 and a summary: the best tick CPU of each mode (this machine's speed drifts between runs) and their
 ratio, the overruns, the lateness p50/p99/max.
+
+Results: ``benchmarks/results/epics_ioc.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

@@ -216,7 +216,7 @@ MAX_PV_PREFIX = 40
 class IocConfig:
     """The ``ioc`` section: what ``cryod ioc`` serves to EPICS (off when the section is absent or null).
 
-    The daemon does not read it: ``cryod ioc``, a process of its own, does (docs/operations.md, "EPICS
+    The daemon does not read it: ``cryod ioc``, a process of its own, does (docs/how-to/epics-bluesky.md, "EPICS
     and Bluesky").
     """
 
@@ -691,7 +691,7 @@ def _web(section: Section | None, base: Path) -> WebConfig | None:
     if web.writable and web.token_file is None:
         raise section.error("writable", "control from the page needs web.token_file: a file holding the token "
                                         "a write must carry (at least 16 characters), readable by the service's "
-                                        "group only (docs/operations.md)")
+                                        "group only (docs/reference/configuration.md)")
     if web.token_file is not None:
         try:
             read_token(web.token_file)

@@ -1,5 +1,5 @@
 """``cryod analyze`` on records of an independent simulator (:mod:`simulated_hw.lumped_cryostat`): pairs of effects
-named right, both causes and nothing else (docs/analysis.md, section 6b).
+named right, both causes and nothing else (docs/explanation/analysis-method.md; results: benchmarks/results/analysis-independent.md).
 
 Slow (``pytest -m slow``): the benchmark's 18 pair records (``benchmarks/analysis_independent.py``'s plan, seed 35:
 each record its own network, effect sizes and noise), about 10 s of CPU each. The rate is over those 18 draws, not

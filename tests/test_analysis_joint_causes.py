@@ -1,5 +1,5 @@
 """A further cause judged jointly and at its own signature, parameters at an edge of their range, what is left
-attributed to the candidates (docs/analysis.md, section 4b), and an earlier cause left out by name."""
+attributed to the candidates (docs/explanation/analysis-method.md, section 4b), and an earlier cause left out by name."""
 
 from __future__ import annotations
 

@@ -23,7 +23,7 @@ def test_unit_settings_the_daemon_relies_on(unit, directory):
     assert service["Restart"] == "on-failure" and service["RestartPreventExitStatus"].split() == ["2", "7"]
     assert service["RuntimeDirectory"] == directory and service["StateDirectory"] == directory
     documentation = unit_sections(unit)["Unit"]["Documentation"]
-    assert documentation == "file:/opt/cryod/docs/operations.md"      # where docs/operations.md installs it
+    assert documentation == "file:/opt/cryod/docs/index.md"      # where docs/how-to/install.md copies the docs
     assert service["DevicePolicy"] == "closed" and "dialout" in service["SupplementaryGroups"]
     assert service["NoNewPrivileges"] == "yes" and service["ProtectSystem"] == "strict"
     # the instrument locks' directory, shared by every unit, made before the start and writable in the sandbox

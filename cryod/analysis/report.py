@@ -134,7 +134,7 @@ def _left_section(analysis: Analysis) -> list[str]:
                                                     for block in signature.worst_blocks))
     if analysis.attribution is not None:
         lines += ["", "What would explain it (each candidate judged on top of the causes named, at its own "
-                      "signature: docs/analysis.md, section 4b):", ""]
+                      "signature: docs/explanation/analysis-method.md, section 4b):", ""]
         lines += [f"- {text}" for text in analysis.attribution.sentences()]
     for item in analysis.at_bound:
         lines += ["", f"- {item.text()}"]

@@ -41,7 +41,7 @@ from cryod.analysis.candidates import CANDIDATE_CAUSES
 from cryod.analysis.cause_search.results import Analysis
 from cryod.analysis.equivalence import equivalents
 
-#: The cause vocabulary of ``cryod analyze`` (DESIGN.md 4.3).
+#: The cause vocabulary of ``cryod analyze`` (docs/reference/causes.md is generated from it).
 CAUSES = ("none", *CANDIDATE_CAUSES, "unexplained", "base_model_off")
 
 

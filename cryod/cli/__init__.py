@@ -14,7 +14,7 @@
 
 Errors go to stderr with a non-zero exit code: 2 for unusable input (a bad
 configuration, a bad command line), the daemon's fault codes otherwise
-(docs/operations.md); 141 (as for SIGPIPE), quietly, when whatever reads the
+(docs/reference/exit-codes.md); 141 (as for SIGPIPE), quietly, when whatever reads the
 output stops reading it.
 """
 
@@ -113,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.formatter_class = argparse.RawDescriptionHelpFormatter
     ioc = commands.add_parser("ioc", help="serve the running daemon as an EPICS IOC (Channel Access, pvAccess)",
                               description="Serve the running daemon's readings, settings and alarms as EPICS PVs "
-                                          "under the ioc section's prefix (needs cryod[ioc]; docs/operations.md, "
+                                          "under the ioc section's prefix (needs cryod[ioc]; docs/reference/exit-codes.md, "
                                           "\"EPICS and Bluesky\"). The daemon is found as cryod ctl finds it.")
     ioc.add_argument("--config", type=Path, default=None, dest="ioc_config", metavar="FILE",
                      help="the configuration whose ioc section is served, and whose control_socket.path is the "
@@ -151,7 +151,7 @@ def use_one_blas_thread() -> None:
 
     cryod's matrices are tall and narrow (a few columns by up to a few hundred thousand rows in the
     model tools) or tiny (the loop's estimators): a second BLAS thread costs more than it brings
-    (``cryod identify`` took 1.7 times as long with two, docs/benchmarks.md), and idle BLAS threads
+    (``cryod identify`` took 1.7 times as long with two, docs/reference/exit-codes.md), and idle BLAS threads
     spin on the cores the daemon's loop needs. threadpoolctl sets the limit in the libraries already
     loaded, whenever it is called; numpy and scipy each bring their own OpenBLAS, so both are loaded
     first. ``cryod ctl`` loads neither and is not slowed by them.

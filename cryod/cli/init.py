@@ -146,7 +146,7 @@ def run(args) -> int:
     print(f"{config}: the configuration, with the instruments on {connection} {where}; set their GPIB addresses, "
           f"the heater and the limits, and put your sensors' calibration files into {folder / 'calibration'}\n"
           f"{folder / 'web.token'}: the web page's token (owner and group only)\n"
-          f"{folder / 'cryod.service'}: the systemd unit (sudo cp it to /etc/systemd/system/, docs/operations.md)\n"
+          f"{folder / 'cryod.service'}: the systemd unit (sudo cp it to /etc/systemd/system/, docs/how-to/install.md)\n"
           f"check it:  cryod run --check --config {config}\n"
           f"try it:    cryod --simulate --config {config} --duration 600 --speed max")
     return 0

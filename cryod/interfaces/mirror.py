@@ -45,7 +45,7 @@ class DaemonMirror:
 
     def __init__(self, period_s: float, cooler_rad_s: float):
         self.view = LiveView(period_s, cooler_rad_s)
-        self.history = History(self.view.line_amplitude_K)
+        self.history = History(self.view.line_amplitude_K, self.view.heater_mean_W)
         #: The status as the stream's last line gave it.
         self.stream_status = DaemonStatus(waiting_for="the interfaces process is not connected to the daemon yet")
         self.hello: dict = {}

@@ -1,6 +1,6 @@
 """cryod's alarms as EPICS alarm severities and STAT on the PVs they concern, so that an alarm server sees them.
 
-Each of cryod's alarms (docs/operations.md, "Alarms") concerns the PVs of what it watches:
+Each of cryod's alarms (docs/how-to/alarms.md, "Alarms") concerns the PVs of what it watches:
 
 ========================  ===========================  ========  =========================================
 alarm                     PVs                          raised    STAT

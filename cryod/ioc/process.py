@@ -87,7 +87,7 @@ def ioc_configuration(config_path: Path | None, hello: dict) -> tuple[DaemonConf
     config = load_config(path)
     if config.ioc is None:
         raise IocError(f"{path}: no ioc section, so the IOC is off (add ioc: {{prefix: \"CRYO1:\"}}; "
-                       f"docs/operations.md, \"EPICS and Bluesky\")", 2)
+                       f"docs/how-to/epics-bluesky.md, \"EPICS and Bluesky\")", 2)
     return config, config.ioc
 
 

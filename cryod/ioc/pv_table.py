@@ -1,6 +1,6 @@
 """Every PV of cryod's IOC: its name after ``ioc.prefix``, record type, unit, precision and meaning.
 
-One table, read by the records (:mod:`cryod.ioc.records`), the docs' PV table (docs/operations.md,
+One table, read by the records (:mod:`cryod.ioc.records`), the docs' PV table (docs/reference/epics-pvs.md,
 "EPICS and Bluesky", checked against it by the tests), the Phoebus screen and the archiver's list in
 ``contrib/epics``. The names ``T2``, ``T5``, ``HEATER``, ``SETPOINT``, ``SETPOINT_RBV``, ``STATE``,
 ``LINE``, ``LINE_LIMIT``, ``HEATER_OFF`` and ``STABLE`` are a contract: checks outside cryod rely

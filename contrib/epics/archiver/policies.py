@@ -6,11 +6,11 @@
 #   curl -H 'Content-Type: application/json' -d @/tmp/pvs.json http://archiver:17665/mgmt/bpl/archivePV
 #
 # cryod's IOC stamps every reading with the daemon's own sample instant, so the archive holds the
-# readings at the times they were taken (docs/operations.md, "EPICS and Bluesky").
+# readings at the times they were taken (docs/how-to/epics-bluesky.md, "EPICS and Bluesky").
 
 # The ioc.prefix of each of the lab's cryostats.
 CRYOD_PREFIXES = ("CRYO1:",)
-# Every PV of cryod's IOC after its prefix (docs/operations.md's PV table).
+# Every PV of cryod's IOC after its prefix (docs/reference/epics-pvs.md).
 CRYOD_PVS = ("T2", "T5", "T2_AVG", "HEATER", "HEATER_PI", "HEATER_FF", "HEATER_MEAN", "HEATER_MAX", "LINE",
              "LINE_LIMIT", "LINE_LIMIT_FROM", "FEEDFORWARD_LOCKED", "FEEDFORWARD_SCALE", "SETPOINT_RBV",
              "SETPOINT_IN_USE", "RAMPING", "RAMP_RBV", "STATE", "STABLE", "STABLE_FOR", "STABLE_TOL",

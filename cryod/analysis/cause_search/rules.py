@@ -6,7 +6,7 @@ the rules here say how the search uses them as it names causes one after
 another, follows several paths, reads a record the other way round and asks
 whether the base model is further off than the recalibration allows. All
 sums are held-out sums of squares in units of the measured noise
-(docs/analysis.md, section 4).
+(docs/explanation/analysis-method.md, section 4).
 
 In the order the search asks them:
 
@@ -255,7 +255,7 @@ def weighed_against_generic(explained_fraction: float, remaining: BaseDiscrepanc
 
 def names_the_causes(explained_fraction: float, remaining: BaseDiscrepancy) -> bool:
     """Whether the causes of a path are named: together they remove at least 70 % of the recalibrated model's
-    excess, or leave no discrepancy (rule 4 of docs/analysis.md, section 4). Otherwise the cause is
+    excess, or leave no discrepancy (rule 4 of docs/explanation/analysis-method.md, section 4). Otherwise the cause is
     ``unexplained``."""
     return explained_fraction >= EXPLAINED_FRACTION or not remaining.present
 

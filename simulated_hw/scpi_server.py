@@ -25,14 +25,18 @@ from __future__ import annotations
 import select
 import socket
 import threading
-from typing import Protocol, Self
+from typing import Generic, Protocol, Self, TypeVar
 
 #: How often a connection thread looks at the stop flag and the device's session (s).
 POLL_INTERVAL_S = 0.01
 
+#: What a subclass keeps for each connection (what its new_connection gives).
+StateT = TypeVar("StateT")
 
-class ThreadedTcpServer:
-    """A TCP listener on 127.0.0.1 with one thread per connection; subclasses handle the bytes."""
+
+class ThreadedTcpServer(Generic[StateT]):
+    """A TCP listener on 127.0.0.1 with one thread per connection; subclasses handle the bytes, each connection
+    with the state their :meth:`new_connection` gives it."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0):
         self.host = host
@@ -129,14 +133,14 @@ class ThreadedTcpServer:
                     self._shut(connection)
 
     # -- for subclasses -------------------------------------------------------------
-    def new_connection(self) -> object:
+    def new_connection(self) -> StateT:
         """Per-connection state."""
-        return None
+        raise NotImplementedError
 
-    def connection_alive(self, state: object) -> bool:
+    def connection_alive(self, state: StateT) -> bool:
         return True
 
-    def received(self, state: object, buffer: bytes, connection: socket.socket) -> bytes:
+    def received(self, state: StateT, buffer: bytes, connection: socket.socket) -> bytes:
         """Handle what has arrived; return what is left over (an incomplete line)."""
         raise NotImplementedError
 
@@ -149,7 +153,7 @@ class ServedDevice(Protocol):
     def handle(self, message: str) -> str | None: ...
 
 
-class ScpiServer(ThreadedTcpServer):
+class ScpiServer(ThreadedTcpServer[int]):
     """One simulated instrument on a raw TCP socket (``TCPIP0::127.0.0.1::<port>::SOCKET``).
 
     Parameters
@@ -172,13 +176,13 @@ class ScpiServer(ThreadedTcpServer):
     def new_connection(self) -> int:
         return self.device.open_session()
 
-    def connection_alive(self, state: object) -> bool:
-        return self.device.session_alive(state)  # type: ignore[arg-type]
+    def connection_alive(self, state: int) -> bool:
+        return self.device.session_alive(state)
 
-    def received(self, state: object, buffer: bytes, connection: socket.socket) -> bytes:
+    def received(self, state: int, buffer: bytes, connection: socket.socket) -> bytes:
         while b"\n" in buffer:
             line, buffer = buffer.split(b"\n", 1)
-            if not self.device.session_alive(state):  # type: ignore[arg-type]
+            if not self.device.session_alive(state):
                 raise OSError("connection dropped")
             reply = self.device.handle(line.decode("ascii", "replace").rstrip("\r"))
             if reply is not None:

@@ -25,6 +25,7 @@ import dataclasses
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import overload
 
 from cryod.alarms.settings import AlarmsConfig, alarms_from_section
 from cryod.control.ramp import MIN_RATE_K_PER_MIN, rate_refusal
@@ -321,6 +322,12 @@ def located_error(config: DaemonConfig, dotted_key: str, reason: str) -> FileFor
 _REQUIRED = object()
 
 
+@overload
+def _path_value(section: Section, key: str, base: Path) -> Path: ...
+@overload
+def _path_value(section: Section, key: str, base: Path, default: None) -> Path | None: ...
+
+
 def _path_value(section: Section, key: str, base: Path, default=_REQUIRED) -> Path | None:
     """A path setting, relative to the configuration's folder; empty text is refused.
 
@@ -338,6 +345,12 @@ def _path_value(section: Section, key: str, base: Path, default=_REQUIRED) -> Pa
     except RuntimeError as error:          # ~user of a user that does not exist
         raise section.error(key, f"{error}: {shown(value)}") from None
     return candidate if candidate.is_absolute() else base / candidate
+
+
+@overload
+def _existing_file(section: Section, key: str, base: Path) -> Path: ...
+@overload
+def _existing_file(section: Section, key: str, base: Path, default: None) -> Path | None: ...
 
 
 def _existing_file(section: Section, key: str, base: Path, default=_REQUIRED) -> Path | None:
@@ -417,11 +430,11 @@ def _address(section: Section) -> tuple[InstrumentAddress, str, Section, str]:
             raise prologix.error(None, "give either 'port' (GPIB-USB serial device) or 'host' (GPIB-ETHERNET)")
         if not (port or host or "").strip():
             raise prologix.error("port" if port is not None else "host", "is empty")
-        address = InstrumentAddress(prologix_port=port, prologix_host=host,
-                                    gpib_address=prologix.number("address", minimum=0, maximum=30, integer=True))
+        gpib_address = prologix.number("address", minimum=0, maximum=30, integer=True)
+        address = InstrumentAddress(prologix_port=port, prologix_host=host, gpib_address=gpib_address)
         prologix.finish()
         try:
-            canonical = prologix_instrument(port=port, host=host, gpib_address=address.gpib_address)
+            canonical = prologix_instrument(port=port, host=host, gpib_address=gpib_address)
         except ValueError as error:
             raise prologix.error("port" if port is not None else "host", str(error)) from None
         return address, canonical, prologix, "address"
@@ -454,8 +467,8 @@ def _trigger_reaches_both_dmms(trigger: str, places: dict, section: Section) -> 
     if trigger == "gpib-group":
         parsed = [rname.parse_resource_name(places[name][1]) for name in ("flange_dmm", "ptc_stage_dmm")
                   if places[name][0].resource]
-        if len(parsed) != 2 or not all(isinstance(each, rname.GPIBInstr) for each in parsed) \
-                or parsed[0].board != parsed[1].board:
+        boards = {each.board for each in parsed if isinstance(each, rname.GPIBInstr)}
+        if len(parsed) != 2 or not all(isinstance(each, rname.GPIBInstr) for each in parsed) or len(boards) != 1:
             raise section.error("trigger", f"gpib-group triggers both DMMs on one GPIB card, but {described}: give "
                                            f"both GPIBn::address::INSTR resources on one board, or another trigger")
     if trigger == "prologix":
@@ -611,15 +624,15 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
                                     f"only, e.g. \"0660\" (and control_socket.group for the lab's users)")
     section.finish()
 
-    section = top.section("simulation", None)
+    simulation_section = top.section("simulation", None)
     simulation = SimulationConfig(model=None, seed=0, transport="tcp")
-    if section is not None:
+    if simulation_section is not None:
         simulation = SimulationConfig(
-            model=_existing_file(section, "model", base, None),
-            seed=section.number("seed", 0, minimum=0, integer=True),
-            transport=section.text("transport", "tcp", choices=SIMULATION_TRANSPORTS),
+            model=_existing_file(simulation_section, "model", base, None),
+            seed=simulation_section.number("seed", 0, minimum=0, integer=True),
+            transport=simulation_section.text("transport", "tcp", choices=SIMULATION_TRANSPORTS),
         )
-        section.finish()
+        simulation_section.finish()
     metrics = _metrics(top.section("metrics", None))
     web = _web(top.section("web", None), base)
     lakeshore336 = _lakeshore336(top.section("lakeshore336", None))
@@ -764,8 +777,9 @@ def _control(section: Section, safety: SafetyConfig, heater: HeaterConfig) -> Co
         if moved in section.data:
             raise section.error(moved, f"the PI gains have a section of their own: give it as control.pi.{moved}")
     ramp = section.number("ramp_K_per_min", 0.0, minimum=0.0, maximum=max_ramp)
-    if rate_refusal(ramp) is not None:
-        raise section.error("ramp_K_per_min", rate_refusal(ramp))
+    refusal = rate_refusal(ramp)
+    if refusal is not None:
+        raise section.error("ramp_K_per_min", refusal)
     control = ControlConfig(
         setpoint_K=setpoint,
         ramp_K_per_min=ramp,

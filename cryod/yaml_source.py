@@ -28,7 +28,7 @@ import re
 import reprlib
 from collections.abc import Hashable
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Literal, overload
 
 import yaml
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
@@ -141,8 +141,8 @@ class FileFormatError(ValueError):
 class _LocatedDict(dict):
     """A dict that remembers the line of itself and of each key (1-based)."""
 
-    line: int = 0
-    key_lines: dict
+    line: int | None = 0
+    key_lines: dict[Hashable, int | None]
 
 
 def _joined(path: str, label: str) -> str:
@@ -313,10 +313,10 @@ def _not_plain_number(text: str) -> str:
     prefix = _BASE_PREFIX.fullmatch(text)
     if prefix:
         try:
-            decimal = f" ({int(text.replace('_', ''), 0)})"
+            value_text = f" ({int(text.replace('_', ''), 0)})"
         except ValueError:
-            decimal = ""
-        return f"{shown(text)} is {_BASE_NAMES[prefix.group(1).lower()]}: {plain}{decimal}"
+            value_text = ""
+        return f"{shown(text)} is {_BASE_NAMES[prefix.group(1).lower()]}: {plain}{value_text}"
     if read_1_1 is not None and "_" in text:
         return f"{shown(text)} has an underscore: YAML 1.1 reads it as {read_1_1}, YAML 1.2 as text; write {read_1_1}"
     if read_1_1 is not None and ":" in text:
@@ -339,8 +339,8 @@ def _parse(text: str, source: str) -> Any:
                                                 f"YAML ({error.reason})") from None
     except yaml.MarkedYAMLError as error:
         mark = error.problem_mark or error.context_mark
-        line = mark.line + 1 if mark is not None else None
-        raise FileFormatError(source, line, "", f"not valid YAML: {error.problem}") from None
+        mark_line = mark.line + 1 if mark is not None else None
+        raise FileFormatError(source, mark_line, "", f"not valid YAML: {error.problem}") from None
     except yaml.YAMLError as error:
         raise FileFormatError(source, None, "", f"not valid YAML: {error}") from None
     except RecursionError:
@@ -431,8 +431,9 @@ class Section:
         return f"{self.path}.{key}" if self.path else key
 
     def line_of(self, key: Any = None) -> int | None:
-        if key is not None and key in getattr(self.data, "key_lines", {}):
-            return self.data.key_lines[key]
+        key_lines = getattr(self.data, "key_lines", {})
+        if key is not None and key in key_lines:
+            return key_lines[key]
         return self.line
 
     def error(self, key: str | None, reason: str) -> FileFormatError:
@@ -453,6 +454,13 @@ class Section:
         return default
 
     # -- typed getters ----------------------------------------------------
+    @overload
+    def number(self, key: str, default: Any = ..., *, minimum: float | None = ..., maximum: float | None = ...,
+               exclusive_minimum: bool = ..., integer: Literal[False] = ...) -> float: ...
+    @overload
+    def number(self, key: str, default: Any = ..., *, minimum: float | None = ..., maximum: float | None = ...,
+               exclusive_minimum: bool = ..., integer: Literal[True]) -> int: ...
+
     def number(self, key: str, default: Any = _MISSING, *, minimum: float | None = None,
                maximum: float | None = None, exclusive_minimum: bool = False,
                integer: bool = False) -> float:
@@ -488,9 +496,9 @@ class Section:
             raise self.error(key, f"must be a number, got {kind} {shown(value)}")
         try:
             number = float(value)
-        except OverflowError:
+        except OverflowError:            # only an integer can be too large for a float
             raise self.error(key, f"must be a number of a sensible size, got an integer of "
-                                  f"{_digits(value)} digits ({shown(value)})") from None
+                                  f"{_digits(int(value))} digits ({shown(value)})") from None
         if not math.isfinite(number):
             raise self.error(key, f"must be finite, got {shown(value)}")
         return number
@@ -546,6 +554,11 @@ class Section:
         if not 0 <= mode <= 0o777:
             raise self.error(key, f"must be between 0000 and 0777, got {shown(value)}")
         return mode
+
+    @overload
+    def section(self, key: str) -> "Section": ...
+    @overload
+    def section(self, key: str, default: None) -> "Section | None": ...
 
     def section(self, key: str, default: Any = _MISSING) -> "Section | None":
         """A nested mapping; ``default=None`` makes it optional."""

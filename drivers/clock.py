@@ -45,7 +45,7 @@ class MonotonicClock:
     """The real monotonic clock (``time.monotonic``)."""
 
     is_virtual = False
-    wall_start_s = None
+    wall_start_s: float | None = None
 
     def now(self) -> float:
         return time.monotonic()
@@ -66,7 +66,7 @@ class ScaledClock:
     """
 
     is_virtual = False
-    wall_start_s = None
+    wall_start_s: float | None = None
 
     def __init__(self, speed: float):
         if not speed > 0.0:
@@ -121,8 +121,10 @@ def clock_for_speed(speed: float | str) -> Clock:
     slows when the machine cannot keep the pace), real time scaled below 1."""
     if speed == "max":
         return VirtualClock()
+    if isinstance(speed, str):
+        raise ValueError(f"speed must be a number or 'max', got {speed!r}")
     if speed > 1.0:
-        from drivers.paced_clock import PacedClock      # it builds on VirtualClock, defined above
+        from drivers.paced_clock import PacedClock  # it builds on VirtualClock, defined above
 
         return PacedClock(speed)
     return MonotonicClock() if speed == 1.0 else ScaledClock(speed)

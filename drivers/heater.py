@@ -39,11 +39,17 @@ import abc
 import math
 import numbers
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import ClassVar, Literal, NamedTuple
 
 from drivers.clock import Clock
 from drivers.errors import (
-    BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterOutputOff, HeaterRefused, InstrumentError,
+    BadReply,
+    ConnectionLost,
+    HeaterCompliance,
+    HeaterLimitRefused,
+    HeaterOutputOff,
+    HeaterRefused,
+    InstrumentError,
 )
 from drivers.heater_limits import current_for_power_a, largest_power_w
 from drivers.scpi import Control, ScpiInstrument, on_off, parse_bool
@@ -122,6 +128,8 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
     #: The supply's own largest current and voltage limits (A, V), per model.
     supply_max_current_a: float = 0.0
     supply_compliance_range_v: tuple[float, float] = (0.0, 0.0)
+    #: The output current setting (A), ``:SOURce:CURRent`` with the model's range: each model's class defines it.
+    source_current_a: ClassVar[Control]
 
     def __init__(self, transport: Transport, clock: Clock, heater_resistance_ohm: float, *,
                  max_current_a: float = 0.1, voltage_compliance_v: float = 10.0, name: str = "heater supply",
@@ -290,10 +298,12 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         if self.off_confirmed_s is not None:
             return self.off_confirmed_s
         if self.off_failure is None:
-            self._force_off()
-        if self.off_failure is not None:
-            raise self.off_failure
-        return self.off_confirmed_s
+            confirmed_s = self._force_off()
+            if confirmed_s is not None:
+                return confirmed_s
+        # _force_off sets off_failure whenever it returns None
+        assert self.off_failure is not None
+        raise self.off_failure
 
     shutdown = output_off
 
@@ -314,11 +324,11 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
 
     def write_current(self, current_a: float) -> None:
         """Program the output current (the model's ``source_current_a`` setting)."""
-        self.source_current_a = current_a  # type: ignore[attr-defined]
+        self.write(self.current_command(current_a))
 
     def current_command(self, current_a: float) -> str:
         """The command that programs ``current_a``, without sending it."""
-        return type(self).source_current_a.command(current_a, self.label)  # type: ignore[attr-defined]
+        return type(self).source_current_a.command(current_a, self.label)
 
     #: The query whose reply says whether the output is in compliance (per model).
     compliance_query: str = ""
@@ -400,7 +410,7 @@ class _SafeOnFault:
     def __enter__(self) -> None:
         return None
 
-    def __exit__(self, kind, error, traceback) -> bool:
+    def __exit__(self, kind, error, traceback) -> Literal[False]:
         if error is None or isinstance(error, HeaterLimitRefused):
             return False
         confirmed = self.supply._force_off()         # the heater first; then, if the supply answers, why

@@ -42,7 +42,6 @@ Examples
 
 from __future__ import annotations
 
-
 import enum
 import math
 import re
@@ -52,14 +51,23 @@ from typing import NamedTuple
 from drivers.clock import Clock
 from drivers.errors import BadReply, InstrumentError, InstrumentTimeout, OverflowReading
 from drivers.keithley2002_timing import NORMAL_AUTOZERO_INTERVAL_S, ReadingTiming
+from drivers.scpi import (
+    Control,
+    ScpiInstrument,
+    count_or_infinite,
+    integer,
+    number,
+    on_off,
+    one_of,
+    parse_bool,
+    parse_count,
+    parse_token,
+)
+from drivers.transports.base import Transport
 
 #: How much earlier the lower bound of a learned reading time moves after a fetch that got the reading
 #: at once (s): small against the 2 ms poll, so a drift of the mains phase is followed.
 LINE_SYNC_LEARNING_STEP_S = 0.00025
-from drivers.scpi import (Control, ScpiInstrument, count_or_infinite, integer, number, on_off, one_of,
-                          parse_bool, parse_count, parse_token)
-from drivers.transports.base import Transport
-
 #: Largest reading the 2002 sends for a real value; +9.9E37 is its overflow marker.
 OVERFLOW_MARKER = 9.9e37
 #: Highest 4-wire range (2 MOhm) and its 5 % over-range (manual 2.4.3: 4-wire up to 2.1 MOhm).
@@ -394,7 +402,7 @@ class Keithley2002(ScpiInstrument):
         """Timing of a triggered reading with the present configuration (kept until it changes)."""
         s = self.settings
         key = (s, self.line_frequency_hz, self._trigger_delay_s)
-        if key != self._timing_key:
+        if self._timing is None or key != self._timing_key:
             repeat = s.filter_count if (s.filter_count > 1 and s.filter_type is FilterType.REPEATING) else 1
             self._timing = ReadingTiming(nplc=s.nplc, line_frequency_hz=self.line_frequency_hz,
                                          offset_compensation=s.offset_compensation, autozero=s.autozero,
@@ -567,7 +575,7 @@ class Keithley2002(ScpiInstrument):
         (with the same values) or say what is wrong with it.
         """
         if self._layout_key != self.elements:
-            order = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
+            order: list[DataElement] = [e for e in (DataElement.READING, DataElement.TIMESTAMP, DataElement.READING_NUMBER,
                                  DataElement.CHANNEL) if e in self.elements]
             self._layout = (order, *(order.index(e) if e in order else None
                                      for e in (DataElement.READING, DataElement.TIMESTAMP,

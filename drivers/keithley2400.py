@@ -90,7 +90,7 @@ class Keithley2400(HeaterSupply):
         self.source_function = "current"
         self.source_mode = "fixed"
         self.source_range_a = self.max_current_a
-        self.source_current_a = 0.0
+        self.write_current(0.0)
         self.sense_function = "voltage"
         self.compliance_v = self.voltage_compliance_v
         self.voltage_range_v = self.voltage_compliance_v

@@ -63,7 +63,7 @@ class Keithley6221(HeaterSupply):
         self.source_autorange = False
         self.source_range_a = self.max_current_a
         self.compliance_v = self.voltage_compliance_v
-        self.source_current_a = 0.0
+        self.write_current(0.0)
         self.check_error_queue("current source configuration")
 
     #: The measurement condition register (bits: B1 interlock asserted, B3 compliance).

@@ -69,6 +69,13 @@ class GpibInterface(Protocol):
     def group_execute_trigger(self, *resources: Any) -> Any: ...
 
 
+class AddressedTransport(Transport, Protocol):
+    """A transport with the ``resource`` a GPIB interface addresses (PyVISA's ``GPIBInstrument``, or a simulated
+    bus's own)."""
+
+    resource: Any
+
+
 class GpibGroupTrigger:
     """One GET on a GPIB card to both DMMs (``GPIBInterface.group_execute_trigger``).
 
@@ -76,7 +83,7 @@ class GpibGroupTrigger:
     ----------
     interface : GpibInterface
         The board, e.g. ``resource_manager().open_resource("GPIB0::INTFC")``.
-    transports : sequence of Transport
+    transports : sequence of AddressedTransport
         (flange, PTC stage) transports; their ``resource`` is what the interface addresses.
     clock : Clock
         Time stamps.
@@ -86,9 +93,9 @@ class GpibGroupTrigger:
     link_input_line = 1
     bypasses_command_stream = False      # GET and *TRG are queued in order with commands
 
-    def __init__(self, interface: GpibInterface, transports: Sequence[Transport], clock: Clock):
+    def __init__(self, interface: GpibInterface, transports: Sequence[AddressedTransport], clock: Clock):
         self.interface = interface
-        self.resources = [transport.resource for transport in transports]  # type: ignore[attr-defined]
+        self.resources = [transport.resource for transport in transports]
         self.clock = clock
 
     def fire(self) -> TriggerEvent:
@@ -141,7 +148,7 @@ class HardwareTrigger:
             raise ValueError(f"a hardware trigger reaches EXTERNAL or TRIGGER_LINK inputs, not {dmm_input}")
         self.output = output
         self.clock = clock
-        self.dmm_trigger_source = dmm_input
+        self.dmm_trigger_source: TriggerSource = dmm_input
         self.link_input_line = link_input_line
 
     def fire(self) -> TriggerEvent:

@@ -39,11 +39,17 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Literal, Mapping
 
 from drivers.clock import Clock
-from drivers.errors import (BadReply, ConnectionLost, IdentityMismatch, InstrumentError,
-                            InstrumentReportedError, QueueEntry)
+from drivers.errors import (
+    BadReply,
+    ConnectionLost,
+    IdentityMismatch,
+    InstrumentError,
+    InstrumentReportedError,
+    QueueEntry,
+)
 from drivers.transports.base import Transport
 
 #: More entries than an instrument's queue holds (the 2002's holds 10): a safety stop.
@@ -331,7 +337,7 @@ class _ReportingFaults:
     def __enter__(self) -> None:
         return None
 
-    def __exit__(self, kind, error, traceback) -> bool:
+    def __exit__(self, kind, error, traceback) -> Literal[False]:
         if error is None or isinstance(error, InstrumentReportedError) or not isinstance(error, InstrumentError):
             return False
         if self.instrument.examines_faults_at_once:

@@ -123,6 +123,8 @@ class ThermometerPair:
         event = self.trigger.fire()
         flange = self.flange_dmm.fetch_new_reading(event.time_s)
         stage = self.ptc_stage_dmm.fetch_new_reading(event.time_s + event.skew_s)
+        # fetch_new_reading knows the trigger, so it always dates the reading
+        assert flange.sample_time_s is not None and stage.sample_time_s is not None
         return PairReading(event.time_s, event.skew_s, flange.resistance_ohm, stage.resistance_ohm,
                            self.clock.now(), flange.sample_time_s, stage.sample_time_s)
 

@@ -26,8 +26,8 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import cryod
-from drivers.clock import Clock
 from cryod.model import CryostatModel, load_model
+from drivers.clock import Clock
 from drivers.transports.in_process import InProcessTransport
 from simulated_hw.cryostat import SimulatedCryostat
 from simulated_hw.keithley2002 import Keithley2002Emulator, ResistanceCurve

@@ -26,7 +26,6 @@ import numpy as np
 from cryod.model import CryostatModel, cryostat_plant
 from drivers.clock import Clock
 
-
 #: Sensor-noise draws taken from the generator at once.
 NORMALS_PER_BLOCK = 1024
 

@@ -24,7 +24,6 @@ import math
 from simulated_hw.cryostat import SimulatedCryostat
 from simulated_hw.instrument import EmulatedInstrument
 
-
 #: Output changes :attr:`EmulatedCurrentSource.delivered_w` keeps.
 DELIVERED_LOG_LENGTH = 100_000
 
@@ -152,6 +151,10 @@ class EmulatedCurrentSource(EmulatedInstrument):
         self.output_on = on and not refused
         self.apply_to_heater()
         return not refused
+
+    def clear_output(self, args: list[str]) -> None:
+        """``:SOURce:CLEar``: output off."""
+        self.turn_output(False)
 
     def set_current(self, current_a: float) -> None:
         self.current_setpoint_a = current_a

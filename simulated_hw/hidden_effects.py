@@ -22,12 +22,24 @@ import math
 import numpy as np
 
 from cryod.model import (
-    CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, OperatingPoint,
-    CoolerFrequencyDrift, CoolerHarmonic, SensorLag,
+    CoolerFrequencyDrift,
+    CoolerHarmonic,
+    CryostatModel,
+    DeadTime,
+    HeatCapacityTemperature,
+    HeaterNonlinearity,
+    LinkDynamics,
+    OperatingPoint,
+    SensorLag,
 )
 
+#: What to put in the model for a cause: effects by name (:meth:`CryostatModel.with_effects`), or the cooler's
+#: ``harmonics`` (:meth:`CryostatModel.with_ptc`).
+ModelChanges = dict[str, SensorLag | LinkDynamics | DeadTime | HeatCapacityTemperature | HeaterNonlinearity
+                    | CoolerFrequencyDrift | tuple[CoolerHarmonic, ...]]
+
 #: Per cause: (what to put in the model, {fitted parameter: true value}) for three magnitudes.
-MAGNITUDES = {
+MAGNITUDES: dict[str, list[tuple[ModelChanges, dict[str, float]]]] = {
     "sensor_lag": [
         ({"sensor_lag": SensorLag(0.03)}, {"flange_thermometer_time_constant_s": 0.03}),
         ({"sensor_lag": SensorLag(0.3)}, {"flange_thermometer_time_constant_s": 0.3}),

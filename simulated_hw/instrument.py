@@ -37,9 +37,17 @@ import time
 from dataclasses import dataclass
 
 from drivers.clock import Clock
-from simulated_hw.scpi import (CommandTable, ErrorQueue, PARAMETER_NOT_ALLOWED, TRIGGER_IGNORED,
-                               parse_boolean, parse_number, scpi_error, single_argument)
-from simulated_hw.status import REGISTER_MASK, StatusModel
+from simulated_hw.scpi import (
+    PARAMETER_NOT_ALLOWED,
+    TRIGGER_IGNORED,
+    CommandTable,
+    ErrorQueue,
+    parse_boolean,
+    parse_number,
+    scpi_error,
+    single_argument,
+)
+from simulated_hw.status import REGISTER_MASK, RegisterSet, StatusModel
 
 
 @dataclass
@@ -217,11 +225,16 @@ class EmulatedInstrument:
         for name, register in status.registers.items():
             node = {"OPERATION": ":STATus:OPERation", "QUESTIONABLE": ":STATus:QUEStionable",
                     "MEASUREMENT": ":STATus:MEASurement"}[name]
-            add(node + "[:EVENt]", query=lambda args, r=register: f"{r.read_event():d}")
-            add(node + ":CONDition", query=lambda args, r=register: f"{r.condition:d}")
-            add(node + ":ENABle", write=lambda args, r=register: setattr(r, "enable", _register_value(args, 65535)
-                                                                         & REGISTER_MASK),
-                query=lambda args, r=register: f"{r.enable:d}")
+            self._register_set_commands(node, register)
+
+    def _register_set_commands(self, node: str, register: RegisterSet) -> None:
+        """The event, condition and enable headers of one SCPI register set, under ``node``."""
+        add = self.commands.add
+        add(node + "[:EVENt]", query=lambda args: f"{register.read_event():d}")
+        add(node + ":CONDition", query=lambda args: f"{register.condition:d}")
+        add(node + ":ENABle", write=lambda args: setattr(register, "enable", _register_value(args, 65535)
+                                                         & REGISTER_MASK),
+            query=lambda args: f"{register.enable:d}")
 
     @staticmethod
     def _no_parameter(action):

@@ -38,14 +38,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import Callable, NamedTuple, Protocol
 
 from drivers.keithley2002_timing import NORMAL_AUTOZERO_INTERVAL_S, ReadingTiming
 from simulated_hw.cryostat import SimulatedCryostat
 from simulated_hw.instrument import EmulatedInstrument, boolean_setting, on_off
-from simulated_hw.scpi import (DATA_CORRUPT_OR_STALE, ILLEGAL_PARAMETER_VALUE, INIT_IGNORED,
-                               SETTINGS_CONFLICT, TRIGGER_IGNORED, parse_choice, parse_number,
-                               scpi_error, short_form, single_argument)
+from simulated_hw.scpi import (
+    DATA_CORRUPT_OR_STALE,
+    ILLEGAL_PARAMETER_VALUE,
+    INIT_IGNORED,
+    SETTINGS_CONFLICT,
+    TRIGGER_IGNORED,
+    parse_choice,
+    parse_number,
+    scpi_error,
+    short_form,
+    single_argument,
+)
 
 #: 4-wire ranges of the 2002 (ohm); each reads up to 105 % of full scale.
 FOUR_WIRE_RANGES_OHM = (20.0, 200.0, 2e3, 2e4, 2e5, 2e6)
@@ -121,7 +130,7 @@ class Keithley2002Emulator(EmulatedInstrument):
         self._timing_key: tuple | None = None
         self._timing: ReadingTiming | None = None
         self._fixed_range_format_key: tuple | None = None
-        self._fixed_range_format = None
+        self._fixed_range_format: Callable[[_Reading], str] | None = None
 
     # -- faults ------------------------------------------------------------------
     def inject_overflow(self, count: int = 1) -> None:
@@ -156,7 +165,7 @@ class Keithley2002Emulator(EmulatedInstrument):
         self.link_input_line = 2
         self.link_output_line = 1
         self.continuous = False
-        self.elements = ("READING",)
+        self.elements: tuple[str, ...] = ("READING",)
         self._abort()
         self._readings: list[_Reading] = []
         self._moving: list[float] = []
@@ -278,7 +287,7 @@ class Keithley2002Emulator(EmulatedInstrument):
         key = (self.nplc, self.line_frequency_hz, self.offset_compensation, self.autozero, self.autozero_type,
                self.line_sync, self.filter_enabled, self.filter_type, self.filter_count, self.trigger_delay_s,
                self.processing_time_s)
-        if key != self._timing_key:
+        if self._timing is None or key != self._timing_key:
             repeat = self.filter_count if (self.filter_enabled and self.filter_type == "REPEAT") else 1
             extra = {} if self.processing_time_s is None else {"processing_time_s": self.processing_time_s}
             self._timing = ReadingTiming(nplc=self.nplc, line_frequency_hz=self.line_frequency_hz,
@@ -310,16 +319,18 @@ class Keithley2002Emulator(EmulatedInstrument):
         self.initiated = True
         self._layer_entered_s = self._timer_due_s = self.clock.now()
 
-    def _start_action(self, trigger_time_s: float) -> None:
+    def _start_action(self, trigger_time_s: float) -> _PendingAction:
+        """Start the device action of the trigger at ``trigger_time_s``; the action, now pending."""
         timing = self.timing
         needs_zero = trigger_time_s - self._last_autozero_s >= NORMAL_AUTOZERO_INTERVAL_S
         start = timing.integration_start_s(trigger_time_s, needs_zero)
         if self.autozero and needs_zero:
             self._last_autozero_s = trigger_time_s
-        self._pending = _PendingAction(trigger_time_s, start, timing.ready_time_s(start))
+        action = self._pending = _PendingAction(trigger_time_s, start, timing.ready_time_s(start))
         self._timer_due_s = trigger_time_s + self.trigger_timer_s
         if start <= self.clock.now() + TIME_TOLERANCE_S:
-            self._measure(self._pending, timing)     # taken at the trigger instant, not when fetched
+            self._measure(action, timing)     # taken at the trigger instant, not when fetched
+        return action
 
     def _event(self, kind: str, line: int | None = None, time_s: float | None = None) -> None:
         """A trigger event of ``kind`` ('BUS', 'EXTERNAL', 'TLINK') arriving at ``time_s`` (default now)."""
@@ -360,17 +371,18 @@ class Keithley2002Emulator(EmulatedInstrument):
             return                           # idle, or waiting for a trigger event: nothing happens by itself
         now = self.clock.now()
         while self.initiated:
-            if self._pending is None:
+            pending = self._pending
+            if pending is None:
                 next_start = self._free_running_trigger_time()
                 if next_start is None or next_start > now + TIME_TOLERANCE_S:
                     return
-                self._start_action(next_start)
-            if self._pending.start_s > now + TIME_TOLERANCE_S:
+                pending = self._start_action(next_start)
+            if pending.start_s > now + TIME_TOLERANCE_S:
                 return
-            self._measure(self._pending)
-            if self._pending.ready_time_s > now + TIME_TOLERANCE_S:
+            self._measure(pending)
+            if pending.ready_time_s > now + TIME_TOLERANCE_S:
                 return
-            self._complete(self._pending)
+            self._complete(pending)
 
     def _free_running_trigger_time(self) -> float | None:
         """Next trigger of a free-running source: IMMediate back to back, TIMer on its interval."""
@@ -398,6 +410,8 @@ class Keithley2002Emulator(EmulatedInstrument):
 
     def _complete(self, action: _PendingAction) -> None:
         value = action.value_ohm
+        # the action's reading is taken (_measure) before it completes
+        assert value is not None
         full_scale = self._active_range(value) * OVERRANGE_FACTOR
         overflow = value > full_scale or self.overflow_readings > 0
         if self.overflow_readings > 0:
@@ -429,10 +443,11 @@ class Keithley2002Emulator(EmulatedInstrument):
     def _format(self, reading: _Reading) -> str:
         if not self.autorange and "READING" in self.elements and not reading.overflow:
             key = (self.elements, self.digits, self.range_ohm)
-            if key != self._fixed_range_format_key:
-                self._fixed_range_format = self._fixed_range_formatter()
+            format_reading = self._fixed_range_format
+            if format_reading is None or key != self._fixed_range_format_key:
+                format_reading = self._fixed_range_format = self._fixed_range_formatter()
                 self._fixed_range_format_key = key
-            return self._fixed_range_format(reading)
+            return format_reading(reading)
         units = "UNITS" in self.elements
         fields = []
         if "READING" in self.elements:
@@ -453,7 +468,7 @@ class Keithley2002Emulator(EmulatedInstrument):
             fields.append("00" + ("INTCHAN" if units else ""))
         return ",".join(fields)
 
-    def _fixed_range_formatter(self):
+    def _fixed_range_formatter(self) -> Callable[[_Reading], str]:
         """:meth:`_format` of a reading that is not an overflow on a fixed range, for the present elements and
         resolution: the same text, the choices made once (every reading of a configured DMM goes through it)."""
         units = "UNITS" in self.elements

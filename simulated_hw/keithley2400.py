@@ -52,11 +52,19 @@ from __future__ import annotations
 
 import math
 
-from simulated_hw.current_source import EmulatedCurrentSource
 from simulated_hw.cryostat import SimulatedCryostat
+from simulated_hw.current_source import EmulatedCurrentSource
 from simulated_hw.instrument import boolean_setting, on_off
-from simulated_hw.scpi import (ILLEGAL_PARAMETER_VALUE, ScpiError, parse_boolean, parse_choice, parse_number,
-                               scpi_error, short_form, single_argument)
+from simulated_hw.scpi import (
+    ILLEGAL_PARAMETER_VALUE,
+    ScpiError,
+    parse_boolean,
+    parse_choice,
+    parse_number,
+    scpi_error,
+    short_form,
+    single_argument,
+)
 
 OUTPUT_BLOCKED = (802, "OUTPUT blocked by output enable")
 NOT_WITH_OUTPUT_OFF = (803, "Not permitted with OUTPUT off")
@@ -112,9 +120,14 @@ class Keithley2400Emulator(EmulatedCurrentSource):
         add(":MEASure", query=self._measure_present_functions)
         add(":CONFigure", query=lambda args: ",".join(FUNCTION_REPLY[f] for f in self.sense_functions))
         for function in FUNCTIONS:
-            add(f":MEASure:{function}[:DC]", query=lambda args, f=function.upper(): self._measure(f, args))
-            add(f":CONFigure:{function}[:DC]", write=lambda args, f=function.upper(): self._configure(f, args))
+            self._add_measure_and_configure(function)
         add(":ABORt", write=lambda args: None)      # operation is always back in idle here
+
+    def _add_measure_and_configure(self, function: str) -> None:
+        """``:MEASure:<function>?`` and ``:CONFigure:<function>`` for one function (``VOLTage``, ``CURRent``)."""
+        name = function.upper()
+        self.commands.add(f":MEASure:{function}[:DC]", query=lambda args: self._measure(name, args))
+        self.commands.add(f":CONFigure:{function}[:DC]", write=lambda args: self._configure(name, args))
 
     def reset(self) -> None:
         """``*RST`` defaults (the manual's SCPI tables, section 18)."""
@@ -181,7 +194,7 @@ class Keithley2400Emulator(EmulatedCurrentSource):
         self._add_number(":SOURce[1]:DELay", "source_delay_s", 0.0, MAXIMUM_SOURCE_DELAY_S, 0.0,
                          after=lambda: setattr(self, "source_delay_auto", False))
         self._add_boolean(":SOURce[1]:DELay:AUTO", "source_delay_auto")
-        add(":SOURce[1]:CLEar[:IMMediate]", write=lambda args: self.turn_output(False))
+        add(":SOURce[1]:CLEar[:IMMediate]", write=self.clear_output)
         self._add_boolean(":SOURce[1]:CLEar:AUTO", "auto_output_off")
 
     def _register_sense_commands(self) -> None:
@@ -201,12 +214,14 @@ class Keithley2400Emulator(EmulatedCurrentSource):
             node = f"[:SENSe[1]]:{function}[:DC]"
             self._add_number(node + ":PROTection[:LEVel]", protection, -limit, limit, default_protection,
                              after=self._protection_set)
-            # tripped: the output is limited by this function's protection
-            limits_voltage = function == "VOLTage"
-            add(node + ":PROTection:TRIPped", query=lambda args, v=limits_voltage: on_off(
-                self.in_compliance and self.sourcing_voltage != v))
+            self._add_tripped(node, limits_voltage=function == "VOLTage")
             self._add_range(node, sense_range, autorange, ranges, limit)
             self._add_number(node + ":NPLCycles", "nplc", 0.01, 10.0, 1.0)
+
+    def _add_tripped(self, node: str, *, limits_voltage: bool) -> None:
+        """``<node>:PROTection:TRIPped?``: whether the output is limited by this function's protection."""
+        self.commands.add(node + ":PROTection:TRIPped", query=lambda args: on_off(
+            self.in_compliance and self.sourcing_voltage != limits_voltage))
 
     def _add_range(self, node: str, attribute: str, autorange: str, ranges: tuple[float, ...],
                    limit: float) -> None:

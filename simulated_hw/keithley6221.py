@@ -23,8 +23,8 @@ bit clear; the manual gives no error-queue number for it, so none is queued.
 
 from __future__ import annotations
 
-from simulated_hw.current_source import EmulatedCurrentSource
 from simulated_hw.cryostat import SimulatedCryostat
+from simulated_hw.current_source import EmulatedCurrentSource
 from simulated_hw.instrument import boolean_setting, on_off
 from simulated_hw.scpi import parse_boolean, parse_choice, parse_number, short_form
 
@@ -60,9 +60,8 @@ class Keithley6221Emulator(EmulatedCurrentSource):
         add(source + ":COMPliance", write=lambda args: self.set_compliance(parse_number(args, 0.1, 105.0,
                                                                                         default=10.0)),
             query=lambda args: f"{self.compliance_v:.2f}")
-        add(":OUTPut[:STATe]", write=lambda args: self.turn_output(parse_boolean(args)),
-            query=lambda args: on_off(self.output_on))
-        add("[:SOURce[1]]:CLEar[:IMMediate]", write=lambda args: self.turn_output(False))
+        add(":OUTPut[:STATe]", write=self._set_output, query=lambda args: on_off(self.output_on))
+        add("[:SOURce[1]]:CLEar[:IMMediate]", write=self.clear_output)
         write, query = boolean_setting(self, "low_to_earth")
         add(":OUTPut:LTEarth", write=write, query=query)
         add(":OUTPut:ISHield", write=lambda args: setattr(self, "inner_shield", parse_choice(args, SHIELDS)),
@@ -81,6 +80,9 @@ class Keithley6221Emulator(EmulatedCurrentSource):
         self.inner_shield = "OLOW"
         self.source_delay_s = MINIMUM_SOURCE_DELAY_S
         self.apply_to_heater()
+
+    def _set_output(self, args: list[str]) -> None:
+        self.turn_output(parse_boolean(args))
 
     def _set_range(self, args: list[str]) -> None:
         expected = abs(parse_number(args, -MAXIMUM_CURRENT_A, MAXIMUM_CURRENT_A, default=2e-3))

@@ -53,6 +53,7 @@ import cmath
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -312,7 +313,11 @@ def _settled_state(network: _Network) -> list[float]:
     return state
 
 
-def protocol_schedule(protocol: str, duration_s: float) -> list[tuple[float, str, object]]:
+#: A segment's heater power (W) or setpoint (K): a number, or for a power a function of time (s).
+_Level = float | Callable[[float], float]
+
+
+def protocol_schedule(protocol: str, duration_s: float) -> list[tuple[float, str, _Level]]:
     """(start s, ``"power"`` or ``"setpoint"``, W or K or a function of time) segments of a protocol.
 
     * ``identification``: holds and steps (0, 10, 30 mW), 20 +- 15 mW at the line and at 2.5 rad/s, PI to 5 K,
@@ -328,12 +333,14 @@ def protocol_schedule(protocol: str, duration_s: float) -> list[tuple[float, str
     if protocol != "identification":
         raise ValueError(f"unknown protocol {protocol!r}: identification, pi_only or paper")
     line = LINE_RAD_S
-    nominal = [(200.0, "power", 0.0), (400.0, "power", 0.010), (400.0, "power", 0.030),
-               (240.0, "power", lambda t: 0.020 + 0.015 * math.sin(line * t)),
-               (240.0, "power", lambda t: 0.020 + 0.015 * math.sin(2.5 * t)),
-               (800.0, "setpoint", 5.0), (500.0, "power", 0.110), (520.0, "power", 0.140), (500.0, "setpoint", 4.6)]
+    nominal: list[tuple[float, str, _Level]] = [
+        (200.0, "power", 0.0), (400.0, "power", 0.010), (400.0, "power", 0.030),
+        (240.0, "power", lambda t: 0.020 + 0.015 * math.sin(line * t)),
+        (240.0, "power", lambda t: 0.020 + 0.015 * math.sin(2.5 * t)),
+        (800.0, "setpoint", 5.0), (500.0, "power", 0.110), (520.0, "power", 0.140), (500.0, "setpoint", 4.6)]
     scale = duration_s / sum(length for length, _, _ in nominal)
-    schedule, start = [], 0.0
+    schedule: list[tuple[float, str, _Level]] = []
+    start = 0.0
     for length, kind, value in nominal:
         schedule.append((start, kind, value))
         start += length * scale
@@ -359,7 +366,7 @@ def run_protocol(cryostat: LumpedCryostat, protocol: str, duration_s: float, see
         flange += generator.normal(0.0, NOISE_K[0])
         stage += generator.normal(0.0, NOISE_K[1])
         _, kind, value = schedule[segment]
-        if kind == "setpoint":
+        if kind == "setpoint" and not callable(value):       # a setpoint is a number (K)
             error = value - flange
             if integral is None:              # bumpless: the integral starts at the power last applied
                 integral = network.history_p[-1] - PI_GAINS[0] * error

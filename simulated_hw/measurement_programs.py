@@ -29,13 +29,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable, TypedDict
 
 import numpy as np
 
+from cryod.control.closed_loop import Segment, run_program
 from cryod.control.pi import PiGains
 from cryod.model import CryostatModel
-from cryod.control.closed_loop import Segment, run_program
+
+if TYPE_CHECKING:
+    from cryod.control.feedforward import FeedforwardSettings
 
 #: Heater of the simulated records: 25 ohm, 100 mA limit, so at most 0.25 W.
 HEATER_RESISTANCE_OHM = 25.0
@@ -47,6 +50,13 @@ RECORD_GAINS = PiGains(proportional_w_per_K=0.4, integral_w_per_K_s=0.01)
 OFF_LINE_MODULATION_RAD_S = 2.5
 
 PROTOCOLS = ("identification", "pi_only", "feedforward")
+
+
+class _Action(TypedDict, total=False):
+    """What a segment of a program does: one of the two, as :class:`~cryod.control.closed_loop.Segment` takes it."""
+
+    setpoint_K: float
+    heater_power_w: float | Callable[[float], float]
 
 
 def _modulation(mean_w: float, amplitude_w: float, angular_frequency_rad_s: float) -> Callable[[float], float]:
@@ -62,7 +72,7 @@ def identification_program(model: CryostatModel, duration_s: float = 3600.0) -> 
     (520 s); PI to 4.6 K (500 s).
     """
     line = model.ptc.angular_frequency_rad_s
-    nominal = [
+    nominal: list[tuple[float, _Action]] = [
         (200.0, {"heater_power_w": 0.0}),
         (400.0, {"heater_power_w": 0.010}),
         (400.0, {"heater_power_w": 0.030}),
@@ -125,7 +135,7 @@ def make_record(model: CryostatModel, protocol: str, *, duration_s: float = 3600
     -------
     SimulatedRecordColumns
     """
-    more_terms = ()
+    more_terms: tuple[tuple[str, FeedforwardSettings], ...] = ()
     if protocol == "identification":
         segments = identification_program(model, duration_s)
     elif protocol in ("pi_only", "feedforward"):

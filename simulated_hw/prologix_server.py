@@ -53,7 +53,7 @@ class _ControllerState:
     output: dict[int, list[str]] = field(default_factory=dict)
 
 
-class PrologixServer(ThreadedTcpServer):
+class PrologixServer(ThreadedTcpServer[_ControllerState]):
     """A Prologix GPIB-ETHERNET controller and its bus.
 
     Parameters
@@ -80,7 +80,7 @@ class PrologixServer(ThreadedTcpServer):
         return _ControllerState()
 
     # -- the byte stream -----------------------------------------------------------------
-    def received(self, state: object, buffer: bytes, connection: socket.socket) -> bytes:
+    def received(self, state: _ControllerState, buffer: bytes, connection: socket.socket) -> bytes:
         line = bytearray()
         escaped_line = False
         index = 0
@@ -96,7 +96,7 @@ class PrologixServer(ThreadedTcpServer):
             index += 1
             if byte in (CR, LF):
                 if line:
-                    self._line(state, bytes(line), escaped_line, connection)  # type: ignore[arg-type]
+                    self._line(state, bytes(line), escaped_line, connection)
                 line.clear()
                 escaped_line = False
                 buffer = buffer[index:]

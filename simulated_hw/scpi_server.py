@@ -25,14 +25,18 @@ from __future__ import annotations
 import select
 import socket
 import threading
-from typing import Protocol
+from typing import Generic, Protocol, Self, TypeVar
 
 #: How often a connection thread looks at the stop flag and the device's session (s).
 POLL_INTERVAL_S = 0.01
 
+#: What a subclass keeps for each connection (what its new_connection gives).
+StateT = TypeVar("StateT")
 
-class ThreadedTcpServer:
-    """A TCP listener on 127.0.0.1 with one thread per connection; subclasses handle the bytes."""
+
+class ThreadedTcpServer(Generic[StateT]):
+    """A TCP listener on 127.0.0.1 with one thread per connection; subclasses handle the bytes, each connection
+    with the state their :meth:`new_connection` gives it."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0):
         self.host = host
@@ -49,13 +53,13 @@ class ThreadedTcpServer:
             raise RuntimeError("server is not started")
         return self._listener.getsockname()[1]
 
-    def start(self) -> "ThreadedTcpServer":
+    def start(self) -> Self:
         listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         listener.bind((self.host, self._requested_port))
         listener.listen(8)
         self._listener = listener
-        self._spawn(self._accept_loop)
+        self._spawn(self._accept_loop, listener)
         return self
 
     def stop(self) -> None:
@@ -68,7 +72,7 @@ class ThreadedTcpServer:
         for thread in self._threads:
             thread.join(timeout=2.0)
 
-    def __enter__(self):
+    def __enter__(self) -> Self:
         return self.start()
 
     def __exit__(self, *exc_info) -> None:
@@ -93,13 +97,13 @@ class ThreadedTcpServer:
         self._threads.append(thread)
         thread.start()
 
-    def _accept_loop(self) -> None:
+    def _accept_loop(self, listener: socket.socket) -> None:
         while not self._stopping.is_set():
             try:
-                ready, _, _ = select.select([self._listener], [], [], POLL_INTERVAL_S * 10)
+                ready, _, _ = select.select([listener], [], [], POLL_INTERVAL_S * 10)
                 if not ready:
                     continue
-                connection, _ = self._listener.accept()
+                connection, _ = listener.accept()
             except (OSError, ValueError):
                 return
             connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -129,14 +133,14 @@ class ThreadedTcpServer:
                     self._shut(connection)
 
     # -- for subclasses -------------------------------------------------------------
-    def new_connection(self) -> object:
+    def new_connection(self) -> StateT:
         """Per-connection state."""
-        return None
+        raise NotImplementedError
 
-    def connection_alive(self, state: object) -> bool:
+    def connection_alive(self, state: StateT) -> bool:
         return True
 
-    def received(self, state: object, buffer: bytes, connection: socket.socket) -> bytes:
+    def received(self, state: StateT, buffer: bytes, connection: socket.socket) -> bytes:
         """Handle what has arrived; return what is left over (an incomplete line)."""
         raise NotImplementedError
 
@@ -149,7 +153,7 @@ class ServedDevice(Protocol):
     def handle(self, message: str) -> str | None: ...
 
 
-class ScpiServer(ThreadedTcpServer):
+class ScpiServer(ThreadedTcpServer[int]):
     """One simulated instrument on a raw TCP socket (``TCPIP0::127.0.0.1::<port>::SOCKET``).
 
     Parameters
@@ -172,13 +176,13 @@ class ScpiServer(ThreadedTcpServer):
     def new_connection(self) -> int:
         return self.device.open_session()
 
-    def connection_alive(self, state: object) -> bool:
-        return self.device.session_alive(state)  # type: ignore[arg-type]
+    def connection_alive(self, state: int) -> bool:
+        return self.device.session_alive(state)
 
-    def received(self, state: object, buffer: bytes, connection: socket.socket) -> bytes:
+    def received(self, state: int, buffer: bytes, connection: socket.socket) -> bytes:
         while b"\n" in buffer:
             line, buffer = buffer.split(b"\n", 1)
-            if not self.device.session_alive(state):  # type: ignore[arg-type]
+            if not self.device.session_alive(state):
                 raise OSError("connection dropped")
             reply = self.device.handle(line.decode("ascii", "replace").rstrip("\r"))
             if reply is not None:

@@ -77,6 +77,19 @@ def test_tracker_uses_each_readings_own_instant():
     assert np.max(np.abs(error[20 * 12:])) < 0.01
 
 
+def test_tracker_steps_over_readings_that_are_not_numbers_the_first_ones_too():
+    """A T5 reading that is not a number (a gap in a record) is stepped over wherever it comes: T5's mean is
+    followed from the first reading that is one, and the tracker locks as without the gap."""
+    t = np.arange(0.0, 30.0, PERIOD) + 0.01
+    values = 3.34 + 0.12 * np.cos(OMEGA * t)
+    values[:5] = np.nan
+    tracker = CoolerPhaseTracker(OMEGA)
+    states = [tracker.update(time_s, value) for time_s, value in zip(t, values)]
+    error = np.angle(np.exp(1j * (np.array([s.phase_rad for s in states]) - OMEGA * t)))
+    assert states[-1].locked and states[-1].amplitude_K == pytest.approx(0.12, rel=0.01)
+    assert np.max(np.abs(error[t > 20.0])) < 0.01
+
+
 # ---------------------------------------------------------------------------
 # the plant as the loop samples it, the estimator
 # ---------------------------------------------------------------------------

@@ -38,7 +38,7 @@ from cryod.alarms.conditions import (
     stability_condition,
 )
 from cryod.alarms.latch import AlarmLatch, Condition, Transition
-from cryod.alarms.settings import ALARM_NAMES, MAX_WINDOW_S, AlarmsConfig
+from cryod.alarms.settings import ALARM_NAMES, MAX_WINDOW_S, AlarmsConfig, DeviationAlarm
 from cryod.cooler.phase import CoolerPhaseTracker
 
 #: Loop states in which the loop regulates (the row's ``state``).
@@ -115,7 +115,7 @@ class AlarmBoard:
         regulating = (state in REGULATING and setpoint_K is not None and math.isfinite(setpoint_K)
                       and math.isfinite(flange_K))
         if not regulating or setpoint_K != self._setpoint_K:
-            self._start_windows(setpoint_K if regulating else math.nan)
+            self._start_windows(setpoint_K if regulating and setpoint_K is not None else math.nan)
         if regulating:
             self._flange.append(time_s, flange_K)
             self._heater.append(time_s, heater_w)
@@ -148,7 +148,7 @@ class AlarmBoard:
             if steady and covers(self._flange, settings.window_s, time_s, self.period_s):
                 _, values = self._flange.window(settings.window_s, time_s)
                 condition = deviation_condition(settings, values.mean(), setpoint_K, settings.window_s) \
-                    if name == "deviation" else stability_condition(settings, values.std())
+                    if isinstance(settings, DeviationAlarm) else stability_condition(settings, values.std())
                 if name not in self._armed:
                     if condition.holds is False:
                         self._armed.add(name)

@@ -51,15 +51,21 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize
 
-from cryod.cooler.line import PtcLine, measurable_orders
 from cryod.analysis.recalibration import LINE_PHASE_TOLERANCE_RAD, LINK_PARAMETERS, RecalibratedBase
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import LinearBasis, Replay, Replayer
+from cryod.cooler.line import PtcLine, measurable_orders
 from cryod.model import (
-    EFFECT_NAMES, CryostatModel, DeadTime, HeatCapacityTemperature, HeaterNonlinearity, LinkDynamics, SensorLag,
+    EFFECT_NAMES,
+    CryostatModel,
+    DeadTime,
+    HeatCapacityTemperature,
+    HeaterNonlinearity,
+    LinkDynamics,
+    SensorLag,
 )
-from cryod.model.dynamics import flange_transfer_functions
 from cryod.model.cooler_path import CoolerDrive, CoolerPath
+from cryod.model.dynamics import flange_transfer_functions
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError, first_order_link
 
 #: A PTC-stage thermometer lag shifting the line by less than this (rad) is taken as none: 1e-4 rad of a
@@ -92,6 +98,14 @@ class FitContext:
     #: ``basis_for(line)``: the linearised model change (a :class:`~cryod.analysis.replay.LinearBasis`, the
     #: recalibration's) fitted in every replay with that line, or None (see :mod:`cryod.analysis.recalibration`).
     basis_for: Callable[[PtcLine | None], LinearBasis | None] | None = None
+
+    @property
+    def recalibration(self) -> RecalibratedBase:
+        """The recalibration the context's model carries: the cause search follows causes on a recalibrated model
+        (ValueError for a context on the base model as given)."""
+        if self.recalibrated is None:
+            raise ValueError("the context's model is the base model as given: it carries no recalibration")
+        return self.recalibrated
 
     def basis(self, line: PtcLine | None, without=()) -> LinearBasis | None:
         """The linearised model change fitted in replays with ``line`` (None: none), less ``without``."""
@@ -197,9 +211,9 @@ class EffectForm:
     lower: tuple
     upper: tuple
     steps: tuple
-    apply: object
-    describe: object
-    at_limit: object = None
+    apply: Callable[[CryostatModel, tuple], CryostatModel]
+    describe: Callable[[CryostatModel], dict]
+    at_limit: Callable[[tuple], bool] | None = None
 
 
 def _effect_parameters(name: str):
@@ -474,6 +488,7 @@ def fit_ptc_frequency_drift(context: FitContext) -> CandidateFit:
                                        angular_frequency_rad_s=context.base_line.angular_frequency_rad_s,
                                        measured_phase=True)
     drift = line.drift
+    assert drift is not None                # a line at the measured phase carries the drift fitted to it
     parameters = dataclasses.asdict(drift)
     parameters["angular_frequency_at_start_rad_s"] = line.angular_frequency_rad_s
     return CandidateFit("ptc_frequency_drift", parameters, base.with_effects(ptc_frequency_drift=drift),

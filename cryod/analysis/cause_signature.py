@@ -81,7 +81,7 @@ class BandLayout:
     at the cooler's phase in each (None where the heater moves at the line), the slow band's windows."""
 
     blocks: tuple[np.ndarray, ...]
-    line_bases: tuple[np.ndarray, ...]
+    line_bases: tuple[np.ndarray | None, ...]
     #: Per block, its windows' sample indexes (windows x samples).
     windows: tuple[np.ndarray, ...]
     noise_rms_K: tuple[float, float]

@@ -40,7 +40,7 @@ from scipy import ndimage, signal
 from cryod.analysis.candidates import CandidateFit, EffectForm, FitContext, scalar_search
 from cryod.analysis.decision import CANDIDATE_MINIMUM_IMPROVEMENT
 from cryod.analysis.slow_series import correlation_time_s, slow_splines
-from cryod.model import CryostatModel, CoolerAmplitudeModulation, PtcStageDrift
+from cryod.model import CoolerAmplitudeModulation, CryostatModel, PtcStageDrift
 
 #: Periods of the amplitude modulation searched: from this many seconds to this many record durations.
 SHORTEST_MODULATION_PERIOD_S = 60.0
@@ -103,10 +103,14 @@ def fit_ptc_amplitude_modulation(context: FitContext) -> CandidateFit:
         return model.with_effects(ptc_amplitude_modulation=CoolerAmplitudeModulation(
             float(np.clip(values[0], 0.0, LARGEST_DEPTH)), max(float(values[1]), 1.0), float(values[2])))
 
+    def describe(extended: CryostatModel) -> dict:
+        modulation = extended.effects.ptc_amplitude_modulation
+        assert modulation is not None       # a model with the effect
+        return dataclasses.asdict(modulation)
+
     model = apply(base, (depth, period, phase))
     effect = EffectForm((depth, period, phase), (0.0, SHORTEST_MODULATION_PERIOD_S / 2, -10.0),
-                        (LARGEST_DEPTH, math.exp(longest) * 2, 10.0), (1e-3, 1e-3 * period, 1e-3), apply,
-                        lambda extended: dataclasses.asdict(extended.effects.ptc_amplitude_modulation))
+                        (LARGEST_DEPTH, math.exp(longest) * 2, 10.0), (1e-3, 1e-3 * period, 1e-3), apply, describe)
     return CandidateFit("ptc_amplitude_modulation", {"depth": depth, "period_s": period, "phase_rad": phase},
                         model, context.replay(model, context.base_line), context.base_line, parameter_count=3,
                         effect=effect)
@@ -251,11 +255,15 @@ def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
         return model.with_effects(ptc_stage_drift=MeasuredStageDrift(data.elapsed_s, drift, float(values[0]),
                                                                      max(float(values[1]), 0.0)))
 
+    def describe(extended: CryostatModel) -> dict:
+        stage_drift = extended.effects.ptc_stage_drift
+        assert isinstance(stage_drift, MeasuredStageDrift)      # a model with the drift measured
+        return stage_drift.parameters()
+
     model = apply(base, (gain, tau))
-    measured = model.effects.ptc_stage_drift
     effect = EffectForm((gain, tau), (FLANGE_COUPLING_BOUNDS[0], 0.0),
                         (FLANGE_COUPLING_BOUNDS[1], 10.0 * COUPLING_TIME_CONSTANTS_S[1]), (1e-3, 1e-2 * tau),
-                        apply, lambda extended: extended.effects.ptc_stage_drift.parameters(),
+                        apply, describe,
                         lambda values: not (FLANGE_COUPLING_BOUNDS[0] + 1e-6 < values[0]
                                             < FLANGE_COUPLING_BOUNDS[1] * (1.0 - 1e-6)))
     note = ""
@@ -265,7 +273,7 @@ def fit_ptc_stage_drift(context: FitContext) -> CandidateFit:
     elif gain <= FLANGE_COUPLING_BOUNDS[0] + 1e-6:
         note = ("the flange does not follow T5's slow change (coupling 0): that is T5's reading drifting, not the "
                 "cold end, so it does not count")
-    return CandidateFit("ptc_stage_drift", measured.parameters(), model, context.replay(model, line), line, note,
+    return CandidateFit("ptc_stage_drift", describe(model), model, context.replay(model, line), line, note,
                         parameter_count=2 + splines.shape[1], effect=effect)
 
 

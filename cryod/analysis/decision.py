@@ -221,7 +221,8 @@ def decide(base: BaseDiscrepancy, scores: list[CandidateScore], distinctness=Non
     unchanged = gain_between(base.sum_of_squares, base.sum_of_squares, base.terms)
     counting = [score for score in scores if score.counts]
     best = max(counting, key=lambda score: score.improvement) if counting else None
-    tie_text, tied_causes = "", ()
+    tie_text = ""
+    tied_causes: tuple[str, ...] = ()
     if best is not None and distinctness is not None:
         tied = _tied_with(best, counting, distinctness)
         if tied:

@@ -27,10 +27,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from cryod.cooler.line import fit_phase_track, measurable_orders, phase_track
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.replay import Replay
 from cryod.analysis.segments import RecordSegment, find_segments, find_steps
+from cryod.cooler.line import fit_phase_track, measurable_orders, phase_track
 from cryod.cooler.line_fit import fit_line, wrap_phase
 from cryod.model import CryostatModel
 from cryod.model.dynamics import simulate

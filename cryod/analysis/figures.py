@@ -20,22 +20,26 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
 import numpy as np  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 from scipy import ndimage, signal  # noqa: E402
 
+from cryod.analysis.cause_search.results import Analysis  # noqa: E402
 from cryod.analysis.decision import CANDIDATE_SIGMA  # noqa: E402
 from cryod.analysis.discrepancies import (  # noqa: E402
-    CROSS_CORRELATION_LAGS, WHITENESS_LAGS, autocorrelation_at, cross_correlation_at,
+    CROSS_CORRELATION_LAGS,
+    WHITENESS_LAGS,
+    autocorrelation_at,
+    cross_correlation_at,
 )
-from cryod.analysis.cause_search.results import Analysis  # noqa: E402
 from cryod.analysis.segments import find_steps  # noqa: E402
 from cryod.figure_files import folded_frequency, mark_cooler_harmonics, save_figure, thin  # noqa: E402
-from matplotlib.patches import Patch  # noqa: E402
 
 COLOURS = {"measured": "black", "base": "tab:red", "extended": "tab:blue"}
 SEGMENT_COLOURS = {"closed loop": "tab:green", "hold": "tab:gray", "modulated": "tab:orange"}
@@ -72,7 +76,7 @@ def _shade_segments(axis, analysis: Analysis, segments, legend: bool = False) ->
 
 
 #: How each curve is drawn: the measurement on top, solid; the models under it, dashed.
-CURVE_STYLE = {"measured": {"lw": 1.3, "zorder": 4}, "base": {"lw": 0.9, "ls": "--", "zorder": 3},
+CURVE_STYLE: dict[str, dict[str, Any]] = {"measured": {"lw": 1.3, "zorder": 4}, "base": {"lw": 0.9, "ls": "--", "zorder": 3},
                "extended": {"lw": 0.9, "ls": ":", "zorder": 3}}
 
 
@@ -260,7 +264,7 @@ def correlation(analysis: Analysis, path: Path) -> Path:
         if cross is not None:
             axes[1].semilogx((np.asarray(CROSS_CORRELATION_LAGS[:cross.size]) + 0.5) * interval, cross, "o-",
                              color=colour, ms=3, label=f"{name} model")
-    band = 3.0 / math.sqrt(max(np.count_nonzero(valid), 1))
+    band = 3.0 / math.sqrt(max(int(np.count_nonzero(valid)), 1))
     for axis in axes:
         axis.axhspan(-band, band, color="k", alpha=0.1, label="+-3/sqrt(N): white noise")
         axis.legend(fontsize=8)

@@ -47,7 +47,11 @@ import numpy as np
 
 from cryod.analysis.candidates import CandidateFit, FitContext
 from cryod.analysis.decision import (
-    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, CandidateScore, score_candidate, significance,
+    CANDIDATE_MINIMUM_IMPROVEMENT,
+    CANDIDATE_SIGMA,
+    CandidateScore,
+    score_candidate,
+    significance,
 )
 from cryod.analysis.residual_signature import NOT_AT_HARMONICS, spectral_peaks
 from cryod.analysis.slow_series import correlation_time_s, slow_splines
@@ -298,12 +302,12 @@ def _extended(model: CryostatModel, context: FitContext, families: list, coeffic
             stage_total = stage_total + item.columns[1] @ values
             if item.family in ("unrecorded_heat", "reading_offsets"):
                 splines = slow_splines(context.data, SPLINE_DEGREE, SPLINE_BLOCKS) if splines is None else splines
-            if item.family == "unrecorded_heat":
-                parts["unrecorded_heat_w"] = splines @ values
-            elif item.family == "reading_offsets":
-                half = splines.shape[1]
-                parts["flange_offset_K"] = splines @ values[:half]
-                parts["stage_offset_K"] = splines @ values[half:]
+                if item.family == "unrecorded_heat":
+                    parts["unrecorded_heat_w"] = splines @ values
+                else:
+                    half = splines.shape[1]
+                    parts["flange_offset_K"] = splines @ values[:half]
+                    parts["stage_offset_K"] = splines @ values[half:]
             elif item.family == "pickups":
                 for index in range(0, len(item.labels), 2):
                     thermometer, frequency = item.labels[index].split(" ")[:2]
@@ -322,11 +326,11 @@ def _fit(context: FitContext, model: CryostatModel, replay, families: list, base
                np.column_stack([item.columns[1] for item in families]))
     fitted = context.replayer.replay_simulated(replay.model, replay.flange_K, replay.ptc_stage_K, columns)
     extended, disturbance = _extended(model, context, families, fitted.shared_coefficients)
-    parameters = {"families": [item.family for item in families], "terms": sum(len(item.labels) for item in families)}
+    terms = sum(len(item.labels) for item in families)
+    parameters = {"families": [item.family for item in families], "terms": terms}
     if disturbance is not None:
         parameters["disturbance"] = disturbance.parameters()
-    return CandidateFit("generic", parameters, extended, fitted, context.base_line, label,
-                        parameter_count=parameters["terms"])
+    return CandidateFit("generic", parameters, extended, fitted, context.base_line, label, parameter_count=terms)
 
 
 #: Causes whose effect a family of the extension can represent, and those families: the cold end's drift is a slow
@@ -347,11 +351,12 @@ def fit_generic_extension(context: FitContext, base, without: tuple = ()) -> Gen
     for item in families:
         if item.labels:
             item.score = score_candidate(context, _fit(context, model, replay, [item], base, item.family), base)
-    ranked = sorted((item for item in families if item.score is not None), key=lambda item: -item.score.improvement)
-    used = ranked[:1]
+    ranked = sorted(((item, item.score) for item in families if item.score is not None),
+                    key=lambda scored: -scored[1].improvement)
+    used = [item for item, _ in ranked[:1]]
     fit = _fit(context, model, replay, used, base, "generic: not a physical cause")
-    for item in ranked[1:]:
-        if not item.score.counts:
+    for item, item_score in ranked[1:]:
+        if not item_score.counts:
             break
         trial = _fit(context, model, replay, used + [item], base, "generic: not a physical cause")
         if _adds(context, fit, trial):

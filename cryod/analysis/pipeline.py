@@ -34,21 +34,27 @@ they apply in :mod:`cryod.analysis.cause_search.rules`:
 from __future__ import annotations
 
 from cryod.analysis.candidates import CANDIDATE_CAUSES
-from cryod.analysis.cause_search.bounds import examine_bounds, merged_evidence
 from cryod.analysis.cause_search.base_model_off import (
-    WIDER_RECALIBRATION, explained_by_widening, judged_beyond_recalibration, widened_recalibration,
+    WIDER_RECALIBRATION,
+    explained_by_widening,
+    judged_beyond_recalibration,
+    widened_recalibration,
 )
+from cryod.analysis.cause_search.bounds import examine_bounds, merged_evidence
 from cryod.analysis.cause_search.first_round import FirstRound, rank_candidates, recalibrate_base, replay_record
 from cryod.analysis.cause_search.path_choice import ReadPath, follow_paths, read_the_other_way_round
 from cryod.analysis.cause_search.record_search import RecordSearch, SearchScope, timed
 from cryod.analysis.cause_search.results import Analysis, Verdict
 from cryod.analysis.cause_search.rules import improving_causes
 from cryod.analysis.cause_search.verdict import (
-    judge, kept_as_given, no_cause_counts, recalibration_suffices,
+    judge,
+    kept_as_given,
+    no_cause_counts,
+    recalibration_suffices,
 )
 from cryod.analysis.cause_search.what_is_left import describe_what_is_left
-from cryod.analysis.record_data import RecordData
 from cryod.analysis.recalibration import Recalibration
+from cryod.analysis.record_data import RecordData
 from cryod.model import CryostatModel
 
 

@@ -59,12 +59,13 @@ import cmath
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import optimize
 
-from cryod.cooler.line import PtcLine
 from cryod.analysis.replay import LinearBasis, Replay, Replayer, flange_mode_columns, stage_release_response
+from cryod.cooler.line import PtcLine
 from cryod.model import CryostatModel
 from cryod.model.transfer_function import TransferFunction
 
@@ -256,7 +257,7 @@ def with_factors(model: CryostatModel, parameters, log_factors) -> CryostatModel
     changes: dict[str, list] = {}
     for parameter, x in zip(parameters, log_factors):
         changes.setdefault(parameter.path, []).append((parameter, float(x)))
-    replaced = {}
+    replaced: dict[str, Any] = {}           # transfer functions by the model's field names, for dataclasses.replace
     for path, items in changes.items():
         original = getattr(model, path)
         factored = _factored(original)
@@ -512,18 +513,18 @@ def recalibrate(replayer: Replayer, model: CryostatModel, line: PtcLine | None,
     """
     parameters = structure_parameters(model, tolerances)
     x = np.zeros(len(parameters))
-    tolerances = np.array([parameter.tolerance for parameter in parameters])
+    limits = np.array([parameter.tolerance for parameter in parameters])
     steps = 0
     state = replayer.replay(model, line, basis=None)
     for steps in range(1, MOST_STEPS + 1):
-        basis = linear_basis(replayer, RecalibratedBase(model, parameters, x), line, state)
+        basis = linear_basis(replayer, RecalibratedBase(model, tuple(parameters), x), line, state)
         replay = replayer.replay(with_factors(model, parameters, x), line, basis=basis)
         change = replay.basis_change
-        x = np.clip(x + change, -tolerances, tolerances)
+        x = np.clip(x + change, -limits, limits)
         state = replayer.replay(with_factors(model, parameters, x), line, basis=None)
         if np.max(np.abs(change)) <= CONVERGED_STEP:
             break
-    basis = linear_basis(replayer, RecalibratedBase(model, parameters, x), line, state)
+    basis = linear_basis(replayer, RecalibratedBase(model, tuple(parameters), x), line, state)
     recalibrated = with_factors(model, parameters, x)
     replay = replayer.replay(recalibrated, line, basis=basis)
     count = len(parameters)

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.analysis.candidates import CandidateFit, EffectForm
-from cryod.cooler.line import PtcLine
 from cryod.analysis.recalibration import RecalibratedBase, linear_basis
 from cryod.analysis.replay import LinearBasis, Replay, Replayer, flange_mode_columns, stage_release_response
+from cryod.cooler.line import PtcLine
 from cryod.model import CryostatModel
 
 #: Gauss-Newton steps at most, and the relative change (of each number's step) that counts as converged.
@@ -47,8 +47,9 @@ def _state_added(replayer: Replayer, aligned: CryostatModel, flange, stage, stat
 
 
 def joint_basis(replayer: Replayer, base: RecalibratedBase, line: PtcLine, effect: EffectForm,
-                state: Replay | None, excluded=()) -> LinearBasis:
-    """The recalibration's columns and the effect's, at ``base``'s log factors and ``effect``'s values."""
+                state: Replay | None, excluded=()) -> LinearBasis | None:
+    """The recalibration's columns and the effect's, at ``base``'s log factors and ``effect``'s values (None when
+    ``excluded`` leaves none)."""
     values = np.asarray(effect.values, dtype=float)
 
     def apply(model):
@@ -104,10 +105,13 @@ def combined_effect(effects) -> EffectForm | None:
             model = effect.apply(model, tuple(values[start:stop]))
         return model
 
+    def describe(model) -> dict:
+        raise TypeError("a combined effect is described by its parts (each form of _split)")
+
     return EffectForm(tuple(v for effect in effects for v in effect.values),
                       tuple(v for effect in effects for v in effect.lower),
                       tuple(v for effect in effects for v in effect.upper),
-                      tuple(v for effect in effects for v in effect.steps), apply, None)
+                      tuple(v for effect in effects for v in effect.steps), apply, describe)
 
 
 def _split(effects, values):
@@ -172,6 +176,7 @@ def refine(replayer: Replayer, base: RecalibratedBase, fit: CandidateFit, others
     own = fit.effect or EffectForm((), (), (), (), lambda model, values: model, lambda model: fit.parameters)
     forms = [other.effect for other in others] + [own]
     effect = combined_effect(forms)
+    assert effect is not None               # own is among the forms
     wrapped = dataclasses.replace(effect, apply=lambda model, v: effect.apply(carried(model), v))
     values = np.asarray(effect.values, dtype=float)
     lower, upper = np.asarray(effect.lower, dtype=float), np.asarray(effect.upper, dtype=float)

@@ -39,13 +39,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import optimize
 
-from cryod.cooler.line import PtcLine, estimate_ptc_line, measured_cycle
 from cryod.analysis.record_data import RecordData
+from cryod.cooler.line import PtcLine, estimate_ptc_line, measured_cycle
 from cryod.model import CryostatModel, OperatingPoint
+from cryod.model.cooler_cycle import MeasuredCoolerCycle
 from cryod.model.dynamics import flange_transfer_functions, simulate, stage_transfer_functions
 from cryod.model.kept_results import KeptResults, digest
 from cryod.model.transfer_function import TransferFunction
-
 
 #: Free decays and release responses of the last models' paths over the last records (the analysis replays one
 #: record through many models that share their heater paths).
@@ -303,7 +303,7 @@ class Replayer:
         self.noise_rms_K = noise_rms_K
         #: Heater power the cryostat had settled at before the first sample (W); None: the first sample's.
         self.initial_heater_power_w: float | None = None
-        self._measured_cycle = None
+        self._measured_cycle: MeasuredCoolerCycle | None = None
         self._fit_rows = np.flatnonzero(self.fit_mask)
         self._basis_rows: dict = {}
         self._kept_rows: dict = {}
@@ -444,7 +444,7 @@ class Replayer:
         stage_part = np.empty((rows.size, 2 + shared + 1))
         stage_part[:, 0] = 1.0
         stage_part[:, 1] = self._on_fit_rows(stage_release)
-        if shared:
+        if shared and flange_extra is not None and stage_extra is not None:
             flange_part[:, flange_columns:-1] = flange_extra[rows]
             stage_part[:, 2:-1] = stage_extra[rows]
         flange_part[:, -1] = (data.flange_K - flange_K)[rows]

@@ -5,18 +5,22 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
-from cryod.analysis.decision import (
-    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, DISCREPANCY_FRACTION_OF_NOISE, DISCREPANCY_SIGMA,
-    EXPLAINED_FRACTION,
-)
 from cryod.analysis.cause_search.base_model_off import ADVICE
 from cryod.analysis.cause_search.bounds import stays_text
+from cryod.analysis.cause_search.results import Analysis, NamedCause
+from cryod.analysis.decision import (
+    CANDIDATE_MINIMUM_IMPROVEMENT,
+    CANDIDATE_SIGMA,
+    DISCREPANCY_FRACTION_OF_NOISE,
+    DISCREPANCY_SIGMA,
+    EXPLAINED_FRACTION,
+)
 from cryod.analysis.discrepancies import Discrepancy
 from cryod.analysis.equivalence import equivalents, sentence
-from cryod.analysis.cause_search.results import Analysis
 from cryod.analysis.record_data import block_length_s, saturation_fraction
 from cryod.analysis.summary import format_parameters
 
@@ -27,7 +31,7 @@ LISTED_MOST = 25
 REPORT_NAME = "report.md"
 
 
-def _number(value: float) -> str:
+def _number(value: float | None) -> str:
     if value is None or not math.isfinite(value):
         return "-"
     return f"{value:.4g}"
@@ -40,7 +44,7 @@ def _discrepancy_table(rows: list[Discrepancy]) -> list[str]:
     return lines
 
 
-def _named(analysis: Analysis) -> list:
+def _named(analysis: Analysis) -> Sequence[NamedCause]:
     return analysis.causes if analysis.cause not in ("none", "unexplained") else []
 
 

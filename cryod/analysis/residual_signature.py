@@ -69,13 +69,8 @@ ENVELOPE_BLOCK_S = 30.0
 
 def classify_peak(frequency_hz: float, line_hz: float, sample_hz: float, resolution_hz: float) -> str:
     """Where a peak lies against the cooler's harmonics (folded by the sampling)."""
-    best = None
-    for order in HARMONIC_ORDERS:
-        folded = float(folded_frequency(order * line_hz, sample_hz))
-        offset = frequency_hz - folded
-        if best is None or abs(offset) < abs(best[1]):
-            best = (order, offset)
-    order, offset = best
+    offsets = [(order, frequency_hz - float(folded_frequency(order * line_hz, sample_hz))) for order in HARMONIC_ORDERS]
+    order, offset = min(offsets, key=lambda pair: abs(pair[1]))         # the nearest, the lowest order of a tie
     if abs(offset) <= 2.0 * resolution_hz:
         return f"harmonic {order}"
     if abs(offset) <= SIDEBAND_SPAN_HZ:
@@ -198,7 +193,8 @@ def spectral_peaks(residual: np.ndarray, name: str, sample_hz: float, line_hz: f
     resolution = frequencies[1] - frequencies[0]
     lowest = 4.0 / (residual.size / sample_hz)
     candidates, _ = signal.find_peaks(sigma)
-    found, taken = [], []
+    found: list[SpectralPeak] = []
+    taken: list[int] = []
     for index in candidates[np.argsort(-power[candidates])]:
         if sigma[index] < PEAK_SIGMA or frequencies[index] < max(lowest, DRIFT_BELOW_HZ / 4) \
                 or index >= frequencies.size - LEAKAGE_BINS:                       # the Nyquist bin's own statistics

@@ -118,7 +118,7 @@ def _open_segments(time_s, heater_w, start, stop, make) -> None:
         first, last = first + start, last + start
         stop_time = time_s[last] if last < time_s.size else time_s[-1]
         pieces.append(("hold" if stop_time - time_s[first] >= SHORTEST_SEGMENT_S else "varying", first, last))
-    merged = []
+    merged: list[tuple[str, int, int]] = []
     for kind, first, last in pieces:
         if merged and merged[-1][0] == kind == "varying":
             merged[-1] = ("varying", merged[-1][1], last)

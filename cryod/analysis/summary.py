@@ -38,8 +38,8 @@ from pathlib import Path
 import numpy as np
 
 from cryod.analysis.candidates import CANDIDATE_CAUSES
-from cryod.analysis.equivalence import equivalents
 from cryod.analysis.cause_search.results import Analysis
+from cryod.analysis.equivalence import equivalents
 
 #: The cause vocabulary of ``cryod analyze`` (docs/reference/causes.md is generated from it).
 CAUSES = ("none", *CANDIDATE_CAUSES, "unexplained", "base_model_off")

@@ -38,9 +38,9 @@ import math
 import numpy as np
 from scipy import optimize
 
-from cryod.cooler.line_fit import fit_line
-from cryod.cooler.line import coarse_line_frequency
 from cryod.analysis.record_data import RecordData
+from cryod.cooler.line import coarse_line_frequency
+from cryod.cooler.line_fit import fit_line
 from cryod.records.record import RecordFormatError
 
 #: At least this fraction of the rows must have both temperatures.
@@ -92,7 +92,7 @@ def check_usable(data: RecordData) -> None:
     if np.mean(valid) < LEAST_VALID_FRACTION:
         missing = {name: int(np.count_nonzero(~np.isfinite(values)))
                    for name, values in (("T2_K", data.flange_K), ("T5_K", data.ptc_stage_K))}
-        name = max(missing, key=missing.get)
+        name = max(missing, key=lambda key: missing[key])
         values = data.flange_K if name == "T2_K" else data.ptc_stage_K
         first = int(np.flatnonzero(~np.isfinite(values))[0])
         raise UnusableRecordError(

@@ -211,7 +211,8 @@ def acquire(config: DaemonConfig, plan: ExperimentPlan, open_instruments: Callab
                            f"{unsettled}", wall)
     if runner.outcome == "fault":
         try:
-            code = int(FaultCause(runner.fault).exit_code)
+            # a lookup by value (the enum's call), not a new member: mypy reads it against the members' __new__
+            code = int(FaultCause(runner.fault or "").exit_code)    # type: ignore[call-arg]
         except ValueError:
             code = int(ExitCode.EXCEPTION)
         return Acquisition("fault", code, paths, runner,

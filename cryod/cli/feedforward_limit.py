@@ -35,6 +35,7 @@ from cryod.control.feedforward.limit import (
     SWEEP_SETPOINTS_K,
     FeedforwardLimit,
     FeedforwardLimitError,
+    LimitChange,
     SweepPoint,
     feedforward_limit,
     limit_changes,
@@ -188,7 +189,7 @@ def row_binding(model, row: SweepPoint, period_s: float, **options) -> LimitBind
     limit = row.limit
     if limit is None:
         return None
-    changes = ()
+    changes: tuple[LimitChange, ...] = ()
     if limit_binding(limit).bound == "floor and top":
         changes = limit_changes(model, limit.setpoint_K, limit.max_heater_power_W, period_s, **options)[2:]
     return limit_binding(limit, changes)
@@ -200,6 +201,7 @@ def _sweep_row(row: SweepPoint, binding: LimitBinding | None) -> dict:
     if row.limit is None:
         return {**summary, "problem": row.problem}
     limit = row.limit
+    assert binding is not None              # a row with a limit has what binds it (row_binding)
     return {**summary, "authority": limit.authority, "best_sinusoid_K": limit.best_sinusoid_K,
             "ptc_periodic_limit_K": limit.ptc_periodic_limit_K, "limited_by": limit.limited_by,
             "bound": binding.bound}

@@ -32,6 +32,7 @@ import json
 import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Callable
 
 from cryod.analysis.record_data import analysed_stretch, read_record_data
 from cryod.analysis.summary import plain
@@ -46,6 +47,9 @@ from cryod.model import DEFAULT_MODEL_PATH, load_model, save_model
 from cryod.output_files import OutputFiles, output_file_refusal
 from cryod.records.record import RecordFormatError
 from cryod.yaml_source import FileFormatError
+
+if TYPE_CHECKING:
+    from cryod.cli.acquire import Acquisition
 
 PROGRAM = "cryod identify"
 ACQUIRE_DIRECTORY = Path("cryod-identify")
@@ -177,7 +181,7 @@ def _config_path(args) -> Path:
     return DEFAULT_CONFIG if args.acquire and not args.simulate else EXAMPLE_CONFIG_PATH
 
 
-def _acquire(args, config, base, plan: ExperimentPlan | None = None) -> tuple[int, object]:
+def _acquire(args, config, base, plan: ExperimentPlan | None = None) -> tuple[int, Acquisition | None]:
     """Run the experiment (``plan``, or the command line's); (exit status, Acquisition or None)."""
     from cryod.cli.acquire import acquire
     from cryod.service.logs import ServiceLogging
@@ -192,6 +196,7 @@ def _acquire(args, config, base, plan: ExperimentPlan | None = None) -> tuple[in
     taus = base.heater_to_thermometer.time_constants_s
     expected = 5.0 * max(taus) if taus else 900.0
     metadata = {"identify_base_model": str(args.base)}
+    opener: Callable            # the instruments' opener: simulated, or the configured ones
     if args.simulate:
         from cryod.service.simulation import DryRunOptions, SimulatedInstrumentsOpener, simulation_config
 
@@ -307,10 +312,10 @@ def run(args: argparse.Namespace) -> int:
         return _run_series(args, config, base, out)
     if args.acquire:
         status, acquisition = _acquire(args, config, base)
-        if status != 0:
+        if status != 0 or acquisition is None:
             return status
         record_paths = list(acquisition.record_paths)
-        if report_files is not None and len(record_paths) > 1:      # a day's end cut the record: more figures
+        if report_files is not None and report_dir is not None and len(record_paths) > 1:      # a day's end cut the record: more figures
             report_files = _report_files(args, Path(report_dir), len(record_paths), inputs + record_paths)
             refusal = report_files.refusal(force=args.force)
             if refusal is not None:
@@ -387,6 +392,12 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _about(plan: ExperimentPlan) -> float:
+    """The setpoint a plan of a series runs about (plans_at gives each its own)."""
+    assert plan.setpoint_K is not None
+    return plan.setpoint_K
+
+
 def _run_series(args, config, base, out: Path) -> int:
     """``--acquire --setpoints``: the experiment about each setpoint in turn and its model, into the folder ``out``."""
     from cryod.identification.setpoint_series import identify_at_setpoint, model_file_name, plans_at
@@ -405,21 +416,21 @@ def _run_series(args, config, base, out: Path) -> int:
         print(f"{PROGRAM}: --setpoints {', '.join(map(str, outside))} K outside control.setpoint_min_K.."
               f"setpoint_max_K = {config.control.setpoint_min_K:g}..{top:g} K of {config.source}", file=sys.stderr)
         return 2
-    targets = [out / model_file_name(plan.setpoint_K) for plan in plans]
+    targets = [out / model_file_name(_about(plan)) for plan in plans]
     for target in targets:
         refusal = output_file_refusal(PROGRAM, target, force=args.force, inputs=[Path(args.base)])
         if refusal is not None:
             print(f"{PROGRAM}: {refusal}", file=sys.stderr)
             return 2
-    written = []
+    written: list[dict] = []
     for plan, target in zip(plans, targets):
         print(f"{PROGRAM}: about {plan.setpoint_K:g} K ({len(written) + 1} of {len(plans)})", file=sys.stderr)
         status, acquisition = _acquire(args, config, base, plan)
-        if status != 0:
+        if status != 0 or acquisition is None:
             return status
         try:
             records = [read_record_data(path) for path in acquisition.record_paths]
-            result = identify_at_setpoint(plan.setpoint_K, records, acquisition.record_paths, base, plan.line_hold_s,
+            result = identify_at_setpoint(_about(plan), records, acquisition.record_paths, base, plan.line_hold_s,
                                           harmonics=not args.no_harmonics, max_terms=args.max_terms,
                                           replicates=args.bootstrap)
         except (RecordFormatError, FileFormatError, IdentificationError, ValueError, ArithmeticError) as error:

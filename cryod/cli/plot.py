@@ -267,10 +267,11 @@ def is_quick_look_of(path: Path, record_path: Path) -> bool:
     ``Software`` and ``Title``, as Pillow, matplotlib's image library, reads them); False for anything else,
     a file missing or unreadable included."""
     from PIL import Image
+    from PIL.PngImagePlugin import PngImageFile
 
     try:
         with open_regular_file(path) as file, Image.open(file, formats=["PNG"]) as image:
-            text = dict(image.text)
+            text = dict(image.text) if isinstance(image, PngImageFile) else {}
     except (OSError, ValueError, SyntaxError):      # Pillow says SyntaxError of a damaged PNG's chunks
         return False
     return text.get("Software") == SOFTWARE and text.get("Title") == Path(record_path).name
@@ -300,6 +301,7 @@ def stretch_spectrum(values: np.ndarray, stretches: list[tuple[int, int]], sampl
         total = density * count if total is None else total + density * count
         weight += count
         used += stop - start
+    assert total is not None                # the longest stretch is at least a segment long
     return frequency, np.sqrt(2.0 * total / weight), segment / sample_hz, used / sample_hz
 
 

@@ -148,6 +148,7 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
                 regulator.close_loop(now, flange, stage, present_power_w=power)
         else:
             program = segment.heater_power_w
+            assert program is not None              # a segment has one of the two (Segment.__post_init__)
             try:
                 regulator.set_manual(float(program(now) if callable(program) else program))
             except ValueError as error:
@@ -164,4 +165,5 @@ def run_program(model: CryostatModel, segments: Sequence[Segment], duration_s: f
                 control_columns[name][tick] = value
         events += [(now, *event) for event in step.events]
     regulator.close()
-    return ClosedLoopRun(*recorded, control_columns, tuple(events))
+    time_s, flange_K, ptc_stage_K, heater_w, setpoint_K = recorded
+    return ClosedLoopRun(time_s, flange_K, ptc_stage_K, heater_w, setpoint_K, control_columns, tuple(events))

@@ -35,7 +35,6 @@ from cryod.control.terms import ControlTerm, TickInputs
 from cryod.records.columns import Column
 from cryod.yaml_source import Section
 
-
 #: Largest Kp (W/K) and Ki (W/(K s)) a configuration takes.
 MAX_GAIN = 1000.0
 
@@ -190,8 +189,10 @@ class PiTerm(ControlTerm):
         self.controller = PiController(gains, 0.0, output_max)
 
     @staticmethod
-    def settings_from(section: Section) -> PiGains:
-        """The gains from ``control.pi``."""
+    def settings_from(section: Section | None) -> PiGains:
+        """The gains from ``control.pi`` (a required section: never None from :func:`term_settings_from`)."""
+        if section is None:
+            raise TypeError("control.pi is a required section")
         gains = PiGains(section.number("proportional_W_per_K", minimum=0.0, maximum=MAX_GAIN),
                         section.number("integral_W_per_K_s", minimum=0.0, maximum=MAX_GAIN))
         section.finish()

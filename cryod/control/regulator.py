@@ -220,7 +220,7 @@ class Regulator:
         self.zone_index: int | None = None
         self._zone_events: list[str] = []
         if control.zones is not None:
-            self._enter_zone(control.zones.index_for(self.ramp.setpoint_K), "start")
+            self._enter_zone(control.zones, control.zones.index_for(self.ramp.setpoint_K), "start")
 
     # -- the cycle ---------------------------------------------------------------
     def step(self, time_s: float, dt_s: float, flange_K: float, ptc_stage_K: float, *,
@@ -256,7 +256,7 @@ class Regulator:
         setpoint = tick.setpoint_K
         zones = self.control.zones
         if zones is not None and zones.index_for(setpoint) != self.zone_index:
-            self._enter_zone(zones.index_for(setpoint), f"setpoint in use {setpoint:.6g} K")
+            self._enter_zone(zones, zones.index_for(setpoint), f"setpoint in use {setpoint:.6g} K")
         # feedback terms first, held within the heater's range and told so (their anti-windup);
         # then the terms that ride on them (the feedforward's waveform), held again
         requested = 0.0
@@ -274,10 +274,10 @@ class Regulator:
             for term in self._riding:
                 term.limit(requested, applied)
             limited = limited or applied != requested
-        columns = {}
+        columns: dict[str, float] = {}
         for term, names in self._column_names:
             columns.update(zip(names, term.column_values()))
-        events = ()
+        events: tuple[tuple[str, int, str], ...] = ()
         for term in self.terms:
             said = term.take_events()
             if said:
@@ -295,7 +295,8 @@ class Regulator:
         self.ramp.setpoint_K = feedback_K if self.ramp.rate_K_per_min > 0.0 else self.ramp.target_K
         zones = self.control.zones
         if zones is not None and zones.index_for(self.ramp.setpoint_K) != self.zone_index:
-            self._enter_zone(zones.index_for(self.ramp.setpoint_K), f"loop closed at {self.ramp.setpoint_K:.6g} K")
+            self._enter_zone(zones, zones.index_for(self.ramp.setpoint_K),
+                             f"loop closed at {self.ramp.setpoint_K:.6g} K")
         tick = TickInputs.at(time_s, 0.0, flange_K, ptc_stage_K, self.ramp.setpoint_K).with_feedback(feedback_K)
         present = self.output.output_for(present_power_w)
         for term in self.terms:
@@ -404,19 +405,19 @@ class Regulator:
         index = control.zones.index_for(self.ramp.setpoint_K)
         changed = previous is None or self.zone_index is None or previous.zones[self.zone_index] \
             != control.zones.zones[index] or index != self.zone_index
-        self._enter_zone(index, f"reload of {control.zones.source or 'the zone table'}" if changed else "",
-                         setpoint_moved=False)
+        reason = f"reload of {control.zones.source or 'the zone table'}" if changed else ""
+        self._enter_zone(control.zones, index, reason, setpoint_moved=False)
 
     # -- zones ---------------------------------------------------------------------------
-    def _enter_zone(self, index: int, reason: str, setpoint_moved: bool = True) -> None:
-        """Run on zone ``index`` of ``control.zones`` from now on, bumplessly: every term takes the zone's
+    def _enter_zone(self, zones: ZoneTable, index: int, reason: str, setpoint_moved: bool = True) -> None:
+        """Run on zone ``index`` of ``zones`` (``control.zones``) from now on, bumplessly: every term takes the zone's
         settings through its ``reconfigure`` (the PI keeps its output, its integral taking the difference of
         the gains), and the terms' sum is held within the zone's heater limit. ``reason`` ('' for none) goes
         into the zone's event. When the setpoint in use moved from another zone into this one (not at the
         start, not on a reload), every term is then told (``enter_zone``): the cryostat is at another
         operating point, and what a term learned of it at the previous one (the feedforward's plant) is
         the term's to drop."""
-        zone = self.control.zones.zones[index]
+        zone = zones.zones[index]
         limit = zone.max_heater_power_W
         self.maximum = self.output.maximum if limit is None else min(self.output.maximum,
                                                                      self.output.output_for(limit))
@@ -444,5 +445,7 @@ class Regulator:
         previous = self.control
         rate = control.ramp_K_per_min if control.ramp_K_per_min != previous.ramp_K_per_min \
             else self.ramp.rate_K_per_min
-        changed = control.setpoint_K != previous.setpoint_K and control.setpoint_K is not None
-        return rate, control.setpoint_K if changed else self.ramp.target_K
+        target_K = self.ramp.target_K
+        if control.setpoint_K is not None and control.setpoint_K != previous.setpoint_K:
+            target_K = control.setpoint_K
+        return rate, target_K

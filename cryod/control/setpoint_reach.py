@@ -29,6 +29,10 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from cryod.model import CryostatModel
 
 
 @dataclass(frozen=True)
@@ -100,7 +104,7 @@ def setpoint_reach(model, setpoint_K: float, max_power_W: float, model_source: s
                          lowest + gain * max_power_W, model_source, top_source)
 
 
-def controller_model(control) -> tuple[object, str]:
+def controller_model(control) -> tuple[CryostatModel, str]:
     """The controller's model and where it comes from: the feedforward's when configured, else the shipped one.
 
     Parameters

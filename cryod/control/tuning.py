@@ -48,9 +48,9 @@ from scipy import optimize
 from cryod.control.closed_loop import Segment, run_program
 from cryod.control.feedforward.harmonic_plant import line_at_harmonics
 from cryod.control.pi import MAX_GAIN, PiGains
+from cryod.cooler.periodic import periodic_amplitudes
 from cryod.model import CryostatModel
 from cryod.model.dynamics import flange_transfer_functions
-from cryod.cooler.periodic import periodic_amplitudes
 
 #: T2 is judged averaged over this many cooler periods (the line itself is not a settling error).
 AVERAGED_PERIODS = 4
@@ -303,8 +303,10 @@ def suggest_gains(model: CryostatModel, setpoint_K: float, heater_max_w: float, 
     def cost(step: StepPerformance | None) -> float:
         return step.settle_s if step is not None and not tolerances.violations(step) else math.inf
 
-    log_kps = np.linspace(*np.log(proportional_range_w_per_K), grid[0])
-    log_tis = np.linspace(*np.log(integral_time_range_s), grid[1])
+    log_kp_low, log_kp_high = np.log(proportional_range_w_per_K)
+    log_ti_low, log_ti_high = np.log(integral_time_range_s)
+    log_kps = np.linspace(log_kp_low, log_kp_high, grid[0])
+    log_tis = np.linspace(log_ti_low, log_ti_high, grid[1])
     for log_kp in log_kps:
         for log_ti in log_tis:
             evaluate(log_kp, log_ti)

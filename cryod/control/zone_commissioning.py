@@ -28,7 +28,6 @@ from cryod.control.tuning import Tolerances, Tuning, TuningError, suggest_gains
 from cryod.control.zones import Zone, ZoneTable
 from cryod.model import CryostatModel, linearised_at
 
-
 #: The search over each zone's gains (:func:`cryod.control.tuning.suggest_gains`): the plant slows and weakens
 #: by two orders of magnitude across 4-25 K, and so do the gains it needs, up to what a configuration takes.
 ZONE_SEARCH = {"proportional_range_w_per_K": (0.5, MAX_GAIN), "integral_time_range_s": (10.0, 5000.0),

@@ -145,7 +145,7 @@ def zone_table_from(control: Section, setpoint_min_K: float, setpoint_max_K: flo
         raise holder.error("zones", "give at least one zone, or null for none")
     if len(items) > MAX_ZONES:
         raise holder.error("zones", f"{len(items)} zones: at most {MAX_ZONES}")
-    zones = []
+    zones: list[Zone] = []
     for item in items:
         upper = item.number("upper_K", minimum=0.0, exclusive_minimum=True)
         if zones and not upper > zones[-1].upper_K:

@@ -38,14 +38,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage, optimize
-
-from scipy import interpolate
+from scipy import interpolate, ndimage, optimize
 
 from cryod.cooler.line_fit import wrap_phase
 from cryod.cooler.phase import CoolerPhaseTracker
-from cryod.model import CryostatModel, CoolerFrequencyDrift, CoolerHarmonic
-from cryod.model.cooler_cycle import MeasuredCoolerCycle, CoolerCycle
+from cryod.model import CoolerFrequencyDrift, CoolerHarmonic, CryostatModel
+from cryod.model.cooler_cycle import CoolerCycle, MeasuredCoolerCycle
 
 #: Search band of the cooler's fundamental (rad/s): 0.3 Hz up to the Nyquist frequency.
 LOWEST_LINE_ANGULAR_FREQUENCY = 2.0 * math.pi * 0.3
@@ -554,7 +552,8 @@ def measured_cycle(elapsed_s, stage_signal_K, nominal_rad_s: float) -> MeasuredC
     spline = interpolate.make_lsq_spline(t[first:], (phase - ramp)[first:], knot_vector, k=order)
     smoothed = ramp + spline(t, extrapolate=True)
     smoothed_frequency = slope + spline.derivative()(t, extrapolate=True)
-    centres, corrections = [], []
+    centres: list[float] = []
+    corrections: list[float] = []
     for start in np.arange(t[0], t[-1], PHASE_CORRECTION_WINDOW_S):
         window = (t >= start) & (t < start + PHASE_CORRECTION_WINDOW_S)
         if np.count_nonzero(window) < 40:
@@ -566,9 +565,9 @@ def measured_cycle(elapsed_s, stage_signal_K, nominal_rad_s: float) -> MeasuredC
         solution, *_ = np.linalg.lstsq(np.column_stack(columns), values[window], rcond=None)
         centres.append(float(local_t.mean()))
         corrections.append(math.atan2(-solution[3], solution[2]))     # A cos(phase + d) = A cos d cos - A sin d sin
-    corrections = np.unwrap(np.asarray(corrections))
+    unwrapped = np.unwrap(np.asarray(corrections))
     if len(centres) >= 4:
-        correction = interpolate.CubicSpline(centres, corrections - corrections.mean(), extrapolate=True)
+        correction = interpolate.CubicSpline(centres, unwrapped - unwrapped.mean(), extrapolate=True)
         smoothed = smoothed + correction(t)
         smoothed_frequency = smoothed_frequency + correction.derivative()(t)
     start_phase, start_frequency = smoothed[0], smoothed_frequency[0]

@@ -138,7 +138,7 @@ class CoolerPhaseTracker:
     def update(self, time_s: float, ptc_stage_K: float) -> CoolerPhase:
         """Take one T5 reading at its instant; returns the tracker's state at that instant."""
         if self.time_s is None:
-            self.time_s, self.offset_K = float(time_s), float(ptc_stage_K)
+            self.time_s = float(time_s)
         dt = float(time_s) - self.time_s
         if dt < 0.0:
             raise ValueError(f"readings out of order: {time_s} s after {self.time_s} s")
@@ -157,9 +157,10 @@ class CoolerPhaseTracker:
         for _ in range(1, self.harmonics):
             rotors.append(rotors[-1] * rotor)
         amplitudes = self.amplitudes
-        residual = value - self.offset_K - sum((a * r).real for a, r in zip(amplitudes, rotors))
+        offset_K = value if self.offset_K is None else self.offset_K    # from the first reading that is a number
+        residual = value - offset_K - sum((a * r).real for a, r in zip(amplitudes, rotors))
         gain = min(dt / self.demodulator_time_s, 0.5)
-        self.offset_K += gain * residual
+        self.offset_K = offset_K + gain * residual
         step = 2.0 * gain * residual
         amplitudes = [a + step * r.conjugate() for a, r in zip(amplitudes, rotors)]
         present = abs(amplitudes[0]) >= self.minimum_amplitude_K

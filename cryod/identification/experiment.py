@@ -369,6 +369,8 @@ class ExperimentRunner:
 
     def _phase_done(self, time_s: float) -> bool:
         phase, plan = self.phase, self.plan
+        if phase is None:                   # none under way
+            return False
         elapsed = time_s - self.phase_start_s
         if phase == "line":
             return elapsed >= plan.line_hold_s
@@ -378,20 +380,22 @@ class ExperimentRunner:
         if time_s < self._next_judgement_s:
             return False
         self._next_judgement_s = time_s + 1.0
-        if self.judge.judge(time_s):
+        judge = self.judge
+        assert judge is not None            # every settling phase has one (_start_phase)
+        if judge.judge(time_s):
             if self.closed_loop:
                 self.note(f"phase {phase} settled after {elapsed:.0f} s: the heater moved "
-                          f"{self.judge.drift_K * 1e3:.3f} mW over the last {plan.settle_window_s:g} s, change in "
-                          f"the phase {self.judge.change_K * 1e3:.3f} mW")
+                          f"{judge.drift_K * 1e3:.3f} mW over the last {plan.settle_window_s:g} s, change in "
+                          f"the phase {judge.change_K * 1e3:.3f} mW")
             else:
-                self.note(f"phase {phase} settled after {elapsed:.0f} s: T2 moved {self.judge.drift_K * 1e6:.1f} µK "
+                self.note(f"phase {phase} settled after {elapsed:.0f} s: T2 moved {judge.drift_K * 1e6:.1f} µK "
                           f"over the last {plan.settle_window_s:g} s, change in the phase "
-                          f"{self.judge.change_K * 1e3:.3f} mK")
+                          f"{judge.change_K * 1e3:.3f} mK")
             return True
         if elapsed >= plan.max_settle_s:
             self.unsettled.append(phase)
             self.note(f"phase {phase} NOT settled after {plan.max_settle_s:g} s (--max-settle): T2 still moved "
-                      f"{self.judge.drift_K * 1e6:.1f} µK over the last {plan.settle_window_s:g} s")
+                      f"{judge.drift_K * 1e6:.1f} µK over the last {plan.settle_window_s:g} s")
             return True
         return False
 
@@ -425,7 +429,7 @@ class ExperimentRunner:
             power = f"regulating at {plan.setpoint_K:g} K"
         elif phase == "line" and self.closed_loop:
             power = f"held at {plan.setpoint_K:g} K"
-        elif phase == "step" and self.closed_loop:
+        elif phase == "step" and plan.setpoint_K is not None:      # closed loop
             self.submit("setpoint", plan.setpoint_K + plan.setpoint_step_K)
             power = f"setpoint {plan.setpoint_K + plan.setpoint_step_K:g} K (step of {plan.setpoint_step_K * 1e3:g} mK)"
         elif phase in ("approach", "line"):

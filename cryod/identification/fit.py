@@ -143,7 +143,7 @@ class _Problem:
         self.noise_rms_K = noise_rms_K
         self.valid = [p.data.valid for p in prepared]
         self.counts = [int(np.count_nonzero(valid)) for valid in self.valid]
-        self.solution = None
+        self.solution: np.ndarray | None = None
         self._responses: dict[tuple[int, float], np.ndarray] = {}
         self._flange: tuple | None = None      # ((tau_a, tau_b), coefficients, residual in K)
         self._stage: tuple | None = None       # (tau_3, coefficients, residual in K)
@@ -291,6 +291,7 @@ def _measured_noise(prepared: list[_Prepared], residuals) -> tuple[float, float]
 def _assemble(prepared, problem: _Problem, time_constants, residuals, base: CryostatModel) -> Identification:
     tau_a, tau_b, tau_3 = (float(t) for t in time_constants)
     solution = problem.solution
+    assert solution is not None             # the problem was solved at these time constants
     residue_a, residue_b, stage_gain = float(solution[0]), float(solution[1]), float(solution[2])
     ptc_coefficient = complex(solution[3], solution[4])
     if tau_a > tau_b:

@@ -31,6 +31,7 @@ import numpy as np
 
 from cryod.analysis.noise import white_noise_rms
 from cryod.analysis.record_data import RecordData
+from cryod.cooler.line import PtcLine
 from cryod.identification.fit import IdentificationError, prepared_records
 from cryod.identification.step_terms import (
     ChannelRecord,
@@ -87,14 +88,16 @@ class ModelIdentification:
     records: list[RecordData]
     flange: ChannelResult
     stage: ChannelResult
-    line: object
+    line: PtcLine
     noise_rms_K: tuple[float, float]
     residual_rms_in_noise: list[tuple[float, float]]
     bootstrap_ratio: dict[str, float] = dataclasses.field(default_factory=dict)
 
     @property
     def uncertainty(self) -> ModelUncertainty:
-        return self.model.uncertainty
+        uncertainty = self.model.uncertainty
+        assert uncertainty is not None          # an identified model states its uncertainty
+        return uncertainty
 
     def estimate(self, name: str) -> tuple[float, float]:
         """(value, standard uncertainty) of a stated parameter."""
@@ -151,9 +154,9 @@ def _channel_result(channel: StepChannel, selection: TermSelection, replicates: 
     prediction = design @ fit.coefficients
     predictions, residuals, start = [], [], 0
     for record in channel.records:
-        count = int(np.count_nonzero(record.valid))
+        count = int(np.count_nonzero(record.rows))
         full = np.full(record.time_s.size, np.nan)
-        full[record.valid] = prediction[start:start + count]
+        full[record.rows] = prediction[start:start + count]
         predictions.append(full)
         residuals.append(record.target_K - full)
         start += count

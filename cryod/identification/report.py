@@ -9,8 +9,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cryod.identification.model_fit import ModelIdentification
+
+if TYPE_CHECKING:
+    from cryod.control.feedforward.limit import FeedforwardLimit
+    from cryod.control.feedforward.limit_range import LimitRange
 
 #: Parameter names as the report writes them: (label, unit, scale to the unit).
 LABELS = {
@@ -36,7 +41,7 @@ def _label(name: str) -> tuple[str, str, float]:
     return f"{where}, term {index}: gain", "mK/W", 1e3
 
 
-def _number(value: float, sigma: float) -> str:
+def _number(value: float, sigma: float) -> tuple[str, str]:
     """Value and uncertainty with the uncertainty to two significant figures."""
     if not (math.isfinite(sigma) and sigma > 0.0):
         return f"{value:.6g}", "-"
@@ -51,8 +56,8 @@ class FeedforwardSection:
     setpoint_K: float
     heater_resistance_ohm: float
     max_current_A: float
-    limit: object = None            # FeedforwardLimit
-    spread: object = None           # LimitRange
+    limit: FeedforwardLimit | None = None
+    spread: LimitRange | None = None
     problem: str = ""
 
 
@@ -141,7 +146,7 @@ def write_report(result: ModelIdentification, out: Path, *, model_path: Path, re
                          f"{row['bic']:.0f}" + (f" ({row['degenerate']})" if row["degenerate"] else "") + " |")
     if feedforward is not None:
         lines += ["", f"## The feedforward at {feedforward.setpoint_K:g} K", ""]
-        if feedforward.problem:
+        if feedforward.problem or feedforward.limit is None:
             lines.append(f"No limit: {feedforward.problem}")
         else:
             limit = feedforward.limit

@@ -94,7 +94,7 @@ class ChannelRecord:
     heater_change_s: np.ndarray | None = None
     valid: np.ndarray | None = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         self._responses: dict[float, np.ndarray] = {}
         self.time_s = np.asarray(self.time_s, dtype=float)
         self.heater_w = np.asarray(self.heater_w, dtype=float)
@@ -104,12 +104,19 @@ class ChannelRecord:
         self.valid = valid & np.isfinite(self.target_K)
 
     @property
+    def rows(self) -> np.ndarray:
+        """The rows that take part: ``valid`` as given, where the target is finite (a boolean mask)."""
+        valid = self.valid
+        assert valid is not None            # completed as the record is made
+        return valid
+
+    @property
     def elapsed_s(self) -> np.ndarray:
         return self.time_s - self.time_s[0]
 
     def with_target(self, target_K: np.ndarray) -> "ChannelRecord":
         """The same record with another target (a bootstrap's), sharing the heater responses kept."""
-        record = dataclasses.replace(self, target_K=target_K, valid=self.valid.copy())
+        record = dataclasses.replace(self, target_K=target_K, valid=self.rows.copy())
         record._responses = self._responses
         return record
 
@@ -158,7 +165,7 @@ class StepChannel:
 
     @property
     def sample_count(self) -> int:
-        return int(sum(np.count_nonzero(r.valid) for r in self.records))
+        return int(sum(np.count_nonzero(r.rows) for r in self.records))
 
     def design(self, time_constants_s, masks=None) -> tuple[np.ndarray, np.ndarray]:
         """Design matrix and target over the valid rows (or ``masks``, one per record).
@@ -170,7 +177,7 @@ class StepChannel:
         count = taus.size
         others = len(self.other_names)
         columns = count + others + count * len(self.records)
-        selected = [record.valid if masks is None else (record.valid & masks[index])
+        selected = [record.rows if masks is None else (record.rows & masks[index])
                     for index, record in enumerate(self.records)]
         sizes = [int(np.count_nonzero(rows)) for rows in selected]
         # column by column (Fortran order): what a QR factorisation works on, without a copy
@@ -201,7 +208,7 @@ class StepChannel:
         step = 1e-6 * tau
         pieces = []
         for number, record in enumerate(self.records):
-            rows = record.valid if masks is None else (record.valid & masks[number])
+            rows = record.rows if masks is None else (record.rows & masks[number])
             elapsed = record.elapsed_s[rows]
             response = (heater_response(record, tau + step) - heater_response(record, tau - step))[rows] / (2 * step)
             amplitude = coefficients[count + others + count * number + index]

@@ -150,7 +150,7 @@ def block_bootstrap(channel: StepChannel, fit: TermFit, replicates: int = BOOTST
     prediction = design @ fit.coefficients
     pieces, start = [], 0
     for record in channel.records:
-        count = int(np.count_nonzero(record.valid))
+        count = int(np.count_nonzero(record.rows))
         pieces.append((record, slice(start, start + count)))
         start += count
     residual = target - prediction
@@ -161,7 +161,7 @@ def block_bootstrap(channel: StepChannel, fit: TermFit, replicates: int = BOOTST
             interval = float(np.median(np.diff(record.time_s))) if record.time_s.size > 1 else 1.0
             made = prediction[rows] + _resampled(residual[rows], int(round(block_s / interval)), generator)
             target_K = np.full(record.time_s.size, np.nan)
-            target_K[record.valid] = made
+            target_K[record.rows] = made
             records.append(record.with_target(target_K))
         trial = StepChannel(channel.name, records, channel.other_names)
         try:

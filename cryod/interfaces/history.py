@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import collections
 import math
+from typing import Callable
 
 from cryod.records.columns import Row
 
@@ -105,7 +106,8 @@ class History:
         completed (``heater_level_W``).
     """
 
-    def __init__(self, line_amplitude_K=lambda: math.nan, heater_level_W=lambda: math.nan):
+    def __init__(self, line_amplitude_K: Callable[[], float] = lambda: math.nan,
+                 heater_level_W: Callable[[], float] = lambda: math.nan) -> None:
         self.line_amplitude_K = line_amplitude_K
         self.heater_level_W = heater_level_W
         self.bins: collections.deque = collections.deque(maxlen=int(SPAN_S / BIN_S))

@@ -38,7 +38,7 @@ class ClientIdentity:
     being handled.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._writers: dict[str, str] = {}
         self._lock = threading.Lock()
         self._callback = _LISTENER(self._before_or_after)      # kept: EPICS holds only the pointer

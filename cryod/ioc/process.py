@@ -25,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from cryod.config import DaemonConfig, load_config
+from cryod.config import DaemonConfig, IocConfig, load_config
 from cryod.interfaces.daemon_link import MAX_STREAM_LINE, DaemonLink
 from cryod.interfaces.mirror import DaemonMirror
 from cryod.records.columns import Row
@@ -78,8 +78,9 @@ def wait_for_daemon(socket_path: Path, wait_s: float = CONNECT_WAIT_S) -> dict:
             time.sleep(1.0)
 
 
-def ioc_configuration(config_path: Path | None, hello: dict) -> DaemonConfig:
-    """The configuration whose ``ioc`` section is served: ``--config``, else the daemon's own file."""
+def ioc_configuration(config_path: Path | None, hello: dict) -> tuple[DaemonConfig, IocConfig]:
+    """The configuration whose ``ioc`` section is served (``--config``, else the daemon's own file), and that
+    section."""
     path = config_path or (Path(hello["config_file"]) if hello.get("config_file") else None)
     if path is None:
         raise IocError("the daemon does not say which configuration it runs on; give --config FILE", 2)
@@ -87,7 +88,7 @@ def ioc_configuration(config_path: Path | None, hello: dict) -> DaemonConfig:
     if config.ioc is None:
         raise IocError(f"{path}: no ioc section, so the IOC is off (add ioc: {{prefix: \"CRYO1:\"}}; "
                        f"docs/how-to/epics-bluesky.md, \"EPICS and Bluesky\")", 2)
-    return config
+    return config, config.ioc
 
 
 class Ioc:
@@ -97,7 +98,7 @@ class Ioc:
     dispatcher's event loop.
     """
 
-    def __init__(self, config: DaemonConfig, socket_path: Path, first: dict, rules_folder: Path):
+    def __init__(self, config: DaemonConfig, ioc: IocConfig, socket_path: Path, first: dict, rules_folder: Path):
         from softioc import softioc  # noqa: F401  (EPICS base loaded before the records are declared)
 
         from cryod.ioc.access_security import rules_in_force, use_rules
@@ -106,7 +107,7 @@ class Ioc:
         from cryod.ioc.settings import SettingRecords
 
         self.config = config
-        ioc = config.ioc
+        self.ioc = ioc                          # config.ioc
         hello = first.get("hello") or {}
         self.mirror = DaemonMirror(float(hello.get("period_s") or config.loop.period_s),
                                    float(hello.get("cooler_rad_s") or 10.83))
@@ -127,7 +128,7 @@ class Ioc:
 
     def report(self) -> dict:
         """What the IOC says of itself to the daemon (its ``interfaces`` reports)."""
-        return {"pid": os.getpid(), "epics_ioc": self.config.ioc.prefix, "problems": []}
+        return {"pid": os.getpid(), "epics_ioc": self.ioc.prefix, "problems": []}
 
     def _row(self, row: Row) -> None:
         from cryod.ioc.readings import row_values
@@ -182,7 +183,7 @@ def run(config_path: Path | None, socket_path: Path | None) -> int:
                     raise IocError(str(error), 3) from None
                 time.sleep(1.0)
         first = wait_for_daemon(Path(socket_path))
-        config = ioc_configuration(config_path, first.get("hello") or {})
+        config, ioc = ioc_configuration(config_path, first.get("hello") or {})
     except IocError as error:
         print(f"cryod ioc: {error}", file=sys.stderr)
         return error.code
@@ -194,16 +195,16 @@ def run(config_path: Path | None, socket_path: Path | None) -> int:
             print(f"cryod ioc: configuration not usable: {error}", file=sys.stderr)
             return 2
         raise
-    return _serve(config, Path(socket_path), first)
+    return _serve(config, ioc, Path(socket_path), first)
 
 
-def _serve(config: DaemonConfig, socket_path: Path, first: dict) -> int:
+def _serve(config: DaemonConfig, ioc_section: IocConfig, socket_path: Path, first: dict) -> int:
     from softioc import asyncio_dispatcher, builder, softioc
 
     from cryod.ioc.access_security import AccessSecurityError, check_active
 
     with tempfile.TemporaryDirectory(prefix="cryod-ioc-") as folder:
-        ioc = Ioc(config, socket_path, first, Path(folder))
+        ioc = Ioc(config, ioc_section, socket_path, first, Path(folder))
         builder.LoadDatabase()
         dispatcher = asyncio_dispatcher.AsyncioDispatcher()
         softioc.iocInit(dispatcher)
@@ -212,7 +213,7 @@ def _serve(config: DaemonConfig, socket_path: Path, first: dict) -> int:
         except AccessSecurityError as error:
             print(f"cryod ioc: {error}", file=sys.stderr)
             softioc.safeEpicsExit(2)
-        log.info("EPICS IOC of the daemon at %s: PVs %s*, %s", socket_path, config.ioc.prefix, ioc.rules_said)
+        log.info("EPICS IOC of the daemon at %s: PVs %s*, %s", socket_path, ioc_section.prefix, ioc.rules_said)
         asyncio.run_coroutine_threadsafe(ioc.follow(), dispatcher.loop)
         dispatcher.wait_for_quit()
         log.info("EPICS IOC stopped")

@@ -52,7 +52,7 @@ def alarm_text(alarms) -> str:
                      for alarm in alarms)
 
 
-def status_values(status: DaemonStatus, settling: Settling, connected: bool) -> dict[str, object]:
+def status_values(status: DaemonStatus, settling: Settling, connected: bool) -> dict[str, float | str]:
     """The readings updated at each line of the stream (numbers, choice indices, texts)."""
     loop, recent, timing = status.loop, status.recent, status.loop.timing
     state = "lost" if not connected else ("waiting" if status.waiting_for is not None else loop.state)

@@ -12,11 +12,21 @@ time it was taken, not when the IOC passed it on.
 from __future__ import annotations
 
 import math
+from typing import AbstractSet
 
 from softioc import builder
 
-from cryod.ioc.alarm_severity import (INVALID, MAJOR, NO_ALARM, STAT_COMM, STAT_NONE, STAT_STATE, STAT_UDF,
-                                      STATE_SEVERITY, pv_alarms)
+from cryod.ioc.alarm_severity import (
+    INVALID,
+    MAJOR,
+    NO_ALARM,
+    STAT_COMM,
+    STAT_NONE,
+    STAT_STATE,
+    STAT_UDF,
+    STATE_SEVERITY,
+    pv_alarms,
+)
 from cryod.ioc.pv_table import PV, READINGS, STATES
 from cryod.records.columns import Row
 from cryod.service.daemon_status import DaemonStatus
@@ -67,10 +77,10 @@ class ReadingRecords:
         Readings set by other parts of the IOC (MESSAGE, by the puts), stamped with the IOC's clock.
     """
 
-    def __init__(self, prefix: str, constants: dict[str, float], elsewhere: set[str] = frozenset()):
+    def __init__(self, prefix: str, constants: dict[str, float], elsewhere: AbstractSet[str] = frozenset()):
         self.records = {}
         for pv in READINGS:
-            fields = {"TSE": DEVICE_TIME}
+            fields: dict[str, float] = {"TSE": DEVICE_TIME}
             if pv.name in constants:
                 fields = {"initial_value": constants[pv.name]}
             elif pv.name in elsewhere:
@@ -99,7 +109,7 @@ class ReadingRecords:
             self.records[name].set(values[name], severity=severity, alarm=stat, timestamp=stamp)
             self._shown[name] = (values[name], severity, stat)
 
-    def status(self, status: DaemonStatus, settling: Settling, values: dict[str, object]) -> None:
+    def status(self, status: DaemonStatus, settling: Settling, values: dict[str, float | str]) -> None:
         """The status' readings and every reading's alarm, as of the latest row."""
         loop = status.loop
         average = status.recent.flange_average_K if status.recent is not None else math.nan

@@ -31,20 +31,47 @@ Examples
 6.818
 """
 
+from cryod.model.cooler_cycle import CoolerCycle
 from cryod.model.dynamics import CryostatPlant, SimulatedRecord, simulate
 from cryod.model.model_file import (
-    DEFAULT_MODEL_PATH, MODEL_FORMAT, TRANSFER_FUNCTION_UNITS, load_model, load_model_text, model_from_section,
-    model_to_dict, save_model,
+    DEFAULT_MODEL_PATH,
+    MODEL_FORMAT,
+    TRANSFER_FUNCTION_UNITS,
+    load_model,
+    load_model_text,
+    model_from_section,
+    model_to_dict,
+    save_model,
 )
 from cryod.model.parameters import (
-    EFFECT_NAMES, GENERIC_EFFECT_NAMES, CryostatModel, DeadTime, Disturbance, Effects, HeatCapacityTemperature,
-    HeaterNonlinearity, HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, CoolerAmplitudeModulation,
-    CoolerFrequencyDrift, CoolerHarmonic, CoolerSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
+    EFFECT_NAMES,
+    GENERIC_EFFECT_NAMES,
+    CoolerAmplitudeModulation,
+    CoolerFrequencyDrift,
+    CoolerHarmonic,
+    CoolerSource,
+    CryostatModel,
+    DeadTime,
+    Disturbance,
+    Effects,
+    HeatCapacityTemperature,
+    HeaterNonlinearity,
+    HeaterPathCorrection,
+    LinkDynamics,
+    OperatingPoint,
+    Pickup,
+    PtcStageDrift,
+    SensorLag,
+    SensorNoise,
+    SlowProcess,
 )
-from cryod.model.cooler_cycle import CoolerCycle
 from cryod.model.temperature_laws import TemperatureDependence
 from cryod.model.temperature_plant import (
-    TEMPERATURE_MODEL_PATH, TemperatureDependentPlant, cryostat_plant, linearised_at, steady_state,
+    TEMPERATURE_MODEL_PATH,
+    TemperatureDependentPlant,
+    cryostat_plant,
+    linearised_at,
+    steady_state,
 )
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
 from cryod.yaml_source import FileFormatError

@@ -28,11 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cryod.model.parameters import CryostatModel
 from cryod.model.cooler_cycle import CoolerCycle, MeasuredCoolerCycle
 from cryod.model.kept_results import KeptResults, digest
+from cryod.model.parameters import CryostatModel
 from cryod.model.transfer_function import TransferFunction
-
 
 #: The last phase terms made (the cycle's frequency, each component's ``exp(j (order theta + phase))``), by the
 #: cycle, the instants and the components' orders and phases: every simulation of a record has a drive of its own,
@@ -130,7 +129,7 @@ class CoolerPath:
         self.input_is_heat = input_is_heat
         self._components_and_rotations = [(c, cmath.exp(1j * c.phase_rad)) for c in drive.components]
         self._cache_key: tuple[float, float] | None = None
-        self._cache: list[complex] = []
+        self._cache: list[tuple[int, complex]] = []
         self._window_key: tuple[float, float, float] | None = None
         self._window: list[tuple] = []
 

@@ -40,10 +40,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cryod.model.cooler_path import CoolerDrive, CoolerPath
 from cryod.model.heater_path import HeaterPath
 from cryod.model.kept_results import KeptResults, digest
-from cryod.model.parameters import CryostatModel
-from cryod.model.cooler_path import CoolerDrive, CoolerPath
+from cryod.model.parameters import CryostatModel, HeatCapacityTemperature
 from cryod.model.transfer_function import TransferFunction
 
 
@@ -362,7 +362,7 @@ def _simulate_whole(plant: CryostatPlant, time_s: np.ndarray, heater_power_w: np
     if plant.heat_capacity is None:
         flange_heater = _path_at_samples(plant.flange_heater, held)
     else:
-        outputs = _run_time_scaled(plant, held)
+        outputs = _run_time_scaled(plant, held, plant.heat_capacity)
         flange_heater = outputs if held.sample_positions is None else outputs[held.sample_positions]
     elapsed = _ELAPSED.get_or_make(digest("elapsed", record_key, plant.start_time_s),
                                    lambda: time_s - plant.start_time_s)
@@ -465,8 +465,9 @@ def _sorted_union(first: np.ndarray, second: np.ndarray) -> np.ndarray:
 _TIME_SCALED_RUNS = KeptResults(4)
 
 
-def _run_time_scaled(plant: CryostatPlant, held: _HeldInputs) -> np.ndarray:
-    """Flange heater path at the grid instants, time constants scaled per interval (fixed point).
+def _run_time_scaled(plant: CryostatPlant, held: _HeldInputs, heat_capacity: HeatCapacityTemperature) -> np.ndarray:
+    """Flange heater path at the grid instants, time constants scaled per interval (fixed point), with the
+    plant's heat-capacity effect ``heat_capacity``.
 
     The result is the same for the same path, state, inputs and effect; it is
     kept (read-only) for the next call that asks for it, and the path is left
@@ -474,8 +475,8 @@ def _run_time_scaled(plant: CryostatPlant, held: _HeldInputs) -> np.ndarray:
     """
     path = plant.flange_heater
     key = digest(held.key, path.poles, path.residues, path.state, path.direct, path.input,
-                 plant.model.operating_point.flange_temperature_K, plant.heat_capacity.exponent,
-                 plant.heat_capacity.reference_temperature_K)
+                 plant.model.operating_point.flange_temperature_K, heat_capacity.exponent,
+                 heat_capacity.reference_temperature_K)
 
     def made():
         outputs = _fixed_point(plant, held.grid, held.inputs)

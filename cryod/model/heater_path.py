@@ -25,15 +25,21 @@ from __future__ import annotations
 
 import cmath
 import math
+from typing import Callable
 
 import numpy as np
 
 from cryod.model.kept_results import KeptResults, digest
 from cryod.model.transfer_function import TransferFunction
 
-
 #: Step lengths whose hold coefficients a path keeps (all forgotten when one more comes).
 HOLD_STEPS_KEPT = 64
+
+
+def _exponential(all_real: bool) -> Callable[[complex], complex]:
+    """The exponential for a path's poles: math's when they are all real (held as floats), else cmath's."""
+    # math.exp takes no complex: the poles are floats whenever all_real, which their declared type (complex) cannot say
+    return math.exp if all_real else cmath.exp  # type: ignore[return-value]
 
 
 class HeaterPath:
@@ -49,6 +55,9 @@ class HeaterPath:
         form = transfer_function.modal_form()
         self.transfer_function = transfer_function
         self.all_real = bool(np.all(form.poles.imag == 0.0))
+        # real poles as floats: the hold and the mean then run on math's real functions, not cmath's
+        self.poles: list[complex]
+        self.residues: list[complex]
         if self.all_real:
             self.poles = [float(p.real) for p in form.poles]
             self.residues = [float(r.real) for r in form.residues]
@@ -79,7 +88,7 @@ class HeaterPath:
         key = (duration_s, time_scale)
         coefficients = self._hold_coefficients.get(key)
         if coefficients is None:
-            exp = math.exp if self.all_real else cmath.exp
+            exp = _exponential(self.all_real)
             decay = [exp(pole * duration_s / time_scale) for pole in self.poles]
             coefficients = [(a, (a - 1.0) / pole) for a, pole in zip(decay, self.poles)]
             if len(self._hold_coefficients) >= HOLD_STEPS_KEPT:
@@ -92,7 +101,7 @@ class HeaterPath:
 
     def output(self) -> float:
         """Output now (the input's direct part uses the input in effect)."""
-        total = self.direct * self.input
+        total: complex = self.direct * self.input
         for residue, z in zip(self.residues, self.state):
             total += residue * z
         return total.real if isinstance(total, complex) else total
@@ -114,7 +123,7 @@ class HeaterPath:
         ((a - 1) / rate - duration) / pole, a = exp(rate duration); kept while the window stays the same."""
         key = (duration_s, time_scale)
         if key != self._window_key:
-            exp = math.exp if self.all_real else cmath.exp
+            exp = _exponential(self.all_real)
             state_gains, input_gains = [], []
             for pole in self.poles:
                 rate = pole / time_scale

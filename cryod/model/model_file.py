@@ -19,13 +19,30 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import yaml
 
 from cryod.model.parameters import (
-    PICKUP_THERMOMETERS, CryostatModel, DeadTime, Disturbance, Effects, HeatCapacityTemperature, HeaterNonlinearity,
-    HeaterPathCorrection, LinkDynamics, OperatingPoint, Pickup, CoolerAmplitudeModulation, CoolerFrequencyDrift,
-    CoolerHarmonic, CoolerSource, PtcStageDrift, SensorLag, SensorNoise, SlowProcess,
+    PICKUP_THERMOMETERS,
+    CoolerAmplitudeModulation,
+    CoolerFrequencyDrift,
+    CoolerHarmonic,
+    CoolerSource,
+    CryostatModel,
+    DeadTime,
+    Disturbance,
+    Effects,
+    HeatCapacityTemperature,
+    HeaterNonlinearity,
+    HeaterPathCorrection,
+    LinkDynamics,
+    OperatingPoint,
+    Pickup,
+    PtcStageDrift,
+    SensorLag,
+    SensorNoise,
+    SlowProcess,
 )
 from cryod.model.temperature_laws import TemperatureDependence
 from cryod.model.transfer_function import TransferFunction, TransferFunctionError
@@ -90,7 +107,9 @@ def model_from_section(top: Section) -> CryostatModel:
     point.finish()
 
     functions = top.section("transfer_functions")
-    loaded = {key: _transfer_function(functions, key, units) for key, units in TRANSFER_FUNCTION_UNITS.items()}
+    # CryostatModel's keyword arguments, one for each key of TRANSFER_FUNCTION_UNITS
+    loaded: dict[str, Any] = {key: _transfer_function(functions, key, units)
+                              for key, units in TRANSFER_FUNCTION_UNITS.items()}
     functions.finish()
 
     ptc = _ptc_source(top.section("ptc"))
@@ -279,7 +298,7 @@ def _effects(section: Section) -> Effects:
                "ptc_frequency_drift": _ptc_frequency_drift, "ptc_amplitude_modulation": _ptc_amplitude_modulation,
                "ptc_stage_drift": _ptc_stage_drift, "heater_path_correction": _heater_path_correction,
                "disturbance": _disturbance}
-    found = {}
+    found: dict[str, Any] = {}           # Effects' keyword arguments, by effect name
     for name, read in readers.items():
         part = section.section(name, None)
         if part is not None:
@@ -294,7 +313,7 @@ DISTURBANCE_PROCESSES = (("unrecorded_heat", "W"), ("flange_offset", "K"), ("ptc
 
 
 def _disturbance(section: Section) -> Disturbance:
-    processes = {}
+    processes: dict[str, Any] = {}       # Disturbance's keyword arguments, by process key
     for key, unit in DISTURBANCE_PROCESSES:
         process = section.section(key, None)
         if process is not None:
@@ -315,7 +334,7 @@ def _disturbance(section: Section) -> Disturbance:
 
 
 def _disturbance_dict(disturbance: Disturbance) -> dict:
-    data = {}
+    data: dict[str, Any] = {}
     for key, unit in DISTURBANCE_PROCESSES:
         process = getattr(disturbance, key)
         if process is not None:
@@ -347,7 +366,7 @@ def model_to_dict(model: CryostatModel) -> dict:
         key: {**getattr(model, key).to_dict(), "units": units}
         for key, units in TRANSFER_FUNCTION_UNITS.items()
     }
-    ptc = {
+    ptc: dict[str, Any] = {
         "angular_frequency_rad_s": model.ptc.angular_frequency_rad_s,
         "ptc_stage_amplitude_K": model.ptc.ptc_stage_amplitude_K,
         "phase_rad": model.ptc.phase_rad,
@@ -356,7 +375,7 @@ def model_to_dict(model: CryostatModel) -> dict:
     if model.ptc.harmonics:
         ptc["harmonics"] = [dataclasses.asdict(h) for h in model.ptc.harmonics]
     data["ptc"] = ptc
-    effects = {name: _disturbance_dict(model.effects.disturbance) if name == "disturbance"
+    effects = {name: _disturbance_dict(getattr(model.effects, name)) if name == "disturbance"
                else _plain_effect(getattr(model.effects, name)) for name in model.effects.present()}
     if effects:
         data["effects"] = effects

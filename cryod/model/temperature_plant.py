@@ -55,6 +55,8 @@ def link_transfer_function(model: CryostatModel) -> TransferFunction:
     """L = G2 (G1 - U'(T5_0) G3): heater power to the flange's conduction potential above what the stage's
     warming gives it (K/W)."""
     laws = model.temperature_dependence
+    if laws is None:
+        raise ValueError("the model has no temperature_dependence section")
     point = model.operating_point
     weight = float(laws.conductance_ratio(point.ptc_stage_temperature_K, point.flange_temperature_K))
     return model.flange_to_thermometer * (model.heater_to_flange - weight * model.heater_to_ptc_stage)
@@ -219,6 +221,8 @@ def linearised_at(model: CryostatModel, flange_temperature_K: float) -> Cryostat
         A linear model (no ``temperature_dependence``), usable as a controller's model.
     """
     laws = model.temperature_dependence
+    if laws is None:
+        raise ValueError("the model has no temperature_dependence section")
     point = model.operating_point
     power_w, stage_K = steady_state(model, flange_temperature_K)
     scale = float(laws.flange_time_scale(flange_temperature_K, point.flange_temperature_K))

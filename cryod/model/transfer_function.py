@@ -152,8 +152,8 @@ class TransferFunction:
         return complex(value) if np.ndim(value) == 0 else value
 
     # -- algebra ------------------------------------------------------------
-    def __mul__(self, other: "TransferFunction") -> "TransferFunction":
-        """Series connection ``self * other``."""
+    def __mul__(self, other: "TransferFunction | float") -> "TransferFunction":
+        """Series connection ``self * other``; a number scales the gain."""
         if isinstance(other, (int, float)):
             return TransferFunction(tuple(float(other) * c for c in self.numerator), self.denominator)
         return TransferFunction(
@@ -216,8 +216,8 @@ class TransferFunction:
     @functools.cached_property
     def _modal_form(self) -> ModalForm:
         lead = self.denominator[0]
-        denominator = np.asarray(self.denominator) / lead
-        numerator = np.asarray(self.numerator) / lead
+        denominator: np.ndarray = np.asarray(self.denominator) / lead
+        numerator: np.ndarray = np.asarray(self.numerator) / lead
         direct = 0.0
         if len(numerator) == len(denominator):
             direct = float(numerator[0])

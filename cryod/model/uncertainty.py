@@ -44,7 +44,7 @@ import dataclasses
 import math
 import re
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
@@ -211,8 +211,8 @@ def terms_of(values: dict[str, float], path: str) -> list[tuple[float, float]]:
 
 def sum_of_lags(terms: list[tuple[float, float]]) -> TransferFunction:
     """``sum_i g_i / (tau_i s + 1)`` as one rational transfer function."""
-    numerator = np.zeros(1)
-    denominator = np.ones(1)
+    numerator: np.ndarray = np.zeros(1)
+    denominator: np.ndarray = np.ones(1)
     for tau, gain in terms:
         lag = np.array([tau, 1.0])
         numerator = np.polyadd(np.polymul(numerator, lag), gain * denominator)
@@ -280,8 +280,9 @@ def apply_parameters(model: "CryostatModel", values: dict[str, float]) -> "Cryos
             flange_temperature_K=values.get("operating_point.flange_temperature_K", point.flange_temperature_K),
             ptc_stage_temperature_K=values.get("operating_point.ptc_stage_temperature_K",
                                                point.ptc_stage_temperature_K))
-    ptc_changes = {key: values[f"ptc.{key}"] for key in ("angular_frequency_rad_s", "ptc_stage_amplitude_K",
-                                                          "phase_rad") if f"ptc.{key}" in values}
+    ptc_changes: dict[str, Any] = {key: values[f"ptc.{key}"]
+                                   for key in ("angular_frequency_rad_s", "ptc_stage_amplitude_K", "phase_rad")
+                                   if f"ptc.{key}" in values}
     if ptc_changes:
         changes["ptc"] = dataclasses.replace(model.ptc, **ptc_changes)
     flange_terms = terms_of(values, "heater_to_thermometer")

@@ -36,7 +36,7 @@ PARTIAL = ".gz.partial"
 def finished_day(name: str, today: str) -> bool:
     """True for a daily record's file name (``cryod-YYYY-MM-DD[.N].csv``) of a day before ``today``."""
     match = _DAILY.fullmatch(name)
-    return bool(match) and match.group(1) < today
+    return match is not None and match.group(1) < today
 
 
 def where_now(path: Path) -> Path:

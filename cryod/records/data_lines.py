@@ -33,8 +33,14 @@ from typing import Callable, Collection, Iterator
 
 import numpy as np
 
-from cryod.records.bounds import (MAX_DATA_LINE_CHARACTERS, MAX_EVENT_CHARACTERS, MAX_LINES, MAX_TEXT_CHARACTERS,
-                                  NOT_A_RECORD, size_text)
+from cryod.records.bounds import (
+    MAX_DATA_LINE_CHARACTERS,
+    MAX_EVENT_CHARACTERS,
+    MAX_LINES,
+    MAX_TEXT_CHARACTERS,
+    NOT_A_RECORD,
+    size_text,
+)
 from cryod.records.columns import REQUIRED
 
 #: Lines converted at a time: about 300 kB of daemon text, 4 MB while split into fields.
@@ -249,7 +255,8 @@ class _Bounds:
 def _sort_lines(chunk: list[str], line_number: int, count: int, rows: int, events: list, warnings: list):
     """The chunk's data lines (newline taken off) and their line numbers; events and a cut-short
     last line go to ``events`` and ``warnings``, blank lines nowhere."""
-    data, data_lines = [], []
+    data: list[str] = []
+    data_lines: list[int] = []
     for offset, line in enumerate(chunk):
         number = line_number + offset
         terminated = line.endswith("\n")
@@ -284,6 +291,7 @@ def _convert(fields: list[str], count: int, selected, texts) -> dict[str, np.nda
         values, bad = _numbers(strings)
         if bad is not None:
             raise _NotANumber(name, bad, strings[bad].strip())
+        assert values is not None           # _numbers gives the array whenever every field is a number
         converted[name] = values
     return converted
 

@@ -306,28 +306,30 @@ class DataLog:
         if self._file is None or not self._pending:
             return
         self._look_at_file(at_path=False)
-        if self._file is None:
+        record_file = self._file
+        if record_file is None:
             self._left_out += [item.time_s for item in self._pending if isinstance(item, Row)]
             self._pending = [item for item in self._pending if isinstance(item, Event)]
             return
         items, self._pending = self._pending, []
-        data = self._text(items)
+        data = self._text(items, record_file)
         try:
-            self._file.write(data)
+            record_file.write(data)
         except OSError as error:            # nothing of it is in the file: the events are tried again
             self.error = error
             self._left_out += [item.time_s for item in items if isinstance(item, Row)]
             self._pending[:0] = [item for item in items if isinstance(item, Event)]
-            self._fail(f"writing {self._file.path} failed: {error.strerror or error}")
+            self._fail(f"writing {record_file.path} failed: {error.strerror or error}")
             return
         self._dirty = True
         self._last_written = items
-        self._hold_room()
+        self._hold_room(record_file)
 
-    def _text(self, items: list[Row | Event]) -> bytes:
-        """The lines of ``items``; once the log has failed, rows only while the space held keeps
-        :data:`EVENT_ROOM_BYTES` for the events, and an event about the rows left out before the next event."""
-        room = self._file.room_held if self.failure is not None else None
+    def _text(self, items: list[Row | Event], record_file: RecordFile) -> bytes:
+        """The lines of ``items`` for ``record_file``; once the log has failed, rows only while the space held
+        keeps :data:`EVENT_ROOM_BYTES` for the events, and an event about the rows left out before the next
+        event."""
+        room = record_file.room_held if self.failure is not None else None
         lines, used = [], 0
         for item in items:
             if isinstance(item, Event):
@@ -349,13 +351,14 @@ class DataLog:
         return Event("disk", f"{count} row(s) from clock time {first:.4f} s to {last:.4f} s could not be written "
                              f"({self.failure or 'no file to write them to'})")
 
-    def _hold_room(self) -> None:
-        """Take the space held ahead again once half of it is used; no room for it is a failure."""
-        room = self._file.room_held
+    def _hold_room(self, record_file: RecordFile) -> None:
+        """Take the space held ahead in ``record_file`` again once half of it is used; no room for it is a
+        failure."""
+        room = record_file.room_held
         if room is None or room >= RESERVE_BYTES // 2:
             return
         try:
-            self._file.reserve()
+            record_file.reserve()
         except OSError as error:
             self._fail(f"the disk of {self.directory} is full ({error.strerror or error}): no room left to "
                        f"hold for the record")
@@ -371,10 +374,10 @@ class DataLog:
         """Start the day's file (the one before is closed)."""
         self._close()
         self._day = day
-        self._file = self._new_file(day)
-        if self._file is None:
+        record_file = self._file = self._new_file(day)
+        if record_file is None:
             return
-        self._start_file(origin_s, start_wall_s)
+        self._start_file(record_file, origin_s, start_wall_s)
         if self.compress_finished:
             running = self._compressing if self._compressing is not None and self._compressing.is_alive() else None
             self._compressing = compress_in_background(self.directory, day, after=running)
@@ -398,42 +401,45 @@ class DataLog:
                            f"takes no new file ({error.strerror or error})"))
                 return None
 
-    def _start_file(self, origin_s: float, start_wall_s: float | None = None) -> None:
-        """Write the header of the new file, hold room after it, and check the free space."""
+    def _start_file(self, record_file: RecordFile, origin_s: float, start_wall_s: float | None = None) -> None:
+        """Write the header of the new file ``record_file``, hold room after it, and check the free space."""
         self._origin_s = origin_s
         start_wall_s = self.monotonic_to_wall(origin_s) if start_wall_s is None else start_wall_s
         header = {"record_start_utc": _utc_text(start_wall_s), **self.metadata}
         try:
-            self._file.write(format_header(header, self.schema.names).encode("utf-8"))
-            self._file.sync()
-            self._file.reserve()
+            record_file.write(format_header(header, self.schema.names).encode("utf-8"))
+            record_file.sync()
+            record_file.reserve()
         except OSError as error:
             self.error = error
-            self._fail(f"starting {self._file.path} failed: {error.strerror or error}")
+            self._fail(f"starting {record_file.path} failed: {error.strerror or error}")
         self._last_fsync = time.monotonic()
         self._last_written = []
-        self.paths.append(self._file.path)
-        log.info("data log: writing %s", self._file.path.absolute())
+        self.paths.append(record_file.path)
+        log.info("data log: writing %s", record_file.path.absolute())
         self.check_free_space()
 
     def _look_at_file(self, at_path: bool) -> None:
         """Find what others did to the file; a file deleted, moved, replaced or written by someone else is
         left for a new one."""
-        if self._file is None:
+        record_file = self._file
+        if record_file is None:
             return
         try:
-            problem = self._file.check(at_path and not self._moved)
+            problem = record_file.check(at_path and not self._moved)
         except OSError as error:
             problem = f"out of reach ({error.strerror or error})"
         if problem is not None:
-            self._go_on_in_new_file(problem)
+            self._go_on_in_new_file(record_file, problem)
 
-    def _go_on_in_new_file(self, problem: str) -> None:
-        old = self._file
+    def _go_on_in_new_file(self, old: RecordFile, problem: str) -> None:
+        """Leave ``old``, the file being written, for a new one of the same day."""
         kept = old.still_ours
         again = [] if kept else self._last_written        # rows only the deleted or overwritten file had
-        self._file = self._new_file(self._day)
-        if self._file is None:
+        day = self._day
+        assert day is not None          # _open names the day before it opens the day's first file
+        new_file = self._file = self._new_file(day)
+        if new_file is None:
             if kept:                   # moved with its directory: the last rows and the stop still go in
                 self._file, self._moved = old, True
                 return
@@ -443,13 +449,13 @@ class DataLog:
         if kept:
             try:
                 old.write(_event_line(Event("disk", f"this file was {problem}; the record goes on in "
-                                                    f"{self._file.path.name}")).encode("utf-8"))
+                                                    f"{new_file.path.name}")).encode("utf-8"))
             except OSError:
                 pass
         self._close_file(old)
         rows = [item.time_s for item in again + self._pending if isinstance(item, Row)]
         origin = rows[0] - self.period_s if rows else (self._last_row_s or self._origin_s)
-        self._start_file(origin)
+        self._start_file(new_file, origin)
         repeated = sum(isinstance(item, Row) for item in again)
         text = (f"the record's file {old.path} was {problem}; it goes on in this file, time_s counted from "
                 f"this file's start" + (f", beginning with the {repeated} row(s) written into that file after "
@@ -534,12 +540,13 @@ class DataLog:
         return str(self._file.path) if self._file is not None else str(self.directory)
 
     def _sync_if_due(self, force: bool = False) -> None:
-        if self._file is None or not self._dirty:
+        record_file = self._file
+        if record_file is None or not self._dirty:
             return
         if force or time.monotonic() - self._last_fsync >= self.fsync_interval_s:
-            self._sync()
+            self._sync(record_file)
 
-    def _sync(self) -> None:
-        self._file.sync()
+    def _sync(self, record_file: RecordFile) -> None:
+        record_file.sync()
         self._last_fsync = time.monotonic()
         self._dirty = False

@@ -101,7 +101,7 @@ def regulation_metrics(time_s, flange_K, ptc_stage_K, setpoint_K, nominal_line_r
         result["mean_error_K"] = float(np.mean(error))
         result["rms_K"] = float(np.sqrt(np.mean(error ** 2)))
         sample_rate = 1.0 / float(np.median(np.diff(time_s[regulated])))
-        from scipy import signal        # here: scipy.signal takes a second to import, and only this needs it
+        from scipy import signal  # here: scipy.signal takes a second to import, and only this needs it
 
         sos = signal.butter(4, LOW_FREQUENCY_HZ, btype="low", fs=sample_rate, output="sos")
         if error.size > 3 * 2 * sos.shape[0] + 1:

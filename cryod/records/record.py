@@ -38,8 +38,16 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from cryod.records.bounds import (MAX_COLUMNS, MAX_DATA_LINE_CHARACTERS, MAX_HEADER_CHARACTERS,
-                                  MAX_HEADER_LINE_CHARACTERS, MAX_LINES, MAX_TEXT_CHARACTERS, NOT_A_RECORD, size_text)
+from cryod.records.bounds import (
+    MAX_COLUMNS,
+    MAX_DATA_LINE_CHARACTERS,
+    MAX_HEADER_CHARACTERS,
+    MAX_HEADER_LINE_CHARACTERS,
+    MAX_LINES,
+    MAX_TEXT_CHARACTERS,
+    NOT_A_RECORD,
+    size_text,
+)
 from cryod.records.columns import REQUIRED, format_field
 from cryod.records.data_lines import DataLineError, read_data_lines
 from cryod.regular_files import NotARegularFile, open_regular_file, regular_file_status
@@ -165,7 +173,7 @@ def read_record(path: str | Path, columns: Iterable[str] | None = None) -> Recor
         raise RecordFormatError(source, None, "file not found") from None
     except OSError as error:
         raise RecordFormatError(source, None, f"cannot read: {error}") from None
-    if path.suffix != ".gz" and size > MAX_TEXT_CHARACTERS:
+    if path.suffix != ".gz" and size is not None and size > MAX_TEXT_CHARACTERS:   # known unless compressed
         raise RecordFormatError(source, None, f"{size / 1e9:.1f} GB, more than the {size_text(MAX_TEXT_CHARACTERS)} "
                                               f"a record may have ({NOT_A_RECORD})")
     lines = _FileLines(path)

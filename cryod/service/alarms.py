@@ -156,12 +156,14 @@ class AlarmMonitor:
 
     def _apply_config(self) -> list[Transition]:
         config, self._new_config = self._new_config, None
+        if config is None:                  # taken already
+            return []
         changes = self.board.reconfigure(config, self._time_s)
         self._published = tuple(self.board.alarms())
         return changes
 
     def _acknowledgements(self) -> list[Transition]:
-        changes = []
+        changes: list[Transition] = []
         while self._requests:
             command = self._requests.popleft()
             if not command.take():          # its client stopped waiting: never carried out

@@ -50,7 +50,7 @@ class SnapshotAnswer:
 class AnswerWords:
     """The thread that puts snapshots in words (started at the first, at normal priority)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._executor: ThreadPoolExecutor | None = None
 
     def put(self, answer: SnapshotAnswer) -> Future:

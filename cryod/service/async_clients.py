@@ -34,6 +34,14 @@ from cryod.service.commands import TAKEN_ANSWER_WAIT_S, Command, no_answer
 log = logging.getLogger("cryod.clients")
 
 
+def _connection_task() -> asyncio.Task:
+    """The running task: a connection's (the book is kept from its clients' tasks)."""
+    task = asyncio.current_task()
+    if task is None:
+        raise RuntimeError("the connection book is kept from a client's task")
+    return task
+
+
 class ConnectionBook:
     """Which connections (their asyncio tasks) are open, and which of them still wait for their request.
 
@@ -68,7 +76,7 @@ class ConnectionBook:
         str
             :attr:`TAKEN`, :attr:`RESERVED` or :attr:`FULL` (the caller refuses it at once).
         """
-        task = asyncio.current_task()
+        task = _connection_task()
         self.open += 1
         self.most_seen = max(self.most_seen, self.open)
         live = self.open - len(self._evicted)
@@ -85,7 +93,7 @@ class ConnectionBook:
 
     def request_received(self) -> None:
         """The running task's connection has sent its request: it is no longer closed for room."""
-        self._waiting.pop(asyncio.current_task(), None)
+        self._waiting.pop(_connection_task(), None)
 
     def closed_for_room_now(self) -> bool:
         """Whether the running task was cancelled to make room (rather than because the server stops)."""
@@ -93,7 +101,7 @@ class ConnectionBook:
 
     def left(self) -> None:
         """The running task's connection is closed."""
-        task = asyncio.current_task()
+        task = _connection_task()
         self._waiting.pop(task, None)
         self._evicted.discard(task)
         self.open -= 1
@@ -122,10 +130,10 @@ class ClientsThread:
 
     def start(self, listener: socket.socket) -> None:
         """Serve from a thread of its own; OSError when serving could not start."""
-        self._event_loop = asyncio.new_event_loop()
+        event_loop = self._event_loop = asyncio.new_event_loop()
         ready = threading.Event()
         self.failure = None
-        self._thread = threading.Thread(target=self._run, args=(listener, ready),
+        self._thread = threading.Thread(target=self._run, args=(event_loop, listener, ready),
                                         name=f"cryod-{self.what.split()[0]}", daemon=True)
         self._thread.start()
         ready.wait(10.0)
@@ -133,16 +141,16 @@ class ClientsThread:
             self.stop()
             raise OSError(f"{self.what} could not be served: {self.failure}")
 
-    def _run(self, listener: socket.socket, ready: threading.Event) -> None:
-        asyncio.set_event_loop(self._event_loop)
+    def _run(self, event_loop: asyncio.AbstractEventLoop, listener: socket.socket, ready: threading.Event) -> None:
+        asyncio.set_event_loop(event_loop)
         try:
-            self._event_loop.run_until_complete(self._serve(listener, ready))
+            event_loop.run_until_complete(self._serve(listener, ready))
         except Exception as error:              # said by start(), or in the journal once serving
             self.failure = f"{type(error).__name__}: {error}"
             log.error("%s stopped: %s", self.what, self.failure)
         finally:
             ready.set()
-            self._event_loop.close()
+            event_loop.close()
 
     async def _serve(self, listener: socket.socket, ready: threading.Event) -> None:
         self._stopping = asyncio.get_running_loop().create_future()
@@ -159,10 +167,11 @@ class ClientsThread:
 
     def stop(self) -> None:
         """Stop serving: each client's task is cancelled (it tells its client) and the listener closed."""
-        if self._thread is None:
+        event_loop = self._event_loop
+        if self._thread is None or event_loop is None:
             return
         try:
-            self._event_loop.call_soon_threadsafe(resolve, self._stopping)
+            event_loop.call_soon_threadsafe(resolve, self._stopping)
         except RuntimeError:                    # the event loop has already ended
             pass
         self._thread.join(5.0)

@@ -22,7 +22,7 @@ from __future__ import annotations
 import re
 import threading
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from cryod.argument_types import plain_decimal, shown
 from cryod.control.ramp import MIN_RATE_K_PER_MIN, rate_refusal
@@ -61,7 +61,7 @@ class Command:
     """
 
     name: str
-    value: object = None
+    value: Any = None           # what its CommandSpec's parse gave
     done: threading.Event = field(default_factory=threading.Event)
     ok: bool = False
     message: str = ""
@@ -187,10 +187,11 @@ def _modulate(loop: "ControlLoop", value) -> str:
 
 
 def _feedforward(loop: "ControlLoop", value: str) -> str | SnapshotAnswer:
-    from cryod.control.feedforward.status_text import status_text     # numpy: not for cryod ctl's import
+    from cryod.control.feedforward.status_text import status_text  # numpy: not for cryod ctl's import
+    from cryod.control.feedforward.term import FeedforwardTerm
 
     term = loop.regulator.term("feedforward")
-    if term is None:
+    if not isinstance(term, FeedforwardTerm):
         raise CommandRefused("this daemon has no feedforward term")
     if value in ("on", "off"):
         term.switch(value == "on")
@@ -275,7 +276,7 @@ class CommandSpec:
     name: str
     argument: str | None
     help: str
-    apply: Callable[["ControlLoop", object], str | SnapshotAnswer] | None
+    apply: Callable[["ControlLoop", Any], str | SnapshotAnswer] | None      # takes what parse gives
     from_socket: bool = True
     parse: Callable[[str], object] = plain_decimal
     word_counts: tuple[int, ...] | None = None

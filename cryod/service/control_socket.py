@@ -42,8 +42,8 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from cryod.service.commands import Command, parse_command, wait_for
 from cryod.service.async_clients import ClientsThread, ConnectionBook, loop_answer
+from cryod.service.commands import Command, parse_command, wait_for
 from cryod.service.stream import StreamHub, finite_or_none
 
 log = logging.getLogger("cryod.control")
@@ -224,9 +224,10 @@ class ControlSocketServer:
                 if reserved and words[:1] != [RESERVED_FOR]:
                     reply = self._busy(open_now)
                 elif words[:1] == ["subscribe"]:
-                    reply = await self._subscribe(reader, writer, sender, words[1:])
-                    if reply is None:           # served until it ended
+                    subscribed = await self._subscribe(reader, writer, sender, words[1:])
+                    if subscribed is None:      # served until it ended
                         return
+                    reply = subscribed
                 else:
                     reply = await self._reply_to_line(text, sender)
             await self._send(writer, reply)

@@ -39,10 +39,11 @@ from cryod import __version__
 from cryod.config import DaemonConfig, load_config, located_error
 from cryod.control.setpoint_reach import controller_model
 from cryod.instrument_waits import InstrumentWaits
-from cryod.records.datalog import DataLog
 from cryod.records.columns import Event, RowSchema
+from cryod.records.datalog import DataLog
 from cryod.service.alarms import AlarmMonitor
 from cryod.service.commands import Command, wait_for
+from cryod.service.control_socket import ControlSocketServer
 from cryod.service.daemon_status import DaemonStatus, status_json
 from cryod.service.faults import ExitCode, Fault, FaultCause
 from cryod.service.heater_guard import HeaterGuard
@@ -50,15 +51,19 @@ from cryod.service.instance_lock import AlreadyRunning, InstanceLock, Instrument
 from cryod.service.interfaces_process import InterfacesProcess, interface_settings
 from cryod.service.lakeshore336 import Lakeshore336Setup
 from cryod.service.live_view import LiveView
-from cryod.service.stream import StreamHub, StreamTap
 from cryod.service.loop import ControlLoop, Instruments, daemon_schema
-from cryod.service.reading_watchdog import ReadingWatchdog
-from cryod.service.realtime import RealtimeSession
-from cryod.service.control_socket import ControlSocketServer
 from cryod.service.notes import write_note
 from cryod.service.notify import SystemdNotifier
-from cryod.service.stop_signals import (REQUESTED_STOP_SIGNALS, SignalWatch, exit_code_for,
-                                        install_thread_exception_hook, signal_received)
+from cryod.service.reading_watchdog import ReadingWatchdog
+from cryod.service.realtime import RealtimeSession
+from cryod.service.stop_signals import (
+    REQUESTED_STOP_SIGNALS,
+    SignalWatch,
+    exit_code_for,
+    install_thread_exception_hook,
+    signal_received,
+)
+from cryod.service.stream import StreamHub, StreamTap
 from cryod.yaml_source import FileFormatError
 from drivers.clock import Clock
 from drivers.errors import IdentityMismatch, InstrumentError
@@ -245,19 +250,27 @@ class Daemon:
         message = (f"{reason}; the loop did not stop within {grace_s:.3g} s: "
                    + ("heater switched off from outside the loop" if problem is None else problem))
         log.critical("%s", message)
-        self.datalog.put(Event("stopping", message))
+        self._data_log.put(Event("stopping", message))
         if self._loop_done.wait(grace_s):
             return
         log.critical("the loop thread is stuck: ending the process with the heater %s (exit %d)",
                      "off" if problem is None else "UNKNOWN", exit_code)
-        self.datalog.put(Event("stop", f"{cause}: {reason}; the loop thread was stuck, the process was ended "
+        self._data_log.put(Event("stop", f"{cause}: {reason}; the loop thread was stuck, the process was ended "
                                        f"from outside it with the heater {'off' if problem is None else 'UNKNOWN'} "
                                        f"(exit {int(exit_code)})"))
-        self.datalog.stop(timeout_s=2.0)
+        self._data_log.stop(timeout_s=2.0)
         self.notifier.stopping(message)
         time.sleep(0.2)                 # the journal's writer thread empties its queue
         sys.stderr.flush()
         os._exit(int(exit_code))
+
+    @property
+    def _data_log(self) -> DataLog:
+        """The data log, made as :meth:`run` starts (what writes to it runs after)."""
+        datalog = self.datalog
+        if datalog is None:
+            raise RuntimeError("the data log is made as the run starts")
+        return datalog
 
     def _on_reload_signal(self) -> None:
         self._reload_wanted = True
@@ -272,7 +285,7 @@ class Daemon:
 
     def _data_log_stop(self) -> int:
         """Before the instruments are touched: no data log, no regulation."""
-        self._stop_event(f"data_log_failed: {self.datalog.failure}", ExitCode.DATA_LOG_FAILED)
+        self._stop_event(f"data_log_failed: {self._data_log.failure}", ExitCode.DATA_LOG_FAILED)
         return ExitCode.DATA_LOG_FAILED
 
     # -- service thread: STATUS about once a second, reloads --------------------
@@ -357,7 +370,7 @@ class Daemon:
 
     def _put_note(self, event: Event) -> None:
         """A note into the record and the stream (the web page's events), from the socket's thread."""
-        self.datalog.put(event)
+        self._data_log.put(event)
         self.stream_tap(event)
 
     def record_path(self) -> str | None:
@@ -451,7 +464,7 @@ class Daemon:
         signals = SignalWatch(self._on_stop_signal, self._on_reload_signal, self._on_signal_seen) \
             if self.install_signal_handlers else None
         restore_exception_hook = None
-        exit_code = ExitCode.OK
+        exit_code: int = ExitCode.OK
         try:
             clock_start = self.clock.now()
             wall_start = self.clock.wall_start_s if self.clock.wall_start_s is not None else time.time()
@@ -486,7 +499,7 @@ class Daemon:
             else:
                 opened_instruments, flange_curve, stage_curve = opened
                 instruments = self._guard = HeaterGuard(opened_instruments)
-                taps = [self.datalog.put, self.live_view, self.stream_tap, *self.row_taps]
+                taps: list[Callable] = [self.datalog.put, self.live_view, self.stream_tap, *self.row_taps]
                 emit = _fan_out([*taps, self.alarms])      # the alarms last: their events follow the row
                 self.alarms.attach(emit)
                 self.loop = ControlLoop(config, instruments, flange_curve, stage_curve, self.clock,
@@ -600,7 +613,7 @@ class Daemon:
         pause, attempt = 1.0, 0
         while True:
             attempt += 1
-            if self.datalog.failure is not None:
+            if self._data_log.failure is not None:
                 return self._data_log_stop()
             try:
                 return self.open_instruments(config, self.clock)
@@ -619,7 +632,7 @@ class Daemon:
                 self._waiting = f"waiting for the instruments (attempt {attempt}, {waited:.0f} s): {error}"
                 log.warning("instruments out of reach, heater untouched; retrying in %.3g s: %s", retry_at - now,
                             error)
-                self.datalog.put(Event("waiting", f"instruments out of reach, retrying in {retry_at - now:.3g} s: "
+                self._data_log.put(Event("waiting", f"instruments out of reach, retrying in {retry_at - now:.3g} s: "
                                                   f"{error}"))
                 self.notifier.status(self._waiting)
             if self._pause_until(retry_at):
@@ -638,7 +651,7 @@ class Daemon:
     def _stop_event(self, reason: str, exit_code: int) -> None:
         level = logging.INFO if exit_code == ExitCode.OK else logging.CRITICAL
         log.log(level, "stopping before the loop ran (exit %d): %s", exit_code, reason)
-        self.datalog.put(Event("stop", f"{reason} (exit {int(exit_code)})"))
+        self._data_log.put(Event("stop", f"{reason} (exit {int(exit_code)})"))
 
 
 def stop_grace_s(config: DaemonConfig) -> float:

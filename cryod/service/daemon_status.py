@@ -212,7 +212,7 @@ def _number(value) -> float:
 
 def status_from_json(data: Mapping[str, Any]) -> DaemonStatus:
     """The status from its JSON (:func:`status_json`'s keys; null numbers as NaN), for those that receive it."""
-    extra = {"record_path": data.get("record_path"), "alarm_states": data.get("alarm_states") or {},
+    extra: dict[str, Any] = {"record_path": data.get("record_path"), "alarm_states": data.get("alarm_states") or {},
              "interfaces": data.get("interfaces")}
     if data.get("state") == "waiting":
         return DaemonStatus(waiting_for=str(data.get("message") or ""), **extra)

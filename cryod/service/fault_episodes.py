@@ -109,8 +109,8 @@ class FaultEpisodes:
         return min(safety.valid_readings_to_resume * 2 ** self.resumes, most)
 
     def timed_out(self, now_s: float) -> bool:
-        """The episode has lasted longer than ``safety.recovery_timeout_s``: stop."""
-        return now_s - self.start_s > self.safety.recovery_timeout_s
+        """The episode has lasted longer than ``safety.recovery_timeout_s``: stop (no episode under way: no)."""
+        return self.start_s is not None and now_s - self.start_s > self.safety.recovery_timeout_s
 
     def reconnect_due(self, now_s: float) -> bool:
         """Whether to reopen the instruments now (then counted as tried): no valid reading since the fault,

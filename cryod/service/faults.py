@@ -45,8 +45,17 @@ from enum import IntEnum, StrEnum
 
 from cryod.service.heater_guard import HeaterSwitchedOff
 from drivers.errors import (
-    BadReply, ConnectionLost, HeaterCompliance, HeaterLimitRefused, HeaterOutputOff, HeaterRefused, IdentityMismatch,
-    InstrumentError, InstrumentReportedError, InstrumentTimeout, OverflowReading,
+    BadReply,
+    ConnectionLost,
+    HeaterCompliance,
+    HeaterLimitRefused,
+    HeaterOutputOff,
+    HeaterRefused,
+    IdentityMismatch,
+    InstrumentError,
+    InstrumentReportedError,
+    InstrumentTimeout,
+    OverflowReading,
 )
 
 
@@ -77,6 +86,10 @@ class FaultCause(StrEnum):
     reconnect : bool
         Reopening the instruments' connections may clear it.
     """
+
+    recoverable: bool
+    exit_code: ExitCode
+    reconnect: bool
 
     def __new__(cls, value: str, recoverable: bool, exit_code: ExitCode, reconnect: bool = False):
         member = str.__new__(cls, value)
@@ -176,7 +189,7 @@ class ReadingChecks:
         self.flange_max_K = flange_max_K
         self.ptc_stage_max_K = ptc_stage_max_K
         self.max_repeated_readings = max_repeated_readings
-        self._last = (None, None)
+        self._last: tuple[float | None, float | None] = (None, None)
         self._repeats = [0, 0]
 
     def check_resistances(self, flange_ohm: float, ptc_stage_ohm: float) -> Fault | None:

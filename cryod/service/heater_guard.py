@@ -14,9 +14,13 @@ with :class:`HeaterHeldOff` instead, and the loop stops.
 from __future__ import annotations
 
 import threading
+from typing import TYPE_CHECKING
 
 from drivers.errors import InstrumentError
 from drivers.thermometer_pair import PairReading
+
+if TYPE_CHECKING:
+    from cryod.service.loop import Instruments
 
 
 class HeaterHeldOff(InstrumentError):
@@ -38,7 +42,7 @@ class HeaterGuard:
         What the loop would use directly.
     """
 
-    def __init__(self, instruments):
+    def __init__(self, instruments: Instruments) -> None:
         self.instruments = instruments
         self._heater = threading.Lock()
         #: Why the heater is held off (None while the loop may set it).

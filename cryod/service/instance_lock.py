@@ -48,6 +48,7 @@ import os
 import re
 from pathlib import Path
 
+
 class AlreadyRunning(RuntimeError):
     """Another daemon holds the lock of this cryostat; ``holder`` names its process (``process 4242``)."""
 

@@ -22,6 +22,7 @@ from typing import Callable
 
 from pyvisa import rname
 from pyvisa.errors import VisaIOError
+from pyvisa.resources import GPIBInterface
 
 from cryod.config import INSTRUMENT_KEYS, DaemonConfig, DmmSettings, InstrumentAddress
 from cryod.instrument_waits import InstrumentWaits
@@ -33,11 +34,20 @@ from drivers.heater import HeaterSupply
 from drivers.keithley2002 import FourWireSettings, Keithley2002, TriggerSource
 from drivers.keithley2400 import Keithley2400
 from drivers.keithley6221 import Keithley6221
-from drivers.pair_triggers import (GpibGroupTrigger, HardwareTrigger, PairTrigger, PrologixGroupTrigger,
-                                   SequentialTrigger)
+from drivers.pair_triggers import (
+    GpibGroupTrigger,
+    HardwareTrigger,
+    PairTrigger,
+    PrologixGroupTrigger,
+    SequentialTrigger,
+)
 from drivers.thermometer_pair import PairReading, ThermometerPair
-from drivers.transports.addresses import (canonical_prologix, canonical_prologix_adapter, canonical_resource,
-                                         canonical_serial_port)
+from drivers.transports.addresses import (
+    canonical_prologix,
+    canonical_prologix_adapter,
+    canonical_resource,
+    canonical_serial_port,
+)
 from drivers.transports.base import Transport
 from drivers.transports.prologix import PrologixAdapter
 from drivers.transports.visa import VisaTransport, resource_manager
@@ -98,7 +108,7 @@ def instrument_addresses(config: DaemonConfig) -> dict[str, list[str]]:
                 raise ValueError(f"{key}.resource: {error}") from None
         else:
             where = dict(port=address.prologix_port, host=address.prologix_host)
-            claim(canonical_prologix(**where, gpib_address=address.gpib_address), f"{key}.prologix")
+            claim(canonical_prologix(**where, gpib_address=_gpib_address(address)), f"{key}.prologix")
             claim(canonical_prologix_adapter(**where), f"{key}.prologix")
     if instruments.trigger == "external" and instruments.trigger_output is not None:
         claim(f"serial:{canonical_serial_port(instruments.trigger_output.port)}", "instruments.trigger_output.port")
@@ -262,7 +272,17 @@ def assemble_instruments(config: DaemonConfig, clock, flange_transport: Transpor
 # real instruments
 # ---------------------------------------------------------------------------
 def _adapter_key(address: InstrumentAddress) -> tuple[str, str]:
-    return ("usb", address.prologix_port) if address.prologix_port else ("ethernet", address.prologix_host)
+    """("usb", its serial device) or ("ethernet", its host): the Prologix controller an instrument is behind."""
+    if address.prologix_port:
+        return "usb", address.prologix_port
+    assert address.prologix_host is not None        # the configuration gives a port or a host
+    return "ethernet", address.prologix_host
+
+
+def _gpib_address(address: InstrumentAddress) -> int:
+    """The GPIB address of an instrument behind a Prologix controller (the configuration gives it with one)."""
+    assert address.gpib_address is not None
+    return address.gpib_address
 
 
 def open_transport(address: InstrumentAddress, config: DaemonConfig, adapters: dict, name: str) -> Transport:
@@ -273,8 +293,9 @@ def open_transport(address: InstrumentAddress, config: DaemonConfig, adapters: d
                              name=name)
     key = _adapter_key(address)
     if key not in adapters:
-        adapters[key] = (PrologixAdapter.usb(address.prologix_port, timeout_s=timeout) if key[0] == "usb"
-                         else PrologixAdapter.ethernet(address.prologix_host, timeout_s=timeout))
+        kind, place = key
+        adapters[key] = (PrologixAdapter.usb(place, timeout_s=timeout) if kind == "usb"
+                         else PrologixAdapter.ethernet(place, timeout_s=timeout))
     return adapters[key].instrument(address.gpib_address, name=name)
 
 
@@ -316,12 +337,13 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
                 raise ConnectionLost(f"GPIB{board}::INTFC (instruments.trigger: gpib-group)",
                                      f"cannot open the GPIB card to trigger both DMMs: {error}") from error
             closers.append(interface.close)
+            assert isinstance(interface, GPIBInterface)     # what pyvisa opens a GPIBn::INTFC resource as
             return GpibGroupTrigger(interface, [flange, stage], clock)
         if mode == "prologix":           # the configuration puts both DMMs behind one controller
-            return PrologixGroupTrigger(adapters[_adapter_key(instruments.flange_dmm)],
-                                        [instruments.flange_dmm.gpib_address, instruments.ptc_stage_dmm.gpib_address],
-                                        clock)
+            addresses = [_gpib_address(instruments.flange_dmm), _gpib_address(instruments.ptc_stage_dmm)]
+            return PrologixGroupTrigger(adapters[_adapter_key(instruments.flange_dmm)], addresses, clock)
         output = instruments.trigger_output
+        assert output is not None           # the configuration gives an external trigger its wire
         line = SerialControlLine.open(output.port, clock, line=output.line)
         closers.append(line.close)
         source = TriggerSource.EXTERNAL if output.dmm_input == "external" else TriggerSource.TRIGGER_LINK
@@ -338,8 +360,8 @@ def open_instruments(config: DaemonConfig, clock) -> tuple[DriverInstruments, Ca
         instruments_set = assemble_instruments(config, clock, flange, stage, heater, make_trigger,
                                                on_close=close_others)
     except InstrumentError as error:
-        key = next((key for key, name in INSTRUMENT_KEYS.items() if error.instrument == name), None)
-        raise (error if key is None else _with_key(error, key)) from error.__cause__
+        config_key = next((key for key, name in INSTRUMENT_KEYS.items() if error.instrument == name), None)
+        raise (error if config_key is None else _with_key(error, config_key)) from error.__cause__
     return (instruments_set, *curves)
 
 
@@ -386,4 +408,6 @@ def switch_supply_off(config: DaemonConfig, clock) -> None:
 
 def _gpib_board(address: InstrumentAddress) -> int:
     """The GPIB board of a DMM on a GPIB card (the configuration puts both DMMs of a gpib-group trigger on one)."""
-    return int(rname.parse_resource_name(address.resource).board)
+    parsed = rname.parse_resource_name(address.resource or "")
+    assert isinstance(parsed, rname.GPIBInstr)      # the configuration refuses gpib-group for other resources
+    return int(parsed.board)

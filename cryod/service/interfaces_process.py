@@ -149,25 +149,26 @@ class InterfacesProcess:
 
     def start(self) -> None:
         """Start the process and watch it from a thread of its own."""
-        self._spawn(None)
-        self._thread = threading.Thread(target=self._watch, name="cryod-interfaces", daemon=True)
+        process = self._spawn(None)
+        self._thread = threading.Thread(target=self._watch, args=(process,), name="cryod-interfaces", daemon=True)
         self._thread.start()
 
-    def _spawn(self, after: int | None) -> None:
+    def _spawn(self, after: int | None) -> subprocess.Popen:
         command = [sys.executable, "-m", "cryod.interfaces"] + ([] if after is None else ["--after", str(after)])
         with self._lock:
-            self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                                            stderr=self.stderr, close_fds=True)
+            process = self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                                      stderr=self.stderr, close_fds=True)
             try:
-                write_settings(self.process.stdin, self.settings)
+                write_settings(process.stdin, self.settings)
             except OSError:                     # it ended at once: the watcher says why
                 pass
-        log.info("interfaces process started (pid %d)", self.process.pid)
+        log.info("interfaces process started (pid %d)", process.pid)
+        return process
 
-    def _watch(self) -> None:
+    def _watch(self, process: subprocess.Popen) -> None:
+        """Wait for ``process`` (the one started) to end; start it again after a pause, and so on."""
         pause_s = RESTART_FIRST_S
         while not self._stopping.is_set():
-            process = self.process
             started = time.monotonic()
             code = process.wait()
             if self._stopping.is_set():
@@ -182,7 +183,7 @@ class InterfacesProcess:
                 return
             self.restarts += 1
             try:
-                self._spawn(self.last_seq(process.pid))
+                process = self._spawn(self.last_seq(process.pid))
             except OSError as error:
                 log.error("the interfaces process could not be started again: %s", error)
             pause_s = min(2.0 * pause_s, RESTART_LONGEST_S)
@@ -215,7 +216,8 @@ class InterfacesProcess:
         if process is None:
             return
         try:
-            process.stdin.close()
+            if process.stdin is not None:
+                process.stdin.close()
         except OSError:
             pass
         for end in (None, process.terminate, process.kill):

@@ -28,7 +28,8 @@ from __future__ import annotations
 import collections
 import logging
 import math
-from concurrent.futures import Future, TimeoutError as FutureTimeout
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Callable, NamedTuple, Protocol
 
 from cryod.config import DaemonConfig, located_error
@@ -190,7 +191,7 @@ class ControlLoop:
         self._wording: list[tuple[Command, bool, Future]] = []
         self.exit_code: int | None = None
         self._stop_reason: str | None = None
-        self._stop_as: tuple[int, FaultCause] = (ExitCode.OK, FaultCause.STOP_REQUESTED)
+        self._stop_as: tuple[int, FaultCause, str] = (ExitCode.OK, FaultCause.STOP_REQUESTED, "")
         self._outside_fault: Fault | None = None
         #: the fault episode under way and the valid readings the heater waits for
         self.episodes = FaultEpisodes(config.safety, self.period_s)
@@ -212,8 +213,8 @@ class ControlLoop:
             judged = (control, setpoint_K, top_W)
             # the model's steady state costs a third of a millisecond on the loop's thread; a client that puts
             # the same setpoint again (an EPICS or 336 client does, many a second) gets the judgement kept
-            self._setpoint_judged = (judged, setpoint_warning(control, setpoint_K, top_W))
-        self.setpoint_warning = self._setpoint_judged[1]
+            kept = self._setpoint_judged = (judged, setpoint_warning(control, setpoint_K, top_W))
+        self.setpoint_warning = kept[1]
         if self.setpoint_warning:
             log.warning("%s", self.setpoint_warning)
         return self.setpoint_warning
@@ -230,14 +231,14 @@ class ControlLoop:
         signal handler; a tick that has its readings but not yet its heater setting stops before setting it).
         The first request is kept."""
         if self._stop_reason is None:
-            self._stop_as = (exit_code, cause)
+            self._stop_as = (exit_code, cause, reason)
             self._stop_reason = reason
 
     def _stop_as_requested(self, row: Row | None = None) -> None:
         """Stop for the requested reason; ``row``, the readings of a tick cut short by it, is kept, with the
         heater as the stop left it."""
-        exit_code, cause = self._stop_as
-        self._stop(exit_code, Fault(cause, self._stop_reason), row=row)
+        exit_code, cause, reason = self._stop_as
+        self._stop(exit_code, Fault(cause, reason), row=row)
 
     def fail(self, fault: Fault) -> None:
         """A fault found outside the loop (the data log): handled at the next tick like one found in it
@@ -297,7 +298,9 @@ class ControlLoop:
             self.regulator.close()
             if manage_gc:
                 self._gc.stop()
-        return self.exit_code
+        exit_code = self.exit_code
+        assert exit_code is not None            # the loop runs until it stops
+        return exit_code
 
     def _follow_timing(self, missed: int) -> None:
         """Late cycles with fresh readings are no fault of the cryostat: the loop regulates on. After
@@ -355,9 +358,9 @@ class ControlLoop:
         row.T2_sample_s = reading.flange_sample_time_s
         row.T5_sample_s = reading.ptc_stage_sample_time_s
         row.trigger_skew_ms = reading.skew_s * 1e3
-        fault = self.checks.check_resistances(reading.flange_resistance_ohm, reading.ptc_stage_resistance_ohm)
-        if fault is not None:
-            self._fault(fault, row)
+        stale = self.checks.check_resistances(reading.flange_resistance_ohm, reading.ptc_stage_resistance_ohm)
+        if stale is not None:
+            self._fault(stale, row)
             return
         try:
             flange_K = float(self.flange_curve.temperature_K(reading.flange_resistance_ohm))
@@ -463,8 +466,8 @@ class ControlLoop:
 
     def _zone(self) -> tuple[int, float] | None:
         """(the zone in use counted from 1, its upper temperature in K), None without zones."""
-        zone = self.regulator.zone
-        return None if zone is None else (self.regulator.zone_index + 1, zone.upper_K)
+        index, zone = self.regulator.zone_index, self.regulator.zone
+        return None if index is None or zone is None else (index + 1, zone.upper_K)
 
     @property
     def status(self) -> LoopStatus:
@@ -478,7 +481,7 @@ class ControlLoop:
                                 setpoint_K=snapshot.setpoint_K, target_K=snapshot.target_K,
                                 ramp_K_per_min=snapshot.ramp_K_per_min,
                                 last_fault=str(snapshot.last_fault) if snapshot.last_fault else None,
-                                control=snapshot.control, last_target_K=snapshot.last_target_K,
+                                control=snapshot.control or {}, last_target_K=snapshot.last_target_K,
                                 zone=zone[0] if zone else None, zone_upper_K=zone[1] if zone else None,
                                 timing=self.timing.figures())
             self._status = status
@@ -494,7 +497,7 @@ class ControlLoop:
         if valid_in_a_row >= waiting_for:
             previous = self.state
             self._last_trigger_s = reading.trigger_time_s
-            self.state = LoopState(self.regulator.mode)
+            self.state = LoopState[self.regulator.mode.name]      # each mode is the state of its name
             if self.state is LoopState.CLOSED and not self.regulator.regulating:
                 # start-up, or a setpoint given while the heater was off or manual: close from 0 W, the ramp
                 # from T2; after a fault while regulating the terms go on where they were
@@ -523,7 +526,7 @@ class ControlLoop:
         """After a command changed the regulator's mode: the loop follows it, unless it is waiting
         for valid readings (it takes the mode up when they come); heater-off acts at once."""
         if not self.state.waits_for_readings:
-            self.state = LoopState(self.regulator.mode)
+            self.state = LoopState[self.regulator.mode.name]      # each mode is the state of its name
         if self.regulator.mode is RegulatorMode.OFF:       # the tick's own row follows, at 0 W
             failure = self._switch_heater_off()
             if failure is not None:
@@ -537,13 +540,15 @@ class ControlLoop:
         bool
             True when this tick stopped the loop or tried a reconnect (no reading this tick).
         """
+        fault = self.last_fault
+        assert fault is not None                # the one the loop is recovering from
         if self.episodes.timed_out(now):
             resumes = f" (resumed {self.episodes.resumes} times in between)" if self.episodes.resumes else ""
-            self._stop(ExitCode.INSTRUMENTS_LOST, Fault(self.last_fault.cause,
+            self._stop(ExitCode.INSTRUMENTS_LOST, Fault(fault.cause,
                        f"not recovered within {self.config.safety.recovery_timeout_s:g} s{resumes}: "
-                       f"{self.last_fault.message}"))
+                       f"{fault.message}"))
             return True
-        if self.last_fault.cause.reconnect and self.episodes.reconnect_due(now):
+        if fault.cause.reconnect and self.episodes.reconnect_due(now):
             try:
                 self.instruments.reconnect()
                 self.checks.reset()

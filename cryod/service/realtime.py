@@ -47,7 +47,7 @@ class RealtimeSession:
         self.lock = lock
         self.problems: list[str] = []        #: what could not be done, for the log
         self.memory = ""                     #: the memory figure after locking
-        self._saved = None
+        self._saved: tuple[int, os.sched_param] | None = None
         self._locked = False
 
     def start(self) -> None:

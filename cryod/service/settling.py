@@ -107,7 +107,7 @@ class SettlingWatch:
         setpoint, target = loop.setpoint_K, loop.target_K
         average = status.recent.flange_average_K if status.recent is not None else math.nan
         ramping = setpoint is None or target is None or abs(setpoint - target) > AT_TARGET_K
-        error = (None if cannot or ramping or not math.isfinite(average) or not status.regulating
+        error = (None if setpoint is None or cannot or ramping or not math.isfinite(average) or not status.regulating
                  else average - setpoint)
         if error is None or abs(error) > self.tolerance_K:
             self._settled_since = None

@@ -33,24 +33,24 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.clock import clock_for_speed
-from drivers.paced_clock import PacedClock
 from cryod.config import EXAMPLE_CONFIG_PATH, DaemonConfig, load_config, located_error
+from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit, limit_changes
+from cryod.control.feedforward.limit_binding import limit_binding
+from cryod.model import DEFAULT_MODEL_PATH, CryostatModel, linearised_at, load_model
+from cryod.records.columns import Event, Row
+from cryod.records.metrics import regulation_metrics
 from cryod.service.daemon import Daemon
 from cryod.service.discovery import simulation_socket
 from cryod.service.instance_lock import AlreadyRunning, InstanceLock
 from cryod.service.instruments import assemble_instruments, check_calibrations, load_curves
-from cryod.control.feedforward.limit import FeedforwardLimitError, feedforward_limit, limit_changes
-from cryod.control.feedforward.limit_binding import limit_binding
-from cryod.records.columns import Event, Row
-from cryod.records.metrics import regulation_metrics
-from cryod.model import DEFAULT_MODEL_PATH, linearised_at, load_model
-from cryod.service.stream import finite_or_none
 from cryod.service.logs import ServiceLogging
 from cryod.service.readable import readable, rounded
 from cryod.service.status_line import StatusLine
+from cryod.service.stream import finite_or_none
 from cryod.yaml_source import FileFormatError
+from drivers.clock import clock_for_speed
 from drivers.keithley2002 import TriggerSource
+from drivers.paced_clock import PacedClock
 from drivers.pair_triggers import GpibGroupTrigger, HardwareTrigger, PrologixGroupTrigger, SequentialTrigger
 from drivers.transports.prologix import PrologixAdapter
 from drivers.transports.visa import VisaTransport
@@ -72,7 +72,7 @@ class WindowCollector:
     """Keeps the last ``window_s`` of rows (and a lead-in for the phase tracker) for the end-of-run metrics."""
 
     def __init__(self, window_s: float, period_s: float):
-        self.rows = collections.deque(maxlen=int((window_s + TRACKER_LEAD_IN_S) / period_s) + 2)
+        self.rows: collections.deque[tuple[float, ...]] = collections.deque(maxlen=int((window_s + TRACKER_LEAD_IN_S) / period_s) + 2)
         self.window_s = window_s + TRACKER_LEAD_IN_S
 
     def __call__(self, item: Row | Event) -> None:
@@ -269,7 +269,7 @@ class SimulationRun:
     log_paths: list[Path]
 
 
-def prepare_simulation(args: DryRunOptions) -> tuple[DaemonConfig, object, Path]:
+def prepare_simulation(args: DryRunOptions) -> tuple[DaemonConfig, CryostatModel, Path]:
     """The dry run's configuration, simulated model and its path, or SimulationNotStarted saying why."""
     config_path = args.config or EXAMPLE_CONFIG_PATH
     try:
@@ -286,9 +286,9 @@ def prepare_simulation(args: DryRunOptions) -> tuple[DaemonConfig, object, Path]
         model = load_model(model_path)
     except FileFormatError as error:
         raise SimulationNotStarted(f"simulated cryostat model not usable: {error}") from None
-    problem = limits_against_model(config, model, model_path)
-    if problem is not None:
-        raise SimulationNotStarted(f"configuration not usable, nothing was started: {problem}")
+    beyond_model = limits_against_model(config, model, model_path)
+    if beyond_model is not None:
+        raise SimulationNotStarted(f"configuration not usable, nothing was started: {beyond_model}")
     return config, model, Path(model_path)
 
 
@@ -478,7 +478,7 @@ def simulated_limit(model, config: DaemonConfig, loop, setpoint_K: float | None)
     set as late after T2's reading as the loop set it."""
     term = loop.regulator.term("feedforward") if loop is not None else None
     delay = term.setting_delay_s if term is not None else 0.0
-    empty = {"ptc_periodic_limit_K": None, "feedforward_authority": None, "feedforward_limited_by": None,
+    empty: dict[str, object] = {"ptc_periodic_limit_K": None, "feedforward_authority": None, "feedforward_limited_by": None,
              "feedforward_limit_bound": None, "feedforward_limit_explained": None, "feedforward_limit_changes": []}
     if setpoint_K is None:
         return empty

@@ -28,6 +28,9 @@ class LoopState(StrEnum):
         The heater follows the regulator (closed loop or manual power).
     """
 
+    waits_for_readings: bool
+    heater_may_be_on: bool
+
     def __new__(cls, value: str, waits_for_readings: bool, heater_may_be_on: bool):
         member = str.__new__(cls, value)
         member._value_ = value

@@ -46,7 +46,8 @@ import os
 import signal
 import sys
 import threading
-from typing import Callable
+from types import FrameType
+from typing import Any, Callable
 
 log = logging.getLogger("cryod.signals")
 
@@ -62,11 +63,15 @@ _ENDING_BY_DEFAULT = frozenset(getattr(signal, name) for name in (
     "SIGUSR2", "SIGPIPE", "SIGALRM", "SIGTERM", "SIGSTKFLT", "SIGXCPU", "SIGXFSZ", "SIGVTALRM", "SIGPROF",
     "SIGIO", "SIGPWR", "SIGSYS") if hasattr(signal, name))
 #: Who usually sends a signal, for the journal and the record (SIGTERM and SIGINT need no explaining).
-_SENDERS = {
+_SENDERS: dict[int, str] = {
     signal.SIGABRT: "systemd's watchdog sends it when the loop stops feeding it",
     signal.SIGQUIT: "Ctrl-\\, or kill -QUIT",
     signal.SIGALRM: "an alarm timer, or kill -ALRM",
 }
+
+
+#: What signal.signal takes and gives back: a handler, SIG_DFL or SIG_IGN, or None (not set from Python).
+_Handler = Callable[[int, FrameType | None], Any] | int | signal.Handlers | None
 
 
 def terminating_signals() -> list[int]:
@@ -125,7 +130,7 @@ class SignalWatch:
         self.on_reload_signal = on_reload_signal
         self.on_signal_seen = on_signal_seen
         self.signals: list[int] = []
-        self._previous: dict[int, object] = {}
+        self._previous: dict[int, _Handler] = {}
         self._previous_wakeup: int | None = None
         self._pipe: tuple[int, int] | None = None
         self._thread: threading.Thread | None = None
@@ -143,7 +148,7 @@ class SignalWatch:
         os.set_blocking(write_end, False)
         self._pipe = (read_end, write_end)
         self._previous_wakeup = signal.set_wakeup_fd(write_end, warn_on_full_buffer=False)
-        self._thread = threading.Thread(target=self._watch, name="cryod-signals", daemon=True)
+        self._thread = threading.Thread(target=self._watch, args=(read_end,), name="cryod-signals", daemon=True)
         self._thread.start()
         for number in self.signals:
             self._previous[number] = signal.signal(number, self._stop_handler)
@@ -155,8 +160,7 @@ class SignalWatch:
     def _reload_handler(self, number, frame) -> None:
         self.on_reload_signal()
 
-    def _watch(self) -> None:
-        read_end = self._pipe[0]
+    def _watch(self, read_end: int) -> None:
         while True:
             try:
                 data = os.read(read_end, 64)
@@ -184,7 +188,8 @@ class SignalWatch:
         read_end, write_end = self._pipe
         os.set_blocking(write_end, True)
         os.write(write_end, b"\0")
-        self._thread.join(2.0)
+        if self._thread is not None:
+            self._thread.join(2.0)
         os.close(write_end)
         os.close(read_end)
         self._pipe = None

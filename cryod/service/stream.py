@@ -73,7 +73,7 @@ ROW_FIELDS = tuple(Row.__slots__)
 class StreamTap:
     """Row tap for the stream: on the loop's thread, one deque append per row and event."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.incoming: collections.deque[Row | Event] = collections.deque()
         #: Items dropped because the stream's thread had not taken them in time.
         self.dropped = 0

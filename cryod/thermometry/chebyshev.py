@@ -107,7 +107,7 @@ class ChebyshevFitRange:
             raise ValueError(f"limits {self.lower_limit:g} to {self.upper_limit:g} reach outside "
                              f"Zlower..Zupper ({self.z_lower:g} to {self.z_upper:g})")
         slope = polynomial.deriv()
-        turning = [root.real for root in slope.roots()
+        turning = [float(root.real) for root in slope.roots()
                    if abs(root.imag) < 1e-9 and z_limits[0] < root.real < z_limits[1]]
         if turning:
             where = 10.0 ** turning[0] if logarithmic else turning[0]

@@ -205,8 +205,8 @@ class CalibrationCurve:
         if not inside.all():
             outside = values[~inside]
             raise self._out_of_range(unit, float(outside.flat[0]), windows, int(outside.size))
-        result = np.asarray(function(values), dtype=float)
-        return result if result_range is None else np.clip(result, *result_range)
+        results = np.asarray(function(values), dtype=float)
+        return results if result_range is None else np.clip(results, *result_range)
 
     def _convert_one(self, value: float, windows: list[tuple[float, float, float, float]], unit: str,
                      function: Callable[[float], float], result_range: tuple[float, float]) -> float:

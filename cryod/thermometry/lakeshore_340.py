@@ -91,7 +91,7 @@ def read_340(text: CalibrationText) -> BreakpointCurve:
 
 
 def _read_header(text: CalibrationText, lines: list[NumberedLine]):
-    header: dict[str, str] = {}
+    header: dict[str, str | None] = {}
     header_lines: dict[str, int] = {}
     position = 0
     while position < len(lines) and ":" in lines[position].text:
@@ -129,7 +129,9 @@ def _choice(text: CalibrationText, header, header_lines, key: str, choices, desc
 
 def _read_breakpoints(text: CalibrationText, lines: list[NumberedLine], count: int, count_line: int,
                       data_format: DataFormat):
-    units, temperatures, data_lines = [], [], []
+    units: list[float] = []
+    temperatures: list[float] = []
+    data_lines: list[int] = []
     for line in lines:
         fields = line.text.split()
         expected = len(units) + 1

@@ -18,7 +18,7 @@ Examples
 from __future__ import annotations
 
 from bisect import bisect_right
-from typing import Sequence
+from typing import Iterable
 
 
 class LinearTable:
@@ -26,9 +26,9 @@ class LinearTable:
 
     Parameters
     ----------
-    x : sequence of float
-        The abscissae, strictly increasing.
-    y : sequence of float
+    x : iterable of float
+        The abscissae, strictly increasing (a list or an array).
+    y : iterable of float
         The values at ``x``.
 
     Notes
@@ -39,7 +39,7 @@ class LinearTable:
 
     __slots__ = ("_x", "_y", "_slopes", "_last")
 
-    def __init__(self, x: Sequence[float], y: Sequence[float]):
+    def __init__(self, x: Iterable[float], y: Iterable[float]):
         self._x = [float(value) for value in x]
         self._y = [float(value) for value in y]
         if len(self._x) != len(self._y) or len(self._x) < 2:

@@ -35,8 +35,8 @@ import math
 import re
 from pathlib import Path
 
-from cryod.thermometry.source_text import CalibrationText, NumberedLine
 from cryod.thermometry.smooth_response import NotMonotonic
+from cryod.thermometry.source_text import CalibrationText, NumberedLine
 from cryod.thermometry.spline_table import MINIMUM_POINTS, SplineTableCurve
 
 #: Above this no value in a column can be a calibrated sensor's temperature (K).
@@ -90,9 +90,10 @@ def read_raw_table(text: CalibrationText) -> SplineTableCurve:
     try:
         return SplineTableCurve(temperatures, resistances, source=text.source, serial_number=Path(text.source).stem)
     except NotMonotonic as error:
-        nearest = min(range(len(resistances)), key=lambda index: abs(math.log(resistances[index] / error.reading)))
+        turning_ohm = error.reading
+        nearest = min(range(len(resistances)), key=lambda index: abs(math.log(resistances[index] / turning_ohm)))
         raise text.error(row_lines[nearest], f"the cubic spline through the table turns back near "
-                                             f"{error.reading:.6g} ohm, so one resistance would give two "
+                                             f"{turning_ohm:.6g} ohm, so one resistance would give two "
                                              f"temperatures; the points around this line are too uneven "
                                              f"for a spline") from None
 

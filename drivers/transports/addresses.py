@@ -39,7 +39,7 @@ import ipaddress
 import os
 import re
 
-from pyvisa import constants, rname
+from pyvisa import rname
 
 #: Fields of a parsed resource that are whole numbers (written without leading zeros).
 _NUMBER_FIELDS = ("board", "primary_address", "secondary_address", "port", "usb_interface_number")
@@ -189,7 +189,7 @@ def network_host(resource: str) -> str | None:
         parsed = rname.parse_resource_name(resource)
     except rname.InvalidResourceName:
         return None
-    return parsed.host_address if parsed.interface_type_const == constants.InterfaceType.tcpip else None
+    return parsed.host_address if isinstance(parsed, (rname.TCPIPInstr, rname.TCPIPSocket)) else None
 
 
 def serial_device(resource: str) -> str | None:

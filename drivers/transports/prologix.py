@@ -78,7 +78,11 @@ class PrologixAdapter:
     def __init__(self, interface_resource_name: str, *, timeout_s: float = 1.0,
                  resource_manager: pyvisa.ResourceManager | None = None):
         self.interface_resource_name = interface_resource_name
-        self.board = int(rname.parse_resource_name(interface_resource_name).board or 0)
+        parsed = rname.parse_resource_name(interface_resource_name)
+        if not isinstance(parsed, (rname.PrlgxASRLIntfc, rname.PrlgxTCPIPIntfc)):
+            raise ValueError(f"{interface_resource_name!r} is not a Prologix controller's resource name "
+                             f"(PRLGX-TCPIP<board>::<host>::<port>::INTFC or PRLGX-ASRL<board>::<device>::INTFC)")
+        self.board = int(parsed.board or 0)
         self.timeout_s = float(timeout_s)
         self._manager = resource_manager
         self.generation = 0
@@ -156,7 +160,12 @@ class PrologixAdapter:
         command = "++trg " + " ".join(str(int(address)) for address in primary_addresses) + "\n"
         if self._interface is None or peer_closed(self._interface):
             raise ConnectionLost(self.interface_resource_name, "controller connection is closed")
-        session = self.manager.visalib.sessions.get(self._interface.session)
+        from pyvisa_py.highlevel import PyVisaLibrary  # loaded: it opened the controller
+
+        visalib = self.manager.visalib
+        # only pyvisa-py knows PRLGX resources, so the library that opened the controller is pyvisa-py's
+        assert isinstance(visalib, PyVisaLibrary)
+        session = visalib.sessions.get(self._interface.session)
         lock = getattr(session, "intfc_lock", None) or threading.Lock()
         try:
             with lock:

@@ -260,7 +260,7 @@ class VisaTransport:
         what was dropped.
         """
         self._reply_owed = False
-        dropped = []
+        dropped: list[str] = []
         if self.resource is None:
             return dropped
         self._wait_for_replies(window_s)

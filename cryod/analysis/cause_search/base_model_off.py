@@ -64,7 +64,11 @@ from cryod.analysis.cause_search.rules import asks_beyond_its_causes, widened_mo
 from cryod.analysis.decision import Decision, base_discrepancy, gain_between, significance
 from cryod.analysis.equivalence import LINE_GAIN, as_link, line_gain_stood_for
 from cryod.analysis.recalibration import (
-    RecalibratedParameter, Recalibration, Tolerances, recalibrate, structure_parameters,
+    RecalibratedParameter,
+    Recalibration,
+    Tolerances,
+    recalibrate,
+    structure_parameters,
 )
 from cryod.analysis.refinement import refine
 from cryod.analysis.replay import Replay, Replayer
@@ -197,10 +201,11 @@ def _within_tolerance_with_its_cause(analysis: Analysis, on_widened: Analysis) -
     if not on_widened.causes:
         return True
     fits = [analysis.fits.get(named.cause) for named in on_widened.causes]
-    if any(fit is None for fit in fits) or len(fits) > 1:
+    only = fits[0] if len(fits) == 1 else None
+    if only is None:
         return True
     context = analysis.context
-    fit = refine(context.replayer, context.recalibrated, fits[0], [])[0]
+    fit = refine(context.replayer, context.recalibration, only, [])[0]
     improvement = _held_out(analysis, fit.replay) - _held_out(analysis, on_widened.extended_replay)
     return asks_beyond_its_causes(improvement, significance(improvement, context.distinctness(
         fit.replay, on_widened.extended_replay)))
@@ -217,15 +222,16 @@ def judged_beyond_recalibration(analysis: Analysis, search_on: Callable[[Cryosta
     at_tolerance += [parameter for parameter, _, _ in standing if parameter not in at_tolerance]
     if not at_tolerance and not (analysis.remaining is not None and analysis.remaining.present):
         return analysis
-    if analysis.widened is None:
+    widened = analysis.widened
+    if widened is None:
         started = time.perf_counter()
         widened = widened_recalibration(analysis.context.replayer, analysis.base_model, analysis.base_line)
         analysis.timings_s[WIDER_RECALIBRATION] = time.perf_counter() - started
         analysis = dataclasses.replace(analysis, widened=widened)
-    beyond = beyond_parameters(analysis.widened, analysis.base_model)
+    beyond = beyond_parameters(widened, analysis.base_model)
     if not beyond:
         return analysis
-    inner = search_on(analysis.widened.model)
+    inner = search_on(widened.model)
     analysis.timings_s.update({f"{step} (widened model)": seconds for step, seconds in inner.timings_s.items()})
     if inner.remaining is not None and inner.remaining.present:
         return analysis
@@ -235,7 +241,7 @@ def judged_beyond_recalibration(analysis: Analysis, search_on: Callable[[Cryosta
         return analysis
     if not _within_tolerance_with_its_cause(analysis, inner):
         return analysis
-    on_widened = WidenedSearch(widened=analysis.widened, beyond=beyond, analysis=inner, improvement=improvement,
+    on_widened = WidenedSearch(widened=widened, beyond=beyond, analysis=inner, improvement=improvement,
                                significance=spread)
     return base_model_off(analysis, on_widened, at_tolerance, standing)
 

@@ -44,10 +44,17 @@ WIDER = {
 ZERO_EDGES = {"sensor_lag": (0, 1), "link_dynamics": (0,), "dead_time": (0,)}
 
 
+def _effect(named: NamedCause) -> EffectForm:
+    """``named``'s effect form (a cause whose numbers are examined has one)."""
+    effect = named.fit.effect
+    assert effect is not None
+    return effect
+
+
 def parameter_names(named: NamedCause) -> list[str]:
     """The names of ``named``'s effect's numbers, in their order (its parameters' first names)."""
     names = [name for name, value in named.fit.parameters.items() if isinstance(value, (int, float))]
-    return names[:len(named.fit.effect.values)]
+    return names[:len(_effect(named).values)]
 
 
 def at_edge(cause: str, effect: EffectForm) -> list[tuple[int, float]]:
@@ -89,7 +96,7 @@ def examine_bounds(first: FirstRound, path: CausePath) -> tuple[CausePath, tuple
             forms[named.cause] = scanned(path, form, moved)
     refitted = _refitted(first, path, forms)
     better = refitted is not None and refitted.remaining.sum_of_squares < path.remaining.sum_of_squares
-    if better:
+    if better and refitted is not None:
         path = refitted
     evidence = []
     for named in path.causes:
@@ -123,14 +130,14 @@ def _evidence(named: NamedCause, index: int, edge: float, form: EffectForm, refi
     ``refitted`` (the joint fit on the widened ranges did better), or left as it was."""
     names = parameter_names(named)
     name = names[index] if index < len(names) else f"number {index}"
-    value = float(named.fit.effect.values[index])
+    value = float(_effect(named).values[index])
     if not refitted:
         return BoundEvidence(cause=named.cause, parameter=name, value=value, bound=edge, widened_from=None, stays=True)
     wider = float(form.upper[index])
     was_widened = edge != form.lower[index] and wider > edge
     return BoundEvidence(cause=named.cause, parameter=name, value=value, bound=wider if was_widened else edge,
                          widened_from=edge if was_widened else None,
-                         stays=index in dict(at_edge(named.cause, named.fit.effect)))
+                         stays=index in dict(at_edge(named.cause, _effect(named))))
 
 
 def _refitted(first: FirstRound, path: CausePath, forms: dict[str, EffectForm]) -> CausePath | None:

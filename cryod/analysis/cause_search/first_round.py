@@ -23,11 +23,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.analysis.candidates import CandidateFit, FitContext
-from cryod.analysis.cause_signature import BandLayout
 from cryod.analysis.cause_search.record_search import ModelPoint, RecordSearch
 from cryod.analysis.cause_search.rules import NOISE_FROM_FITS
+from cryod.analysis.cause_signature import BandLayout
 from cryod.analysis.decision import (
-    BaseDiscrepancy, CandidateScore, Decision, Gain, base_discrepancy, decide, gain_between, score_candidate,
+    BaseDiscrepancy,
+    CandidateScore,
+    Decision,
+    Gain,
+    base_discrepancy,
+    decide,
+    gain_between,
+    score_candidate,
 )
 from cryod.analysis.noise import white_noise_rms
 from cryod.analysis.recalibration import Recalibration, recalibrate
@@ -194,8 +201,9 @@ def judging_noise(recalibrated: RecalibratedRecord, fits: dict[str, CandidateFit
         fit.replay for fit in closest]
     lines = [replayed.base_line, replayed.base_line, context.base_line] + [fit.line for fit in closest]
     data = replayed.search.data
-    return tuple(min(measured_noise(data, replay, line)[channel] for replay, line in zip(replays, lines))
-                 for channel in (0, 1))
+    flange, stage = (min(measured_noise(data, replay, line)[channel] for replay, line in zip(replays, lines))
+                     for channel in (0, 1))
+    return flange, stage
 
 
 def rank_candidates(recalibrated: RecalibratedRecord) -> FirstRound:

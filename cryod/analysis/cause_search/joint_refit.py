@@ -46,7 +46,7 @@ def starting_path(first: FirstRound) -> CausePath:
     """The path before any cause is named: the first round's context on the recalibrated model's discrepancy."""
     context = first.context
     return CausePath(causes=(), context=context, remaining=first.recalibrated, named_effects=(),
-                     recalibration=context.recalibrated, reasons=())
+                     recalibration=context.recalibration, reasons=())
 
 
 def joint_fit(search: RecordSearch, recalibration: RecalibratedBase, fit: CandidateFit,

@@ -18,12 +18,11 @@ extension on the model without it
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 
+from cryod.analysis.cause_search.bounds import examine_bounds
 from cryod.analysis.cause_search.first_round import FirstRound
 from cryod.analysis.cause_search.generic_judgement import further_cause_comparison
 from cryod.analysis.cause_search.joint_judgement import next_cause
-from cryod.analysis.cause_search.bounds import examine_bounds
 from cryod.analysis.cause_search.joint_refit import refitted_causes, settled, starting_path
 from cryod.analysis.cause_search.results import CausePath, FurtherCandidate, JointFit, NamedCause
 from cryod.analysis.cause_search.unneeded_causes import without_unneeded

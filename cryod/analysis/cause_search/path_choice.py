@@ -83,8 +83,10 @@ def follow_paths(first: FirstRound, most: int) -> PathsFollowed | None:
 def _other_first_choices(first: FirstRound, choice: JointChoice) -> list[CandidateScore]:
     """The leading candidates but the one chosen, refitted jointly, that count against the recalibrated model,
     the largest improvement first."""
+    chosen = choice.decision.best
+    assert chosen is not None               # a choice that names one (follow_paths)
     scores = sorted((score_candidate(first.context, joint.fit, first.recalibrated)
-                     for cause, joint in choice.refined.items() if cause != choice.decision.best.cause),
+                     for cause, joint in choice.refined.items() if cause != chosen.cause),
                     key=lambda score: -score.improvement)
     return [score for score in scores if score.counts]
 
@@ -123,7 +125,7 @@ def other_reading(first: FirstRound, followed: PathsFollowed) -> OtherReading | 
     if causes is None or path.remaining.present or causes[0] not in first.fits:
         return None
     cause, context = causes[0], first.context
-    joint = followed.first_choices.get(cause) or joint_fit(first.search, context.recalibrated, first.fits[cause], ())
+    joint = followed.first_choices.get(cause) or joint_fit(first.search, context.recalibration, first.fits[cause], ())
     score = score_candidate(context, joint.fit, first.recalibrated)
     if not score.counts:
         return None

@@ -172,10 +172,11 @@ class RecordSearch:
                 cache[key] = (replayed_line, made.without(excluded) if excluded else made)
             return cache[key][1]
 
-        context = FitContext(self.data, replayer, point.model, point.line, None, self.noise_rms_K, self.fit_mask,
-                             self.held_out_mask, link_reference=base.model(without=LINK_PARAMETERS).ptc_to_flange,
-                             recalibrated=base, line_model=line_model, basis_for=basis_for)
-        return dataclasses.replace(context, base_replay=context.replay(point.model, point.line))
+        # the point's model replayed as the context replays (FitContext.replay), its basis fitted alongside
+        base_replay = replayer.replay(point.model, point.line, basis=basis_for(point.line))
+        return FitContext(self.data, replayer, point.model, point.line, base_replay, self.noise_rms_K, self.fit_mask,
+                          self.held_out_mask, link_reference=base.model(without=LINK_PARAMETERS).ptc_to_flange,
+                          recalibrated=base, line_model=line_model, basis_for=basis_for)
 
     def fit_candidates(self, context: FitContext, causes, label: str = "") -> dict[str, CandidateFit]:
         """Each cause fitted in ``context``, timed under ``cause + label``."""

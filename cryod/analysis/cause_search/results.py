@@ -9,20 +9,27 @@
 * :class:`Verdict`: what the search concludes (the decision, the causes, the extended model).
 * :class:`Analysis`: everything one analysis found, what the report, the figures and the JSON are made of.
 
+Two of the analysis's parts are made by later steps, and declared here by what the report and the JSON read of
+them: :class:`BeyondTolerance` (:class:`~cryod.analysis.cause_search.base_model_off.BeyondRecalibration`) and
+:class:`WhatIsLeft` (:class:`~cryod.analysis.cause_search.what_is_left.Attribution`).
+
 A step that changes one of these makes a new one (:func:`dataclasses.replace`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 from cryod.analysis.candidates import CandidateFit, FitContext
 from cryod.analysis.cause_signature import BandExcess
 from cryod.analysis.decision import BaseDiscrepancy, CandidateScore, Decision, Gain
-from cryod.analysis.recalibration import RecalibratedBase, Recalibration
+from cryod.analysis.generic_extension import GenericExtension
+from cryod.analysis.recalibration import RecalibratedBase, RecalibratedParameter, Recalibration
 from cryod.analysis.record_data import RecordData
 from cryod.analysis.refinement import NamedEffect
 from cryod.analysis.replay import Replay
+from cryod.analysis.residual_signature import ResidualSignature
 from cryod.cooler.line import PtcLine
 from cryod.model import CryostatModel
 
@@ -218,7 +225,7 @@ class Verdict:
         What the extended model still shows on the held-out blocks.
     final_recalibration : Recalibration or None
         The recalibration as refitted with the causes named.
-    generic : object or None
+    generic : GenericExtension or None
         The generic extension the causes were weighed against, when they were
         (:class:`cryod.analysis.generic_extension.GenericExtension`).
     other_paths : tuple of dict
@@ -236,10 +243,33 @@ class Verdict:
     final_replay: Replay
     remaining: BaseDiscrepancy
     final_recalibration: Recalibration | None = None
-    generic: object = None
+    generic: GenericExtension | None = None
     other_paths: tuple[dict, ...] = ()
     further: tuple[FurtherCandidate, ...] = ()
     at_bound: tuple[BoundEvidence, ...] = ()
+
+
+class BeyondTolerance(Protocol):
+    """For ``base_model_off``: what the record asks beyond the recalibration's tolerance, as the report reads it
+    (:class:`cryod.analysis.cause_search.base_model_off.BeyondRecalibration`)."""
+
+    @property
+    def parameters(self) -> list[RecalibratedParameter]: ...
+    @property
+    def at_tolerance(self) -> list[str]: ...
+    @property
+    def within_tolerance(self) -> Analysis: ...
+    @property
+    def equivalent_to(self) -> list[dict]: ...
+    def as_dict(self) -> dict: ...
+
+
+class WhatIsLeft(Protocol):
+    """What is left, band by band, as the report reads it
+    (:class:`cryod.analysis.cause_search.what_is_left.Attribution`)."""
+
+    def sentences(self) -> list[str]: ...
+    def as_dict(self) -> dict: ...
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -266,12 +296,12 @@ class Analysis:
         Where the first round's candidates were fitted.
     timings_s : dict of str to float
         Wall time of each step, in the order they ran (the command adds its own).
-    recalibration : Recalibration or None
+    recalibration : Recalibration
         The recalibration of the base model alone.
     recalibrated : bool
         Whether the recalibration is part of the extended model (it is when the
         base model as given shows a discrepancy).
-    recalibration_gain : Gain or None
+    recalibration_gain : Gain
         Held-out residual of the base model as given and recalibrated.
     causes : tuple of NamedCause
         Every cause named, strongest (first added) first; empty for ``none``.
@@ -285,13 +315,13 @@ class Analysis:
     remaining : BaseDiscrepancy or None
         What the extended model (the causes named, or the recalibrated model when none is) still shows on the
         held-out blocks, by the rule that calls for a cause.
-    beyond_recalibration : object or None
+    beyond_recalibration : BeyondTolerance or None
         For ``base_model_off``: the parameters the record asks beyond the recalibration's tolerance
         (:class:`cryod.analysis.cause_search.base_model_off.BeyondRecalibration`).
-    generic : object or None
+    generic : GenericExtension or None
         The generic extension fitted on top of the extended model, when a discrepancy remains
         (:class:`cryod.analysis.generic_extension.GenericExtension`).
-    residual_signature : object or None
+    residual_signature : ResidualSignature or None
         What the extended model leaves, described (:class:`cryod.analysis.residual_signature.ResidualSignature`).
     widened : Recalibration or None
         The base model alone recalibrated with the wider tolerances of
@@ -303,7 +333,7 @@ class Analysis:
         Candidates judged on top of the causes named and not named: what would explain what is left.
     at_bound : tuple of BoundEvidence
         Named causes' parameters found at an edge of their range, re-examined.
-    attribution : object or None
+    attribution : WhatIsLeft or None
         What is left, band by band, and the candidates that would explain it
         (:class:`cryod.analysis.cause_search.what_is_left.Attribution`).
     """
@@ -318,23 +348,23 @@ class Analysis:
     decision: Decision
     context: FitContext
     timings_s: dict[str, float] = field(default_factory=dict)
-    recalibration: Recalibration | None = None
+    recalibration: Recalibration
     recalibrated: bool = False
-    recalibration_gain: Gain | None = None
+    recalibration_gain: Gain
     causes: tuple[NamedCause, ...] = ()
     final_model: CryostatModel | None = None
     final_replay: Replay | None = None
-    base_discrepancy: BaseDiscrepancy | None = None
+    base_discrepancy: BaseDiscrepancy
     final_recalibration: Recalibration | None = None
     remaining: BaseDiscrepancy | None = None
-    beyond_recalibration: object = None
-    generic: object = None
-    residual_signature: object = None
+    beyond_recalibration: BeyondTolerance | None = None
+    generic: GenericExtension | None = None
+    residual_signature: ResidualSignature | None = None
     widened: Recalibration | None = None
     other_paths: tuple[dict, ...] = ()
     further: tuple[FurtherCandidate, ...] = ()
     at_bound: tuple[BoundEvidence, ...] = ()
-    attribution: object = None
+    attribution: WhatIsLeft | None = None
 
     @property
     def cause(self) -> str:
@@ -359,5 +389,5 @@ class Analysis:
         return [named.cause for named in self.causes]
 
 
-__all__ = ["Analysis", "BoundEvidence", "CausePath", "FurtherCandidate", "JointFit", "NamedCause", "ReplayedModel",
-           "Verdict"]
+__all__ = ["Analysis", "BeyondTolerance", "BoundEvidence", "CausePath", "FurtherCandidate", "JointFit", "NamedCause",
+           "ReplayedModel", "Verdict", "WhatIsLeft"]

@@ -39,8 +39,13 @@ import numpy as np
 
 from cryod.analysis.cause_signature import BandExcess
 from cryod.analysis.decision import (
-    CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIGMA, DISCREPANCY_FRACTION_OF_NOISE, DISCREPANCY_SIGMA,
-    EXPLAINED_FRACTION, BaseDiscrepancy, CandidateScore,
+    CANDIDATE_MINIMUM_IMPROVEMENT,
+    CANDIDATE_SIGMA,
+    DISCREPANCY_FRACTION_OF_NOISE,
+    DISCREPANCY_SIGMA,
+    EXPLAINED_FRACTION,
+    BaseDiscrepancy,
+    CandidateScore,
 )
 from cryod.analysis.replay import Replay
 

@@ -19,6 +19,7 @@ from cryod.analysis.cause_search.joint_refit import starting_path
 from cryod.analysis.cause_search.results import BoundEvidence, CausePath, FurtherCandidate, Verdict
 from cryod.analysis.cause_search.rules import names_the_causes, weighed_against_generic
 from cryod.analysis.decision import BaseDiscrepancy, Decision, decide, gain_between
+from cryod.analysis.generic_extension import GenericExtension
 from cryod.analysis.recalibration import Recalibration
 
 #: Where the reason says the record cannot tell the cause named from others (rule 4 of :mod:`cryod.analysis.decision`).
@@ -63,7 +64,8 @@ def first_round_candidates(first: FirstRound) -> tuple[FurtherCandidate, ...]:
     return judge_on_path(first, starting_path(first), first.fits, {})[1]
 
 
-def _unexplained(first: FirstRound, reason: str, generic: object = None, other_paths: tuple = ()) -> Verdict:
+def _unexplained(first: FirstRound, reason: str, generic: GenericExtension | None = None, other_paths: tuple = ()
+                 ) -> Verdict:
     """``unexplained`` with ``reason``: no cause named, the extended model the recalibrated one."""
     as_given, recalibrated = first.as_given, first.recalibrated
     return Verdict(
@@ -100,7 +102,7 @@ def judge(first: FirstRound, path: CausePath, other_paths: tuple[dict, ...],
     return dataclasses.replace(_named(first, path, generic, other_paths), at_bound=at_bound)
 
 
-def _named(first: FirstRound, path: CausePath, generic: object, other_paths: tuple[dict, ...]) -> Verdict:
+def _named(first: FirstRound, path: CausePath, generic: GenericExtension | None, other_paths: tuple[dict, ...]) -> Verdict:
     """The causes on ``path`` named; the first one is the verdict's cause. When it alone was the first round's
     choice in a tie, the reason and the tied causes are the first round's."""
     named, first_choice = path.causes[0], first.decision

@@ -26,7 +26,6 @@ from cryod.analysis.decision import CANDIDATE_MINIMUM_IMPROVEMENT, CANDIDATE_SIG
 from cryod.analysis.generic_extension import fit_generic_extension
 from cryod.analysis.residual_signature import describe_residual
 
-
 #: What each band is, in the report's words.
 BAND_WORDS = {"line": "at the cooler's line and its harmonics (T2 and T5)",
               "slow": "in the slow stretches, where T2 and T5 follow the heater (steps, modulation, warm-ups)"}

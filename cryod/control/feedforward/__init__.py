@@ -31,8 +31,8 @@ How it works and why, with the results: docs/explanation/feedforward.md. The ter
 control terms' table (:data:`cryod.control.terms.TERM_TYPES`) and users import them from.
 """
 
-from cryod.control.feedforward.synchronous_estimator import SynchronousEstimator
 from cryod.control.feedforward.settings import FeedforwardSettings
+from cryod.control.feedforward.synchronous_estimator import SynchronousEstimator
 from cryod.control.feedforward.term import FeedforwardTerm
 
 __all__ = ["FeedforwardSettings", "FeedforwardTerm", "SynchronousEstimator"]

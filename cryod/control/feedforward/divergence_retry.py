@@ -32,7 +32,7 @@ LONGEST_RETRY_S = 3600.0
 class DivergenceRetry:
     """The divergences since the start, the one fading out, and when learning may start again (module notes)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         #: Why the waveform is fading out after a divergence (None: it is not).
         self.reason: str | None = None
         #: Divergences since the start.

@@ -26,8 +26,8 @@ import cmath
 import numpy as np
 
 from cryod.model import CryostatModel
-from cryod.model.dynamics import flange_transfer_functions, stage_transfer_functions
 from cryod.model.cooler_path import CoolerDrive, CoolerPath
+from cryod.model.dynamics import flange_transfer_functions, stage_transfer_functions
 
 
 def plant_at_harmonics(model: CryostatModel, orders, period_s: float, setting_delay_s: float = 0.0) -> np.ndarray:

@@ -41,7 +41,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.control.feedforward.limit import (
-    FeedforwardLimit, FeedforwardLimitError, LimitChange, SweepPoint, limit_for_plant,
+    FeedforwardLimit,
+    FeedforwardLimitError,
+    LimitChange,
+    SweepPoint,
+    limit_for_plant,
 )
 from cryod.control.feedforward.plant_learner import LearnedPlant
 

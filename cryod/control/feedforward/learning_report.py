@@ -70,7 +70,7 @@ DIFFERING_FOR_S = 60.0
 class LearningReport:
     """Turns the learning's steps into events (module notes)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._events: list[tuple[int, str]] = []
         self._fundamental_learned = False
         self._differences: tuple[int, ...] = ()

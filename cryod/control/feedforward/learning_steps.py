@@ -60,10 +60,8 @@ class LearningSteps:
     """
 
     def __init__(self, harmonics: int):
-        #: The learner's thread (:meth:`use_estimator`).
-        self.worker: LearningWorker | None = None
-        #: What the last step found.
-        self.estimate: StepResult | None = None
+        self._worker: LearningWorker | None = None         # :attr:`worker`
+        self._estimate: StepResult | None = None           # :attr:`estimate`
         self.probe_state = ProbeState.start(harmonics)
         self.guard = DivergenceGuard(DIVERGENCE_STEPS)
         self.report = LearningReport()
@@ -79,17 +77,31 @@ class LearningSteps:
         self._next_step_s: float | None = None
         self._synchronous: tuple | None = None
 
+    @property
+    def worker(self) -> LearningWorker:
+        """The learner's thread (:meth:`use_estimator` starts it; the term does as it is made)."""
+        if self._worker is None:
+            raise RuntimeError("the feedforward's learner is not started: use_estimator first")
+        return self._worker
+
+    @property
+    def estimate(self) -> StepResult:
+        """What the last step found (before the first: the model's plant, nothing learned)."""
+        if self._estimate is None:
+            raise RuntimeError("the feedforward's learner is not started: use_estimator first")
+        return self._estimate
+
     def needs_estimator(self, harmonics: int, memory_s: float) -> bool:
         """Whether the learner must start again (none yet, or another number of harmonics or memory)."""
-        estimator = None if self.worker is None else self.worker.estimator
+        estimator = None if self._worker is None else self._worker.estimator
         return estimator is None or estimator.harmonics != harmonics or estimator.memory_s != memory_s
 
     def use_estimator(self, estimator: SynchronousEstimator, model_plant: np.ndarray) -> None:
         """Learn with ``estimator`` from now on, nothing known but ``model_plant`` (take the step pending first)."""
-        if self.worker is not None:
-            self.worker.close()
-        self.worker = LearningWorker(estimator)
-        self.estimate = StepResult.empty(model_plant)
+        if self._worker is not None:
+            self._worker.close()
+        self._worker = LearningWorker(estimator)
+        self._estimate = StepResult.empty(model_plant)
 
     def due(self, time_s: float, interval_s: float) -> bool:
         """Whether a step is due at ``time_s`` (the first ``interval_s`` after the first asked)."""
@@ -161,15 +173,16 @@ class LearningSteps:
         """
         if self._pending is None:
             return ()
-        result = self.worker.result(self._pending)
+        result: StepResult = self.worker.result(self._pending)
         self._pending = None
-        self.estimate = result
+        self._estimate = result
         plant = result.learned
         playing = result.coefficients is not None and result.probe_cost_K > 0.0
         self.probe_column = result.probe_cost_K if playing else math.nan
         self.plant_known_for_limit = bool(plant.learned[0] and plant.relative_spread[0] < LIMIT_PLANT_SPREAD)
-        events = ()
+        events: tuple[FeedforwardEvent, ...] = ()
         if result.coefficients is not None:      # a step that moves the waveform: asked while it played
+            assert result.probe is not None and result.probe_state is not None     # a moving step sets all three
             waveform.set(result.coefficients, result.probe)
             self.probe_state = result.probe_state
             events = (FeedforwardEvent.PROBE_PLAYS if np.any(result.probe) else
@@ -204,7 +217,7 @@ class LearningSteps:
         self.worker.apply(SynchronousEstimator.reset_correction)
         self.probe_state = ProbeState.start(harmonics)
         self.guard.clear()
-        self.estimate = replace(self.estimate, learned=LearnedPlant.from_model(model_plant).prepared())
+        self._estimate = replace(self.estimate, learned=LearnedPlant.from_model(model_plant).prepared())
         self.plant_known_for_limit = False
         self.probe_column = math.nan
 
@@ -221,10 +234,11 @@ class LearningSteps:
         """What the limit is computed from once the plant at the line is learned and T2 has settled at the
         setpoint ``setpoint_K`` (its mean power the one the setpoint needs), not after a divergence's wait; else
         None. ``output_max`` (W), ``period_s`` and ``setting_delay_s`` (s): the heater and the loop's timing."""
-        if not (self.plant_known_for_limit and levels.settled and self.estimate.ready
+        mean_power_w = levels.mean_power_w      # known once settled
+        if not (self.plant_known_for_limit and levels.settled and mean_power_w is not None and self.estimate.ready
                 and not self.retry.pending(time_s)):
             return None
-        return LearnedLimitInputs(self.estimate.learned, self.estimate.line.copy(), levels.mean_power_w, output_max,
+        return LearnedLimitInputs(self.estimate.learned, self.estimate.line.copy(), mean_power_w, output_max,
                                   setpoint_K, period_s, setting_delay_s)
 
     def summary(self, limits: LimitFollower, setting_delay_s: float) -> dict:
@@ -246,16 +260,16 @@ class LearningSteps:
     def synchronous(self, effect: np.ndarray) -> list[complex]:
         """T2's synchronous part ``L_n + k_n z_n`` as the last step estimated it, for the waveform's ``effect``
         now (K per harmonic, plain complex; cached)."""
-        cache = self._synchronous
-        if cache is None or cache[0] is not self.estimate or cache[1] is not effect:
-            phasors = self.estimate.line + self.estimate.learned.correction * effect
-            cache = self._synchronous = (self.estimate, effect, [complex(value) for value in phasors])
+        cache, estimate = self._synchronous, self.estimate
+        if cache is None or cache[0] is not estimate or cache[1] is not effect:
+            phasors = estimate.line + estimate.learned.correction * effect
+            cache = self._synchronous = (estimate, effect, [complex(value) for value in phasors])
         return cache[2]
 
     def close(self) -> None:
         """End the learner's thread."""
-        if self.worker is not None:
-            self.worker.close()
+        if self._worker is not None:
+            self._worker.close()
 
 
 __all__ = ["DIVERGENCE_STEPS", "LIMIT_PLANT_SPREAD", "LearningSteps"]

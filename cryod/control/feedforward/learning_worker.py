@@ -33,9 +33,12 @@ from __future__ import annotations
 import queue
 import threading
 import weakref
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from cryod.thread_priority import at_normal_priority
+
+if TYPE_CHECKING:
+    from cryod.control.feedforward.synchronous_estimator import SynchronousEstimator
 
 _GAP = object()
 _STOP = object()
@@ -77,7 +80,7 @@ class LearningWorker:
         Used only by the worker thread from now on.
     """
 
-    def __init__(self, estimator):
+    def __init__(self, estimator: SynchronousEstimator) -> None:
         self.estimator = estimator
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()
         self._results: dict[int, Any] = {}

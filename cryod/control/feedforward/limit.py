@@ -44,7 +44,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.control.feedforward.bounded_waveform import (
-    best_bounded_waveform, largest_fundamental, residual_lower_bound, waveform_values,
+    best_bounded_waveform,
+    largest_fundamental,
+    residual_lower_bound,
+    waveform_values,
 )
 from cryod.control.feedforward.harmonic_plant import line_at_harmonics
 from cryod.model import CryostatModel, TransferFunction
@@ -401,8 +404,10 @@ def feedforward_limit(model: CryostatModel, setpoint_K: float, heater_resistance
     if 2 * harmonics + 2 > phase_points:
         raise FeedforwardLimitError(f"phase_points ({phase_points}) must exceed twice the harmonics ({harmonics})")
     problem = _problem(model, setpoint_K, max_power, period_s, delay, measure, harmonics)
-    floor_gain = _smallest_held_gain(problem.heater_path, period_s, delay, measure) if certify else None
-    thermometer_at_line = complex(problem.heater_path.frequency_response(model.ptc.angular_frequency_rad_s))
+    heater_path = problem.heater_path
+    assert heater_path is not None          # the model's problem keeps G
+    floor_gain = _smallest_held_gain(heater_path, period_s, delay, measure) if certify else None
+    thermometer_at_line = complex(heater_path.frequency_response(model.ptc.angular_frequency_rad_s))
     return _solved(problem, thermometer_at_line, floor_gain, lambda delivered: _commanded(model, delivered),
                    model.sensor_noise.flange_thermometer_rms_K, setpoint_K=float(setpoint_K),
                    heater_resistance_ohm=float(heater_resistance_ohm), max_current_A=float(max_current_A),
@@ -631,7 +636,9 @@ def limit_sweep(model: CryostatModel, vary: str, values, *, setpoint_K: float, h
         powers = (mean_heater_power_w(model, arguments["setpoint_K"]),
                   arguments["heater_resistance_ohm"] * arguments["max_current_A"] ** 2)
         try:
-            rows.append(SweepPoint(float(value), *powers, feedforward_limit(model, **arguments, **options)))
+            limit = feedforward_limit(model, arguments["setpoint_K"], arguments["heater_resistance_ohm"],
+                                      arguments["max_current_A"], **options)
+            rows.append(SweepPoint(float(value), *powers, limit))
         except FeedforwardLimitError as error:
             rows.append(SweepPoint(float(value), *powers, None, str(error)))
     return tuple(rows)

@@ -28,8 +28,8 @@ import math
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable
 
-from cryod.control.feedforward.limit import FeedforwardLimitError, limit_changes, limit_for_heater_power
 from cryod.control.feedforward.learned_limit import LearnedLimitInputs, learned_limit, learned_limit_changes
+from cryod.control.feedforward.limit import FeedforwardLimitError, limit_changes, limit_for_heater_power
 from cryod.model import CryostatModel
 from cryod.thread_priority import at_normal_priority
 

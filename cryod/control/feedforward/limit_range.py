@@ -113,11 +113,11 @@ def limit_range(model: CryostatModel, setpoint_K: float, heater_resistance_ohm: 
     if not limits:
         return LimitRange(math.nan, math.nan, math.nan, math.nan, math.nan, math.nan, math.nan, math.nan, 0,
                           out_of_reach)
-    limits = np.asarray(limits)
-    low, median, high = np.percentile(limits, [2.5, 50.0, 97.5])
-    return LimitRange(float(median), float(low), float(high), float(np.std(limits, ddof=1)) if limits.size > 1
+    limits_K = np.asarray(limits)
+    low, median, high = np.percentile(limits_K, [2.5, 50.0, 97.5])
+    return LimitRange(float(median), float(low), float(high), float(np.std(limits_K, ddof=1)) if limits_K.size > 1
                       else 0.0, float(np.percentile(authorities, 2.5)), float(np.percentile(authorities, 97.5)),
-                      float(np.percentile(powers, 2.5)), float(np.percentile(powers, 97.5)), int(limits.size),
+                      float(np.percentile(powers, 2.5)), float(np.percentile(powers, 97.5)), int(limits_K.size),
                       out_of_reach)
 
 

@@ -37,7 +37,7 @@ APPROACHING_K = 2e-3
 class PowerLevels:
     """The feedback terms' power and its mean, T2's distance from the setpoint, smoothed (module notes)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         #: The feedback terms' power, smoothed over :data:`BASE_TIME_S` (W; None before the first tick).
         self.other_terms_w: float | None = None
         #: ... and over :data:`MEAN_POWER_TIME_S` at the learning steps (W; None before the first).

@@ -41,9 +41,9 @@ CHANGE_SETTLE_ABOVE_K = 20e-6
 class ReadingFeed:
     """T2's readings into the learner, with the gaps where the heater did not play what it assumes (module notes)."""
 
-    def __init__(self):
-        #: The power the regulator held back at the heater's bounds, as T2 answers it (set by the term).
-        self.unplayed: UnplayedPower | None = None
+    def __init__(self, unplayed: UnplayedPower):
+        #: The power the regulator held back at the heater's bounds, as T2 answers it (the term's model's).
+        self.unplayed = unplayed
         self._held_since_s = -math.inf      # when the loop last had a gap (the heater held off)
         self._changed_at_s = -math.inf      # when the heater began to play a new waveform or probe
         self._in_gap = False                # the learner was told of a gap since the last reading

@@ -18,7 +18,7 @@ import numpy as np
 
 from cryod.control.feedforward.bounded_waveform import waveform_values
 from cryod.control.feedforward.learning_step import BOUND_POINTS
-from cryod.control.feedforward.limit import REPORTED_HARMONICS
+from cryod.control.feedforward.limit import REPORTED_HARMONICS, FeedforwardLimit
 from cryod.control.feedforward.limit_binding import limit_binding, measured_against_limit
 from cryod.control.feedforward.plant_learner import LearnedPlant
 from cryod.control.feedforward.plant_probe import ProbeState
@@ -113,7 +113,7 @@ class FeedforwardStatus:
     divergence: str | None
     divergences: int
     retry_in_s: float
-    limit: object | None
+    limit: FeedforwardLimit | None
     limit_from: str | None
     limit_changes: tuple
 
@@ -153,8 +153,9 @@ def status_text(status: FeedforwardStatus) -> str:
     lines.append(f"plant, heater to T2's readings (model: {status.model_source}; "
                  f"{'learned' if plant.learned.any() else 'nothing learned yet'}):")
     lines.append(plant.describe())
-    if plant.differences_said():
-        lines.append(plant.differences_said())
+    differences = plant.differences_said()
+    if differences:
+        lines.append(differences)
     lines.append(_probe(status))
     if not status.cycles_on_time:
         lines.append("the loop's cycles are late many in a row: the waveform fades out and learning pauses "

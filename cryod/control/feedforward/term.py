@@ -66,16 +66,21 @@ from cryod.control.feedforward.power_levels import PowerLevels
 from cryod.control.feedforward.reading_feed import ReadingFeed
 from cryod.control.feedforward.record_columns import COLUMNS
 from cryod.control.feedforward.settings import FeedforwardSettings, settings_from
-from cryod.control.feedforward.state_machine import (BEHAVIOURS, FeedforwardEvent, FeedforwardState, next_state,
-                                                     verdict)
+from cryod.control.feedforward.state_machine import BEHAVIOURS, FeedforwardEvent, FeedforwardState, next_state, verdict
 from cryod.control.feedforward.status_text import FeedforwardStatus, status_text
 from cryod.control.feedforward.synchronous_estimator import SynchronousEstimator
 from cryod.control.feedforward.unplayed_power import UnplayedPower
 from cryod.control.terms import ControlTerm, TickInputs
-from cryod.cooler.phase import CoolerPhaseTracker
+from cryod.cooler.phase import CoolerPhase, CoolerPhaseTracker
 
 #: The plant response is recomputed when the delay from T2's sample to the heater setting moves by more (s).
 SETTING_DELAY_TOLERANCE_S = 0.002
+
+
+def _tracker(settings: FeedforwardSettings) -> CoolerPhaseTracker:
+    """The cooler's phase tracker for the controller's model and the smallest cooler amplitude of ``settings``."""
+    return CoolerPhaseTracker(settings.controller_model.ptc.angular_frequency_rad_s,
+                              minimum_amplitude_K=settings.minimum_cooler_amplitude_K)
 
 
 class FeedforwardTerm(ControlTerm):
@@ -87,6 +92,7 @@ class FeedforwardTerm(ControlTerm):
     columns = COLUMNS
 
     def __init__(self, settings: FeedforwardSettings, output_max: float):
+        model = settings.controller_model
         self.output_max = output_max
         self.switched_on = settings.enabled
         self.on_time = True                 # the loop's cycles keep their deadlines (follow_timing)
@@ -95,19 +101,19 @@ class FeedforwardTerm(ControlTerm):
         self.scale = 0.0                    # the fade: 0 (out) to 1 (full)
         self.waveform = PlayedWaveform(settings.harmonics)
         self.steps = LearningSteps(settings.harmonics)
-        self.readings = ReadingFeed()
+        self.readings = ReadingFeed(UnplayedPower(model))
         self.levels = PowerLevels()
-        #: The plant at each harmonic as the loop samples it (K/W), from the controller's model.
-        self.plant: np.ndarray | None = None
-        self.tracker: CoolerPhaseTracker | None = None
-        self.phase = None                   # the cooler's phase at this tick (None: not tracked)
         self.setting_delay_s = 0.0
+        #: The plant at each harmonic as the loop samples it (K/W), from the controller's model.
+        self.plant = plant_at_harmonics(model, np.arange(1, settings.harmonics + 1), settings.period_s, 0.0)
+        self.tracker = _tracker(settings)
+        self.phase: CoolerPhase | None = None       # the cooler's phase at this tick (None: not tracked)
         self.output_w = 0.0
         self.time_s = 0.0                   # the last closed-loop tick's
         self._flange_phase_rad = math.nan
         self._updated = False               # update() ran last tick: the heater played the waveform
         self._output_time_s = 0.0           # when this tick's power takes effect
-        self.limits: LimitFollower | None = None        # the physical limit at the setpoint in use
+        self.limits = LimitFollower(model)              # the physical limit at the setpoint in use
         self._configure(settings)
 
     settings_from = staticmethod(settings_from)     # the control.feedforward section, validated (settings.py)
@@ -116,12 +122,9 @@ class FeedforwardTerm(ControlTerm):
         self.settings = settings
         model = settings.controller_model
         harmonics = settings.harmonics
-        if self.tracker is None or self.tracker.nominal_rad_s != model.ptc.angular_frequency_rad_s \
+        if self.tracker.nominal_rad_s != model.ptc.angular_frequency_rad_s \
                 or self.tracker.minimum_amplitude_K != settings.minimum_cooler_amplitude_K:
-            self.tracker = CoolerPhaseTracker(model.ptc.angular_frequency_rad_s,
-                                              minimum_amplitude_K=settings.minimum_cooler_amplitude_K)
-        if self.limits is None:
-            self.limits = LimitFollower(model)
+            self.tracker = _tracker(settings)
         self.limits.use_model(model)
         self.readings.unplayed = UnplayedPower(model)
         previous_plant = self.plant
@@ -221,7 +224,8 @@ class FeedforwardTerm(ControlTerm):
         self._updated = True
         self._output_time_s = tick.output_time_s
         self.time_s = tick.time_s
-        locked = self.phase is not None and self.phase.locked
+        phase = self.phase
+        locked = phase is not None and phase.locked
         self._move(verdict(self.switched_on, self.on_time, locked, self.steps.retry.pending(tick.time_s)))
         plays = BEHAVIOURS[self.state].plays
         self.scale = faded(self.scale, 1.0 if plays else 0.0, tick.dt_s, self.settings.fade_time_s)
@@ -230,11 +234,11 @@ class FeedforwardTerm(ControlTerm):
         elif not plays and self.scale <= 0.0:
             if self._move(FeedforwardEvent.FADED_OUT) is FeedforwardState.DIVERGED:
                 self._start_again_later()
-        if locked and (self.switched_on or self.scale > 0.0) and self.steps.due(tick.time_s,
-                                                                                 self.settings.update_interval_s):
+        if phase is not None and phase.locked and (self.switched_on or self.scale > 0.0) and \
+                self.steps.due(tick.time_s, self.settings.update_interval_s):
             self.levels.follow_mean(abs(tick.setpoint_K - tick.flange_feedback_K), self.settings.update_interval_s)
             self.steps.ask(self.settings, self.plant, self.waveform, self.levels, self.output_max,
-                           self.phase.frequency_rad_s, moves=plays)
+                           phase.frequency_rad_s, moves=plays)
         self.limits.follow(tick.time_s, tick.setpoint_K, self.output_max, self.settings.period_s,
                            self.setting_delay_s, self._learned_limit_inputs)
         if self.scale <= 0.0 or self.phase is None:

@@ -8,6 +8,9 @@ three taps in turn, each timed with ``time.thread_time`` over all rows, the best
 live view (the baseline every run already has), the monitor with every alarm on (``--window`` for
 the deviation and stability windows), and the monitor with none on. The slowest single row of the
 monitor is the once-a-second check of the windows, timed alone with ``time.thread_time``.
+
+Results: ``benchmarks/results/loop_cpu.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

@@ -45,6 +45,9 @@ of the columns analysed (``record.sha256``); the analysis is timed alone, as
 without. Two runs, one on another checkout's code (``PYTHONPATH=OTHER_CHECKOUT
 python3 benchmarks/analysis_causes.py ...``), are compared record by record by
 ``benchmarks/analysis_compare.py``.
+
+Results: ``benchmarks/results/analysis_causes.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations
@@ -492,6 +495,10 @@ def tables(results: list[dict]) -> str:
         cpu = np.array([item["cpu_s"] for item in items])
         lines.append(f"| {kind} | {protocol} | {len(items)} | {np.median(wall):.1f} / {wall.max():.1f} | "
                      f"{np.median(cpu):.1f} / {cpu.max():.1f} |")
+    slowest = sorted(results, key=lambda item: -item["cpu_s"])[:3]
+    lines += ["", "The slowest three (CPU): " + "; ".join(
+        f"record {item['index']} ({item['kind']}, {item['protocol']}, {' + '.join(item['causes']) or item.get('outside') or item.get('off') or 'clean'}) "
+        f"{item['cpu_s']:.1f} s" for item in slowest) + "."]
     return "\n".join(lines)
 
 

@@ -19,6 +19,9 @@ Printed: one line per record that differs (which key or file, and for the
 count; the exit status is 1 when anything differs. A record whose columns
 differ (``record.sha256``: the daemon's own records are made afresh in each
 run) is said to be so: its analysis then need not agree.
+
+Results: ``benchmarks/results/analysis_causes.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

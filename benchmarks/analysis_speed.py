@@ -17,6 +17,9 @@ time is what the analysis itself costs) and the step times of its report. With
 same run, alternately, and the ratio of CPU times is printed, with the two
 trees' ``--json`` outputs compared (verdicts, causes, every number: equal, or
 the largest relative difference).
+
+Results: ``benchmarks/results/analysis_speed.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

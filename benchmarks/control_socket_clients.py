@@ -11,6 +11,9 @@ overruns and missed deadlines (from its status), the ``lateness_ms`` and ``cycle
 the rows recorded in the phase, and the daemon process's CPU time per second of the phase and per
 reply (beyond the quiet phases' rate). The machine's load from other work shows in the quiet
 phases; CPU time does not depend on it as much as lateness does.
+
+Results: ``benchmarks/results/control_socket.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

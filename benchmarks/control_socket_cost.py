@@ -12,6 +12,9 @@ quiet stretches with rounds of ``--clients`` clients that ask ``status`` at the 
 * the server process's CPU time beyond the stand-in loop's, per reply (less sensitive to other
   work on the machine than timing is);
 * the stand-in ticks' duration, quiet and with clients (p50, p99, max; 80 ms is the deadline).
+
+Results: ``benchmarks/results/control_socket.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

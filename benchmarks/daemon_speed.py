@@ -1,4 +1,4 @@
-"""The daemon's two performance targets (docs/benchmarks.md), measured through its own command line.
+"""The daemon's two performance targets (benchmarks/results/daemon_speed.md), measured through its own command line.
 
 Run: PYTHONPATH=. python3 benchmarks/daemon_speed.py [--realtime-s 600] [--max-s 3600] [--repeat 5] [--skip-realtime]
      [--tree OTHER_CHECKOUT] [--cryod-args '--no-feedforward']

@@ -11,6 +11,9 @@ microseconds of the writer's CPU per row, the best of three runs.
 * ``batched``: N rows queued at once, written in batches (virtual time);
 * ``one by one``: each row handed over and written before the next (``drain`` where the tree has it,
   otherwise a wait until the queue is empty), as in service where each tick's row is written alone.
+
+Results: ``benchmarks/results/data_log_cost.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

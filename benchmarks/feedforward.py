@@ -1,4 +1,4 @@
-"""The feedforward's goals (docs/feedforward.md), measured through the daemon's own command line.
+"""The feedforward's goals (docs/explanation/feedforward.md), measured through the daemon's own command line.
 
 Run: PYTHONPATH=. python3 benchmarks/feedforward.py [--repeat 3] [--figures docs/figures]
 
@@ -16,7 +16,10 @@ physical limit for the simulated cryostat (`ptc_periodic_limit_K`), the mean err
 windows) stays within 2x of its final value; the CPU per tick of the loop's own thread with the
 feedforward against PI alone (benchmarks/loop_cpu.py, best of --repeat runs of each), and of the whole
 process (the learning worker and the data log's writer included, one run).
-Writes the figures of docs/feedforward.md and prints the tables.
+Writes the figures of docs/explanation/feedforward.md and prints the tables.
+
+Results: ``benchmarks/results/feedforward.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

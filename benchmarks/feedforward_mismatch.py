@@ -35,6 +35,9 @@ reduced one (each effect alone at its largest, two mixed cryostats without a wan
 0.15 s, dead time 0.04 s; gain 0.6, lag 0.1 s, dead time 0.02 s), the worst combination;
 5 and 6 K, 50 ohm, and 5 K at 17 ohm) takes 2 to 3 minutes. Results go to a JSON file
 (``--results``) from which ``--tables-only`` prints the tables again.
+
+Results: ``benchmarks/results/feedforward_mismatch.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations
@@ -308,7 +311,7 @@ def _cell(case: dict) -> str:
 
 
 def tables(results: dict) -> str:
-    """The markdown tables of docs/feedforward.md."""
+    """The markdown tables of docs/explanation/feedforward.md."""
     cases = results["cases"]
     lines = []
     for resistance in sorted({case["heater_ohm"] for case in cases}, reverse=True):

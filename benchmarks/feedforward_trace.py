@@ -17,6 +17,9 @@ every float), every 2 s its status text (``describe()``), and at the end ``learn
 The computation is deterministic (the learning worker's results do not depend on the threads'
 timing), so two checkouts that behave the same write the same file: ``--against`` runs the
 script on the other checkout too and compares.
+
+Results: ``benchmarks/results/loop_cpu.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

@@ -23,6 +23,9 @@ record: the verdict, whether a discrepancy is left, the generic families the
 extension uses, the fraction of what is left it removes and its held-out gain
 (held-out rms over the noise, the model before it against the model with it),
 and the gain of the whole extended model over the base model as given.
+
+Results: ``benchmarks/results/analysis_causes.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

@@ -7,6 +7,9 @@ line, a 1 MB gzip of 1 GiB of blank lines, ...). Each run is a fresh process wit
 ``PYTHONPATH``, its address space limited to 4 GiB (a reader that would take all the memory meets
 MemoryError there instead of taking the machine's), killed after 60 s (600 s for the gzip of blank
 lines). The peak is the child's own (VmHWM, tests/measured_child.py); a killed child has none.
+
+Results: ``benchmarks/results/hostile_records.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

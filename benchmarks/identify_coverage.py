@@ -18,6 +18,9 @@ record's first instant, which the daemon's clock, not the model, sets.
 
 Also reported: the largest relative error of the time constants and gains
 (goal: within 1 %), and how often each number of terms was chosen.
+
+Results: ``benchmarks/results/identify_coverage.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

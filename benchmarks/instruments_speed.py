@@ -18,7 +18,7 @@ Usage::
     python3 benchmarks/instruments_speed.py [--cycles N]
 
 It prints one line per setup: median and 95th percentile in ms. The result
-on the project's reference machine is in ``docs/instruments.md``.
+on the project's reference machine is in ``benchmarks/results/instruments_speed.md``.
 """
 
 from __future__ import annotations

@@ -20,6 +20,9 @@ are the child's own, whatever else the machine runs. Steps:
 
 Printed: one markdown row per record, tree and step. The machine is shared: CPU time is the
 figure to compare; wall time is what a user waited on that run.
+
+Results: ``benchmarks/results/long_records.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

@@ -14,6 +14,9 @@ costs, without the data log's writer, the feedforward's learning worker or start
 
 The modes run in turn, ``--repeat`` rounds, and the best of each is reported with its ratio to the
 best ``pi`` (the machine's speed varies from run to run, so the best is the fairest figure).
+
+Results: ``benchmarks/results/loop_cpu.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

@@ -10,6 +10,9 @@ process opens 5 pages (each reading the event stream) and 5 TCP clients of the 3
 poll ``KRDG? A;HTR? 1;SETP? 1`` as fast as they are answered, one sends random bytes, one sends
 lines far beyond the limit, one connects, sends half a command and goes away, over and over.
 Runs alternate (none, clients, none, clients, ...); the best of each is compared.
+
+Results: ``benchmarks/results/network_load.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

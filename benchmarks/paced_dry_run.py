@@ -13,6 +13,9 @@ average, each run's overruns, achieved speed, wall time, the cooler line on T2 o
 ``--fixed-multiple`` runs the paced runs instead on a clock at a fixed multiple of real time
 (:class:`drivers.clock.ScaledClock`, which keeps deadlines and counts overruns as real
 time does), the baseline the paced clock is measured against.
+
+Results: ``benchmarks/results/paced_dry_run.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

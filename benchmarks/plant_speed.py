@@ -7,6 +7,9 @@ All variants get the same open-loop input: a heater program that changes every
 each, the ratio to lsim measured in this same run, and how far lsim's result
 is from the exact one (lsim holds the PTC heat constant over each 80 ms step,
 which distorts and aliases the 1.72 Hz line; the plant evaluates it exactly).
+
+Results: ``benchmarks/results/plant_speed.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

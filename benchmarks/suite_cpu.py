@@ -10,6 +10,9 @@ the test's setup to its teardown) says what it costs. The plugin writes one row 
 of the session; the script prints the modules and the tests that cost most. A module's first test
 also pays for the imports the module's tests share, and a process the test started but did not wait
 for (a dry run it only terminated) counts when pytest's process reaps it.
+
+Results: ``benchmarks/results/suite_cpu.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ Usage::
 With no argument it times the tables in ``tests/data/calibration``. It prints
 the best of five runs of each call, in µs per call (the best run is the one
 least disturbed by the rest of the machine). The result on the project's
-reference machine is in ``docs/thermometry.md``.
+reference machine is in ``benchmarks/results/thermometry_speed.md``.
 """
 
 from __future__ import annotations

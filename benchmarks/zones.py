@@ -31,6 +31,9 @@ and over the hold from 1200 s after the ramp as one window, each against its noi
 noise spreads, and what a longer window resolves. ``--feedforward-model`` gives the last zone, split at
 ``--split-K``, another feedforward model above the split: ``linearised``, the simulated cryostat's own linear
 model at the setpoint.
+
+Results: ``benchmarks/results/zones.md`` (the figures measured, with the command, the machine and its
+load; update it when this benchmark's results change).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """cryod: temperature regulation of a pulse-tube cooled cryostat flange.
 
-The public Python API, for notebooks and experiment scripts (docs/api.md):
+The public Python API, for notebooks and experiment scripts (docs/how-to/scripts.md):
 
 * :func:`connect`, :class:`DaemonClient`: status and commands of a running daemon
   (``setpoint``, ``ramp``, ``heater_off``, ``manual``, ``feedforward``,

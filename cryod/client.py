@@ -28,6 +28,7 @@ from pathlib import Path
 from cryod.service.control_socket import send_command
 from cryod.service.daemon_status import status_from_json
 from cryod.service.discovery import find_daemon_socket
+from cryod.service.settling import SettlingWatch
 
 
 class CommandRefused(RuntimeError):
@@ -173,7 +174,8 @@ class DaemonClient:
                           wall=time.monotonic) -> dict:
         """Wait until the flange has settled at its setpoint.
 
-        Settled means: the loop is closed, the ramp has reached the target, and for
+        Settled is :class:`cryod.service.settling.SettlingWatch`'s rule (the IOC's STABLE is the same): the
+        loop is closed, the ramp has reached the target, and for
         ``hold_s`` of the daemon's clock every status polled (each ``poll_s`` of wall
         time) had T2 averaged over its last 10 s (``T2_average_K``: 17 cooler periods,
         so the cooler's 0.5 to 1.8 mK line averages out) within ``tolerance_K`` of the
@@ -193,39 +195,24 @@ class DaemonClient:
             loop left the closed state (heater off, fault), or the daemon stopped or its socket went
             away: the message says why and where T2 was.
         """
-        settled_since = None
+        watch = SettlingWatch(tolerance_K, hold_s)
         start = None
-        error = None
+        where = "not settled"
         wall_limit_s = timeout_s if wall_timeout_s is None else wall_timeout_s
         wall_start = wall()
         while True:
             try:
                 status = self.status()
             except ConnectionError as lost:
-                raise NotStable(f"the daemon went away while waiting ({lost}); last seen: "
-                                f"{_how_far(error, 'not settled')}") from None
-            seen = status_from_json(status)
-            loop, now = seen.loop, seen.loop.time_s
-            state = loop.state
-            if seen.waiting_for is not None or not math.isfinite(now):
-                raise NotStable(f"the daemon is not regulating yet ({seen.waiting_for or state})")
+                raise NotStable(f"the daemon went away while waiting ({lost}); last seen: {where}") from None
+            settling = watch.observe(status_from_json(status))
+            if settling.cannot_settle is not None:
+                raise NotStable(settling.cannot_settle)
+            if settling.stable:
+                return status
+            now = settling.time_s
             start = now if start is None else start
-            if state.startswith("fault") or state in ("off", "stopped", "manual"):
-                raise NotStable(f"the loop is {state}, not regulating"
-                                + (f" (last fault: {loop.last_fault})" if loop.last_fault else ""))
-            setpoint, target = loop.setpoint_K, loop.target_K
-            average = seen.recent.flange_average_K if seen.recent is not None else math.nan
-            error = None
-            if setpoint is not None and target is not None and abs(setpoint - target) <= 1e-9 \
-                    and math.isfinite(average) and seen.regulating:
-                error = average - setpoint              # settled on the target, not ramping
-            if error is None or abs(error) > tolerance_K:
-                settled_since = None
-            else:
-                settled_since = now if settled_since is None else settled_since
-                if now - settled_since >= hold_s:
-                    return status
-            where = _how_far(error, f"state {state}, setpoint {setpoint}, target {target}")
+            where = settling.where()
             if now - start > timeout_s:
                 raise NotStable(f"not stable within {tolerance_K * 1e6:g} µK after {timeout_s:g} s: {where}")
             if wall() - wall_start > wall_limit_s:
@@ -237,11 +224,6 @@ class DaemonClient:
 def connect(socket: str | Path | None = None, timeout_s: float = 10.0) -> DaemonClient:
     """A :class:`DaemonClient` of the daemon at ``socket`` (default: found as ``cryod ctl`` finds it)."""
     return DaemonClient(socket, timeout_s)
-
-
-def _how_far(error_K: float | None, otherwise: str) -> str:
-    """Where the wait got to: T2's averaged error from the setpoint, or ``otherwise`` when there is none."""
-    return f"T2 averaged over 10 s {error_K * 1e6:+.1f} µK from the setpoint" if error_K is not None else otherwise
 
 
 def _plain(value: float, name: str) -> str:

@@ -204,6 +204,32 @@ class Lakeshore336Config:
     write_from: tuple[str, ...] = ()
 
 
+#: The characters EPICS takes in a record name (a dot separates a record from its field, so it is not one).
+PV_NAME_CHARACTERS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-+:[]<>;")
+#: The longest ``ioc.prefix``: EPICS takes record names of up to 60 characters, and the IOC's names after
+#: the prefix take up to 20 (cryod.ioc.pv_table checks its own).
+MAX_PV_PREFIX = 40
+
+
+@dataclass(frozen=True)
+class IocConfig:
+    """The ``ioc`` section: what ``cryod ioc`` serves to EPICS (off when the section is absent or null).
+
+    The daemon does not read it: ``cryod ioc``, a process of its own, does (docs/how-to/epics-bluesky.md, "EPICS
+    and Bluesky").
+    """
+
+    prefix: str                         # before every PV name: CRYO1: gives CRYO1:T2
+    writable: bool = False              # puts reach the daemon (else every put is refused by access security)
+    #: An EPICS access security file (ASG/UAG/HAG rules) the lab edits; None: cryod's own rules (reads for all,
+    #: writes for all when writable).
+    access_security_file: Path | None = None
+    stable_tolerance_K: float = 1e-4    # STABLE: T2's 10 s average within this of the setpoint ...
+    stable_hold_s: float = 60.0         # ... for this long (the daemon's clock), as wait_until_stable
+    #: The longest a put with completion on SETPOINT waits for STABLE (s of the daemon's clock).
+    settle_timeout_s: float = 3600.0
+
+
 @dataclass(frozen=True)
 class SimulationConfig:
     model: Path | None
@@ -228,6 +254,7 @@ class DaemonConfig:
     web: WebConfig | None = None
     lakeshore336: Lakeshore336Config | None = None
     alarms: AlarmsConfig = AlarmsConfig()
+    ioc: IocConfig | None = None
     source: str = ""
     text: str = ""
 
@@ -596,11 +623,12 @@ def _config_from_section(top: Section, base: Path) -> DaemonConfig:
     metrics = _metrics(top.section("metrics", None))
     web = _web(top.section("web", None), base)
     lakeshore336 = _lakeshore336(top.section("lakeshore336", None))
+    ioc = _ioc(top.section("ioc", None), base)
     alarms = alarms_from_section(top.section("alarms", None), safety.ptc_stage_max_K)
     top.finish()
     return DaemonConfig(loop=loop, instruments=instruments, sensors=sensors, heater=heater, control=control,
                         safety=safety, data=data, control_socket=socket_config, simulation=simulation,
-                        metrics=metrics, web=web, lakeshore336=lakeshore336, alarms=alarms)
+                        metrics=metrics, web=web, lakeshore336=lakeshore336, alarms=alarms, ioc=ioc)
 
 
 def _check_waits_against_watchdog(waits: InstrumentWaits, instruments_section: Section,
@@ -650,7 +678,7 @@ def _web(section: Section | None, base: Path) -> WebConfig | None:
     if web.writable and web.token_file is None:
         raise section.error("writable", "control from the page needs web.token_file: a file holding the token "
                                         "a write must carry (at least 16 characters), readable by the service's "
-                                        "group only (docs/operations.md)")
+                                        "group only (docs/reference/configuration.md)")
     if web.token_file is not None:
         try:
             read_token(web.token_file)
@@ -668,6 +696,29 @@ def _lakeshore336(section: Section | None) -> Lakeshore336Config | None:
                                                     for text in section.texts("write_from", [])))
     section.finish()
     return lakeshore
+
+
+def _ioc(section: Section | None, base: Path) -> IocConfig | None:
+    if section is None:
+        return None
+    prefix = section.text("prefix")
+    bad = sorted(set(prefix) - PV_NAME_CHARACTERS)
+    if not prefix or bad:
+        raise section.error("prefix", f"{shown(prefix)} is not the start of an EPICS record name: give letters, digits "
+                                      f"and _ - + : [ ] < > ; only (e.g. CRYO1:)" +
+                                      (f", not {' '.join(repr(character) for character in bad)}" if bad else ""))
+    if len(prefix) > MAX_PV_PREFIX:
+        raise section.error("prefix", f"{len(prefix)} characters: EPICS record names hold at most 60, and the "
+                                      f"names after the prefix take up to 20; give at most {MAX_PV_PREFIX}")
+    ioc = IocConfig(prefix=prefix, writable=section.flag("writable", False),
+                    access_security_file=_existing_file(section, "access_security_file", base, None),
+                    stable_tolerance_K=section.number("stable_tolerance_K", 1e-4, minimum=0.0,
+                                                      exclusive_minimum=True),
+                    stable_hold_s=section.number("stable_hold_s", 60.0, minimum=0.0),
+                    settle_timeout_s=section.number("settle_timeout_s", 3600.0, minimum=0.0,
+                                                    exclusive_minimum=True))
+    section.finish()
+    return ioc
 
 
 def _host_name(section: Section, key: str, text: str) -> str:

@@ -2,7 +2,7 @@
 
 Every command below is in the Model 2002 User's Manual (document 2002-900-01),
 section 3 "IEEE-488 Reference" (sections and pages cited with each setting).
-``docs/instruments.md`` lists them all with the exact strings sent.
+``docs/explanation/instruments.md`` lists them all with the exact strings sent.
 
 The measurement cycle cryod runs every 80 ms:
 

@@ -2,7 +2,7 @@
 
 Commands from the 2400 Series SourceMeter User's Manual (2400S-900-01),
 section 18 "SCPI Command Reference"; every string sent is listed in
-``docs/instruments.md``. The 2400 sources the heater current with a voltage
+``docs/explanation/instruments.md``. The 2400 sources the heater current with a voltage
 compliance (``:SENSe:VOLTage:PROTection``) and measures the voltage it takes,
 so the delivered heater power V I is known, not assumed
 (``voltage_measured=True``). ``:SENSe:VOLTage:PROTection:TRIPped?`` tells

@@ -2,7 +2,7 @@
 
 Commands from the Model 6220/6221 Reference Manual (622x-901-01), section
 "SOURce subsystem" and section 11 "Status Structure"; every string sent is
-listed in ``docs/instruments.md``.
+listed in ``docs/explanation/instruments.md``.
 
 The 6221 cannot measure its output voltage: the read-back current is the
 programmed one and the voltage is I R with the configured heater resistance

@@ -6,7 +6,7 @@ falling TTL edge; User's Manual section 2.7.6) or on a Trigger Link line
 edge and they start integrating at the same instant, whatever the bus
 latency. A PC makes the edge with a serial port's RTS (or DTR) line,
 through a level shifter from RS-232 (±5 to ±12 V) to TTL, or an
-open-collector transistor for a Trigger Link line (docs/instruments.md,
+open-collector transistor for a Trigger Link line (docs/explanation/instruments.md,
 "Trigger cabling").
 
 :class:`SerialControlLine` holds the line at its idle level and pulses it

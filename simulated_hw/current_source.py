@@ -6,7 +6,7 @@ holds the compliance voltage and the current falls to V/R (an open heater:
 no current at all). The power the heater then dissipates, V*I, goes to the
 simulated cryostat at the instant of the command that changed it.
 
-Faults (docs/instruments.md): :meth:`inject_refuse_output` (the interlock or
+Faults (docs/explanation/instruments.md): :meth:`inject_refuse_output` (the interlock or
 output enable is open: the output stays off when asked on) and
 :meth:`inject_open_heater` (a broken heater wire: infinite resistance).
 

@@ -1,7 +1,7 @@
 """A simulated Keithley 2002 reading one Cernox of the simulated cryostat in 4-wire ohms.
 
 It accepts the Model 2002's SCPI for what cryod uses (the table in
-``docs/instruments.md``): 4-wire resistance configuration, autozero, line
+``docs/explanation/instruments.md``): 4-wire resistance configuration, autozero, line
 sync, the filter, the trigger model (arm layers, trigger layer with BUS,
 EXTernal, TLINk, IMMediate, TIMer, HOLD and MANual sources, counts, delay),
 ``:INITiate``, ``:ABORt``, ``:FETCh?`` and ``:FORMat:ELEMents``. Any other

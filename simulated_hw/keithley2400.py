@@ -2,7 +2,7 @@
 
 SCPI as in the 2400 Series SourceMeter User's Manual (2400S-900-01),
 sections 17 and 18, for what the heater driver uses (table in
-``docs/instruments.md``) and what a lab's own scripts send (PyMeasure's
+``docs/explanation/instruments.md``) and what a lab's own scripts send (PyMeasure's
 ``Keithley2400``):
 
 * source: ``:SOURce:FUNCtion[:MODE] VOLTage|CURRent`` (``*RST``: VOLTage),

@@ -1,7 +1,7 @@
 """A simulated Keithley 6221 current source driving the flange heater.
 
 SCPI as in the Model 6220/6221 Reference Manual (622x-901-01), for what the
-heater driver uses (table in ``docs/instruments.md``):
+heater driver uses (table in ``docs/explanation/instruments.md``):
 
 * ``[:SOURce[1]]:CURRent[:LEVel][:IMMediate][:AMPLitude] <n>``: -105e-3 to 105e-3 A;
 * ``[:SOURce[1]]:CURRent:RANGe <n>`` (2 nA to 100 mA ranges) and ``:RANGe:AUTO <b>``;

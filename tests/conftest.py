@@ -89,7 +89,7 @@ def running_dry_run(tmp_path, monkeypatch, runtime_dir, dry_run_speed):
     # loaded test machine; the client measures the hold on the daemon's clock, as it should
     config = tmp_path / "cryod.yaml"
     config.write_text((CONFIG / "cryod.yaml").read_text()
-                      # the gains `cryod tune --setpoint 5` suggests for this heater (docs/control.md)
+                      # the gains `cryod tune --setpoint 5` suggests for this heater (docs/explanation/control.md)
                       .replace("proportional_W_per_K: 10.0", "proportional_W_per_K: 12.6")
                       .replace("integral_W_per_K_s: 0.2 ", "integral_W_per_K_s: 4.13 ")
                       .replace("calibration: calibration/", f"calibration: {CONFIG}/calibration/"))

@@ -1,4 +1,4 @@
-"""``cryod simulate`` in a process of its own with the lab's interfaces on, for tests with third-party clients.
+"""``cryod simulate`` in a process of its own (with the lab's interfaces on), for tests with third-party clients.
 
 The configuration is the example's with ``web`` and ``lakeshore336`` on free ports (port 0); the
 ports are read from the journal lines the daemon writes at start. Its standard error goes to a
@@ -38,7 +38,7 @@ def lab_config(folder: Path, writable: bool = True, token_file: Path | None = No
 class DryRunProcess:
     """A running ``cryod simulate`` with its control socket, record folder and interfaces' ports."""
 
-    def __init__(self, folder: Path, config: Path, *arguments: str):
+    def __init__(self, folder: Path, config: Path, *arguments: str, interfaces: bool = True):
         self.folder = folder
         self.socket = folder / "control.sock"
         self.data = folder / "data"
@@ -48,7 +48,16 @@ class DryRunProcess:
         self.process = subprocess.Popen([sys.executable, "-m", "cryod.cli", "simulate", "--config", str(config),
                                          "--data-dir", str(self.data), "--socket", str(self.socket), *arguments],
                                         env=env, cwd=folder, stdout=subprocess.DEVNULL, stderr=self._stderr)
-        self.ports = self._wait_for_ports()
+        self.ports = self._wait_for_ports() if interfaces else self._wait_for_socket()
+
+    def _wait_for_socket(self, timeout_s: float = 60.0) -> dict[str, int]:
+        """A dry run without the interfaces process: ready once its socket is there."""
+        deadline = time.monotonic() + timeout_s
+        while not self.socket.exists():
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"the dry run did not start: {self.journal()[-3000:]}")
+            time.sleep(0.05)
+        return {}
 
     def _wait_for_ports(self, timeout_s: float = 60.0) -> dict[str, int]:
         deadline = time.monotonic() + timeout_s

@@ -15,3 +15,6 @@ def unit_sections(unit: Path = UNIT) -> configparser.ConfigParser:
     parser.optionxform = str
     parser.read_string(unit.read_text())
     return parser
+
+#: cryod's EPICS IOC, beside cryod.service.
+IOC_UNIT = REPOSITORY / "systemd" / "cryod-ioc.service"

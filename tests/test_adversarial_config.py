@@ -1,7 +1,7 @@
 """Hostile configurations against the real ``cryod run``, and reloads in every state (slow suite).
 
 Run: ``.venv/bin/python -m pytest -m slow tests/test_adversarial_config.py -s`` (the figures are
-printed at the end; docs/operations.md, "Adversarial configuration run", quotes them).
+printed at the end; benchmarks/results/adversarial_config.md, "Adversarial configuration run", quotes them).
 
 Configurations are generated per category from the example configuration, its instruments on a
 simulated bench served over TCP on 127.0.0.1 (pyvisa-py, as the lab's LAN gateways): numbers in

@@ -1,5 +1,5 @@
 """The adversarial run over the records (slow): disk conditions while the daemon writes, hostile files given
-to the offline tools. Prints its figures as markdown tables (``-s``); docs/operations.md and docs/analysis.md
+to the offline tools. Prints its figures as markdown tables (``-s``); benchmarks/results/data_log_cost.md and docs/explanation/analysis-method.md
 quote them.
 
     python -m pytest -m slow -s tests/test_adversarial_records.py

@@ -244,7 +244,7 @@ def test_a_heater_15_percent_stronger_is_base_model_off_not_a_nonlinearity(tmp_p
     assert set(asked) == {"heater_to_flange static gain", "heater_to_ptc_stage static gain"}
     assert all(abs(change - 0.15) < 0.01 for change in asked.values())
     assert "heater_to_flange static gain" in off["at_tolerance"]         # where the usual 10 % left it
-    assert "cryod identify" in off["advice"] and "docs/commissioning.md" in off["advice"]
+    assert "cryod identify" in off["advice"] and "docs/how-to/commission.md" in off["advice"]
     assert result["remaining"]["discrepancy"] is False and result["gain"]["extended"] < 1.05
     first = (tmp_path / "out" / "report.md").read_text().splitlines()[2]
     assert "base_model_off" in first and "cryod identify" in first
@@ -510,7 +510,7 @@ def test_a_drifting_cold_end_is_named_on_twenty_minutes_of_the_identification_pr
     modulation: the drift is measured in T5 wherever T5 is, so the held-out blocks test what it claims (T2 follows
     T5's drift through the link), and it is named with its coupling. (A record that starts inside a transient, a PI
     warming the flange, lets the drift and the stage's initial state trade: its coupling comes out low, 0.48 for
-    0.6 on half an hour of this cryostat under PI; docs/analysis.md section 4a.)"""
+    0.6 on half an hour of this cryostat under PI; docs/explanation/analysis-method.md section 4a.)"""
     model, _ = perturbed_base(other_day(base_model(), 1).with_effects(ptc_stage_drift=DRIFT), 9)
     analysis = analysed(model, "identification", 1200.0, 3)
     assert analysis.cause_names[:1] == ["ptc_stage_drift"], analysis.decision.reason

@@ -83,15 +83,20 @@ def test_disturbance_outside_the_list_is_unexplained(disturbance, protocol):
     assert analysis.decision.base.present
 
 
-#: Catalog cases at the edge of what a record with its base parameters off can tell (docs/analysis.md, Limits):
-#: what the analysis names instead of the hidden cause, and why.
+#: Catalog cases at the edge of what a record with its base parameters off can tell (docs/explanation/analysis-method.md, Limits): the
+#: verdicts any draw of the noise may give (the hidden cause, or what it cannot be told from), and why. Which one a
+#: draw gives is the noise's, so the test takes each on several seeds and asks only for one of these.
 KNOWN_LIMITS = {
-    ("dead_time", "pi_only", 0): ([], "a 0.2 s dead time on a PI-only record is, within the noise, a fraction of a "
-                                      "second more of G2's 26.5 s time constant, which the recalibration takes"),
-    ("sensor_lag", "pi_only", 0): (["link_dynamics"], "at the line alone a 0.03 s lag and a link whose gain matches "
-                                                      "within the recalibration's 10 % are a tie on a PI-only record"),
+    ("dead_time", "pi_only", 0): (([], ["dead_time"]),
+                                  "a 0.2 s dead time on a PI-only record is, within the noise, a fraction of a "
+                                  "second more of G2's 26.5 s time constant, which the recalibration takes"),
+    ("sensor_lag", "pi_only", 0): ((["link_dynamics"], ["sensor_lag"]),
+                                   "at the line alone a 0.03 s lag and a link whose gain matches within the "
+                                   "recalibration's 10 % are a tie on a PI-only record"),
 }
-#: Links the analysis names whose time constant a record cannot fix (docs/analysis.md, Limits): w tau = 6.5, the
+#: The draws of the noise each known limit is taken on.
+KNOWN_LIMIT_SEEDS = (2, 3, 5)
+#: Links the analysis names whose time constant a record cannot fix (docs/explanation/analysis-method.md, Limits): w tau = 6.5, the
 #: line's phase near -pi/2 fixes g/tau, and a 0.05 rad error of the base phase moves tau by a fifth or more.
 LINE_FIXES_ONLY_G_OVER_TAU = {("link_dynamics", "identification", 2), ("link_dynamics", "pi_only", 2)}
 EVERY_CASE = [(cause, protocol, magnitude) for cause in sorted(MAGNITUDES) for protocol in ("identification", "pi_only")
@@ -107,11 +112,12 @@ def test_every_cause_protocol_and_magnitude(cause, protocol, magnitude):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("seed", KNOWN_LIMIT_SEEDS)
 @pytest.mark.parametrize("cause, protocol, magnitude", sorted(KNOWN_LIMITS))
-def test_a_cause_the_record_cannot_tell_gives_what_it_can(cause, protocol, magnitude):
-    named, reason = KNOWN_LIMITS[(cause, protocol, magnitude)]
-    analysis = analysed_case(cause, magnitude, protocol, SLOW_DURATIONS_S[protocol], seed=2)
-    assert analysis.cause_names == named, (reason, analysis.decision.reason)
+def test_a_cause_the_record_cannot_tell_gives_what_it_can(cause, protocol, magnitude, seed):
+    allowed, reason = KNOWN_LIMITS[(cause, protocol, magnitude)]
+    analysis = analysed_case(cause, magnitude, protocol, SLOW_DURATIONS_S[protocol], seed=seed)
+    assert analysis.cause_names in [list(names) for names in allowed], (reason, analysis.decision.reason)
     assert analysis.decision.gain.extended < 1.1                  # what is named explains the record
     assert analysis.recalibrated
 
@@ -228,7 +234,7 @@ def test_two_effects_at_once_are_both_named(causes, protocol):
     _check_both_found(analysis, truths)
 
 
-#: A pair a PI-only record cannot tell (docs/analysis.md, Limits): with little heater content at the line, a link
+#: A pair a PI-only record cannot tell (docs/explanation/analysis-method.md, Limits): with little heater content at the line, a link
 #: that differs plus a longer dead time stands in for a lagging thermometer plus a dead time.
 PAIR_LIMITS = {
     (("dead_time", "sensor_lag"), "pi_only"): {"link_dynamics", "dead_time"},

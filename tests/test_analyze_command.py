@@ -46,7 +46,9 @@ def test_analyze_writes_report_figures_model_and_json(dead_time_record, tmp_path
     assert status == 0, err
     result = json.loads(out)
     assert set(result) == {"cause", "causes", "recalibrated", "discrepancies", "extended_model", "gain",
-                           "candidates", "remaining", "base_model_off", "generic_extension", "residual_signature"}
+                           "candidates", "remaining", "base_model_off", "generic_extension", "residual_signature",
+                           "at_bound", "attribution"}
+    assert result["at_bound"] == []                      # a 4 s dead time is well within its range
     assert result["base_model_off"] is None and result["remaining"]["discrepancy"] is False
     assert result["causes"][0]["equivalent_to"] == []
     assert {"spectral_peaks", "drift", "cross_correlations", "segments", "resid"} <= set(result["residual_signature"])

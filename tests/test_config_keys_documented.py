@@ -1,4 +1,4 @@
-"""Every key of the example configuration is in docs/operations.md's key table, under its section."""
+"""Every key of the example configuration is in the configuration reference's key table, under its section."""
 
 import re
 
@@ -18,7 +18,7 @@ def leaf_keys(mapping, prefix=()):
 
 def key_table():
     """{section: the text of its rows} of the configuration's key table."""
-    text = (REPOSITORY / "docs" / "operations.md").read_text()
+    text = (REPOSITORY / "docs" / "reference" / "configuration.md").read_text()
     start = text.index("| section | key | meaning |")
     rows, section = {}, None
     for line in text[start:].splitlines()[2:]:
@@ -36,7 +36,7 @@ def test_every_key_of_the_example_configuration_is_in_the_key_table():
     missing = [".".join(path) for path in leaf_keys(example) if path[0] != "format" and not (
         path[0] in table if len(path) == 1                      # a section off by default (web: null)
         else re.search(rf"\b{re.escape(path[-1])}\b", table.get(path[0], "")))]
-    assert not missing, f"keys of config/cryod.yaml not in docs/operations.md's table: {missing}"
+    assert not missing, f"keys of config/cryod.yaml not in docs/reference/configuration.md's table: {missing}"
 
 
 def test_every_feedforward_setting_is_in_the_example_configuration_and_the_key_table():

@@ -50,7 +50,7 @@ def test_a_reload_of_a_file_that_cannot_be_read_is_refused_and_recorded(tmp_path
             f"size, got an integer of 400 digits" in big_number.message)
     record = read_record(result.log_paths[0])
     events = [text for _, text in record.events if "reload" in text]
-    # who asked is said too: a signal here (docs/operations.md, "Who did what")
+    # who asked is said too: a signal here (docs/how-to/records.md, "Who did what")
     assert events == [f"event: command: {list_key.message} (by SIGHUP)",
                       f"event: command: {big_number.message} (by SIGHUP)"]
     assert all(event.startswith("event: command: reload refused, keeping the running configuration: ")

@@ -190,7 +190,7 @@ def test_a_second_daemon_touches_no_instrument(tmp_path):
 
 
 # ---------------------------------------------------------------------------
-# the data directory running out of space (docs/operations.md, "Disk space")
+# the data directory running out of space (docs/how-to/faults.md, "Disk space")
 # ---------------------------------------------------------------------------
 class FillingDisk:
     """Free space (bytes) of a disk that another program fills ``outside_per_byte`` times as fast as the

@@ -1,7 +1,7 @@
 """The docs name code that exists, where it lives: dotted names, source paths and the layers' contract.
 
 A module moved or an object moved to another module leaves the docs pointing at nothing (or at a
-re-export the reader then cannot find the code of); docs/architecture.md shows the layers' contract,
+re-export the reader then cannot find the code of); docs/developer/architecture.md shows the layers' contract,
 which must say what pyproject.toml enforces.
 """
 
@@ -14,7 +14,9 @@ import pytest
 
 from tests.conftest import REPOSITORY
 
-DOCS = sorted((REPOSITORY / "docs").glob("*.md")) + [REPOSITORY / "README.md"]
+#: The pages of the site (the figures' generated reports aside), the benchmarks' results and the README.
+DOCS = (sorted(path for path in (REPOSITORY / "docs").rglob("*.md") if "figures" not in path.parts)
+        + sorted((REPOSITORY / "benchmarks" / "results").glob("*.md")) + [REPOSITORY / "README.md"])
 # cryod.x.y, not a file name (cryod.yaml) nor a logger's name in a journal line (`cryod.loop: warning: ...`)
 DOTTED_NAME = re.compile(r"(?<![\w./-])((?:cryod|drivers|simulated_hw)(?:\.[A-Za-z_]\w*)+)(?![\w/-]|\.\w|: )")
 FILE_SUFFIXES = {"yaml", "conf", "service", "csv", "md", "py"}
@@ -67,9 +69,9 @@ def _layers(layers: list[str]) -> list[list[str]]:
 def test_the_architecture_page_shows_pyprojects_layers_contract():
     """The excerpt may shorten a layer's list with ``...``; every layer, its parts and their order, and
     whether two parts may import each other (``:``) or not (``|``) are as in pyproject.toml."""
-    page = (REPOSITORY / "docs" / "architecture.md").read_text(encoding="utf-8")
+    page = (REPOSITORY / "docs" / "developer" / "architecture.md").read_text(encoding="utf-8")
     excerpt = re.search(r"```toml\n(\[\[tool\.importlinter\.contracts\]\].*?)```", page, re.S)
-    assert excerpt, "docs/architecture.md shows the contract in a ```toml block"
+    assert excerpt, "docs/developer/architecture.md shows the contract in a ```toml block"
     shown = tomllib.loads(excerpt.group(1))["tool"]["importlinter"]["contracts"][0]
     pyproject = tomllib.loads((REPOSITORY / "pyproject.toml").read_text(encoding="utf-8"))
     (enforced,) = [contract for contract in pyproject["tool"]["importlinter"]["contracts"]
@@ -81,7 +83,7 @@ def test_the_architecture_page_shows_pyprojects_layers_contract():
             assert layer.startswith(head) and layer.endswith(tail), (page_layer, layer)
         else:
             assert page_layer == layer
-    assert "ignore_imports" not in enforced, "docs/architecture.md says the contract has no exceptions"
+    assert "ignore_imports" not in enforced, "docs/developer/architecture.md says the contract has no exceptions"
 
 
 @pytest.mark.parametrize("name, problem", [

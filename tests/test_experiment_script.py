@@ -1,4 +1,4 @@
-"""The README's live dry run and docs/api.md's experiment script, as written there, against a real
+"""The README's live dry run and docs/how-to/scripts.md's experiment script, as written there, against a real
 ``cryod simulate --speed 20`` in a process of its own (slow: about five minutes of wall time)."""
 
 import os
@@ -27,10 +27,11 @@ def fenced_block(path: Path, after: str, language: str) -> str:
 def test_the_readme_commands_and_the_experiment_script_against_a_paced_dry_run(tmp_path):
     runtime = tmp_path / "runtime"
     runtime.mkdir(mode=0o700)
-    bin_folder = str(Path(sys.executable).parent)       # as `. .venv/bin/activate` puts it first; from tmp_path,
-    env = dict(os.environ, XDG_RUNTIME_DIR=str(runtime), PATH=f"{bin_folder}:{os.environ['PATH']}")  # not the checkout
+    bin_folder = str(Path(sys.executable).parent)       # the environment's commands, run from tmp_path, not the
+    env = dict(os.environ, XDG_RUNTIME_DIR=str(runtime))  # checkout: `.venv/bin/` is the environment's full path there
     readme = REPOSITORY / "README.md"
-    live = re.search(r"\(`(cryod simulate --speed \d+)`", readme.read_text()).group(1)
+    live = re.search(r"started as `\.venv/bin/(cryod simulate --speed \d+)`", readme.read_text()).group(1)
+    live = f"{bin_folder}/{live}"
     stderr = open(tmp_path / "daemon.txt", "w")
     daemon = subprocess.Popen(live.split(), cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=stderr, text=True)
     try:
@@ -43,8 +44,8 @@ def test_the_readme_commands_and_the_experiment_script_against_a_paced_dry_run(t
                     fenced_block(readme, "Beside a running dry run", "sh").splitlines() if line.strip()]
         outputs = []
         for command in commands:
-            if command.startswith("python "):           # the environment's python, as after activating it
-                command = command.replace("python ", f"{sys.executable} ", 1)
+            assert command.startswith(".venv/bin/"), command      # the environment's commands, from the checkout
+            command = command.replace(".venv/bin/", f"{bin_folder}/", 1)   # from any folder: its full path
             done = subprocess.run(command, shell=True, cwd=tmp_path, env=env, capture_output=True, text=True,
                                   timeout=900)
             assert done.returncode == 0, (command, done.stderr)
@@ -55,7 +56,7 @@ def test_the_readme_commands_and_the_experiment_script_against_a_paced_dry_run(t
         assert "setpoint 5.2 K" in setpoint and note.startswith("note written: cold plate swapped")
         assert Path(plot.strip()).exists()
         assert abs(float(settled) - 5.2) <= 1e-4                       # the one-liner returned, stable
-        script = fenced_block(REPOSITORY / "docs" / "api.md", "## An experiment script", "python")
+        script = fenced_block(REPOSITORY / "docs" / "how-to" / "scripts.md", "## An experiment script", "python")
         started = time.monotonic()
         run = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True,
                              timeout=1800)

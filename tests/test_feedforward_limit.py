@@ -1,5 +1,5 @@
 """The feedforward's physical limit: independent checks of the optimum, the physics figures
-at 5 K (docs/feedforward.md), the certificate, convergence, and the command line."""
+at 5 K (docs/explanation/feedforward.md), the certificate, convergence, and the command line."""
 
 import itertools
 import json

@@ -43,3 +43,17 @@ def test_init_writes_nothing_over_what_is_there_and_needs_to_be_told_the_connect
     except SystemExit as ended:
         assert ended.code == 2
     assert "one of the arguments --gpib --prologix-usb --prologix-lan is required" in capsys.readouterr().err
+
+
+def test_a_folder_written_after_gpib_is_the_folder_and_a_card_that_is_not_a_number_is_refused(tmp_path, capsys,
+                                                                                             monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["init", "--gpib", "lab"]) == 0                 # read as the folder, on card 0
+    assert "resource: GPIB0::" in (tmp_path / "lab" / "cryod.yaml").read_text()
+    assert main(["init", "--gpib", "1"]) == 2                   # a card, but no folder
+    assert "say where to write the files" in capsys.readouterr().err
+    assert main(["init", "other", "--gpib", "x"]) == 2
+    assert "--gpib takes a GPIB card's number, not 'x'" in capsys.readouterr().err
+    assert not (tmp_path / "other").exists()
+    assert main(["init", "second", "--gpib", "2"]) == 0
+    assert "resource: GPIB2::" in (tmp_path / "second" / "cryod.yaml").read_text()

@@ -1,4 +1,4 @@
-"""docs/operations.md's install steps, run as written in a scratch root (slow: a fresh venv and pip).
+"""docs/how-to/install.md's install steps, run as written in a scratch root (slow: a fresh venv and pip).
 
 Each command of the first code block runs with /opt, /etc and /usr/local moved under a temporary
 directory; the steps that change the host's users or services (useradd, usermod) are left out, and
@@ -20,8 +20,8 @@ pytestmark = pytest.mark.slow
 
 
 def install_commands() -> list[str]:
-    text = (REPOSITORY / "docs" / "operations.md").read_text()
-    block = re.search(r"## Install the service.*?```sh\n(.*?)```", text, re.S).group(1)
+    text = (REPOSITORY / "docs" / "how-to" / "install.md").read_text()
+    block = re.search(r"# Install the service.*?```sh\n(.*?)```", text, re.S).group(1)
     return [line.split("  #")[0].strip() for line in block.splitlines() if line.strip()]
 
 
@@ -52,7 +52,7 @@ def test_the_install_steps_work_as_written(tmp_path):
     check = subprocess.run([cryod, "run", "--config", config, "--check"], capture_output=True, text=True,
                            env=dict(os.environ, PYTHONPATH=""))
     assert check.returncode == 0 and "valid" in check.stdout, check.stderr
-    assert (root / "opt/cryod/docs/operations.md").exists()             # where Documentation= points
+    assert (root / "opt/cryod/docs/index.md").exists()                  # where Documentation= points
     unit = root / "etc/systemd/system/cryod.service"
     analyze = shutil.which("systemd-analyze")
     if analyze:

@@ -2,7 +2,7 @@
 
 The contract (``[tool.importlinter]``) lists cryod's layers from the top (the command line) to the
 bottom (the instrument drivers); a module imports only from its own layer and the ones below it.
-docs/architecture.md says what each layer holds. The tests have one rule of their own: a test
+docs/developer/architecture.md says what each layer holds. The tests have one rule of their own: a test
 module imports no other test module (shared helpers live in helper modules and conftest.py).
 """
 

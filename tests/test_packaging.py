@@ -14,7 +14,7 @@ def test_pandas_comes_with_the_analysis_extra_and_record_frame_says_so():
     assert "pandas" not in " ".join(project["dependencies"])         # the daemon itself does not need it
     source = (REPOSITORY / "cryod" / "records" / "dataframe.py").read_text()
     assert "pip install 'cryod[analysis]'" in source
-    assert "pip install 'cryod[analysis]'" in (REPOSITORY / "docs" / "api.md").read_text()
+    assert "pip install 'cryod[analysis]'" in (REPOSITORY / "docs" / "reference" / "python-api.md").read_text()
 
 
 @pytest.mark.parametrize("path, ignored", [("cryod-simulate/data/cryod-2026-11-25.csv", True),

@@ -1,4 +1,4 @@
-"""The paper's Fig. 10 (docs/figures/paper_fig10.py, docs/feedforward.md "The paper, reproduced"), on short runs.
+"""The paper's Fig. 10 (docs/figures/paper_fig10.py, docs/explanation/feedforward.md "The paper, reproduced"), on short runs.
 
 A fixed 100 mW sinusoid locked to the cooler, over PI at 5 K, at the paper's eight phases: at the
 phase that opposes the line it reduces it, at the opposite phase it increases it, and the
@@ -45,7 +45,7 @@ def ratios(fig10, heater, model):
 
 def test_the_analysis_puts_the_minimum_between_pi_and_5pi_4_and_the_paper_s_equations_between_3pi_4_and_pi(fig10):
     """T2 lags T5 by the measured 1.134 rad in the shipped model, by 1.959 rad in the printed equations
-    (docs/model.md): the sinusoid that opposes the line moves by the difference."""
+    (docs/explanation/cryostat-model.md): the sinusoid that opposes the line moves by the difference."""
     assert np.pi < fig10.best_phase_rad(fig10.MODEL) < 5 * np.pi / 4
     assert 3 * np.pi / 4 < fig10.best_phase_rad(fig10.PRINTED_MODEL) < np.pi
     assert fig10.best_phase_rad(fig10.MODEL) - fig10.best_phase_rad(fig10.PRINTED_MODEL) == pytest.approx(0.825,

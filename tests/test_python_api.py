@@ -117,7 +117,7 @@ def test_operator_actions_reach_the_journal_and_the_record_with_who_sent_them(ru
 
 # -- the typed status ---------------------------------------------------------------------------------
 def test_the_typed_status_gives_every_key_users_rely_on_and_reads_them_back(tmp_path):
-    """One function makes the JSON of ``cryod ctl status --json``: the keys are those of the contract (DESIGN 4.4)
+    """One function makes the JSON of ``cryod ctl status --json``: the keys are those of the contract (docs/reference/status.md)
     and of the docs, and reading the JSON back gives the same status."""
     import math
 

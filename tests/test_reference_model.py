@@ -39,7 +39,7 @@ def test_open_loop_line_amplitude_and_lag(reference_model):
 
 
 def test_printed_equations_miss_the_lag_by_the_link_pole(printed_model):
-    """docs/model.md: eq. (11)'s 0.1 s pole adds atan(0.1 * 10.83) = 0.825 rad the derivation neglected."""
+    """docs/explanation/cryostat-model.md: eq. (11)'s 0.1 s pole adds atan(0.1 * 10.83) = 0.825 rad the derivation neglected."""
     flange, _, lag = open_loop_line(printed_model)
     assert lag == pytest.approx(1.959, abs=0.005)
     assert lag - table1.FLANGE_LAG_BEHIND_PTC_STAGE_RAD == pytest.approx(np.arctan(0.1 * 10.83), abs=0.005)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.systemd_units import TEMPLATE, UNIT, unit_sections
+from tests.systemd_units import IOC_UNIT, TEMPLATE, UNIT, unit_sections
 
 
 @pytest.mark.parametrize("unit, directory", [(UNIT, "cryod"), (TEMPLATE, "cryod/%i")])
@@ -23,7 +23,7 @@ def test_unit_settings_the_daemon_relies_on(unit, directory):
     assert service["Restart"] == "on-failure" and service["RestartPreventExitStatus"].split() == ["2", "7"]
     assert service["RuntimeDirectory"] == directory and service["StateDirectory"] == directory
     documentation = unit_sections(unit)["Unit"]["Documentation"]
-    assert documentation == "file:/opt/cryod/docs/operations.md"      # where docs/operations.md installs it
+    assert documentation == "file:/opt/cryod/docs/index.md"      # where docs/how-to/install.md copies the docs
     assert service["DevicePolicy"] == "closed" and "dialout" in service["SupplementaryGroups"]
     assert service["NoNewPrivileges"] == "yes" and service["ProtectSystem"] == "strict"
     # the instrument locks' directory, shared by every unit, made before the start and writable in the sandbox
@@ -50,5 +50,29 @@ def test_systemd_analyze_verify_passes(tmp_path, unit, name):
         (tmp_path / name).write_text(UNIT.read_text().replace("/opt/cryod/venv/bin/cryod", str(executable)))
     result = subprocess.run([analyze, "verify", str(tmp_path / name)], capture_output=True, text=True, timeout=60,
                             cwd=tmp_path)
+    assert result.returncode == 0, result.stderr + result.stdout
+    assert "cryod" not in result.stderr, result.stderr
+
+
+def test_the_ioc_unit_starts_after_the_daemon_and_again_after_a_failure():
+    unit = unit_sections(IOC_UNIT)
+    assert "cryod.service" in unit["Unit"]["After"].split()
+    service = unit["Service"]
+    assert service["ExecStart"] == "/opt/cryod/venv/bin/cryod ioc --config /etc/cryod/cryod.yaml"
+    assert service["Restart"] == "on-failure" and service["RestartPreventExitStatus"].split() == ["2"]
+    assert service["User"] == "cryod"          # the daemon's user: the only one whose relays it takes
+    assert service["NoNewPrivileges"] == "yes" and service["ProtectSystem"] == "strict"
+
+
+def test_systemd_analyze_verify_passes_for_the_ioc_unit(tmp_path):
+    analyze = shutil.which("systemd-analyze")
+    if analyze is None:
+        if os.environ.get("CRYOD_REQUIRE_SYSTEMD_ANALYZE"):
+            pytest.fail("systemd-analyze is not installed (CI installs it)")
+        pytest.skip("systemd-analyze not installed")
+    executable = Path(sys.executable).parent / "cryod"
+    (tmp_path / IOC_UNIT.name).write_text(IOC_UNIT.read_text().replace("/opt/cryod/venv/bin/cryod", str(executable)))
+    result = subprocess.run([analyze, "verify", str(tmp_path / IOC_UNIT.name)], capture_output=True, text=True,
+                            timeout=60, cwd=tmp_path)
     assert result.returncode == 0, result.stderr + result.stdout
     assert "cryod" not in result.stderr, result.stderr

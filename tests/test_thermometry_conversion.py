@@ -64,7 +64,7 @@ def test_chebyshev_fit_agrees_with_its_table_within_1p2_mK(curves):
     worst = np.abs(differences).max()
     assert in_range.sum() == 26
     assert worst < 1.2e-3
-    assert worst == pytest.approx(1.147e-3, abs=1e-6)           # at the 1.403 K point; docs/thermometry.md
+    assert worst == pytest.approx(1.147e-3, abs=1e-6)           # at the 1.403 K point; docs/explanation/thermometry.md
     assert np.sqrt(np.mean(differences ** 2)) == pytest.approx(0.56e-3, abs=0.01e-3)
 
 
@@ -75,7 +75,7 @@ def test_chebyshev_upper_range_agrees_with_its_table(curves):
     covered = (resistances >= low) & (resistances <= high)
     worst = np.abs(curve.temperature_K(resistances[covered]) - temperatures[covered]).max()
     assert covered.sum() == 27                                   # 85 to 320 K
-    assert worst == pytest.approx(11.4e-3, abs=0.1e-3)           # at 220 K; docs/thermometry.md
+    assert worst == pytest.approx(11.4e-3, abs=0.1e-3)           # at 220 K; docs/explanation/thermometry.md
 
 
 def test_spline_through_the_table_agrees_with_the_chebyshev_fit_between_points(curves):
@@ -185,7 +185,7 @@ def test_repr_says_what_the_curve_is(curves):
 
 
 def test_scalar_calls_are_fast_enough_for_every_reading():
-    """The benchmark's own measurement (its numbers are in docs/thermometry.md), in this thread's CPU time: a
+    """The benchmark's own measurement (its numbers are in docs/explanation/thermometry.md), in this thread's CPU time: a
     busy machine delays the calls, it does not make them cost more."""
     specification = importlib.util.spec_from_file_location("thermometry_speed",
                                                            REPOSITORY / "benchmarks" / "thermometry_speed.py")

@@ -21,7 +21,7 @@ EXAMPLE = PiGains(10.0, 0.2)
 
 
 def test_the_step_figures_are_those_of_the_control_study(reference_model):
-    """docs/control.md (docs/figures/control_study.py, its own code): the example gains on the 50 ohm heater
+    """docs/explanation/control.md (docs/figures/control_study.py, its own code): the example gains on the 50 ohm heater
     rise in 84 s, overshoot 0.5 mK, stay within 1 mK after 103 s, line 1.780 mK; the paper's gains on the
     17 ohm heater rise in 150 s (the heater's limit) with the heater at 0 W or its limit most of the time."""
     example = step_performance(reference_model, EXAMPLE, 5.0, 0.5)

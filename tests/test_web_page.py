@@ -276,7 +276,7 @@ def test_the_page_in_a_browser_shows_ctl_status_and_follows_the_loop(tmp_path, b
         assert all(abs((tick - last).total_seconds()) < 700 for tick in ticks), (axis, last)   # the window's times
         legend = browser.execute_script('return [...document.querySelectorAll("#chart-heater .u-legend .u-label")]'
                                         '.map((label) => label.textContent);')
-        assert {"heater mean of each second", "waveform range: lowest", "PI's part"} <= set(legend), legend
+        assert {"heater, mean of the last 10 cooler cycles", "waveform range: lowest", "PI's part"} <= set(legend), legend
         sent = threading.Thread(target=send_command, args=(daemon.socket_path, "note cold plate swapped"))
         sent.start()
         while sent.is_alive():

@@ -2,5 +2,5 @@
 
 Entry points: :func:`cryod.analysis.pipeline.analyze` (library) and
 ``cryod analyze`` (:mod:`cryod.cli.analyze`). The method is in
-``docs/analysis.md``.
+``docs/explanation/analysis-method.md``.
 """

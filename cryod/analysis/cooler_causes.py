@@ -180,7 +180,7 @@ def _stage_path_columns(context: FitContext, model: CryostatModel) -> np.ndarray
     """What the stage's own path does to T5 on its own from its state at the first sample: a constant and its
     free decays (one per time constant of the heater's path to T5). Its response to the heater is not among
     them: with the drift measured beside that too, a PI-only record's drift was named with a heat capacity on
-    top (docs/analysis.md, section 6a, records 31 and 33)."""
+    top (benchmarks/results/analysis_causes.md, section 6a, records 31 and 33)."""
     elapsed = context.data.elapsed_s
     decays = [np.exp(-elapsed / tau) for tau in model.heater_to_ptc_stage.time_constants_s if tau > 0.0]
     return np.column_stack([np.ones(elapsed.size), *decays])

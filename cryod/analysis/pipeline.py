@@ -18,7 +18,9 @@ they apply in :mod:`cryod.analysis.cause_search.rules`:
    after another from the best, and from the others when a discrepancy is
    left (:func:`~cryod.analysis.cause_search.path_choice.follow_paths`).
 5. Read the causes named the other way round
-   (:func:`~cryod.analysis.cause_search.path_choice.read_the_other_way_round`).
+   (:func:`~cryod.analysis.cause_search.path_choice.read_the_other_way_round`),
+   and re-examine a cause's number at an edge of its range
+   (:func:`~cryod.analysis.cause_search.bounds.examine_bounds`).
 6. Judge: the causes named, or ``unexplained``
    (:func:`~cryod.analysis.cause_search.verdict.judge`).
 7. Ask whether the base model is further off than the recalibration allows
@@ -32,6 +34,7 @@ they apply in :mod:`cryod.analysis.cause_search.rules`:
 from __future__ import annotations
 
 from cryod.analysis.candidates import CANDIDATE_CAUSES
+from cryod.analysis.cause_search.bounds import examine_bounds, merged_evidence
 from cryod.analysis.cause_search.base_model_off import (
     WIDER_RECALIBRATION, explained_by_widening, judged_beyond_recalibration, widened_recalibration,
 )
@@ -107,7 +110,8 @@ def name_causes(first: FirstRound, most: int) -> Verdict:
     if followed is None:
         return no_cause_counts(first)
     read = read_the_other_way_round(first, followed) if most > 1 else ReadPath(path=followed.path)
-    return judge(first, read.path, read.other_paths)
+    path, at_bound = examine_bounds(first, read.path)
+    return judge(first, path, read.other_paths, merged_evidence(read.path.at_bound, at_bound))
 
 
 def _analysis(first: FirstRound, verdict: Verdict, widened: Recalibration | None = None) -> Analysis:
@@ -120,7 +124,7 @@ def _analysis(first: FirstRound, verdict: Verdict, widened: Recalibration | None
         recalibrated=verdict.recalibrated, recalibration_gain=first.recalibration_gain, causes=verdict.causes,
         final_model=verdict.final_model, final_replay=verdict.final_replay, base_discrepancy=first.as_given,
         final_recalibration=verdict.final_recalibration, remaining=verdict.remaining, generic=verdict.generic,
-        widened=widened, other_paths=verdict.other_paths)
+        widened=widened, other_paths=verdict.other_paths, further=verdict.further, at_bound=verdict.at_bound)
 
 
 __all__ = ["Analysis", "analyze", "name_causes", "search_causes"]

@@ -13,6 +13,7 @@ from cryod.analysis.decision import (
     EXPLAINED_FRACTION,
 )
 from cryod.analysis.cause_search.base_model_off import ADVICE
+from cryod.analysis.cause_search.bounds import stays_text
 from cryod.analysis.discrepancies import Discrepancy
 from cryod.analysis.equivalence import equivalents, sentence
 from cryod.analysis.cause_search.results import Analysis
@@ -127,6 +128,12 @@ def _left_section(analysis: Analysis) -> list[str]:
             lines.append("- largest in " + ", ".join(f"{block['from_s']:.0f}-{block['to_s']:.0f} s "
                                                     f"({block['chi_square_per_term']:.3g} per term)"
                                                     for block in signature.worst_blocks))
+    if analysis.attribution is not None:
+        lines += ["", "What would explain it (each candidate judged on top of the causes named, at its own "
+                      "signature: docs/explanation/analysis-method.md, section 4b):", ""]
+        lines += [f"- {text}" for text in analysis.attribution.sentences()]
+    for item in analysis.at_bound:
+        lines += ["", f"- {item.text()}"]
     generic = analysis.generic
     if generic is not None:
         gain = generic.score.gain
@@ -188,7 +195,8 @@ def write_report(analysis: Analysis, discrepancies: list[Discrepancy], extended_
     lines = [
         f"# Analysis of `{Path(data.source).name}`",
         "",
-        f"**Cause: `{analysis.cause}`{_still_left(analysis)}.** {decision.reason[0].upper() + decision.reason[1:]}.",
+        f"**Cause: `{analysis.cause}`{stays_text(analysis.at_bound)}{_still_left(analysis)}.** "
+        f"{decision.reason[0].upper() + decision.reason[1:]}.",
         "",
         f"**Gain: {decision.gain.ratio:.4g}** ({decision.gain.metric}: base model {decision.gain.base:.4g}, "
         f"extended model {decision.gain.extended:.4g}). Fit and held-out data: alternate blocks of "

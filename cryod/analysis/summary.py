@@ -20,7 +20,11 @@ family alone, the families used, the heater-path terms and the disturbance's
 statistics, its held-out gain and whether it is in the extended model: then
 ``gain`` counts it); ``residual_signature`` (spectral peaks,
 drift, cross-correlations, segments, the resid-style correlations:
-:mod:`cryod.analysis.residual_signature`). Each named cause also carries
+:mod:`cryod.analysis.residual_signature`); ``at_bound`` (list: a named cause's number found at an edge of its
+range, re-examined: {cause, parameter, value, bound, widened_from, stays_at_bound, text};
+:mod:`cryod.analysis.cause_search.bounds`); ``attribution`` (what the extended model leaves, band by band: the
+line and its harmonics, the slow stretches; each with its excess and the candidates that would explain it:
+:mod:`cryod.analysis.cause_search.what_is_left`). Each named cause also carries
 ``equivalent_to`` (other readings that fit alike: :mod:`cryod.analysis.equivalence`), and so does
 ``base_model_off`` when a cause named within the tolerance stood for the parameter it lists (a link
 without a lag for the line's gain on T2).
@@ -37,7 +41,7 @@ from cryod.analysis.candidates import CANDIDATE_CAUSES
 from cryod.analysis.equivalence import equivalents
 from cryod.analysis.cause_search.results import Analysis
 
-#: The cause vocabulary of ``cryod analyze`` (DESIGN.md 4.3).
+#: The cause vocabulary of ``cryod analyze`` (docs/reference/causes.md is generated from it).
 CAUSES = ("none", *CANDIDATE_CAUSES, "unexplained", "base_model_off")
 
 
@@ -143,6 +147,8 @@ def json_summary(analysis: Analysis, discrepancies, extended_model_path: Path) -
         "base_model_off": plain(analysis.beyond_recalibration.as_dict()) if analysis.beyond_recalibration else None,
         "generic_extension": plain(analysis.generic.as_dict()) if analysis.generic else None,
         "residual_signature": plain(analysis.residual_signature.as_dict()) if analysis.residual_signature else None,
+        "at_bound": [plain(item.as_dict()) for item in analysis.at_bound],
+        "attribution": plain(analysis.attribution.as_dict()) if analysis.attribution is not None else None,
     }
 
 

@@ -5,6 +5,7 @@
     cryod --simulate [--config PATH] [...]      the same daemon on the simulated cryostat
     cryod simulate [...]                        the same as cryod --simulate
     cryod ctl [--socket PATH] COMMAND           talk to the running daemon (found by itself)
+    cryod ioc [--config FILE] [--socket PATH]   the daemon as an EPICS IOC (the ioc section's PVs)
     cryod analyze RECORD [...]                  what the simulation gets wrong, and why
     cryod identify RECORD [...]                 fit a model from measured records
     cryod feedforward-limit [...]               the feedforward's physical limit for a heater
@@ -13,7 +14,7 @@
 
 Errors go to stderr with a non-zero exit code: 2 for unusable input (a bad
 configuration, a bad command line), the daemon's fault codes otherwise
-(docs/operations.md); 141 (as for SIGPIPE), quietly, when whatever reads the
+(docs/reference/exit-codes.md); 141 (as for SIGPIPE), quietly, when whatever reads the
 output stops reading it.
 """
 
@@ -110,6 +111,15 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.epilog = "commands:\n" + "\n".join(f"  {spec.usage:<20} {spec.help}" for spec in COMMANDS.values()
                                             if spec.from_socket)
     ctl.formatter_class = argparse.RawDescriptionHelpFormatter
+    ioc = commands.add_parser("ioc", help="serve the running daemon as an EPICS IOC (Channel Access, pvAccess)",
+                              description="Serve the running daemon's readings, settings and alarms as EPICS PVs "
+                                          "under the ioc section's prefix (needs cryod[ioc]; docs/reference/exit-codes.md, "
+                                          "\"EPICS and Bluesky\"). The daemon is found as cryod ctl finds it.")
+    ioc.add_argument("--config", type=Path, default=None, dest="ioc_config", metavar="FILE",
+                     help="the configuration whose ioc section is served, and whose control_socket.path is the "
+                          "daemon's (default: the configuration the daemon runs on)")
+    ioc.add_argument("--socket", type=Path, default=None, dest="ioc_socket", metavar="PATH",
+                     help="the daemon's control socket (default: as cryod ctl finds it)")
     commands.add_parser("simulate", help="the same as cryod --simulate (its options follow)", add_help=False)
     from cryod.cli import init
 
@@ -127,7 +137,7 @@ SIMULATE_ONLY = ("config", "duration", "speed", "json", "pretty", "window", "set
 def _misplaced_simulate_options(parser: argparse.ArgumentParser, args) -> list[str]:
     """Dry-run options given without --simulate (``cryod --duration 5 run``), as on the command line."""
     given = [name for name in SIMULATE_ONLY if getattr(args, name) != parser.get_default(name)]
-    if args.command == "ctl" and "socket" in given and args.ctl_socket is None:
+    if args.command in ("ctl", "ioc") and "socket" in given and getattr(args, f"{args.command}_socket") is None:
         given.remove("socket")            # cryod --socket PATH ctl ...: the socket of the daemon to talk to
     return ["--" + name.replace("_", "-") for name in given]
 
@@ -141,7 +151,7 @@ def use_one_blas_thread() -> None:
 
     cryod's matrices are tall and narrow (a few columns by up to a few hundred thousand rows in the
     model tools) or tiny (the loop's estimators): a second BLAS thread costs more than it brings
-    (``cryod identify`` took 1.7 times as long with two, docs/benchmarks.md), and idle BLAS threads
+    (``cryod identify`` took 1.7 times as long with two, docs/reference/exit-codes.md), and idle BLAS threads
     spin on the cores the daemon's loop needs. threadpoolctl sets the limit in the libraries already
     loaded, whenever it is called; numpy and scipy each bring their own OpenBLAS, so both are loaded
     first. ``cryod ctl`` loads neither and is not slowed by them.
@@ -213,6 +223,8 @@ def _main(argv: list[str] | None) -> int:
         return _run_service(args)
     if args.command == "ctl":
         return _ctl(args)
+    if args.command == "ioc":
+        return _ioc(args)
     if args.command == "init":
         from cryod.cli import init
 
@@ -260,6 +272,25 @@ def _run_service(args) -> int:
         status_line.stop()
         logging_service.stop()
     return result.exit_code
+
+
+def _ioc(args) -> int:
+    """``cryod ioc``: the EPICS IOC, when softioc (cryod[ioc]) is installed."""
+    try:
+        import softioc  # noqa: F401
+    except ImportError as error:
+        print(f"cryod ioc: pythonSoftIOC is not installed ({error}); install cryod with its ioc extra: "
+              f"pip install 'cryod[ioc]'", file=sys.stderr)
+        return 2
+    from cryod.ioc.process import run
+    from cryod.service.logs import ServiceLogging
+
+    logging_service = ServiceLogging()
+    logging_service.start()
+    try:
+        return run(args.ioc_config, args.ioc_socket or args.socket)
+    finally:
+        logging_service.stop()
 
 
 def _supply_off(config) -> int:

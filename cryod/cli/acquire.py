@@ -51,7 +51,7 @@ class Acquisition:
     outcome : str
         ``finished``, ``interrupted``, ``fault`` or ``not_started``.
     exit_code : int
-        0 finished; 130 interrupted; the fault's exit code (docs/operations.md) otherwise.
+        0 finished; 130 interrupted; the fault's exit code (docs/reference/exit-codes.md) otherwise.
     record_paths : list of pathlib.Path
         The data files written (a run across UTC midnight has two).
     runner : ExperimentRunner

@@ -21,7 +21,7 @@ Exit status: 0 done; 2 a record, the base model, the configuration, the plan
 or the output path cannot be used; 1 the records do not support the fit (what
 is missing is named); with ``--acquire``, when the experiment did not finish:
 130 interrupted (Ctrl-C, SIGTERM), or the exit code of the fault that stopped
-it (docs/operations.md). The record is kept in every case.
+it (docs/how-to/commission.md). The record is kept in every case.
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser
     acquire.add_argument("--setpoints", type=setpoint_list, default=None, metavar="K,K,...",
                          help="identify about each of these setpoints in turn, in closed loop (regulate, hold, a "
                               "setpoint step), one model each, a zone each: --out is then a folder, given "
-                              "model-<K>K.yaml per setpoint (docs/control.md, Zones)")
+                              "model-<K>K.yaml per setpoint (docs/how-to/zones.md, Zones)")
     acquire.add_argument("--setpoint-step", type=number, default=defaults.setpoint_step_K, metavar="K",
                          help=f"with --setpoints: the setpoint step about each (default {defaults.setpoint_step_K:g} K)")
     acquire.add_argument("--step-power", type=positive, default=defaults.step_power_w, metavar="W",

@@ -71,10 +71,29 @@ def unit_text(template: str, cryod_program: Path, config: Path) -> str:
             .replace("/etc/cryod/cryod.yaml", str(config)))
 
 
+def where_and_card(folder: Path | None, card: str | None) -> tuple[Path | None, str | None]:
+    """The folder and the GPIB card as meant: ``cryod init --gpib lab`` names the folder ``lab`` on card 0.
+
+    ``--gpib`` takes an optional card number, so a folder written right after it is read as the card;
+    with no folder given otherwise, a card that is not a number is the folder.
+
+    Examples
+    --------
+    >>> where_and_card(None, "lab")
+    (PosixPath('lab'), '0')
+    >>> where_and_card(Path("lab"), "1")
+    (PosixPath('lab'), '1')
+    """
+    if folder is None and card is not None and not card.isdigit():
+        return Path(card), "0"
+    return folder, card
+
+
 def add_parser(commands) -> argparse.ArgumentParser:
     parser = commands.add_parser("init", help="write a new lab's configuration, calibration files, web token and "
                                               "systemd unit into a folder")
-    parser.add_argument("folder", type=Path, metavar="DIR", help="where to write them (made if missing)")
+    parser.add_argument("folder", type=Path, metavar="DIR", nargs="?",
+                        help="where to write them (made if missing)")
     how = parser.add_mutually_exclusive_group(required=True)
     how.add_argument("--gpib", metavar="CARD", nargs="?", const="0", default=None,
                      help="the instruments on a GPIB card (its number, default 0; needs linux-gpib or NI-VISA)")
@@ -86,14 +105,22 @@ def add_parser(commands) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    """Write the files; 0 done, 2 when one of them is there already (nothing is written then)."""
-    folder: Path = args.folder
+    """Write the files; 0 done, 2 when one of them is there already or the arguments do not say where (nothing
+    is written then)."""
+    folder, card = where_and_card(args.folder, args.gpib)
+    if isinstance(card, str) and not card.isdigit():
+        print(f"cryod init: --gpib takes a GPIB card's number, not {card!r}; e.g. cryod init DIR --gpib", file=sys.stderr)
+        return 2
+    if folder is None:
+        print("cryod init: say where to write the files: cryod init DIR --gpib|--prologix-usb PORT|--prologix-lan "
+              "HOST", file=sys.stderr)
+        return 2
     existing = [name for name in WRITTEN if (folder / name).exists()]
     if existing:
         print(f"cryod init: {folder} holds {', '.join(existing)} already; nothing was written (choose an empty "
               f"folder, or move them away)", file=sys.stderr)
         return 2
-    connection, where = (("gpib", args.gpib) if args.gpib is not None else
+    connection, where = (("gpib", card) if card is not None else
                          ("prologix-usb", args.prologix_usb) if args.prologix_usb else
                          ("prologix-lan", args.prologix_lan))
     data = resources.files("cryod").joinpath("data")
@@ -119,10 +146,10 @@ def run(args) -> int:
     print(f"{config}: the configuration, with the instruments on {connection} {where}; set their GPIB addresses, "
           f"the heater and the limits, and put your sensors' calibration files into {folder / 'calibration'}\n"
           f"{folder / 'web.token'}: the web page's token (owner and group only)\n"
-          f"{folder / 'cryod.service'}: the systemd unit (sudo cp it to /etc/systemd/system/, docs/operations.md)\n"
+          f"{folder / 'cryod.service'}: the systemd unit (sudo cp it to /etc/systemd/system/, docs/how-to/install.md)\n"
           f"check it:  cryod run --check --config {config}\n"
           f"try it:    cryod --simulate --config {config} --duration 600 --speed max")
     return 0
 
 
-__all__ = ["add_parser", "run", "configuration_text", "instrument_lines", "unit_text"]
+__all__ = ["add_parser", "run", "configuration_text", "instrument_lines", "unit_text", "where_and_card"]

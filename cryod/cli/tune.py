@@ -31,7 +31,7 @@ from cryod.control.tuning import StepPerformance, Tolerances, TuningError, step_
 from cryod.model import DEFAULT_MODEL_PATH
 
 PROGRAM = "cryod tune"
-#: The paper's gains, in the units docs/control.md argues for.
+#: The paper's gains, in the units docs/explanation/control.md argues for.
 PAPER_GAINS = PiGains(80.0, 4.0)
 
 

@@ -1,6 +1,6 @@
 """The simulated cryostat under the regulator or a programmed heater, without instruments.
 
-For control studies (docs/control.md) and for making test records: each
+For control studies (docs/explanation/control.md) and for making test records: each
 80 ms period the thermometers are read (with sensor noise), the heater power
 is chosen (a programmed power, or the regulator of :mod:`cryod.control.regulator`,
 the daemon's own control law, with its setpoint ramp) and held until the next

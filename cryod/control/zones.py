@@ -1,6 +1,6 @@
 """Zones: temperature ranges, each with its own PI gains, feedforward model and heater limit.
 
-A cryostat regulated from 4 K to 25 K is a different plant at each end (docs/model.md: 18 times
+A cryostat regulated from 4 K to 25 K is a different plant at each end (docs/explanation/cryostat-model.md: 18 times
 slower at 24 K than at 4.23 K), so one set of gains and one controller model cannot serve the
 whole range. As on a Lake Shore 336, the configuration may give a table of zones,
 ``control.zones``, each up to an upper temperature; the zone in use is the one holding the

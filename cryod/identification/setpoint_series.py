@@ -95,11 +95,11 @@ def identify_at_setpoint(setpoint_K: float, records: Sequence[RecordData], recor
         raise IdentificationError(
             f"about {setpoint_K:g} K the fit leaves {left:.0f} times T2's noise on T2 (more than "
             f"{MAX_RESIDUAL_IN_NOISE:g}): the model does not describe the record (its static gain "
-            f"{gain:.4g} K/W); see docs/commissioning.md, \"Across a range of temperatures\"")
+            f"{gain:.4g} K/W); see docs/how-to/zones.md, \"Across a range of temperatures\"")
     if not gain > 0.0:
         raise IdentificationError(
             f"about {setpoint_K:g} K the fit's static gain is {gain:.4g} K/W: more heater would cool the flange; the "
-            f"record does not identify the cryostat there (docs/commissioning.md, \"Across a range of temperatures\")")
+            f"record does not identify the cryostat there (docs/how-to/zones.md, \"Across a range of temperatures\")")
     if not off > 0.0:
         slowest = max(result.model.heater_to_thermometer.time_constants_s, default=0.0)
         fitted = sum(part.duration_s for part in parts)
@@ -107,7 +107,7 @@ def identify_at_setpoint(setpoint_K: float, records: Sequence[RecordData], recor
             f"about {setpoint_K:g} K the fit's static gain ({result.model.heater_to_thermometer.dc_gain:.4g} K/W) puts "
             f"the cryostat at {off:.4g} K with the heater off: the records do not fix it (the slowest time constant "
             f"fitted, {slowest:.0f} s, against {fitted:.0f} s of hold and step); in closed loop a longer step does "
-            f"not help where the cryostat is slow (docs/commissioning.md, \"Across a range of temperatures\")")
+            f"not help where the cryostat is slow (docs/how-to/zones.md, \"Across a range of temperatures\")")
     names = ", ".join(map(str, record_paths))
     result.model = dataclasses.replace(
         result.model, name=f"identified at {setpoint_K:g} K",

@@ -2,7 +2,7 @@
 
 Both go through the daemon's control socket. The stream is one connection that sends
 ``subscribe`` (``subscribe SEQ`` after a lost connection, for the events it missed) and then
-reads a line every 100 ms into the :class:`~cryod.interfaces.mirror.DaemonMirror`; the process's
+reads its lines (one per row of the loop, and one every 100 ms at least) into the :class:`~cryod.interfaces.mirror.DaemonMirror`; the process's
 report goes up the same connection. A command is a connection of its own that sends
 ``relay {"sender": ..., "command": ...}``: the daemon journals it with the client the web page or
 the 336 saw (its address, and for a client on this computer its user) and this process's user,

@@ -2,7 +2,10 @@
 
 :class:`History` takes the daemon's rows as its stream brings them (:mod:`cryod.service.stream`)
 and folds them into one-second bins: the band (least and most) and mean of T2, T5 and the heater,
-PI's part, the feedforward waveform's band, the setpoint and the state; the last :data:`SPAN_S` are
+the heater's level (its mean over the last whole cooler cycles, which a second's mean is not: a
+second holds 1.7 cycles of the feedforward's waveform, so its mean swings by tens of milliwatts with
+the phase it starts at), PI's part, the feedforward waveform's band, the setpoint and the state; the
+cooler line and its limit; the last :data:`SPAN_S` are
 kept. Events (faults, commands, notes) are kept as the stream numbers them, with the time of the
 row before them. None of this touches the daemon's process.
 
@@ -65,7 +68,7 @@ class _Bin:
         self.setpoint = row.setpoint_K
         self.state = str(row.state)
 
-    def summary(self, line_amplitude_K: float) -> dict:
+    def summary(self, line_amplitude_K: float, heater_level_W: float) -> dict:
         """The bin as the page draws it; absent values are None."""
         def band(name: str, values: list[float]) -> dict:
             values = _finite(values)
@@ -80,6 +83,7 @@ class _Bin:
                 "T5_min_K": stage["T5_min"], "T5_max_K": stage["T5_max"], "T5_mean_K": stage["T5_mean"],
                 "heater_min_W": heater["heater_min"], "heater_max_W": heater["heater_max"],
                 "heater_mean_W": heater["heater_mean"],
+                "heater_level_W": heater_level_W if math.isfinite(heater_level_W) else None,
                 "pi_W": sum(pi) / len(pi) if pi else None,
                 "ff_min_W": min(feedforward) if feedforward else None,
                 "ff_max_W": max(feedforward) if feedforward else None,
@@ -96,10 +100,14 @@ class History:
     ----------
     line_amplitude_K : callable, optional
         The cooler line's amplitude on T2 now (K), written into each bin as it is completed.
+    heater_level_W : callable, optional
+        The heater's mean over the last whole cooler cycles now (W), written into each bin as it is
+        completed (``heater_level_W``).
     """
 
-    def __init__(self, line_amplitude_K=lambda: math.nan):
+    def __init__(self, line_amplitude_K=lambda: math.nan, heater_level_W=lambda: math.nan):
         self.line_amplitude_K = line_amplitude_K
+        self.heater_level_W = heater_level_W
         self.bins: collections.deque = collections.deque(maxlen=int(SPAN_S / BIN_S))
         self.events: collections.deque = collections.deque(maxlen=EVENTS_KEPT)
         self._open: _Bin | None = None
@@ -109,7 +117,7 @@ class History:
         start = math.floor(row.time_s / BIN_S) * BIN_S
         completed = None
         if self._open is not None and start != self._open.start_s:
-            completed = self._open.summary(self.line_amplitude_K())
+            completed = self._open.summary(self.line_amplitude_K(), self.heater_level_W())
             self.bins.append(completed)
             self._open = None
         if self._open is None:

@@ -6,7 +6,8 @@ seconds of rows, ``T2_average_K`` and ``line_amplitude_K``, computed here the sa
 rows by a :class:`~cryod.service.live_view.LiveView`), the last hour in one-second bins
 (:class:`~cryod.interfaces.history.History`), the latest row (the thermometers' resistances for the
 336), and the events. Listeners are told of each new line (the web page's event streams) and of each
-event to act on (the alarm hooks: only those after the subscription's ``live_after``).
+event to act on (the alarm hooks: only those after the subscription's ``live_after``), and of each new
+row (the EPICS IOC).
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ class DaemonMirror:
 
     def __init__(self, period_s: float, cooler_rad_s: float):
         self.view = LiveView(period_s, cooler_rad_s)
-        self.history = History(self.view.line_amplitude_K)
+        self.history = History(self.view.line_amplitude_K, self.view.heater_mean_W)
         #: The status as the stream's last line gave it.
         self.stream_status = DaemonStatus(waiting_for="the interfaces process is not connected to the daemon yet")
         self.hello: dict = {}
@@ -54,12 +55,18 @@ class DaemonMirror:
         #: Set at each new line (and replaced): what an event stream waits on.
         self.changed = asyncio.Event()
         self._on_event: list[Callable[[dict], None]] = []
+        self._on_row: list[Callable[[Row], None]] = []
         self.view.attach_timing(lambda: dataclasses.asdict(self.stream_status.loop.timing))
         self.view.attach_alarms(lambda: [alarm["name"] for alarm in self.stream_status.alarms])
 
     def on_event(self, listener: Callable[[dict], None]) -> None:
         """Call ``listener(event)`` for each event to act on (after the subscription's ``live_after``)."""
         self._on_event.append(listener)
+
+    def on_row(self, listener: Callable[[Row], None]) -> None:
+        """Call ``listener(row)`` for each new row of the loop, in order (the EPICS IOC's readings, each with its
+        own sample instant)."""
+        self._on_row.append(listener)
 
     # -- the stream's lines ------------------------------------------------------------------
     def first(self, line: dict) -> None:
@@ -105,6 +112,8 @@ class DaemonMirror:
                 continue
             self.view(row)
             self.history.add_row(row)
+            for listener in self._on_row:
+                listener(row)
 
     def _act_on(self, event: dict) -> None:
         self.last_seq = event["seq"]

@@ -2,7 +2,7 @@
 
 The simulator, the feedforward design and the analysis all read the model
 through :func:`load_model` and compute its response with the same physics.
-The equations behind every field are in ``docs/model.md``.
+The equations behind every field are in ``docs/explanation/cryostat-model.md``.
 
 Signal structure (deviations from the operating point, heater power P in W)::
 

@@ -1,6 +1,6 @@
 """The cryostat's dynamics: noise-free T2 and T5 from a model and the heater history.
 
-How the parts combine (equations in ``docs/model.md``):
+How the parts combine (equations in ``docs/explanation/cryostat-model.md``):
 
 * the heater paths (G2*G1 to the flange thermometer, G3 to the PTC stage),
   each a :class:`~cryod.model.heater_path.HeaterPath`: exact for a heater

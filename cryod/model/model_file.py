@@ -3,7 +3,7 @@
 :func:`load_model` turns a YAML model file into a
 :class:`~cryod.model.parameters.CryostatModel`, with an error naming file,
 line and key for anything wrong; :func:`save_model` writes a file it reads
-back to an equal model. The fields are described in ``docs/model.md``.
+back to an equal model. The fields are described in ``docs/explanation/cryostat-model.md``.
 
 Examples
 --------

@@ -4,7 +4,7 @@ A :class:`CryostatModel` holds the operating point, the four transfer
 functions, the cooler's oscillation (:class:`CoolerSource`), the optional
 physical effects and the sensor noise. Files are read and written by
 :mod:`cryod.model.model_file`; the equations behind every field are in
-``docs/model.md``.
+``docs/explanation/cryostat-model.md``.
 
 Examples
 --------

@@ -1,7 +1,7 @@
 """How the cryostat changes with temperature: heat capacity, conductances, the cooler's line.
 
 The model file's optional ``temperature_dependence`` section states three laws
-(the physics and the assumptions behind them are in ``docs/model.md``,
+(the physics and the assumptions behind them are in ``docs/explanation/cryostat-model.md``,
 section "The cryostat from 4 K to 25 K"):
 
 * the heat capacities on the flange side scale as copper's specific heat,

@@ -1,7 +1,7 @@
 """The cryostat from 4 K to 25 K: the identified model carried across temperature by physical laws.
 
 A model with a ``temperature_dependence`` section (:class:`~cryod.model.temperature_laws.TemperatureDependence`)
-is simulated by :class:`TemperatureDependentPlant`; the equations are in ``docs/model.md``, section
+is simulated by :class:`TemperatureDependentPlant`; the equations are in ``docs/explanation/cryostat-model.md``, section
 "The cryostat from 4 K to 25 K". In short, with U the conduction potential of the flange's links:
 
 * the PTC stage's mean temperature is the model's: ``T5 = T5_0 + G3 P`` (the cooler's load line and the

@@ -398,7 +398,7 @@ class Daemon:
         return {"version": __version__, "pid": os.getpid(), "period_s": self.config.loop.period_s,
                 "clock_offset_s": self.clock_offset_s,
                 "cooler_rad_s": cooler_rad_s(self.config), "cryostat": self.config.metrics.cryostat,
-                "config_file": str(self.config.source or "")}
+                "config_file": os.path.abspath(self.config.source) if self.config.source else ""}
 
     def _lakeshore336_setup(self, config: DaemonConfig) -> Lakeshore336Setup | None:
         """The 336's view of ``config`` (built again after a reload), None without the 336 command set."""

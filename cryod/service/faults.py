@@ -51,7 +51,7 @@ from drivers.errors import (
 
 
 class ExitCode(IntEnum):
-    """The daemon's exit codes (docs/operations.md)."""
+    """The daemon's exit codes (docs/reference/exit-codes.md)."""
 
     OK = 0
     EXCEPTION = 1

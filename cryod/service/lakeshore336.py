@@ -3,7 +3,7 @@
 A lab's existing 336 drivers (PyMeasure, QCoDeS, EPICS, LabVIEW) talk to cryod as to a 336: input
 A is the flange (T2), input B the cooler's second stage (T5), output 1 the flange heater. This
 module is the protocol only: one message in, the replies out and the commands for the loop; the
-TCP server is :mod:`cryod.interfaces.lakeshore336_server`. docs/operations.md lists every command,
+TCP server is :mod:`cryod.interfaces.lakeshore336_server`. docs/reference/lakeshore336.md lists every command,
 the mapping of each value and the manual's sections (Lake Shore Model 336 user's manual,
 chapter 6).
 
@@ -475,6 +475,6 @@ _COMMANDS = {
                                                          "MODE", "FILTER", "*SRE", "*TRG", "*WAI")},
 }
 
-#: Every query and command this module answers (docs/operations.md lists them).
+#: Every query and command this module answers (docs/reference/lakeshore336.md lists them).
 SUPPORTED = tuple(sorted(_QUERIES)) + tuple(sorted(name for name, handler in _COMMANDS.items()
                                                    if handler is not Lakeshore336Session._not_taken))

@@ -200,12 +200,20 @@ class ControlLoop:
         self._gc = LoopGarbageCollector()
         #: Why the heater cannot hold the setpoint asked for (None: it can, or none was asked for).
         self.setpoint_warning: str | None = None
+        self._setpoint_judged: tuple[tuple, str | None] | None = None
         self.warn_about_setpoint(config.control.setpoint_K)
 
     def warn_about_setpoint(self, setpoint_K: float | None) -> str | None:
         """Say in the journal when the heater cannot hold ``setpoint_K`` (the controller's model against
         R I_max^2), and keep it for the status; the warning, or None."""
-        self.setpoint_warning = setpoint_warning(self.config.control, setpoint_K, self.config.heater.max_power_w)
+        control, top_W = self.config.control, self.config.heater.max_power_w
+        kept = self._setpoint_judged
+        if kept is None or kept[0][0] is not control or kept[0][1:] != (setpoint_K, top_W):
+            judged = (control, setpoint_K, top_W)
+            # the model's steady state costs a third of a millisecond on the loop's thread; a client that puts
+            # the same setpoint again (an EPICS or 336 client does, many a second) gets the judgement kept
+            self._setpoint_judged = (judged, setpoint_warning(control, setpoint_K, top_W))
+        self.setpoint_warning = self._setpoint_judged[1]
         if self.setpoint_warning:
             log.warning("%s", self.setpoint_warning)
         return self.setpoint_warning
@@ -722,8 +730,9 @@ class ControlLoop:
         """
         restart = self.config.restart_needed_for(new)
         if restart:
+            ioc = "; the IOC reads ioc at its own start: systemctl restart cryod-ioc" if "ioc" in restart else ""
             return located_error(new, restart[0], f"changes to {', '.join(restart)} need a restart "
-                                                  f"(systemctl restart cryod)")
+                                                  f"(systemctl restart cryod{ioc})")
         refusal = self.regulator.refusal(new.control)
         if refusal is not None:
             return located_error(new, *refusal)

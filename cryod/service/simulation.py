@@ -257,7 +257,7 @@ class SimulationRun:
     Attributes
     ----------
     exit_code : int
-        0, or the daemon's fault code (docs/operations.md).
+        0, or the daemon's fault code (docs/reference/exit-codes.md).
     summary : dict
         The ``cryod --simulate --json`` object (regulation metrics over the last window, timing, limit).
     log_paths : list of pathlib.Path

@@ -99,7 +99,7 @@ def _check_interfaces(config: DaemonConfig) -> None:
         if address.resource.upper().startswith("GPIB"):
             reason = (f"{address.resource} is on a GPIB card, which pyvisa-py cannot reach from the installation in "
                       f"{sys.prefix} ({missing.rstrip('.')}): install linux-gpib with its Python binding into this "
-                      f"environment (docs/operations.md, 'GPIB card'), or use NI-VISA (instruments.visa_library: "
+                      f"environment (docs/how-to/install.md, 'GPIB card'), or use NI-VISA (instruments.visa_library: "
                       f"\"\") or a Prologix adapter")
         elif missing.startswith("pyvisa-py has no support"):
             reason = (f"{address.resource}: {missing}: give a resource of another kind, or a VISA library that has "

@@ -9,7 +9,7 @@ shell's 128 + number for the others, so systemd restarts after them).
 
 Left as they are:
 
-- SIGKILL and SIGSTOP, which no process can catch (docs/operations.md: what protects the
+- SIGKILL and SIGSTOP, which no process can catch (docs/explanation/safety.md: what protects the
   cryostat then);
 - SIGSEGV, SIGBUS, SIGILL and SIGFPE (:data:`CRASH_SIGNALS`): they mean the process itself is
   broken (a fault in compiled code); returning from a handler would run the faulting

@@ -3,7 +3,9 @@
 Everything the lab watches the daemon through, other than ``cryod ctl`` (the web page, the Lake
 Shore 336 command set, the metrics, the alarm hooks, an EPICS IOC), runs in a process of its own
 and reads the daemon through this stream: a connection to the control socket that sends
-``subscribe`` (or ``subscribe SEQ``) gets one JSON line back, then one line every :data:`FRAME_S`::
+``subscribe`` (or ``subscribe SEQ``) gets one JSON line back, then a line as soon as the loop has handed
+over a row or an event (looked for every :data:`PROMPT_S` while anyone subscribes), and one at least every
+:data:`FRAME_S`::
 
     {"ok": true, "message": "subscribed", "hello": {...}, "live_after": 41,
      "rows": [...the last RECENT_ROWS...], "events": [...the last BACKLOG_EVENTS...], "status": {...}}
@@ -44,8 +46,13 @@ from cryod.records.columns import Event, Row
 
 log = logging.getLogger("cryod.stream")
 
-#: Time between two lines to the subscribers (s).
+#: The longest time between two lines to the subscribers (s): the status goes out this often when nothing
+#: else happens.
 FRAME_S = 0.1
+#: How often the stream's thread looks for a row or event to send while anyone subscribes (s): a reading reaches
+#: a subscriber (the EPICS IOC's monitors) within this of the loop's handing it over, one row a line at the
+#: loop's 80 ms. Looking is a deque's length on the socket's thread; the loop does nothing more for it.
+PROMPT_S = 0.01
 #: Subscribers served at once.
 MAX_SUBSCRIBERS = 8
 #: Events kept for a subscriber's first line and for one that reconnects.
@@ -164,9 +171,15 @@ class StreamHub:
 
     # -- serving ------------------------------------------------------------------------------
     async def run(self) -> None:
-        """Fold and send a line every :data:`FRAME_S` (a task on the socket's event loop)."""
+        """Fold and send a line as soon as there is a row or event, and every :data:`FRAME_S` at least (a task on
+        the socket's event loop)."""
+        last_line = time.monotonic()
         while True:
-            await asyncio.sleep(FRAME_S)
+            await asyncio.sleep(PROMPT_S if self.subscribers else FRAME_S)
+            now = time.monotonic()
+            if self.subscribers and not self.tap.incoming and now - last_line < FRAME_S:
+                continue
+            last_line = now
             rows, events = self.take()
             if not self.subscribers:                # rows become JSON only for someone
                 continue
@@ -243,4 +256,4 @@ class StreamHub:
                 return
 
 
-__all__ = ["StreamTap", "StreamHub", "row_fields", "finite_or_none", "FRAME_S", "MAX_SUBSCRIBERS"]
+__all__ = ["StreamTap", "StreamHub", "row_fields", "finite_or_none", "FRAME_S", "PROMPT_S", "MAX_SUBSCRIBERS"]

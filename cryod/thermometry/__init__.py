@@ -1,6 +1,6 @@
 """Thermometry: resistance to temperature and back, from a sensor's calibration file.
 
-Supported files (``docs/thermometry.md`` has the details and measured accuracy):
+Supported files (``docs/explanation/thermometry.md`` has the details and measured accuracy):
 
 * Lake Shore ``.340`` curves, every data format of the Model 340 manual
   (1 = mV/K, 2 = V/K, 3 = Ω/K, 4 = log Ω/K, 5 = log Ω/log K), interpolated

@@ -10,7 +10,7 @@ log10(R) (data format 4, "log Ω/K": "log resistance vs. kelvin for NTC
 resistive sensors", Model 211 manual, 3.13.1). The spline passes through every
 measured point; between them, on the tables in ``tests/data/calibration`` it
 predicts a left-out point to a median 4e-5 to 6e-5 of its temperature (see
-``docs/thermometry.md``).
+``docs/explanation/thermometry.md``).
 
 A spline can overshoot; one that is not monotonic between the first and the
 last point would make a resistance map to two temperatures, so it is refused.

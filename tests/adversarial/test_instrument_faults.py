@@ -6,7 +6,7 @@ reached 0 W. Each run must have it there within ``InstrumentWaits.fault_to_off_s
 period, the reading's own time, one loop-path reply, the heater-off) plus ALLOWANCE_S for a loaded
 machine, its record must never say 0 W before the supply was there, and a heater-off sent while the
 loop recovers, a stop asked for after it and the watchdog must each be served within the longest
-tick. The table of figures is printed (docs/operations.md, "What each instrument fault does"):
+tick. The table of figures is printed (docs/explanation/safety.md, "What each instrument fault does"):
 
     .venv/bin/python -m pytest -m slow tests/adversarial/test_instrument_faults.py
 """

@@ -4,7 +4,7 @@ The daemon is ``cryod run`` in a child process on the simulated instruments serv
 this process (real time, the real loop), with the web page, the 336 command set and the metrics on
 127.0.0.1; for the hour of history, a paced dry run at ``--speed 20``. Each trial measures the loop's
 overruns, the daemon's resident memory (its start and its most, sampled every 0.1 s) and, where a door
-is attacked, 30 probes of a real client meanwhile, and prints one line; docs/operations.md ("The
+is attacked, 30 probes of a real client meanwhile, and prints one line; benchmarks/results/adversarial_interfaces.md ("The
 interfaces' trials") quotes them with this command::
 
     .venv/bin/python -m pytest -m slow tests/adversarial/test_interface_trials.py -s

@@ -12,7 +12,7 @@ from this process; the supply logs what the heater really got and when. Tried:
 - a second daemon on the first one's supply, and one sharing only a DMM.
 
 Each category prints its figures (delay from the event to the supply at 0 W, overruns, the
-daemon's threads); docs/operations.md ("Adversarial run") quotes them with this command::
+daemon's threads); benchmarks/results/adversarial_signals.md ("Adversarial run") quotes them with this command::
 
     nice -n 10 .venv/bin/python -m pytest -m slow tests/adversarial/test_signals_and_clients.py -s
 """

@@ -1,4 +1,4 @@
-"""DMM faults over TCP through pyvisa-py: each fault gives its typed error (docs/instruments.md).
+"""DMM faults over TCP through pyvisa-py: each fault gives its typed error (docs/explanation/instruments.md).
 
 The heater supplies' faults run both ways in test_heater_supplies.py.
 """

@@ -76,7 +76,7 @@ WIDE = Tolerances(relative=0.5, line_phase_rad=0.4)
 #: A widened parameter is beyond its usual tolerance when past it by at least this many standard errors.
 BEYOND_SIGMA = 3.0
 #: What the report advises for ``base_model_off``.
-ADVICE = ("identify the cryostat (`cryod identify`, docs/commissioning.md) and analyse the record again with "
+ADVICE = ("identify the cryostat (`cryod identify`, docs/how-to/commission.md) and analyse the record again with "
           "that model (`cryod analyze RECORD --model MODEL`)")
 #: Where the wider recalibration's wall time goes in the timing log.
 WIDER_RECALIBRATION = "wider recalibration"

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.analysis.candidates import CandidateFit, FitContext
+from cryod.analysis.cause_signature import BandLayout
 from cryod.analysis.cause_search.record_search import ModelPoint, RecordSearch
 from cryod.analysis.cause_search.rules import NOISE_FROM_FITS
 from cryod.analysis.decision import (
@@ -112,6 +113,8 @@ class FirstRound:
         Against ``context``'s model.
     decision : Decision
         The rules of :mod:`cryod.analysis.decision` on ``scores``.
+    bands : BandLayout
+        Where each cause's signature is measured on the held-out blocks (:mod:`cryod.analysis.cause_signature`).
     """
 
     search: RecordSearch
@@ -126,6 +129,7 @@ class FirstRound:
     fits: dict[str, CandidateFit]
     scores: dict[str, CandidateScore]
     decision: Decision
+    bands: BandLayout
 
 
 def measured_noise(data: RecordData, replay: Replay, line: PtcLine) -> tuple[float, float]:
@@ -217,7 +221,8 @@ def rank_candidates(recalibrated: RecalibratedRecord) -> FirstRound:
         recalibrated_replay=recalibrated.recalibrated_replay, context=context, as_given=as_given,
         recalibrated=base_discrepancy(dataclasses.replace(context, base_replay=recalibrated.recalibrated_replay)),
         recalibration_gain=gain_between(as_given.sum_of_squares, recalibrated_sum, as_given.terms),
-        fits=fits, scores=scores, decision=decision)
+        fits=fits, scores=scores, decision=decision,
+        bands=BandLayout.of(search.data, search.held_out_mask, context.base_line, noise))
 
 
 __all__ = ["FirstRound", "RecalibratedRecord", "ReplayedRecord", "judging_noise", "measured_noise",

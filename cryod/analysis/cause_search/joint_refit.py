@@ -17,11 +17,12 @@ from dataclasses import dataclass
 from cryod.analysis.candidates import CandidateFit
 from cryod.analysis.cause_search.first_round import FirstRound
 from cryod.analysis.cause_search.record_search import ModelPoint, RecordSearch
-from cryod.analysis.cause_search.results import CausePath, JointFit
+from cryod.analysis.cause_search.results import CausePath, JointFit, NamedCause
 from cryod.analysis.cause_search.rules import leading_candidates, strained
 from cryod.analysis.decision import CandidateScore, Decision, base_discrepancy, decide, score_candidate
 from cryod.analysis.recalibration import RecalibratedBase
 from cryod.analysis.refinement import NamedEffect, refine
+from cryod.model import CryostatModel
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -56,12 +57,12 @@ def joint_fit(search: RecordSearch, recalibration: RecalibratedBase, fit: Candid
 
 
 def refit_jointly(search: RecordSearch, path: CausePath, fits: dict[str, CandidateFit],
-                  scores: dict[str, CandidateScore]) -> JointChoice:
-    """Refit the leading candidates (:func:`~cryod.analysis.cause_search.rules.leading_candidates`) jointly with
-    the recalibration and the causes named so far on ``path``, score them against the path's model and apply the
-    rules to them."""
+                  scores: dict[str, CandidateScore], causes: list[str] | None = None) -> JointChoice:
+    """Refit the leading candidates (:func:`~cryod.analysis.cause_search.rules.leading_candidates`; ``causes``:
+    these instead) jointly with the recalibration and the causes named so far on ``path``, score them against the
+    path's model and apply the rules to them."""
     refined = {cause: joint_fit(search, path.recalibration, fits[cause], path.named_effects)
-               for cause in leading_candidates(scores)}
+               for cause in (leading_candidates(scores) if causes is None else causes)}
     refitted = {cause: joint.fit for cause, joint in refined.items()}
     context = path.context
     decision = decide(path.remaining, [score_candidate(context, fit, path.remaining) for fit in refitted.values()],
@@ -84,4 +85,16 @@ def settled(search: RecordSearch, path: CausePath, cause: str, joint: JointFit) 
                                remaining=base_discrepancy(context))
 
 
-__all__ = ["JointChoice", "joint_fit", "refit_jointly", "settled", "starting_path"]
+def refitted_causes(causes: tuple[NamedCause, ...], refitted: tuple[NamedEffect, ...], model: CryostatModel
+                    ) -> tuple[NamedCause, ...]:
+    """``causes`` with the numbers a joint fit gave back to those with an effect form (``refitted``, in their
+    order), their parameters read from ``model``, the joint fit's extended model."""
+    with_form = [named for named in causes if named.fit.effect is not None]
+    effects = dict(zip([id(named) for named in with_form], refitted))
+    return tuple(
+        dataclasses.replace(named, fit=dataclasses.replace(named.fit, effect=effects[id(named)].effect,
+                                                           parameters=effects[id(named)].effect.describe(model)))
+        if id(named) in effects else named for named in causes)
+
+
+__all__ = ["JointChoice", "joint_fit", "refit_jointly", "refitted_causes", "settled", "starting_path"]

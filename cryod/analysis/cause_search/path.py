@@ -2,9 +2,11 @@
 
 From a first choice (a candidate refitted jointly with the recalibration), a
 path names that cause and then, while the model with the causes named still
-shows a discrepancy, fits every cause not yet named on top of them and names
-the best when it removes 70 % of what is left
-(:func:`cryod.analysis.cause_search.rules.names_a_further_cause`). Each time
+shows a discrepancy, fits every cause not yet named on top of them, refits the
+leading ones jointly with the causes named (all their numbers and the
+recalibration free) and judges each on what it adds and on its share of what
+is left at its own signature
+(:mod:`cryod.analysis.cause_search.joint_judgement`). Each time
 a cause is named, the causes named before it are refitted with it (one that
 took part of what it explains gives it back), and an earlier cause it made
 unnecessary is left out (:mod:`cryod.analysis.cause_search.unneeded_causes`).
@@ -20,23 +22,12 @@ from dataclasses import dataclass
 
 from cryod.analysis.cause_search.first_round import FirstRound
 from cryod.analysis.cause_search.generic_judgement import further_cause_comparison
-from cryod.analysis.cause_search.joint_refit import refit_jointly, settled, starting_path
-from cryod.analysis.cause_search.record_search import RecordSearch
-from cryod.analysis.cause_search.results import CausePath, JointFit, NamedCause
-from cryod.analysis.cause_search.rules import names_a_further_cause
+from cryod.analysis.cause_search.joint_judgement import next_cause
+from cryod.analysis.cause_search.bounds import examine_bounds
+from cryod.analysis.cause_search.joint_refit import refitted_causes, settled, starting_path
+from cryod.analysis.cause_search.results import CausePath, FurtherCandidate, JointFit, NamedCause
 from cryod.analysis.cause_search.unneeded_causes import without_unneeded
-from cryod.analysis.decision import CandidateScore, gain_between, score_candidate
-from cryod.analysis.refinement import NamedEffect
-from cryod.model import CryostatModel
-
-
-@dataclass(frozen=True, kw_only=True)
-class NextCause:
-    """What the search found on top of a path's causes: the best candidate and the joint fits it was chosen from;
-    ``best`` is None when no candidate counts (or none was left to fit)."""
-
-    best: CandidateScore | None
-    refined: dict[str, JointFit]
+from cryod.analysis.decision import CandidateScore, gain_between
 
 
 def follow_path(first: FirstRound, choice: CandidateScore, refined: dict[str, JointFit], most: int,
@@ -57,13 +48,16 @@ def follow_path(first: FirstRound, choice: CandidateScore, refined: dict[str, Jo
     best = choice
     for round_index in range(most):
         if round_index > 0:
-            found = next_cause(search, path, untried)
-            if found.best is None or not names_a_further_cause(found.best):
-                return path if found.best is None else _stopped_before(path, found.best)
+            found = next_cause(first, path, untried)
+            if found.best is None:
+                return _stopped_before(path, found.refused, found.judged)
             best, refined = found.best, found.refined
         if not best.counts:
             break
         named = cause_named(first, path, best, refined[best.cause])
+        if round_index == 0:
+            examined, evidence = examine_bounds(first, named)
+            named = dataclasses.replace(examined, at_bound=evidence)
         untried = tuple(cause for cause in untried if cause != best.cause)
         if round_index > 0 and named.remaining.present:
             comparison = further_cause_comparison(first, path, named, best.cause)
@@ -71,32 +65,29 @@ def follow_path(first: FirstRound, choice: CandidateScore, refined: dict[str, Jo
                 return dataclasses.replace(path, reasons=path.reasons + (
                     f"{best.cause} would remove {100.0 * best.explained_fraction:.1f} % of what is left but adds only "
                     f"{comparison.added:.4g} ({comparison.significance:.1f} sigma) to the generic extension: not a "
-                    "further cause",))
+                    "further cause",), further=_refused(found.judged, best.cause))
         path = named
         if not path.remaining.present or len(path.causes) == most:
             break
     return path
 
 
-def _stopped_before(path: CausePath, best: CandidateScore) -> CausePath:
-    """``path`` with the reason it stops before ``best``: too little of what is left for a further cause."""
-    return dataclasses.replace(path, reasons=path.reasons + (
-        f"{best.cause} would remove {100.0 * best.explained_fraction:.1f} % of what is left, too little for a "
-        "further cause",))
+def _refused(judged: tuple[FurtherCandidate, ...], cause: str) -> tuple[FurtherCandidate, ...]:
+    """``judged`` with ``cause`` marked as not named (refused by a later rule)."""
+    return tuple(dataclasses.replace(item, admitted=False) if item.cause == cause else item for item in judged)
 
 
-def next_cause(search: RecordSearch, path: CausePath, untried: tuple[str, ...]) -> NextCause:
-    """Every untried cause not yet in the path's model fitted on top of its causes, scored against it, and the
-    leading ones refitted jointly with the causes named (:func:`~cryod.analysis.cause_search.joint_refit.
-    refit_jointly`); the best of those (None when no candidate counts)."""
-    fits = search.fit_candidates(path.context, [cause for cause in untried
-                                                if cause not in path.context.base_model.effect_names()],
-                                 " (next cause)")
-    scores = {cause: score_candidate(path.context, fit, path.remaining) for cause, fit in fits.items()}
-    if not any(score.counts for score in scores.values()):
-        return NextCause(best=None, refined={})
-    choice = refit_jointly(search, path, fits, scores)
-    return NextCause(best=choice.decision.best, refined=choice.refined)
+def _stopped_before(path: CausePath, refused: FurtherCandidate | None, judged: tuple[FurtherCandidate, ...]
+                    ) -> CausePath:
+    """``path`` with the candidates judged on top of it, and the reason it stops before the best one refused:
+    too little of what is left, everywhere and at its own signature."""
+    if refused is None:
+        return dataclasses.replace(path, further=judged)
+    where = (f"{100.0 * refused.share:.1f} % of what is left at its signature ({refused.band} band, "
+             f"{refused.before.significance:.1f} sigma there)")
+    return dataclasses.replace(path, further=judged, reasons=path.reasons + (
+        f"{refused.cause} would remove {100.0 * refused.explained_fraction:.1f} % of what is left and {where}, "
+        "too little for a further cause",))
 
 
 def cause_named(first: FirstRound, path: CausePath, best: CandidateScore, joint: JointFit) -> CausePath:
@@ -110,21 +101,9 @@ def cause_named(first: FirstRound, path: CausePath, best: CandidateScore, joint:
     causes = refitted_causes(path.causes, joint.named_effects, fit.extended_model) + (named,)
     reason = (f"{best.cause} removes {100.0 * best.improvement / recalibrated_excess:.1f} % "
               f"({best.significance:.1f} sigma)")
-    extended = settled(first.search, dataclasses.replace(path, causes=causes, reasons=path.reasons + (reason,)),
-                       best.cause, joint)
-    return without_unneeded(first.search, extended) if len(extended.causes) > 1 else extended
+    extended = settled(first.search, dataclasses.replace(path, causes=causes, reasons=path.reasons + (reason,),
+                                                         further=()), best.cause, joint)
+    return without_unneeded(first.search, extended, first.bands) if len(extended.causes) > 1 else extended
 
 
-def refitted_causes(causes: tuple[NamedCause, ...], refitted: tuple[NamedEffect, ...], model: CryostatModel
-                    ) -> tuple[NamedCause, ...]:
-    """``causes`` with the numbers a joint fit gave back to those with an effect form (``refitted``, in their
-    order), their parameters read from ``model``, the joint fit's extended model."""
-    with_form = [named for named in causes if named.fit.effect is not None]
-    effects = dict(zip([id(named) for named in with_form], refitted))
-    return tuple(
-        dataclasses.replace(named, fit=dataclasses.replace(named.fit, effect=effects[id(named)].effect,
-                                                           parameters=effects[id(named)].effect.describe(model)))
-        if id(named) in effects else named for named in causes)
-
-
-__all__ = ["NextCause", "cause_named", "follow_path", "next_cause", "refitted_causes"]
+__all__ = ["cause_named", "follow_path", "refitted_causes"]

@@ -3,6 +3,8 @@
 * :class:`NamedCause`: a cause added to the model, with what it brought.
 * :class:`JointFit`: a candidate refitted jointly with the recalibration and the causes named before it.
 * :class:`ReplayedModel`: a model, its replay of the record and what it leaves on the held-out blocks.
+* :class:`FurtherCandidate`: a candidate judged on top of the causes named, on its own signature and jointly.
+* :class:`BoundEvidence`: a named cause's parameter at an edge of its range, re-examined.
 * :class:`CausePath`: causes named one after another from a first choice, and where they leave the model.
 * :class:`Verdict`: what the search concludes (the decision, the causes, the extended model).
 * :class:`Analysis`: everything one analysis found, what the report, the figures and the JSON are made of.
@@ -15,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from cryod.analysis.candidates import CandidateFit, FitContext
+from cryod.analysis.cause_signature import BandExcess
 from cryod.analysis.decision import BaseDiscrepancy, CandidateScore, Decision, Gain
 from cryod.analysis.recalibration import RecalibratedBase, Recalibration
 from cryod.analysis.record_data import RecordData
@@ -77,6 +80,84 @@ class ReplayedModel:
 
 
 @dataclass(frozen=True, kw_only=True)
+class FurtherCandidate:
+    """A candidate fitted on top of the causes named, judged on what it adds and at its own signature.
+
+    Attributes
+    ----------
+    cause : str
+    joint : bool
+        Whether it was refitted jointly with the causes named (all their numbers and the recalibration free);
+        otherwise its first fit on top of them (their numbers and the recalibration linearised).
+    improvement, significance : float
+        What it adds on the held-out blocks (noise units) and that in standard deviations.
+    explained_fraction : float
+        Its share of everything the causes named leave.
+    band : str
+        Its signature's band (:func:`cryod.analysis.cause_signature.band_of`).
+    before : BandExcess
+        What the causes named leave in that band.
+    share : float
+        Its share of ``before``'s excess.
+    admitted : bool
+        Whether the rule names it (:func:`cryod.analysis.cause_search.rules.admits_further_cause`).
+    """
+
+    cause: str
+    joint: bool
+    improvement: float
+    significance: float
+    explained_fraction: float
+    band: str
+    before: BandExcess
+    share: float
+    admitted: bool
+
+    def as_dict(self) -> dict:
+        return {"cause": self.cause, "joint_fit": self.joint, "improvement": self.improvement,
+                "significance": self.significance, "share_of_what_is_left": self.explained_fraction,
+                "signature": self.band, "signature_excess": self.before.excess,
+                "signature_significance": self.before.significance, "share_at_signature": self.share,
+                "admitted": self.admitted}
+
+
+@dataclass(frozen=True, kw_only=True)
+class BoundEvidence:
+    """A named cause's parameter at an edge of its range, re-examined (:mod:`~cryod.analysis.cause_search.bounds`).
+
+    Attributes
+    ----------
+    cause, parameter : str
+    value : float
+        Where the joint fit left it.
+    bound : float
+        The edge it sits at (the widened one when the range was widened).
+    widened_from : float or None
+        The edge before it was widened (None: physics or the model file does not let it be widened).
+    stays : bool
+        Whether it is still at the edge once re-examined.
+    """
+
+    cause: str
+    parameter: str
+    value: float
+    bound: float
+    widened_from: float | None
+    stays: bool
+
+    def text(self) -> str:
+        where = (f"at the edge of its range ({self.bound:.4g}, widened from {self.widened_from:.4g})"
+                 if self.widened_from is not None else f"at the edge of its range ({self.bound:.4g}, not widened)")
+        return (f"{self.cause}'s {self.parameter} {self.value:.4g} is {where}: the cause is not the record's form, "
+                "or it stands in for another" if self.stays else
+                f"{self.cause}'s {self.parameter} left the edge {self.widened_from:.4g} once widened: {self.value:.4g}")
+
+    def as_dict(self) -> dict:
+        return {"cause": self.cause, "parameter": self.parameter, "value": self.value, "bound": self.bound,
+                "widened_from": self.widened_from, "stays_at_bound": self.stays, "text": self.text()}
+
+
+@dataclass(frozen=True, kw_only=True)
 class CausePath:
     """Causes named one after another from a first choice, and where they leave the model.
 
@@ -94,6 +175,10 @@ class CausePath:
         The recalibration as refitted with these causes.
     reasons : tuple of str
         What happened on the way, in words (the decision's reason is made of them).
+    further : tuple of FurtherCandidate
+        The candidates last judged on top of these causes and not named (what would explain what is left).
+    at_bound : tuple of BoundEvidence
+        The first cause's numbers found at an edge of their range when it was named, re-examined.
     """
 
     causes: tuple[NamedCause, ...]
@@ -102,6 +187,8 @@ class CausePath:
     named_effects: tuple[NamedEffect, ...]
     recalibration: RecalibratedBase
     reasons: tuple[str, ...]
+    further: tuple[FurtherCandidate, ...] = ()
+    at_bound: tuple["BoundEvidence", ...] = ()
 
     def replayed(self) -> ReplayedModel:
         """The model with these causes, its replay and what it leaves."""
@@ -136,6 +223,10 @@ class Verdict:
         (:class:`cryod.analysis.generic_extension.GenericExtension`).
     other_paths : tuple of dict
         Readings of other causes that fit the record as well as those named (:mod:`cryod.analysis.equivalence`).
+    further : tuple of FurtherCandidate
+        Candidates judged on top of the causes named and not named.
+    at_bound : tuple of BoundEvidence
+        The causes' numbers found at an edge of their range, re-examined.
     """
 
     decision: Decision
@@ -147,6 +238,8 @@ class Verdict:
     final_recalibration: Recalibration | None = None
     generic: object = None
     other_paths: tuple[dict, ...] = ()
+    further: tuple[FurtherCandidate, ...] = ()
+    at_bound: tuple[BoundEvidence, ...] = ()
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -206,6 +299,13 @@ class Analysis:
     other_paths : tuple of dict
         Readings of other causes that fit the record as well as the causes named
         (:mod:`cryod.analysis.equivalence`; each with ``reading``, ``causes`` and ``told_apart_by``).
+    further : tuple of FurtherCandidate
+        Candidates judged on top of the causes named and not named: what would explain what is left.
+    at_bound : tuple of BoundEvidence
+        Named causes' parameters found at an edge of their range, re-examined.
+    attribution : object or None
+        What is left, band by band, and the candidates that would explain it
+        (:class:`cryod.analysis.cause_search.what_is_left.Attribution`).
     """
 
     data: RecordData
@@ -232,6 +332,9 @@ class Analysis:
     residual_signature: object = None
     widened: Recalibration | None = None
     other_paths: tuple[dict, ...] = ()
+    further: tuple[FurtherCandidate, ...] = ()
+    at_bound: tuple[BoundEvidence, ...] = ()
+    attribution: object = None
 
     @property
     def cause(self) -> str:
@@ -256,4 +359,5 @@ class Analysis:
         return [named.cause for named in self.causes]
 
 
-__all__ = ["Analysis", "CausePath", "JointFit", "NamedCause", "ReplayedModel", "Verdict"]
+__all__ = ["Analysis", "BoundEvidence", "CausePath", "FurtherCandidate", "JointFit", "NamedCause", "ReplayedModel",
+           "Verdict"]

@@ -14,7 +14,9 @@ import dataclasses
 
 from cryod.analysis.cause_search.first_round import FirstRound
 from cryod.analysis.cause_search.generic_judgement import against_generic
-from cryod.analysis.cause_search.results import CausePath, Verdict
+from cryod.analysis.cause_search.joint_judgement import judge_on_path
+from cryod.analysis.cause_search.joint_refit import starting_path
+from cryod.analysis.cause_search.results import BoundEvidence, CausePath, FurtherCandidate, Verdict
 from cryod.analysis.cause_search.rules import names_the_causes, weighed_against_generic
 from cryod.analysis.decision import BaseDiscrepancy, Decision, decide, gain_between
 from cryod.analysis.recalibration import Recalibration
@@ -55,6 +57,12 @@ def recalibration_suffices(first: FirstRound) -> Verdict:
         remaining=recalibrated)
 
 
+def first_round_candidates(first: FirstRound) -> tuple[FurtherCandidate, ...]:
+    """The first round's candidates judged on the recalibrated model as a further cause would be: what would
+    explain what an ``unexplained`` verdict leaves (none is admitted: they are first fits, not joint ones)."""
+    return judge_on_path(first, starting_path(first), first.fits, {})[1]
+
+
 def _unexplained(first: FirstRound, reason: str, generic: object = None, other_paths: tuple = ()) -> Verdict:
     """``unexplained`` with ``reason``: no cause named, the extended model the recalibrated one."""
     as_given, recalibrated = first.as_given, first.recalibrated
@@ -62,7 +70,7 @@ def _unexplained(first: FirstRound, reason: str, generic: object = None, other_p
         decision=Decision(cause="unexplained", reason=reason, best=first.decision.best, base=recalibrated,
                           gain=gain_between(as_given.sum_of_squares, recalibrated.sum_of_squares, as_given.terms)),
         recalibrated=True, final_model=first.recalibration.model, final_replay=first.recalibrated_replay,
-        remaining=recalibrated, generic=generic, other_paths=other_paths)
+        remaining=recalibrated, generic=generic, other_paths=other_paths, further=first_round_candidates(first))
 
 
 def no_cause_counts(first: FirstRound) -> Verdict:
@@ -70,10 +78,13 @@ def no_cause_counts(first: FirstRound) -> Verdict:
     return _unexplained(first, f"{excess_text(first.recalibrated)}, and no candidate improves it significantly")
 
 
-def judge(first: FirstRound, path: CausePath, other_paths: tuple[dict, ...]) -> Verdict:
+def judge(first: FirstRound, path: CausePath, other_paths: tuple[dict, ...],
+          at_bound: tuple[BoundEvidence, ...] = ()) -> Verdict:
     """Step 6: the causes on ``path`` named when they remove 70 % of the recalibrated model's excess or leave no
     discrepancy; when they would be named but leave a discrepancy, only if they add to the generic extension.
-    Otherwise ``unexplained``. ``other_paths``: the causes' equivalent readings."""
+    Otherwise ``unexplained``. ``other_paths``: the causes' equivalent readings; ``at_bound``: their numbers
+    found at an edge of their range (:mod:`cryod.analysis.cause_search.bounds`), said in the reason when they
+    stay there."""
     recalibrated, left = first.recalibrated, path.remaining
     explained = (recalibrated.excess - left.excess) / recalibrated.excess
     together = (f"{excess_text(recalibrated)}; {'; '.join(path.reasons)}: together {100.0 * explained:.1f} % of it, "
@@ -86,7 +97,7 @@ def judge(first: FirstRound, path: CausePath, other_paths: tuple[dict, ...]) -> 
         generic = judgement.generic
     if not names_the_causes(explained, left):
         return _unexplained(first, together, other_paths=other_paths)
-    return _named(first, path, generic, other_paths)
+    return dataclasses.replace(_named(first, path, generic, other_paths), at_bound=at_bound)
 
 
 def _named(first: FirstRound, path: CausePath, generic: object, other_paths: tuple[dict, ...]) -> Verdict:
@@ -109,7 +120,7 @@ def _named(first: FirstRound, path: CausePath, generic: object, other_paths: tup
         recalibrated=True, causes=path.causes, final_model=path.context.base_model,
         final_replay=path.context.base_replay, remaining=path.remaining,
         final_recalibration=Recalibration.refitted(path.recalibration, path.context.base_replay),
-        generic=generic, other_paths=other_paths)
+        generic=generic, other_paths=other_paths, further=path.further)
 
 
 __all__ = ["excess_text", "judge", "kept_as_given", "no_cause_counts", "recalibration_suffices"]

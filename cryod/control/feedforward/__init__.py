@@ -27,7 +27,7 @@
   (:mod:`~cryod.control.feedforward.limit_follower`), what binds it in the lab's words
   (:mod:`~cryod.control.feedforward.limit_binding`).
 
-How it works and why, with the results: docs/feedforward.md. The term's names are also here, where the
+How it works and why, with the results: docs/explanation/feedforward.md. The term's names are also here, where the
 control terms' table (:data:`cryod.control.terms.TERM_TYPES`) and users import them from.
 """
 

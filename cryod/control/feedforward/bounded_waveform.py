@@ -1,6 +1,6 @@
 """The best periodic waveform within bounds, when each harmonic acts on its own.
 
-Why, and how well it works: docs/feedforward.md ("The physical limit").
+Why, and how well it works: docs/explanation/feedforward.md ("The physical limit").
 
 A periodic input ``P(theta) = mean + Re sum_n a_n exp(j n theta)`` (n = 1..N) bounded by
 ``low <= P <= high``, with the mean fixed, moves harmonic n of an output by ``H_n a_n`` against a

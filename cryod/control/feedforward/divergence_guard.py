@@ -1,6 +1,6 @@
 """The divergence guard: a learning that makes T2 worse is caught, and the feedforward steps back.
 
-Why, and how well it works: docs/feedforward.md ("Never worse").
+Why, and how well it works: docs/explanation/feedforward.md ("Never worse").
 
 The learning converges when the plant it uses is close enough to the
 cryostat's (within 90 degrees, and not too strong); a plant that changes faster

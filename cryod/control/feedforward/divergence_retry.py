@@ -1,6 +1,6 @@
 """After a divergence: why it was, how many there were, and when learning starts again.
 
-Why, and how well it works: docs/feedforward.md ("Never worse").
+Why, and how well it works: docs/explanation/feedforward.md ("Never worse").
 
 When the divergence guard (:mod:`cryod.control.feedforward.divergence_guard`) trips, the
 feedforward's waveform fades out (its ``diverged`` state,

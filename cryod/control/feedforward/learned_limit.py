@@ -1,6 +1,6 @@
 """The physical limit from what the feedforward learned: the cryostat it is on, not the model.
 
-Why, and how well it works: docs/feedforward.md ("The limit from what was learned").
+Why, and how well it works: docs/explanation/feedforward.md ("The limit from what was learned").
 
 The limit of :mod:`cryod.control.feedforward.limit` is computed from the
 controller's model: its line, its plant at the harmonics, the mean power its

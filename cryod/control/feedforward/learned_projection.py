@@ -1,6 +1,6 @@
 """A learning step of the waveform, projected onto the heater's bounds in the learned plant's metric.
 
-Why, and how well it works: docs/feedforward.md ("The projection in the learned metric").
+Why, and how well it works: docs/explanation/feedforward.md ("The projection in the learned metric").
 
 Every learning interval the waveform's coefficients step toward cancelling the
 estimated line, ``u_n <- u_n + gain (-L_n / H_n - u_n)``, at each harmonic whose

@@ -8,7 +8,7 @@ phase that leaves the smallest PTC-synchronous part on T2 (a convex quadratic pr
 every waveform, says what limits it (the heater's authority, or the estimation noise) and what
 would change it (:func:`limit_changes`), and sweeps it over setpoints and heaters
 (:func:`limit_sweep`). The formulation, the certificate, the convergence and the numbers are in
-docs/feedforward.md ("The physical limit").
+docs/explanation/feedforward.md ("The physical limit").
 
 The limit is in the daemon's measure, ``ptc_periodic_amplitude_K``: sqrt(2) times the rms of T2's
 part periodic in the cooler's phase, harmonics 1-6, in the readings taken at the loop's instants

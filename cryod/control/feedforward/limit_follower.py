@@ -1,6 +1,6 @@
 """The physical limit at the setpoint in use, from the model until the plant is learned, then from what was learned.
 
-Why, and how well it works: docs/feedforward.md ("The limit from what was learned").
+Why, and how well it works: docs/explanation/feedforward.md ("The limit from what was learned").
 
 The feedforward reports the limit (``ff_limit_K``, ``ff_authority``,
 ``cryod ctl feedforward status``) and what would change it. It is computed off

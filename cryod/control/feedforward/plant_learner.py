@@ -1,6 +1,6 @@
 """The plant the feedforward learns: how the heater reaches T2's readings at each harmonic, and how well it is known.
 
-Why, and how well it works: docs/feedforward.md ("The plant, with its uncertainty").
+Why, and how well it works: docs/explanation/feedforward.md ("The plant, with its uncertainty").
 
 The feedforward's estimator (:class:`cryod.control.feedforward.SynchronousEstimator`)
 learns, at each harmonic n of the cooler, a complex correction ``k_n`` of the

@@ -1,6 +1,6 @@
 """The probe: a small, bounded excitation at the harmonics whose plant the waveform's own changes do not tell.
 
-Why, and how well it works: docs/feedforward.md ("The probe").
+Why, and how well it works: docs/explanation/feedforward.md ("The probe").
 
 The feedforward learns the plant at each harmonic from how T2 answers changes
 of what the heater plays (:mod:`cryod.control.feedforward.plant_learner`). The waveform

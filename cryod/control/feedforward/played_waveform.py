@@ -10,7 +10,7 @@ the old one's answer.
 Where the waveform changes, the tick it changes in adds the energy the change would otherwise
 take or give (:meth:`PlayedWaveform.energy_kept`): a held waveform delivers, summed over the ticks,
 a bounded oscillation plus a constant, and the constant moves with the phase the change falls at.
-docs/feedforward.md ("No kicks"). The fade that takes the waveform in and out is :func:`faded`.
+docs/explanation/feedforward.md ("No kicks"). The fade that takes the waveform in and out is :func:`faded`.
 
 Examples
 --------

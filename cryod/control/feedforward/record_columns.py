@@ -1,6 +1,6 @@
 """The feedforward's record columns: every row has them (``ff_*``), in this order.
 
-What each says is in its declaration; docs/feedforward.md ("Using it") says it for a reader of the
+What each says is in its declaration; docs/how-to/feedforward.md ("Using it") says it for a reader of the
 record. :meth:`cryod.control.feedforward.FeedforwardTerm.column_values` fills them.
 """
 

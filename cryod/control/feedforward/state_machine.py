@@ -5,7 +5,7 @@ each event takes each state (:func:`next_state` refuses a pair the table does no
 :data:`BEHAVIOURS`, what the term does in each state: whether the waveform plays (it fades in to
 full and every learning step moves it, and the probe with it) or is held out (it fades out, or
 stays out, and the learning steps only estimate), and whether the divergence guard judges the
-steps. docs/feedforward.md ("States") draws the diagram.
+steps. docs/explanation/feedforward.md ("States") draws the diagram.
 
 The events come from three places:
 
@@ -97,7 +97,7 @@ class Behaviour:
         The divergence guard judges every learning step (only with the waveform at full: a fade moves
         T2's residual by itself).
     waveform : str
-        What the waveform does, in words (docs/feedforward.md's table).
+        What the waveform does, in words (docs/explanation/feedforward.md's table).
     learning : str
         What the learning does, in words.
     """

@@ -6,7 +6,7 @@ objects and read-only copies of a few small arrays, a few microseconds); the wor
 together from it on another thread (:func:`status_text`: the waveform's extremes over a period,
 the plant per harmonic, what binds the physical limit, a tenth of a millisecond and more), so a
 status request costs the 80 ms cycle nothing but the snapshot. What the lines say:
-docs/feedforward.md ("Using it", "What it says").
+docs/how-to/feedforward.md ("Using it", "What it says").
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ The feedforward feeds it on a worker thread
 (:mod:`cryod.control.feedforward.learning_worker`); what it learned of the
 plant, with its covariance, is read as a
 :class:`~cryod.control.feedforward.plant_learner.LearnedPlant`. Why, and how
-well it works: docs/feedforward.md ("How it works", "The plant, with its
+well it works: docs/explanation/feedforward.md ("How it works", "The plant, with its
 uncertainty").
 
 The filter is written out here rather than taken from a library (filterpy,

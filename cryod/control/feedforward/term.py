@@ -3,7 +3,7 @@
 PI cannot remove the pulse-tube cooler's line from T2: at 10.8 rad/s the heater
 reaches T2 only through G2*G1, about 7 mK/W lagging 90 degrees. The cooler's
 oscillation in T5 gives its phase, and the heater plays a waveform locked to
-that phase whose effect on T2 cancels the line. docs/feedforward.md says how
+that phase whose effect on T2 cancels the line. docs/explanation/feedforward.md says how
 and why, with the equations and the results ("How it works", "Learning the
 cryostat it is on"); here, where each part lives. Every tick the term
 

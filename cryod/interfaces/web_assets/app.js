@@ -65,7 +65,8 @@ function renderStatus(status) {
   const ratio = status.line_amplitude_K != null && status.ff_limit_K ? status.line_amplitude_K / status.ff_limit_K
     : null;
   show("line_ratio", ratio);
-  if (ratio !== null) document.getElementById("line_meter").value = ratio;
+  // the bar is full at the physical limit and half full at twice it: the line cannot go below the limit
+  if (ratio !== null) document.getElementById("line_meter").value = Math.min(1, 1 / ratio);
   const faults = document.getElementById("faults");
   const faulted = String(status.state ?? "").startsWith("fault") || status.state === "stopped";
   faults.hidden = !(faulted || status.last_fault);
@@ -128,19 +129,20 @@ const uk = (v) => (v === null || v === undefined ? null : v * 1e6);
 const diff = (a, b) => (a === null || b === null || a === undefined || b === undefined ? null : a - b);
 
 // Each chart: its title, the unit of its axis, its series (label, colour, how a bin gives its value) and the
-// bands filled between two of them (indexes into the series, counted from 1).
+// bands filled between two of them (indexes into the series, counted from 1); its axis' range when uPlot's own
+// (all the data in view) is not the one to read.
 const CHARTS = [
   { id: "chart-T2", title: "T2 flange", unit: "K", digits: 5, series: [
       ["T2 lowest in each second", "#9ecae1", (b) => b.T2_min_K],
       ["T2 highest in each second", "#9ecae1", (b) => b.T2_max_K],
       ["T2 mean", "#1f77b4", (b) => b.T2_mean_K, 2],
       ["setpoint", "#d62728", (b) => b.setpoint_K, 1.5]], bands: [[2, 1, "rgba(31,119,180,0.18)"]] },
-  { id: "chart-error", title: "T2 minus the setpoint", unit: "µK", digits: 1, series: [
+  { id: "chart-error", title: "T2 minus the setpoint", unit: "µK", digits: 1, range: settledRange, series: [
       ["lowest in each second", "#a1d99b", (b) => uk(diff(b.T2_min_K, b.setpoint_K))],
       ["highest in each second", "#a1d99b", (b) => uk(diff(b.T2_max_K, b.setpoint_K))],
       ["mean", "#2ca02c", (b) => uk(diff(b.T2_mean_K, b.setpoint_K)), 2]], bands: [[2, 1, "rgba(44,160,44,0.18)"]] },
   { id: "chart-heater", title: "Heater", unit: "mW", digits: 1, range: heaterRange, series: [
-      ["heater mean of each second", "#e6550d", (b) => mk(b.heater_mean_W), 2],
+      ["heater, mean of the last 10 cooler cycles", "#e6550d", (b) => mk(b.heater_level_W), 2],
       ["waveform range: lowest", "#fdae6b", (b) => mk(b.heater_min_W)],
       ["waveform range: highest", "#fdae6b", (b) => mk(b.heater_max_W)],
       ["PI's part", "#8c564b", (b) => mk(b.pi_W), 1.5]], bands: [[3, 2, "rgba(253,174,107,0.25)"]] },
@@ -160,6 +162,34 @@ function heaterRange(u, low, high) {
   return [Math.min(0, low), Math.max(top, 1)];
 }
 
+// T2's error as it is once settled: the axis spans what the seconds in view reach, leaving out the most extreme
+// 3 % at each end (a setpoint step's transient of tens of millikelvin would otherwise flatten a regulation of a few
+// hundred microkelvin into a line); the title says so when something leaves the axis.
+const SETTLED_QUANTILE = 0.03;
+function settledRange(u, low, high) {
+  const inView = (values) => values.filter((v, i) => v !== null && u.data[0][i] >= u.scales.x.min
+                                                    && u.data[0][i] <= u.scales.x.max);
+  const lows = inView(u.data[1]).sort((a, b) => a - b);
+  const highs = inView(u.data[2]).sort((a, b) => a - b);
+  if (lows.length < 20 || highs.length < 20) return [Math.min(low, -1), Math.max(high, 1)];
+  const bottom = lows[Math.floor(SETTLED_QUANTILE * (lows.length - 1))];
+  const top = highs[Math.ceil((1 - SETTLED_QUANTILE) * (highs.length - 1))];
+  const pad = Math.max(0.15 * (top - bottom), 1);
+  const range = [Math.min(bottom - pad, -pad), Math.max(top + pad, pad)];
+  const clipped = lows[0] < range[0] || highs[highs.length - 1] > range[1];
+  const title = u.root.querySelector(".u-title");
+  if (title) title.textContent = `T2 minus the setpoint (µK)${clipped ? ": a transient leaves the axis" : ""}`;
+  return range;
+}
+
+// Tick labels with as many decimals as the step between ticks needs (no "-40000.0 µK", no "5.24000 K").
+function tickLabels(splits) {
+  const step = splits.length > 1 ? Math.abs(splits[1] - splits[0]) : 0;
+  let digits = 0;                          // the fewest decimals that write the step exactly (0.00025: 5)
+  while (digits < 8 && step > 0 && Math.abs(step * 10 ** digits - Math.round(step * 10 ** digits)) > 1e-6) digits++;
+  return splits.map((v) => v.toFixed(digits));
+}
+
 function chartData(chart) {
   const times = bins.map((b) => b.time_s + clockOffsetS);
   return [times, ...chart.series.map(([, , pick]) => bins.map((b) => { const v = pick(b); return v ?? null; }))];
@@ -172,7 +202,7 @@ function chartWidth(element) {
 function makeChart(chart) {
   const holder = document.createElement("figure");
   holder.id = chart.id;
-  document.getElementById("charts").append(holder);
+  document.getElementById("charts").insertBefore(holder, document.getElementById("events-box"));     // the notes and events come last
   const options = {
     title: `${chart.title} (${chart.unit})`,
     width: chartWidth(holder),
@@ -188,7 +218,7 @@ function makeChart(chart) {
           return labels;
         } },
       { label: chart.unit, size: 70, grid: { stroke: "#eee" }, ticks: { stroke: "#ccc" },
-        values: (u, splits) => splits.map((v) => v.toFixed(chart.digits)) },
+        values: (u, splits) => tickLabels(splits) },
     ],
     series: [
       { label: "local time", value: (u, v) => (v === null ? "–" : localTime(v)) },

@@ -187,14 +187,17 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         if power_w < 0.0:
             raise HeaterLimitRefused(self.label, f"heater power {power_w:g} W refused: the heater cannot cool")
         current = current_for_power_a(power_w, self.heater_resistance_ohm)
-        self._check_current(current, f"{power_w:g} W")
+        self._check_current(current, power_w)
         return current
 
-    def _check_current(self, current_a: float, what: str) -> None:
+    def _check_current(self, current_a: float, power_w: float | None = None) -> None:
+        """:class:`HeaterLimitRefused` unless ``current_a`` is a current the limits allow (asked for as ``power_w``,
+        where given: the refusal names it; the message is put together only then)."""
         if type(current_a) is not float and (isinstance(current_a, bool) or not isinstance(current_a, numbers.Real)) \
                 or not (math.isfinite(current_a) and 0.0 <= current_a):
             raise HeaterLimitRefused(self.label, f"heater current {current_a!r} A refused")
         if current_a > self.max_current_a:
+            what = f"{current_a * 1e3:.4g} mA" if power_w is None else f"{power_w:g} W"
             raise HeaterLimitRefused(
                 self.label, f"{what} refused: needs {current_a * 1e3:.4g} mA, above the "
                             f"{self.max_current_a * 1e3:.4g} mA maximum "
@@ -249,13 +252,19 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
         HeaterRefused, HeaterCompliance, InstrumentError
             The output is then at 0 A and off.
         """
-        current = self.current_for_power(power_w)
-        setting = self.set_current_a(current)
-        return HeaterSetting(float(power_w), setting.current_a, setting.power_w)
+        current = self.current_for_power(power_w)      # checked: applied as it is
+        self._apply_current_a(current)
+        return HeaterSetting(float(power_w), current, current ** 2 * self.heater_resistance_ohm)
 
     def set_current_a(self, current_a: float) -> HeaterSetting:
         """Apply ``current_a`` (A) directly; same limits and safety as :meth:`set_power_w`."""
-        self._check_current(current_a, f"{current_a * 1e3:.4g} mA")
+        self._check_current(current_a)
+        self._apply_current_a(current_a)
+        power = current_a ** 2 * self.heater_resistance_ohm
+        return HeaterSetting(power, current_a, power)
+
+    def _apply_current_a(self, current_a: float) -> None:
+        """Send ``current_a`` (A), which the limits allow (checked before), with the checks of every setting."""
         with self.safe_on_fault():
             self.off_confirmed_s = self.off_failure = None      # from here on the supply is being driven
             if self.output_is_on and self.verify_each_setting:
@@ -274,8 +283,6 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
                     self.output_is_on = True
                 if self.verify_each_setting:
                     self.check_compliance()
-        power = current_a ** 2 * self.heater_resistance_ohm
-        return HeaterSetting(power, current_a, power)
 
     def read_back(self) -> HeaterReadback:
         """Current, voltage and power as the supply reports them; compliance is a fault."""
@@ -328,7 +335,7 @@ class HeaterSupply(ScpiInstrument, abc.ABC):
 
     def current_command(self, current_a: float) -> str:
         """The command that programs ``current_a``, without sending it."""
-        return type(self).source_current_a.command(current_a, self.label)
+        return type(self).source_current_a.command_for(current_a, self)
 
     #: The query whose reply says whether the output is in compliance (per model).
     compliance_query: str = ""

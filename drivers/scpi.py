@@ -175,6 +175,14 @@ class Control:
         except Refused as refusal:
             raise ValueError(f"{instrument_name}: {self.name} = {refusal}") from None
 
+    def command_for(self, value: Any, instrument: "ScpiInstrument") -> str:
+        """:meth:`command` for ``instrument``, whose label a refusal names (asked for only then: every setting of a
+        cycle goes through here)."""
+        try:
+            return self.set_command.format(self.validate(value))
+        except Refused:
+            return self.command(value, instrument.label)
+
     def __get__(self, instrument: "ScpiInstrument | None", owner: type | None = None) -> Any:
         if instrument is None:
             return self

@@ -124,13 +124,17 @@ class LoopGarbageCollector:
     """Keeps the garbage collector out of the tick: collect only in the slack after a cycle.
 
     Automatic collection is switched off; :meth:`collect_if_time` runs a young
-    generation collection when the remaining slack allows it, and an older one
-    every ``full_every`` calls with enough slack (Klipper's approach).
+    generation collection when the remaining slack allows it and the young
+    generation holds ``young_objects`` new objects (the interpreter's own
+    threshold for its automatic collection, by default: what it would collect,
+    only in the slack instead of anywhere in the tick), and an older one every
+    ``full_every`` collections with enough slack (Klipper's approach).
     """
 
-    def __init__(self, minimum_slack_s: float = 0.02, full_every: int = 750):
+    def __init__(self, minimum_slack_s: float = 0.02, full_every: int = 750, young_objects: int | None = None):
         self.minimum_slack_s = minimum_slack_s
         self.full_every = full_every
+        self.young_objects = gc.get_threshold()[0] if young_objects is None else young_objects
         self._calls = 0
         self._was_enabled = gc.isenabled()
         self.longest_s = 0.0          # longest collection so far (real time)
@@ -147,7 +151,7 @@ class LoopGarbageCollector:
 
     def collect_if_time(self, slack_s: float) -> None:
         """Collect while ``slack_s`` seconds remain before the next deadline."""
-        if slack_s < self.minimum_slack_s:
+        if slack_s < self.minimum_slack_s or gc.get_count()[0] < self.young_objects:
             return
         self._calls += 1
         generation = 2 if self._calls % self.full_every == 0 else (1 if self._calls % 50 == 0 else 0)

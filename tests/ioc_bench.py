@@ -107,3 +107,18 @@ class IocProcess:
             except subprocess.TimeoutExpired:
                 self.process.kill()
         return self.process.wait(timeout=30)
+
+
+def wait_until(condition, timeout_s: float = 60.0, what: str = "the condition") -> None:
+    """Poll ``condition`` every 50 ms until it holds; an assertion naming ``what`` after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"{what} did not come within {timeout_s} s"
+        time.sleep(0.05)
+
+
+def daemon_status(socket_path) -> dict:
+    """The daemon's status at ``socket_path``, as ``cryod ctl status --json`` gives it."""
+    from cryod.service.control_socket import send_command
+
+    return send_command(socket_path, "status")["status"]

@@ -13,13 +13,12 @@ import time
 import pytest
 
 from tests.conftest import REPOSITORY
-from tests.ioc_bench import IocProcess, ioc_lab_config
+from tests.ioc_bench import IocProcess, daemon_status, ioc_lab_config, wait_until
 
 epics = pytest.importorskip("epics")
 pytestmark = pytest.mark.system
 
 from tests.dry_run_process import DryRunProcess  # noqa: E402
-from tests.test_epics_ioc import daemon_status, wait_until  # noqa: E402
 
 
 @pytest.mark.slow

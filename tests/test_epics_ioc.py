@@ -17,7 +17,7 @@ import time
 
 import pytest
 
-from tests.ioc_bench import EPICS_ENVIRONMENT, IocProcess, ioc_lab_config
+from tests.ioc_bench import EPICS_ENVIRONMENT, IocProcess, daemon_status, ioc_lab_config, wait_until
 
 epics = pytest.importorskip("epics")
 pytestmark = pytest.mark.system
@@ -32,19 +32,6 @@ STAT_WRITE, STAT_HIGH, STAT_COMM = 2, 4, 9
 
 def pv(name: str, **options):
     return epics.get_pv(PREFIX + name, form="time", **options)
-
-
-def wait_until(condition, timeout_s: float = 60.0, what: str = "the condition"):
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        assert time.monotonic() < deadline, f"{what} did not come within {timeout_s} s"
-        time.sleep(0.05)
-
-
-def daemon_status(socket_path) -> dict:
-    from cryod.service.control_socket import send_command
-
-    return send_command(socket_path, "status")["status"]
 
 
 @pytest.fixture(scope="module")

@@ -68,7 +68,7 @@ def judged_candidate(cause: str, score: CandidateScore, before: dict[str, BandEx
                                                                before[band])
     return FurtherCandidate(cause=cause, joint=joint, improvement=score.improvement, significance=score.significance,
                             explained_fraction=score.explained_fraction, band=band, before=before[band], share=share,
-                            admitted=admitted)
+                            admitted=admitted, off_signature=score.off_signature, reshapes=reshapes)
 
 
 def judge_on_path(first: FirstRound, path: CausePath, fits: dict[str, CandidateFit],

@@ -83,6 +83,10 @@ def _stopped_before(path: CausePath, refused: FurtherCandidate | None, judged: t
     too little of what is left, everywhere and at its own signature."""
     if refused is None:
         return dataclasses.replace(path, further=judged)
+    if refused.reshapes:
+        return dataclasses.replace(path, further=judged, reasons=path.reasons + (
+            f"{refused.cause} would remove {100.0 * refused.explained_fraction:.1f} % of what is left, beside a cause "
+            "named on the line's path to T2 whose form it reshapes: not a further cause",))
     where = (f"{100.0 * refused.share:.1f} % of what is left at its signature ({refused.band} band, "
              f"{refused.before.significance:.1f} sigma there)")
     return dataclasses.replace(path, further=judged, reasons=path.reasons + (

@@ -102,11 +102,13 @@ def test_a_further_cause_is_admitted_at_its_own_signature():
 def test_a_line_path_cause_counts_only_where_it_shows():
     """A lag that takes most of what it removes from the slow band stands for a heater-path effect (the independent
     simulator's PI record with a heater that sags: a lag of 10.7 s, 3.4e8 in the slow band, 8.4e6 at the line) and
-    does not count; a lag that takes most at the line does (the lags these records have: 95 % or more there); a
+    does not count; a lag that takes most at the line does, and so does one that takes the line whole whatever it
+    takes in the slow band (an identification record's fast heater content shows a real lag there too); a
     heater-path cause is not held to its band; a record whose line band has no block cannot judge."""
     before = _bands(line=1.7e7, slow=3.4e8)
     assert not shows_at_its_signature("sensor_lag", before, _bands(line=8.6e6, slow=1.0e6))
     assert shows_at_its_signature("sensor_lag", before, _bands(line=1.0e5, slow=3.39e8))
+    assert shows_at_its_signature("sensor_lag", before, _bands(line=1.0e5, slow=1.0e8))     # the line whole
     assert not shows_at_its_signature("link_dynamics", before, _bands(line=1.7e7 - 10.0, slow=3.4e8))   # < 25
     assert shows_at_its_signature("heat_capacity_temperature", before, _bands(line=0.0, slow=3.4e8))
     no_line = {"line": BandExcess(band="line", sum_of_squares=0.0, terms=0), "slow": before["slow"]}

@@ -2,7 +2,8 @@
 named right, both causes and nothing else (docs/analysis.md, section 6b).
 
 Slow (``pytest -m slow``): the benchmark's 18 pair records (``benchmarks/analysis_independent.py``'s plan, seed 35:
-each record its own network, effect sizes and noise), about 10 s of CPU each. The rate is over those 18 draws, not
+each record its own network, effect sizes and noise), 7 to 20 s of CPU each: the issue's goal (marked xfail while
+it is not met) and the level reached. The rate is over those 18 draws, not
 one seed's outcome; the fast checks of the simulator itself are below.
 """
 
@@ -73,7 +74,7 @@ def _wrong_causes(results: list[dict]) -> int:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="PAIRS_REASON: goal not met")
+@pytest.mark.xfail(strict=True, reason="5 of 18 pairs named right (seed 35; 7 of 18 on seed 36), a catalogue cause not in the record in 10 of 18: goal not met")
 def test_pairs_of_effects_are_named_right(pair_results):
     """The issue's goal on the benchmark's 18 pair records: both causes named and nothing else in at least 90 %, a
     catalogue cause that is not in the record in at most one."""
@@ -86,10 +87,11 @@ def test_pairs_of_effects_are_named_right(pair_results):
 
 @pytest.mark.slow
 def test_pairs_of_effects_hold_the_level_reached(pair_results):
-    """The level the analysis reaches on the same records (docs/analysis.md, section 6b): LEVEL_DOC"""
+    """The level the analysis reaches on the same records (docs/analysis.md, section 6b): at least 5 of the 18
+    pairs named right, a catalogue cause not in the record in at most 10, no record the analysis fails on."""
     from benchmarks.analysis_independent import right
 
     named_right = sum(right(result) for result in pair_results)
-    assert named_right >= PAIRS_RIGHT, [(result["effects"], result["named"]) for result in pair_results]
-    assert _wrong_causes(pair_results) <= PAIRS_WRONG, [(result["effects"], result["named"]) for result in pair_results]
+    assert named_right >= 5, [(result["effects"], result["named"]) for result in pair_results]
+    assert _wrong_causes(pair_results) <= 10, [(result["effects"], result["named"]) for result in pair_results]
     assert not any(result["cause"].startswith("error") for result in pair_results)

@@ -18,7 +18,7 @@ another day's), each effect's size drawn from :data:`RANGES`. Every record is an
 
 A record is right when the causes named are exactly the effects' catalogue causes (:data:`CATALOGUE`; ``none``
 for a clean record); ``base_model_off`` is wrong. Printed and written to ``--results`` (default
-``benchmarks/results/analysis-independent.md``): the rates per kind, every record (truth, causes named, a
+``benchmarks/results/analysis-independent.md``): the rates per kind and per kind and protocol, every record (truth, causes named, a
 parameter the analysis left at a bound, CPU time), the CPU time per record of each kind and protocol and the
 slowest three.
 """
@@ -180,6 +180,14 @@ def tables(results: list[dict], command: str) -> str:
         items = by_kind.get(kind, [])
         count = sum(right(item) for item in items)
         lines.append(f"| {kind} | {len(items)} | {count} | {100.0 * count / max(len(items), 1):.1f} % |")
+    lines += ["", "By protocol (right of count):", "", "| records | " + " | ".join(DURATIONS_S) + " |",
+              "|---|" + "---|" * len(DURATIONS_S)]
+    for kind in ("clean", "one effect", "two effects"):
+        cells = []
+        for protocol in DURATIONS_S:
+            items = [item for item in by_kind.get(kind, []) if item["protocol"] == protocol]
+            cells.append(f"{sum(right(item) for item in items)} of {len(items)}")
+        lines.append(f"| {kind} | " + " | ".join(cells) + " |")
     wrong = sum(bool(set(result["named"]) - {CATALOGUE[name] for name in result["effects"]})
                 or result["cause"] == "base_model_off" for result in results)
     lines += ["", f"A catalogue cause not in the record (or `base_model_off`) in {wrong} of {len(results)} records.",

@@ -12,10 +12,17 @@ import pytest
 
 from cryod.analysis.candidates import CandidateFit, EffectForm
 from cryod.analysis.cause_search import unneeded_causes
+from cryod.analysis.cause_search.at_signature import judged_at_signature
 from cryod.analysis.cause_search.bounds import at_edge, stays_text, widened
 from cryod.analysis.cause_search.joint_judgement import judged_candidate
 from cryod.analysis.cause_search.results import BoundEvidence, CausePath, FurtherCandidate, JointFit, NamedCause
-from cryod.analysis.cause_search.rules import admits_further_cause, signature_discrepancy, still_needed
+from cryod.analysis.cause_search.rules import (
+    admits_further_cause,
+    reshapes_a_named_cause,
+    shows_at_its_signature,
+    signature_discrepancy,
+    still_needed,
+)
 from cryod.analysis.cause_search.what_is_left import Attribution, why_not_named
 from cryod.analysis.cause_signature import BandExcess, BandLayout, band_of, share_at_signature
 from cryod.analysis.decision import CandidateScore, Gain
@@ -90,6 +97,49 @@ def test_a_further_cause_is_admitted_at_its_own_signature():
     patch = judged_candidate("dead_time", _score("dead_time", 39_000.0, 400.0, 0.559), before,
                              _bands(line=40_000.0, slow=18_000.0), joint=True)
     assert patch.share == pytest.approx(0.4) and not patch.admitted
+
+
+def test_a_line_path_cause_counts_only_where_it_shows():
+    """A lag that takes most of what it removes from the slow band stands for a heater-path effect (the independent
+    simulator's PI record with a heater that sags: a lag of 10.7 s, 3.4e8 in the slow band, 8.4e6 at the line) and
+    does not count; a lag that takes most at the line does, and so does one that takes the line whole whatever it
+    takes in the slow band (an identification record's fast heater content shows a real lag there too); a
+    heater-path cause is not held to its band; a record whose line band has no block cannot judge."""
+    before = _bands(line=1.7e7, slow=3.4e8)
+    assert not shows_at_its_signature("sensor_lag", before, _bands(line=8.6e6, slow=1.0e6))
+    assert shows_at_its_signature("sensor_lag", before, _bands(line=1.0e5, slow=3.39e8))
+    assert shows_at_its_signature("sensor_lag", before, _bands(line=1.0e5, slow=1.0e8))     # the line whole
+    assert not shows_at_its_signature("link_dynamics", before, _bands(line=1.7e7 - 10.0, slow=3.4e8))   # < 25
+    assert shows_at_its_signature("heat_capacity_temperature", before, _bands(line=0.0, slow=3.4e8))
+    no_line = {"line": BandExcess(band="line", sum_of_squares=0.0, terms=0), "slow": before["slow"]}
+    assert shows_at_its_signature("sensor_lag", no_line, _bands(line=0.0, slow=0.0))
+
+
+def test_a_score_off_its_signature_does_not_count():
+    """The step marks the score: it no longer counts, wherever candidates are chosen among."""
+    layout, elapsed = _layout()
+    slow = 2e-4 * np.sin(2.0 * math.pi * elapsed / 300.0)
+    line = 1e-4 * np.sin(OMEGA * elapsed)
+    before, after = _replay(slow + line, 0.0 * elapsed), _replay(line, 0.0 * elapsed)
+    score = _score("sensor_lag", 5e5, 300.0, 0.9)
+    assert score.counts
+    marked = judged_at_signature(layout, before, score, after)
+    assert marked.off_signature and not marked.counts
+    assert judged_at_signature(layout, before, _score("dead_time", 5e5, 300.0, 0.9), after).counts
+
+
+def test_a_second_cause_on_the_lines_path_to_t2_must_be_of_its_own_size():
+    """A link beside a lag named (or a lag beside a link) removing under 10 % of the excess reshapes the cause
+    named; on another path, or of its own size, it is judged as any further cause."""
+    assert reshapes_a_named_cause("link_dynamics", ("sensor_lag", "dead_time"), 0.071)
+    assert reshapes_a_named_cause("sensor_lag", ("link_dynamics",), 0.0)
+    assert not reshapes_a_named_cause("link_dynamics", ("sensor_lag",), 0.25)
+    assert not reshapes_a_named_cause("link_dynamics", ("heater_nonlinearity",), 0.031)
+    assert not reshapes_a_named_cause("dead_time", ("sensor_lag",), 0.006)
+    before, after = _bands(line=40_000.0, slow=30_000.0), _bands(line=500.0, slow=30_000.0)
+    refused = judged_candidate("link_dynamics", _score("link_dynamics", 39_000.0, 400.0, 0.559), before, after,
+                               joint=True, reshapes=True)
+    assert not refused.admitted
 
 
 def test_a_share_of_noise_admits_nothing():

@@ -115,11 +115,14 @@ class CandidateScore:
     gain: Gain
     #: Its fit sits at a physical limit of the effect: the record asks for more than the cause can be.
     at_limit: bool = False
+    #: What it removes lies mostly outside its own signature: it stands for another cause
+    #: (:func:`cryod.analysis.cause_search.rules.shows_at_its_signature`).
+    off_signature: bool = False
 
     @property
     def counts(self) -> bool:
         return (self.significance >= CANDIDATE_SIGMA and self.improvement >= CANDIDATE_MINIMUM_IMPROVEMENT
-                and not self.at_limit)
+                and not self.at_limit and not self.off_signature)
 
 
 @dataclass(frozen=True)

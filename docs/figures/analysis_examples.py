@@ -1,4 +1,4 @@
-"""Figures and numbers of docs/analysis.md.
+"""Figures and numbers of docs/explanation/analysis-method.md.
 
 Run: PYTHONPATH=. python3 docs/figures/analysis_examples.py
 

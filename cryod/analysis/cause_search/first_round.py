@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cryod.analysis.candidates import CandidateFit, FitContext
+from cryod.analysis.cause_search.at_signature import scores_at_signature
 from cryod.analysis.cause_search.record_search import ModelPoint, RecordSearch
 from cryod.analysis.cause_search.rules import NOISE_FROM_FITS
 from cryod.analysis.cause_signature import BandLayout
@@ -208,8 +209,9 @@ def judging_noise(recalibrated: RecalibratedRecord, fits: dict[str, CandidateFit
 
 def rank_candidates(recalibrated: RecalibratedRecord) -> FirstRound:
     """Step 3: every candidate fitted in the candidates' context, the noise measured again, the candidates scored
-    on the held-out blocks and the rules of :mod:`cryod.analysis.decision` applied to them (the first choice;
-    ties between candidates the record cannot tell apart go to the one with fewer parameters)."""
+    on the held-out blocks, held to its own signature (:mod:`cryod.analysis.cause_search.at_signature`) and the
+    rules of :mod:`cryod.analysis.decision` applied to them (the first choice; ties between candidates the record
+    cannot tell apart go to the one with fewer parameters)."""
     replayed, search = recalibrated.replayed, recalibrated.replayed.search
     causes = search.scope.causes if recalibrated.applied or search.scope.screen_when_fitting else ()
     fits = search.fit_candidates(recalibrated.context, causes)
@@ -218,7 +220,10 @@ def rank_candidates(recalibrated: RecalibratedRecord) -> FirstRound:
     context = dataclasses.replace(recalibrated.context, noise_rms_K=noise)
     as_given = base_discrepancy(as_given_context)
     first_base = base_discrepancy(context)
-    scores = {cause: score_candidate(context, fits[cause], first_base) for cause in fits}
+    bands = BandLayout.of(search.data, search.held_out_mask, context.base_line, noise)
+    scores = scores_at_signature(bands, context.base_replay,
+                                 {cause: score_candidate(context, fits[cause], first_base) for cause in fits},
+                                 {cause: fit.replay for cause, fit in fits.items()})
     decision = decide(first_base, list(scores.values()),
                       lambda first, second: context.distinctness(fits[first].replay, fits[second].replay),
                       {cause: fit.parameter_count for cause, fit in fits.items()})
@@ -229,8 +234,7 @@ def rank_candidates(recalibrated: RecalibratedRecord) -> FirstRound:
         recalibrated_replay=recalibrated.recalibrated_replay, context=context, as_given=as_given,
         recalibrated=base_discrepancy(dataclasses.replace(context, base_replay=recalibrated.recalibrated_replay)),
         recalibration_gain=gain_between(as_given.sum_of_squares, recalibrated_sum, as_given.terms),
-        fits=fits, scores=scores, decision=decision,
-        bands=BandLayout.of(search.data, search.held_out_mask, context.base_line, noise))
+        fits=fits, scores=scores, decision=decision, bands=bands)
 
 
 __all__ = ["FirstRound", "RecalibratedRecord", "ReplayedRecord", "judging_noise", "measured_noise",

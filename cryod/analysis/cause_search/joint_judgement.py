@@ -21,10 +21,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from cryod.analysis.candidates import CandidateFit
+from cryod.analysis.cause_search.at_signature import judged_at_signature
 from cryod.analysis.cause_search.first_round import FirstRound
 from cryod.analysis.cause_search.joint_refit import joint_fit, refit_jointly
 from cryod.analysis.cause_search.results import CausePath, FurtherCandidate, JointFit
-from cryod.analysis.cause_search.rules import admits_further_cause, further_leading, leading_candidates
+from cryod.analysis.cause_search.rules import (
+    admits_further_cause,
+    further_leading,
+    leading_candidates,
+    reshapes_a_named_cause,
+)
 from cryod.analysis.cause_signature import BandExcess, band_of, share_at_signature
 from cryod.analysis.decision import CandidateScore, decide, score_candidate
 
@@ -52,28 +58,35 @@ class NextCause:
 
 
 def judged_candidate(cause: str, score: CandidateScore, before: dict[str, BandExcess], after: dict[str, BandExcess],
-                     joint: bool) -> FurtherCandidate:
+                     joint: bool, reshapes: bool = False) -> FurtherCandidate:
     """A candidate on top of the causes named, judged (:func:`~cryod.analysis.cause_search.rules.
-    admits_further_cause`; only a joint fit can be admitted)."""
+    admits_further_cause`; only a joint fit can be admitted, and not one that only ``reshapes`` a cause named:
+    :func:`~cryod.analysis.cause_search.rules.reshapes_a_named_cause`)."""
     band = band_of(cause)
     share = share_at_signature(cause, before, after)
-    admitted = joint and admits_further_cause(score.counts, score.explained_fraction, share, before[band])
+    admitted = joint and not reshapes and admits_further_cause(score.counts, score.explained_fraction, share,
+                                                               before[band])
     return FurtherCandidate(cause=cause, joint=joint, improvement=score.improvement, significance=score.significance,
                             explained_fraction=score.explained_fraction, band=band, before=before[band], share=share,
-                            admitted=admitted)
+                            admitted=admitted, off_signature=score.off_signature, reshapes=reshapes)
 
 
 def judge_on_path(first: FirstRound, path: CausePath, fits: dict[str, CandidateFit],
                   refined: dict[str, JointFit]) -> tuple[dict[str, CandidateScore], tuple[FurtherCandidate, ...]]:
-    """Each candidate in ``fits`` scored against ``path``'s model (its joint fit where it has one) and judged."""
+    """Each candidate in ``fits`` scored against ``path``'s model (its joint fit where it has one), held to its own
+    signature (:mod:`cryod.analysis.cause_search.at_signature`) and judged."""
     context, bands = path.context, first.bands
     before = bands.bands(context.base_replay)
     scores, judged = {}, []
     for cause, fit in fits.items():
         joint = refined.get(cause)
         replay = joint.fit.replay if joint is not None else fit.replay
-        scores[cause] = score_candidate(context, joint.fit if joint is not None else fit, path.remaining)
-        judged.append(judged_candidate(cause, scores[cause], before, bands.bands(replay), joint is not None))
+        scores[cause] = judged_at_signature(bands, context.base_replay, score_candidate(
+            context, joint.fit if joint is not None else fit, path.remaining), replay)
+        reshapes = reshapes_a_named_cause(cause, path.cause_names(),
+                                          scores[cause].improvement / max(first.recalibrated.excess, 1e-300))
+        judged.append(judged_candidate(cause, scores[cause], before, bands.bands(replay), joint is not None,
+                                       reshapes))
     return scores, tuple(judged)
 
 
@@ -90,7 +103,7 @@ def next_cause(first: FirstRound, path: CausePath, untried: tuple[str, ...]) -> 
         return NextCause(best=None, refined={}, judged=first_judged)
     shares = {item.cause: item.share for item in first_judged}
     leading = leading_candidates(first_scores)
-    choice = refit_jointly(search, path, fits, first_scores, leading)
+    choice = refit_jointly(search, path, fits, first_scores, first.bands, leading)
     refined = dict(choice.refined)
     for cause in further_leading(first_scores, shares):
         if cause not in refined:

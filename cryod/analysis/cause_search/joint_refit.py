@@ -15,10 +15,12 @@ import dataclasses
 from dataclasses import dataclass
 
 from cryod.analysis.candidates import CandidateFit
+from cryod.analysis.cause_search.at_signature import scores_at_signature
 from cryod.analysis.cause_search.first_round import FirstRound
 from cryod.analysis.cause_search.record_search import ModelPoint, RecordSearch
 from cryod.analysis.cause_search.results import CausePath, JointFit, NamedCause
 from cryod.analysis.cause_search.rules import leading_candidates, strained
+from cryod.analysis.cause_signature import BandLayout
 from cryod.analysis.decision import CandidateScore, Decision, base_discrepancy, decide, score_candidate
 from cryod.analysis.recalibration import RecalibratedBase
 from cryod.analysis.refinement import NamedEffect, refine
@@ -57,15 +59,21 @@ def joint_fit(search: RecordSearch, recalibration: RecalibratedBase, fit: Candid
 
 
 def refit_jointly(search: RecordSearch, path: CausePath, fits: dict[str, CandidateFit],
-                  scores: dict[str, CandidateScore], causes: list[str] | None = None) -> JointChoice:
+                  scores: dict[str, CandidateScore], bands: BandLayout, causes: list[str] | None = None
+                  ) -> JointChoice:
     """Refit the leading candidates (:func:`~cryod.analysis.cause_search.rules.leading_candidates`; ``causes``:
     these instead) jointly with the recalibration and the causes named so far on ``path``, score them against the
-    path's model and apply the rules to them."""
+    path's model, hold each to its own signature in ``bands`` (:mod:`cryod.analysis.cause_search.at_signature`:
+    a joint fit may move a cause where it cannot be) and apply the rules to them."""
     refined = {cause: joint_fit(search, path.recalibration, fits[cause], path.named_effects)
                for cause in (leading_candidates(scores) if causes is None else causes)}
     refitted = {cause: joint.fit for cause, joint in refined.items()}
     context = path.context
-    decision = decide(path.remaining, [score_candidate(context, fit, path.remaining) for fit in refitted.values()],
+    joint_scores = scores_at_signature(bands, context.base_replay,
+                                       {cause: score_candidate(context, fit, path.remaining)
+                                        for cause, fit in refitted.items()},
+                                       {cause: fit.replay for cause, fit in refitted.items()})
+    decision = decide(path.remaining, list(joint_scores.values()),
                       lambda first, second: context.distinctness(refitted[first].replay, refitted[second].replay),
                       {cause: fit.parameter_count for cause, fit in refitted.items()},
                       {cause: strained(fit.replay) for cause, fit in refitted.items()})

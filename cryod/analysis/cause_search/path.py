@@ -25,6 +25,7 @@ from cryod.analysis.cause_search.generic_judgement import further_cause_comparis
 from cryod.analysis.cause_search.joint_judgement import next_cause
 from cryod.analysis.cause_search.joint_refit import refitted_causes, settled, starting_path
 from cryod.analysis.cause_search.results import CausePath, FurtherCandidate, JointFit, NamedCause
+from cryod.analysis.cause_search.rules import weighed_as_further_cause
 from cryod.analysis.cause_search.unneeded_causes import without_unneeded
 from cryod.analysis.decision import CandidateScore, gain_between
 
@@ -37,8 +38,9 @@ def follow_path(first: FirstRound, choice: CandidateScore, refined: dict[str, Jo
     Every cause of the search (``causes``: those tried instead) is tried on top of those named, also one that made
     the first round worse: with a much larger effect unnamed, a small one's fit takes that effect's misfit (a
     thermometer's lag of 60 ms beside a heat capacity that removes 99.8 %), and only once the larger one is named
-    does it fit what it stands for. A further cause that leaves a discrepancy and adds less than a cause must to
-    the generic extension on the model without it is not named, and the path stops before it.
+    does it fit what it stands for. A further cause that leaves a discrepancy, or was admitted on its share at its
+    own signature alone (:func:`~cryod.analysis.cause_search.rules.weighed_as_further_cause`), and adds less than a
+    cause must to the generic extension on the model without it is not named, and the path stops before it.
     """
     search = first.search
     path = starting_path(first)
@@ -58,7 +60,7 @@ def follow_path(first: FirstRound, choice: CandidateScore, refined: dict[str, Jo
             examined, evidence = examine_bounds(first, named)
             named = dataclasses.replace(examined, at_bound=evidence)
         untried = tuple(cause for cause in untried if cause != best.cause)
-        if round_index > 0 and named.remaining.present:
+        if round_index > 0 and weighed_as_further_cause(best.explained_fraction, named.remaining):
             comparison = further_cause_comparison(first, path, named, best.cause)
             if not comparison.causes_add:
                 return dataclasses.replace(path, reasons=path.reasons + (
@@ -82,6 +84,10 @@ def _stopped_before(path: CausePath, refused: FurtherCandidate | None, judged: t
     too little of what is left, everywhere and at its own signature."""
     if refused is None:
         return dataclasses.replace(path, further=judged)
+    if refused.reshapes:
+        return dataclasses.replace(path, further=judged, reasons=path.reasons + (
+            f"{refused.cause} would remove {100.0 * refused.explained_fraction:.1f} % of what is left, beside a cause "
+            "named on the line's path to T2 whose form it reshapes: not a further cause",))
     where = (f"{100.0 * refused.share:.1f} % of what is left at its signature ({refused.band} band, "
              f"{refused.before.significance:.1f} sigma there)")
     return dataclasses.replace(path, further=judged, reasons=path.reasons + (

@@ -67,7 +67,7 @@ def follow_paths(first: FirstRound, most: int) -> PathsFollowed | None:
     best = first.decision.best
     if best is None or best.cause not in first.fits:
         return None
-    choice = refit_jointly(first.search, starting_path(first), first.fits, first.scores)
+    choice = refit_jointly(first.search, starting_path(first), first.fits, first.scores, first.bands)
     if choice.decision.best is None:
         return None
     path = first_path = follow_path(first, choice.decision.best, choice.refined, most)

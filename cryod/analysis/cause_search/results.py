@@ -108,6 +108,11 @@ class FurtherCandidate:
         Its share of ``before``'s excess.
     admitted : bool
         Whether the rule names it (:func:`cryod.analysis.cause_search.rules.admits_further_cause`).
+    off_signature : bool
+        Its fit removes what it removes mostly outside its signature
+        (:func:`cryod.analysis.cause_search.rules.shows_at_its_signature`).
+    reshapes : bool
+        It only reshapes a cause named on its path (:func:`cryod.analysis.cause_search.rules.reshapes_a_named_cause`).
     """
 
     cause: str
@@ -119,13 +124,15 @@ class FurtherCandidate:
     before: BandExcess
     share: float
     admitted: bool
+    off_signature: bool = False
+    reshapes: bool = False
 
     def as_dict(self) -> dict:
         return {"cause": self.cause, "joint_fit": self.joint, "improvement": self.improvement,
                 "significance": self.significance, "share_of_what_is_left": self.explained_fraction,
                 "signature": self.band, "signature_excess": self.before.excess,
                 "signature_significance": self.before.significance, "share_at_signature": self.share,
-                "admitted": self.admitted}
+                "admitted": self.admitted, "off_signature": self.off_signature, "reshapes": self.reshapes}
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -10,12 +10,15 @@ sums are held-out sums of squares in units of the measured noise
 
 In the order the search asks them:
 
+* :func:`shows_at_its_signature`: whether a candidate's fit shows where its cause must (or stands for another).
 * :func:`leading_candidates`: which candidates are refitted jointly with the recalibration.
 * :func:`strained`: in a tie, which fit needed the recalibration beyond a base model's spread.
 * :func:`further_leading`: which candidates on top of the causes named are refitted jointly with them.
 * :func:`names_a_further_cause`: whether a candidate on top of the causes named removes most of what is left.
 * :func:`signature_discrepancy` and :func:`admits_further_cause`: whether a candidate refitted jointly with the
   causes named is named too, on what it adds and on its share of what is left at its own signature.
+* :func:`reshapes_a_named_cause`: whether a further candidate only reshapes a cause named on its path.
+* :func:`weighed_as_further_cause`: whether a further cause admitted is weighed against the generic extension.
 * :func:`still_needed`: whether an earlier cause stays beside a later one.
 * :func:`adds_what_a_cause_must`: whether one model adds significantly to another.
 * :func:`alternatives_followed`: which other first choices are followed as paths of their own.
@@ -37,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cryod.analysis.cause_signature import BandExcess
+from cryod.analysis.cause_signature import BandExcess, band_of
 from cryod.analysis.decision import (
     CANDIDATE_MINIMUM_IMPROVEMENT,
     CANDIDATE_SIGMA,
@@ -66,6 +69,14 @@ ALTERNATIVE_FRACTION = 0.5
 SIGNATURE_SHARE = 0.7
 #: Candidates on top of the causes named refitted jointly with them, at most.
 FURTHER_MOST = 3
+#: A line-path cause that does not explain the line must remove there at least this share of what it removes in
+#: the line and slow bands together.
+LINE_PART = 0.75
+#: Causes that act on one path alike: a thermometer's lag and a link, each a first-order lag of the line on T2.
+SAME_PATH_CAUSES = ("sensor_lag", "link_dynamics")
+#: A further cause on the path of a cause named must remove at least this fraction of the recalibrated model's
+#: excess.
+RESHAPING_FRACTION = 0.1
 
 
 def adds_what_a_cause_must(improvement: float, significance: float) -> bool:
@@ -78,6 +89,33 @@ def adds_what_a_cause_must(improvement: float, significance: float) -> bool:
     round of the causes named against them, a widened base model against the model within the tolerance.
     """
     return improvement >= CANDIDATE_MINIMUM_IMPROVEMENT and significance >= CANDIDATE_SIGMA
+
+
+def shows_at_its_signature(cause: str, before: dict[str, BandExcess], after: dict[str, BandExcess]) -> bool:
+    """Whether a candidate's fit (``after``: its residual's bands; ``before``: the model it is fitted on) shows
+    where its cause must: a line-path cause (a thermometer's lag, a link, the cooler's harmonics, frequency or
+    amplitude) removes at the line and its harmonics at least what a cause must add (25), and there either at least
+    :data:`SIGNATURE_SHARE` of what the model leaves at the line or at least :data:`LINE_PART` of what it removes
+    in the line and slow bands together. Heater-path causes are not held to their band: a heat capacity that
+    depends on temperature changes the flange's time constant, which carries the line too. A record whose line
+    band has no block (the heater moving at the line throughout) cannot judge this.
+
+    A fit that neither explains the line nor takes most of its improvement there has gone where the cause cannot
+    be, to stand for a heater-path effect: on half an hour of PI with a heater that sags (the independent
+    simulator's ``P (1 + c P^2)``, no step) a lag of 5.2 s on T2 and 7.1 s on T5 (lagging alike, the line left as
+    it was) removed 1.0e8 in the slow band and made the line worse by 5.7e5; on another with a 0.14 s lag beside
+    the sag, a lag of 10.7 s took 3.4e8 in the slow band and 8.4e6 (49 %) of the line's 1.7e7, which a link took
+    whole. A real lag takes the line whole even where an hour of the identification protocol's fast heater content
+    shows it as much in the slow band (0.77 s: 99.9 % of the excess). A record that cannot show the cause at its
+    signature cannot name it.
+    """
+    if band_of(cause) != "line" or before["line"].terms == 0:
+        return True
+    at_line = before["line"].excess - after["line"].excess
+    slow = before["slow"].excess - after["slow"].excess
+    explains_the_line = at_line >= SIGNATURE_SHARE * before["line"].excess
+    mostly_at_the_line = at_line >= LINE_PART * (at_line + max(slow, 0.0))
+    return at_line >= CANDIDATE_MINIMUM_IMPROVEMENT and (explains_the_line or mostly_at_the_line)
 
 
 def leading_candidates(scores: dict[str, CandidateScore]) -> list[str]:
@@ -165,6 +203,38 @@ def admits_further_cause(counts: bool, explained_fraction: float, share: float, 
     if not counts:
         return False
     return explained_fraction >= EXPLAINED_FRACTION or (signature_discrepancy(before) and share >= SIGNATURE_SHARE)
+
+
+def reshapes_a_named_cause(cause: str, named: tuple[str, ...], removed_fraction: float) -> bool:
+    """Whether a further candidate on top of the causes ``named`` only reshapes one of them: both act on the
+    line's path to T2 alike (:data:`SAME_PATH_CAUSES`) and the candidate removes less than
+    :data:`RESHAPING_FRACTION` of the recalibrated model's excess (``removed_fraction``).
+
+    A thermometer's lag and a link each lag the line on T2 at first order, and at the line and its harmonics the
+    record shows only their product; a real thermometer on its mount or a link of two masses is a lag of higher
+    order, and beside the one named the other takes what its first-order form leaves, a few percent of the
+    record. On the independent simulator's records with a thermometer on a mount (0.1 to 0.8 s) a link of g 1.0
+    to 1.2 came out beside the lag named, removing 0.0 to 7.1 % of the excess. A second cause on that path is
+    named when it is a part of the record of its own size.
+    """
+    return (cause in SAME_PATH_CAUSES and any(other in SAME_PATH_CAUSES for other in named)
+            and removed_fraction < RESHAPING_FRACTION)
+
+
+def weighed_as_further_cause(explained_fraction: float, remaining: BaseDiscrepancy) -> bool:
+    """Whether a further cause, once admitted, is weighed against the generic extension on the model without it
+    (:func:`cryod.analysis.cause_search.generic_judgement.further_cause_comparison`) before it is named: the model
+    with it still leaves a discrepancy (``remaining``), or it was admitted on its share at its own signature alone,
+    removing less than 70 % of everything the causes named leave (``explained_fraction``).
+
+    A share at the signature is weaker evidence than most of everything left: where the first cause is close but
+    not exact, what it leaves there is its own misfit as often as a second cause. On half an hour of PI with a heat
+    capacity (exponent 2.04) that left 6.1 sigma, a heater nonlinearity of -0.012 /W took 54.6 % of it, most of
+    the slow band's, and was named; the generic extension took 70.6 % of the same. A second cause behind an
+    imperfect first one on another path (a lag at the line behind a heat capacity) adds to the extension, which has
+    no line of its own; a patch of the first cause's form does not.
+    """
+    return remaining.present or explained_fraction < EXPLAINED_FRACTION
 
 
 def still_needed(added: float, significance: float, without_excess: float, discrepancy_left: bool,
@@ -290,9 +360,10 @@ def asks_beyond_its_causes(improvement: float, significance: float) -> bool:
     return adds_what_a_cause_must(improvement, significance)
 
 
-__all__ = ["ALTERNATIVE_FRACTION", "EXPECTED_SPREAD", "FURTHER_MOST", "MOST_CAUSES", "NOISE_FROM_FITS",
-           "REFINED_FRACTION", "REFINED_MOST", "SIGNATURE_SHARE", "adds_what_a_cause_must", "admits_further_cause",
-           "alternatives_followed", "asks_beyond_its_causes", "further_leading", "improving_causes", "kept_instead",
-           "leading_candidates", "names_a_further_cause", "names_the_causes", "other_reading_named_instead",
-           "signature_discrepancy", "still_needed", "strained", "weighed_against_generic",
+__all__ = ["ALTERNATIVE_FRACTION", "EXPECTED_SPREAD", "FURTHER_MOST", "LINE_PART", "MOST_CAUSES", "NOISE_FROM_FITS",
+           "REFINED_FRACTION", "REFINED_MOST", "RESHAPING_FRACTION", "SAME_PATH_CAUSES", "SIGNATURE_SHARE",
+           "adds_what_a_cause_must", "admits_further_cause", "alternatives_followed", "asks_beyond_its_causes",
+           "further_leading", "improving_causes", "kept_instead", "leading_candidates", "names_a_further_cause",
+           "names_the_causes", "other_reading_named_instead", "reshapes_a_named_cause", "shows_at_its_signature",
+           "signature_discrepancy", "still_needed", "strained", "weighed_against_generic", "weighed_as_further_cause",
            "widened_model_preferred"]

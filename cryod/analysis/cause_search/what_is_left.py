@@ -83,6 +83,11 @@ def why_not_named(item: FurtherCandidate) -> str:
     """Why a candidate judged on top of the causes named is not among them, in words."""
     if item.admitted:
         return "admitted, but it adds too little to the generic extension"
+    if item.off_signature:
+        return "refused: it removes what it removes mostly outside its signature, standing for another cause"
+    if item.reshapes and item.joint:
+        return (f"refused: {100.0 * item.explained_fraction:.1f} % of everything left, beside a cause named on the "
+                "line's path to T2 whose form it reshapes (10 % of the excess needed)")
     if item.significance < CANDIDATE_SIGMA or item.improvement < CANDIDATE_MINIMUM_IMPROVEMENT:
         return "refused: it does not add what a cause must (25 and 5 sigma)"
     if not item.joint:

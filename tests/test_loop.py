@@ -554,3 +554,24 @@ def test_the_status_says_the_state_as_the_row_does(reference_model, curves, base
     assert loop.run(duration_s=10.0, manage_gc=False) == 0
     assert seen == [("closed-limited", "closed-limited")]
     assert tick_rows(rows)[99].heater_W == pytest.approx(0.5)
+
+
+def test_a_setpoint_put_again_is_judged_once_and_said_each_time(reference_model, curves, base_config, monkeypatch,
+                                                               caplog):
+    """The heater's reach at a setpoint (the model's steady state, a third of a millisecond on the loop's thread) is
+    worked out once while the setpoint, the control section and the heater's top stay; its warning is journaled at
+    every put all the same, and another setpoint is judged anew."""
+    import cryod.service.loop as loop_module
+
+    loop, *_ = make_loop(reference_model, curves, base_config)
+    judged = []
+    real = loop_module.setpoint_warning
+    monkeypatch.setattr(loop_module, "setpoint_warning",
+                        lambda control, setpoint_K, top_W: judged.append(setpoint_K) or real(control, setpoint_K,
+                                                                                           top_W))
+    with caplog.at_level("WARNING", logger="cryod.loop"):
+        warnings = [loop.warn_about_setpoint(setpoint) for setpoint in (16.0, 16.0, 16.0, 6.0, 16.0)]
+    assert judged == [16.0, 6.0, 16.0]
+    assert warnings[0] == warnings[1] == warnings[2] == warnings[4] and warnings[0].startswith("setpoint 16 K needs")
+    assert warnings[3] is None and loop.setpoint_warning == warnings[4]
+    assert sum("setpoint 16 K needs" in record.getMessage() for record in caplog.records) == 4

@@ -74,11 +74,12 @@ PROTOCOL_DURATIONS_S = {"identification": 3600.0, "pi_only": 1800.0, "feedforwar
 PARAMETER_TOLERANCE = 0.2
 
 
-def _log_uniform(generator, low, high):
+def log_uniform(generator, low, high):
+    """Log-uniform between ``low`` and ``high`` (a time constant's or an amplitude's size)."""
     return float(math.exp(generator.uniform(math.log(low), math.log(high))))
 
 
-def _either(generator, negative, positive):
+def either(generator, negative, positive):
     """Uniform over the union of two intervals, each drawn with its length's probability."""
     lengths = np.array([negative[1] - negative[0], positive[1] - positive[0]])
     low, high = negative if generator.random() < lengths[0] / lengths.sum() else positive
@@ -93,30 +94,30 @@ def draw_effect(cause: str, generator):
     )
 
     if cause == "sensor_lag":
-        tau = _log_uniform(generator, *RANGES[cause]["flange_thermometer_time_constant_s"])
+        tau = log_uniform(generator, *RANGES[cause]["flange_thermometer_time_constant_s"])
         return {"sensor_lag": SensorLag(tau)}, {"flange_thermometer_time_constant_s": tau}
     if cause == "link_dynamics":
-        tau = _log_uniform(generator, *RANGES[cause]["time_constant_s"])
+        tau = log_uniform(generator, *RANGES[cause]["time_constant_s"])
         gain = float(generator.uniform(*RANGES[cause]["gain_factor"]))
         return {"link_dynamics": LinkDynamics(tau, gain)}, {"time_constant_s": tau, "gain_factor": gain}
     if cause == "dead_time":
-        delay = _log_uniform(generator, *RANGES[cause]["heater_to_flange_s"])
+        delay = log_uniform(generator, *RANGES[cause]["heater_to_flange_s"])
         return {"dead_time": DeadTime(delay)}, {"heater_to_flange_s": delay}
     if cause == "heat_capacity_temperature":
-        exponent = _either(generator, *RANGES[cause]["exponent"])
+        exponent = either(generator, *RANGES[cause]["exponent"])
         return {"heat_capacity_temperature": HeatCapacityTemperature(exponent, 4.23)}, {"exponent": exponent}
     if cause == "heater_nonlinearity":
-        k = _either(generator, *RANGES[cause]["quadratic_coefficient_per_W"])
+        k = either(generator, *RANGES[cause]["quadratic_coefficient_per_W"])
         return {"heater_nonlinearity": HeaterNonlinearity(k)}, {"quadratic_coefficient_per_W": k}
     if cause == "ptc_harmonics":
         order = int(generator.choice([2, 3]))
-        amplitude = _log_uniform(generator, *RANGES[cause]["amplitude_K"])
+        amplitude = log_uniform(generator, *RANGES[cause]["amplitude_K"])
         phase = float(generator.uniform(-math.pi, math.pi))
         return ({"harmonics": (CoolerHarmonic(order, amplitude, phase),)},
                 {f"order_{order}_amplitude_K": amplitude})
     if cause == "ptc_frequency_drift":
         if generator.random() < 0.5:
-            rate = _log_uniform(generator, *RANGES[cause]["rate_rad_s_per_hour"]) * float(generator.choice([-1, 1]))
+            rate = log_uniform(generator, *RANGES[cause]["rate_rad_s_per_hour"]) * float(generator.choice([-1, 1]))
             return {"ptc_frequency_drift": CoolerFrequencyDrift(rate)}, {"rate_rad_s_per_hour": rate}
         amplitude = float(generator.uniform(*RANGES[cause]["wander_fraction"])) * 10.83
         period = float(generator.uniform(*RANGES[cause]["wander_period_s"]))
@@ -129,7 +130,7 @@ def draw_effect(cause: str, generator):
         return ({"ptc_amplitude_modulation": CoolerAmplitudeModulation(depth, period, float(generator.uniform(-3, 3)))},
                 {"depth": depth, "period_s": period})
     if cause == "ptc_stage_drift":
-        rms = _log_uniform(generator, *RANGES[cause]["rms_K"])
+        rms = log_uniform(generator, *RANGES[cause]["rms_K"])
         coupling = float(generator.uniform(*RANGES[cause]["flange_coupling"]))
         return ({"ptc_stage_drift": PtcStageDrift(rms, float(generator.uniform(300.0, 1200.0)), coupling, 150.0,
                                                   int(generator.integers(0, 1000)))},

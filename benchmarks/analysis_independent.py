@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.analysis_causes import either, log_uniform   # the same draws as the catalogue benchmark's
 from cryod.cli import use_one_blas_thread
 
 use_one_blas_thread()
@@ -53,36 +54,26 @@ RANGES = {"thermometer_lag": (0.05, 1.0), "link_time_constant": (0.05, 0.3), "li
 RESULTS = ROOT / "benchmarks" / "results" / "analysis-independent.md"
 
 
-def _log_uniform(generator, low, high):
-    return float(math.exp(generator.uniform(math.log(low), math.log(high))))
-
-
-def _either(generator, negative, positive):
-    lengths = np.array([negative[1] - negative[0], positive[1] - positive[0]])
-    low, high = negative if generator.random() < lengths[0] / lengths.sum() else positive
-    return float(generator.uniform(low, high))
-
-
 def draw_effects(names, generator) -> tuple[dict, dict]:
     """(:class:`~simulated_hw.lumped_cryostat.Effects` keyword arguments, {effect: its size in words}) for the
     effects ``names``."""
     fields, truth = {}, {}
     for name in names:
         if name == "thermometer_lag":
-            fields["thermometer_lag_s"] = _log_uniform(generator, *RANGES["thermometer_lag"])
+            fields["thermometer_lag_s"] = log_uniform(generator, *RANGES["thermometer_lag"])
             truth[name] = f"{fields['thermometer_lag_s']:.3g} s"
         elif name == "link":
-            fields["link_time_constant_s"] = _log_uniform(generator, *RANGES["link_time_constant"])
+            fields["link_time_constant_s"] = log_uniform(generator, *RANGES["link_time_constant"])
             fields["link_gain"] = float(generator.uniform(*RANGES["link_gain"]))
             truth[name] = f"{fields['link_time_constant_s']:.3g} s, g {fields['link_gain']:.3g}"
         elif name == "delay":
-            fields["delay_s"] = _log_uniform(generator, *RANGES["delay"])
+            fields["delay_s"] = log_uniform(generator, *RANGES["delay"])
             truth[name] = f"{fields['delay_s']:.3g} s"
         elif name == "heat_capacity":
-            fields["heat_capacity_power"] = _either(generator, *RANGES["heat_capacity"])
+            fields["heat_capacity_power"] = either(generator, *RANGES["heat_capacity"])
             truth[name] = f"p {fields['heat_capacity_power']:.3g}"
         elif name == "heater_sag":
-            fields["heater_sag_per_W2"] = _either(generator, *RANGES["heater_sag"])
+            fields["heater_sag_per_W2"] = either(generator, *RANGES["heater_sag"])
             truth[name] = f"c {fields['heater_sag_per_W2']:.3g} /W^2"
         else:
             raise ValueError(name)

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.analysis_causes import either, log_uniform   # the same draws as the catalogue benchmark's
+from benchmarks.analysis_causes import either, log_uniform  # the same draws as the catalogue benchmark's
 from cryod.cli import use_one_blas_thread
 
 use_one_blas_thread()
